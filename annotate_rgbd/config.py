@@ -1,0 +1,260 @@
+"""Run configuration: defaults, TOML files, scene presets and command-line overrides.
+
+Every default lives here, with its source. A configuration file has the sections below; a key
+that is not listed is an error, so a typo never goes unnoticed::
+
+    [camera]            # pinhole intrinsics of the depth camera
+    fx = 517.3
+    fy = 516.5
+    cx = 318.6
+    cy = 255.3
+    depth_scale = 5000.0
+    [sequence]
+    max_time_diff = 0.02
+    [annotation]
+    labels = []         # CVAT labels to use; empty: all
+    [filter]
+    max_invalid_ratio = 0.8
+    max_mean_distance = 3.5
+    min_valid_pixels = 50
+    [ransac]
+    distance_threshold = 0.02
+    num_iterations = 1000
+    seed = 0
+
+``--config`` takes a file path or the name of a preset in ``configs/`` (``fr1_desk``, ...).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import sys
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any, Mapping
+
+from .camera import Camera
+from .errors import InputError
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover - exercised on Python 3.10 only
+    import tomli as tomllib
+
+
+@dataclass(frozen=True)
+class SequenceConfig:
+    """How depth frames are matched to RGB frames.
+
+    Parameters
+    ----------
+    max_time_diff : float
+        Largest |t_depth - t_rgb| in seconds for a depth frame to use an RGB frame's
+        annotation. 0.02 s is the default of TUM RGB-D's ``associate.py``.
+    """
+
+    max_time_diff: float = 0.02
+
+
+@dataclass(frozen=True)
+class AnnotationConfig:
+    """Which CVAT shapes become planes.
+
+    Parameters
+    ----------
+    labels : tuple of str
+        CVAT labels to use; empty means every label.
+    """
+
+    labels: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class FilterConfig:
+    """When a plane is dropped from a frame before refinement.
+
+    Parameters
+    ----------
+    max_invalid_ratio : float
+        Drop a plane whose share of pixels without valid depth exceeds this (EVOPS paper: 0.8;
+        0.75 for fr2_pioneer_slam in the original annotation).
+    max_mean_distance : float
+        Drop a plane whose valid pixels lie farther than this from the camera on average, in
+        metres (EVOPS paper: 3.5 m, where Kinect depth noise grows beyond a few centimetres).
+    min_valid_pixels : int
+        Drop a plane with fewer valid pixels than this: RANSAC needs 3 points, and a patch
+        smaller than about 7x7 pixels says nothing reliable about a plane (this project's choice).
+    """
+
+    max_invalid_ratio: float = 0.8
+    max_mean_distance: float = 3.5
+    min_valid_pixels: int = 50
+
+
+@dataclass(frozen=True)
+class RansacConfig:
+    """Open3D ``segment_plane`` settings.
+
+    Parameters
+    ----------
+    distance_threshold : float
+        Largest point-to-plane distance of an inlier, in metres (EVOPS: 0.02 m for TUM
+        long_office; 0.005 m for ICL-NUIM, 0.01 m fr1_desk, 0.03 m fr2_pioneer_slam).
+    num_iterations : int
+        RANSAC iterations (Open3D stops earlier once the inlier set is certain).
+    seed : int
+        Seed of Open3D's random generator, set before every fit so that a re-run gives
+        identical masks.
+    """
+
+    distance_threshold: float = 0.02
+    num_iterations: int = 1000
+    seed: int = 0
+
+
+#: Default camera: the ROS default calibration that TUM RGB-D recommends for its registered
+#: depth images (fx = fy = 525, cx = 319.5, cy = 239.5), depth in units of 1/5000 m.
+DEFAULT_CAMERA = Camera(fx=525.0, fy=525.0, cx=319.5, cy=239.5, depth_scale=5000.0)
+
+
+@dataclass(frozen=True)
+class Config:
+    """Everything a ``cvat2mask`` run depends on besides its input files."""
+
+    camera: Camera = DEFAULT_CAMERA
+    sequence: SequenceConfig = field(default_factory=SequenceConfig)
+    annotation: AnnotationConfig = field(default_factory=AnnotationConfig)
+    filter: FilterConfig = field(default_factory=FilterConfig)
+    ransac: RansacConfig = field(default_factory=RansacConfig)
+
+
+def preset_names() -> list[str]:
+    """Names of the scene presets shipped in ``configs/``."""
+    folder = resources.files("annotate_rgbd.configs")
+    return sorted(p.name[: -len(".toml")] for p in folder.iterdir() if p.name.endswith(".toml"))
+
+
+def config_to_dict(config: Config) -> dict[str, dict[str, Any]]:
+    """The configuration as nested plain values (for reports; ``labels`` becomes a list)."""
+    return {
+        section.name: {
+            key: list(value) if isinstance(value, tuple) else value
+            for key, value in dataclasses.asdict(getattr(config, section.name)).items()
+        }
+        for section in dataclasses.fields(config)
+    }
+
+
+def load_config(source: str | Path | None = None, overrides: Mapping[str, Any] | None = None) -> Config:
+    """Build the run configuration.
+
+    Parameters
+    ----------
+    source : str or Path, optional
+        A TOML file, or the name of a preset in ``configs/``. ``None``: defaults only.
+    overrides : mapping of str to value, optional
+        ``"section.key" -> value`` pairs (from command-line options) applied after the file.
+
+    Returns
+    -------
+    Config
+
+    Raises
+    ------
+    InputError
+        Unknown file or preset, invalid TOML, unknown section or key, or a value of the wrong
+        type or range.
+    """
+    values: dict[str, dict[str, Any]] = {}
+    origin: str | Path | None = None
+    if source is not None:
+        origin, text = _read_source(source)
+        try:
+            values = tomllib.loads(text)
+        except tomllib.TOMLDecodeError as exc:
+            raise InputError(origin, f"invalid TOML: {exc}") from None
+    for dotted, value in (overrides or {}).items():
+        section, _, key = dotted.partition(".")
+        values.setdefault(section, {})[key] = value
+    return _build(values, origin)
+
+
+def _read_source(source: str | Path) -> tuple[Path | str, str]:
+    path = Path(source)
+    if path.is_file():
+        try:
+            return path, path.read_text(encoding="utf-8")
+        except (OSError, UnicodeDecodeError) as exc:
+            raise InputError(path, f"cannot read configuration: {exc}") from None
+    names = preset_names()
+    if str(source) in names:
+        preset = resources.files("annotate_rgbd.configs") / f"{source}.toml"
+        return f"preset {source}", preset.read_text(encoding="utf-8")
+    raise InputError(source, f"no such configuration file or preset (presets: {', '.join(names)})")
+
+
+def _build(values: Mapping[str, Any], origin: str | Path | None) -> Config:
+    defaults = Config()
+    sections = {f.name: getattr(defaults, f.name) for f in dataclasses.fields(Config)}
+    built = {}
+    for name, table in values.items():
+        if name not in sections:
+            raise InputError(origin, f"unknown section [{name}] (known: {', '.join(sections)})")
+        if not isinstance(table, Mapping):
+            raise InputError(origin, f"[{name}] must be a table of keys")
+        built[name] = _build_section(name, sections[name], table, origin)
+    config = dataclasses.replace(defaults, **built)
+    _check_ranges(config, origin)
+    return config
+
+
+def _build_section(name: str, default: Any, table: Mapping[str, Any], origin: str | Path | None) -> Any:
+    fields = {f.name: f for f in dataclasses.fields(default)}
+    changes = {}
+    for key, value in table.items():
+        if key not in fields:
+            raise InputError(
+                origin, f"unknown key '{name}.{key}' (known in [{name}]: {', '.join(fields)})"
+            )
+        changes[key] = _coerce(f"{name}.{key}", getattr(default, key), value, origin)
+    return dataclasses.replace(default, **changes)
+
+
+def _coerce(key: str, default: Any, value: Any, origin: str | Path | None) -> Any:
+    """Check ``value`` against the type of the default and convert ints to floats where needed."""
+    if isinstance(default, tuple):
+        if isinstance(value, str):
+            value = [value]
+        if not isinstance(value, (list, tuple)) or not all(isinstance(v, str) for v in value):
+            raise InputError(origin, f"'{key}' must be a list of strings")
+        return tuple(value)
+    if isinstance(default, bool) or isinstance(value, bool):
+        raise InputError(origin, f"'{key}' must be a number, got {value!r}")
+    if isinstance(default, int):
+        if isinstance(value, float) and value.is_integer():
+            value = int(value)
+        if not isinstance(value, int):
+            raise InputError(origin, f"'{key}' must be an integer, got {value!r}")
+        return value
+    if not isinstance(value, (int, float)):
+        raise InputError(origin, f"'{key}' must be a number, got {value!r}")
+    return float(value)
+
+
+def _check_ranges(config: Config, origin: str | Path | None) -> None:
+    checks = [
+        ("camera.fx", config.camera.fx != 0, "must not be 0"),
+        ("camera.fy", config.camera.fy != 0, "must not be 0"),
+        ("camera.depth_scale", config.camera.depth_scale > 0, "must be > 0"),
+        ("sequence.max_time_diff", config.sequence.max_time_diff >= 0, "must be >= 0"),
+        ("filter.max_invalid_ratio", 0 <= config.filter.max_invalid_ratio <= 1, "must be in [0, 1]"),
+        ("filter.max_mean_distance", config.filter.max_mean_distance > 0, "must be > 0"),
+        ("filter.min_valid_pixels", config.filter.min_valid_pixels >= 3, "must be >= 3"),
+        ("ransac.distance_threshold", config.ransac.distance_threshold > 0, "must be > 0"),
+        ("ransac.num_iterations", config.ransac.num_iterations >= 1, "must be >= 1"),
+        ("ransac.seed", config.ransac.seed >= 0, "must be >= 0"),
+    ]
+    for key, ok, rule in checks:
+        if not ok:
+            raise InputError(origin, f"'{key}' {rule}")

@@ -1,0 +1,106 @@
+"""Per-plane depth statistics and the rules that drop a plane from a frame."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .camera import Camera
+from .config import FilterConfig
+
+#: Reasons a plane is dropped from a frame, as written to the report.
+INVALID_DEPTH = "invalid_depth"
+TOO_FAR = "too_far"
+TOO_FEW_POINTS = "too_few_points"
+
+
+@dataclass(frozen=True)
+class PlaneStats:
+    """Depth statistics of the planes drawn on one frame (one entry per plane id).
+
+    Parameters
+    ----------
+    plane_ids : ndarray of int32
+        The planes present on the label image, ascending.
+    pixels : ndarray of int64
+        Pixels of each plane after z-order (what the labeller's polygon covers and is on top).
+    valid_pixels : ndarray of int64
+        Of those, pixels with valid depth.
+    mean_distance : ndarray of float64
+        Mean Euclidean distance from the camera centre of the valid pixels, in metres
+        (NaN where there are none).
+    """
+
+    plane_ids: np.ndarray
+    pixels: np.ndarray
+    valid_pixels: np.ndarray
+    mean_distance: np.ndarray
+
+    @property
+    def invalid_ratio(self) -> np.ndarray:
+        """Share of each plane's pixels without valid depth."""
+        return 1.0 - self.valid_pixels / np.maximum(self.pixels, 1)
+
+
+def plane_statistics(labels: np.ndarray, depth_m: np.ndarray, camera: Camera) -> PlaneStats:
+    """Pixel counts and mean camera distance of every plane on a label image.
+
+    Parameters
+    ----------
+    labels : ndarray of int, shape (H, W)
+        Plane ids, 0 = none.
+    depth_m : ndarray of float, shape (H, W)
+        Depth in metres, NaN where invalid.
+    camera : Camera
+        Intrinsics (the distance along a pixel's ray is depth times the ray's length at z = 1).
+
+    Returns
+    -------
+    PlaneStats
+    """
+    rows, cols = np.nonzero(labels)
+    ids = labels[rows, cols]
+    z = depth_m[rows, cols].astype(np.float64)
+    valid = np.isfinite(z)
+    ray = np.hypot(np.hypot((cols[valid] - camera.cx) / camera.fx, (rows[valid] - camera.cy) / camera.fy), 1.0)
+    plane_ids, index = np.unique(ids, return_inverse=True)
+    n = plane_ids.size
+    pixels = np.bincount(index, minlength=n)
+    valid_pixels = np.bincount(index[valid], minlength=n)
+    distance_sum = np.bincount(index[valid], weights=z[valid] * ray, minlength=n)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean_distance = np.where(valid_pixels > 0, distance_sum / np.maximum(valid_pixels, 1), np.nan)
+    return PlaneStats(plane_ids.astype(np.int32), pixels, valid_pixels, mean_distance)
+
+
+def drop_reasons(stats: PlaneStats, config: FilterConfig) -> list[str | None]:
+    """Why each plane is dropped from the frame, or ``None`` when it is kept.
+
+    The rules, checked in this order (the first that applies is the reason):
+
+    * ``invalid_depth``: the share of pixels without valid depth exceeds ``max_invalid_ratio``;
+    * ``too_few_points``: fewer than ``min_valid_pixels`` valid pixels remain to fit a plane;
+    * ``too_far``: the mean camera distance of the valid pixels exceeds ``max_mean_distance``.
+
+    Parameters
+    ----------
+    stats : PlaneStats
+    config : FilterConfig
+
+    Returns
+    -------
+    list of str or None
+        One entry per plane of ``stats``.
+    """
+    reasons: list[str | None] = []
+    for invalid, valid, distance in zip(stats.invalid_ratio, stats.valid_pixels, stats.mean_distance):
+        if invalid > config.max_invalid_ratio:
+            reasons.append(INVALID_DEPTH)
+        elif valid < config.min_valid_pixels:
+            reasons.append(TOO_FEW_POINTS)
+        elif distance > config.max_mean_distance:
+            reasons.append(TOO_FAR)
+        else:
+            reasons.append(None)
+    return reasons

@@ -1,0 +1,1 @@
+"""Scene presets for ``--config NAME``: a package only so that they install with annotate_rgbd."""

@@ -1,0 +1,99 @@
+import pytest
+
+from annotate_rgbd.config import Config, config_to_dict, load_config, preset_names
+from annotate_rgbd.errors import InputError
+
+ISSUE_EXAMPLE = """
+[camera]
+fx = 517.3
+fy = 516.5
+cx = 318.6
+cy = 255.3
+depth_scale = 5000.0
+[filter]
+max_invalid_ratio = 0.8
+max_mean_distance = 3.5
+[ransac]
+distance_threshold = 0.02
+"""
+
+
+def test_defaults_are_the_papers():
+    config = load_config()
+    assert config == Config()
+    assert config.filter.max_invalid_ratio == 0.8
+    assert config.filter.max_mean_distance == 3.5
+    assert config.ransac.distance_threshold == 0.02
+    assert config.sequence.max_time_diff == 0.02
+
+
+def test_documented_keys_are_read(tmp_path):
+    path = tmp_path / "scene.toml"
+    path.write_text(ISSUE_EXAMPLE)
+    config = load_config(path)
+    assert (config.camera.fx, config.camera.fy, config.camera.cx, config.camera.cy) == (517.3, 516.5, 318.6, 255.3)
+    assert config.camera.depth_scale == 5000.0
+
+
+def test_overrides_beat_the_file(tmp_path):
+    path = tmp_path / "scene.toml"
+    path.write_text(ISSUE_EXAMPLE)
+    config = load_config(path, {"ransac.distance_threshold": 0.01, "annotation.labels": ["wall"]})
+    assert config.ransac.distance_threshold == 0.01
+    assert config.annotation.labels == ("wall",)
+    assert config.camera.fx == 517.3
+
+
+EXPECTED_PRESETS = {
+    "living_room": (0.005, 0.8, -480.0),
+    "office_room": (0.005, 0.8, -480.0),
+    "fr1_desk": (0.01, 0.8, 516.469215),
+    "fr2_pioneer_slam": (0.03, 0.75, 521.007327),
+    "fr3_cabinet": (0.02, 0.8, 539.2),
+    "fr3_long_office_household_validation": (0.02, 0.8, 539.2),
+}
+
+
+def test_every_evops_scene_has_a_preset_with_its_thresholds():
+    assert set(preset_names()) == set(EXPECTED_PRESETS)
+    for name, (threshold, invalid, fy) in EXPECTED_PRESETS.items():
+        config = load_config(name)
+        assert config.ransac.distance_threshold == threshold, name
+        assert config.filter.max_invalid_ratio == invalid, name
+        assert config.filter.max_mean_distance == 3.5, name
+        assert config.camera.fy == fy, name
+        assert config.camera.depth_scale == 5000.0, name
+
+
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("[ransac]\ndistance_treshold = 0.1\n", "unknown key 'ransac.distance_treshold'"),
+        ("[filters]\nmax_mean_distance = 3\n", "unknown section [filters]"),
+        ("[ransac]\ndistance_threshold = 'big'\n", "'ransac.distance_threshold' must be a number"),
+        ("[ransac]\ndistance_threshold = -1.0\n", "'ransac.distance_threshold' must be > 0"),
+        ("[camera]\nfy = 0\n", "'camera.fy' must not be 0"),
+        ("[filter]\nmin_valid_pixels = 2.5\n", "'filter.min_valid_pixels' must be an integer"),
+        ("[filter\n", "invalid TOML"),
+        ("ransac = 3\n", "[ransac] must be a table"),
+    ],
+)
+def test_bad_files_are_one_line_errors_naming_the_file(tmp_path, text, message):
+    path = tmp_path / "bad.toml"
+    path.write_text(text)
+    with pytest.raises(InputError) as error:
+        load_config(path)
+    assert message in str(error.value)
+    assert str(path) in str(error.value)
+    assert "\n" not in str(error.value)
+
+
+def test_unknown_preset_lists_the_presets():
+    with pytest.raises(InputError, match="fr1_desk"):
+        load_config("fr9_nowhere")
+
+
+def test_config_to_dict_is_plain_data():
+    data = config_to_dict(load_config(None, {"annotation.labels": ["a"]}))
+    assert data["annotation"]["labels"] == ["a"]
+    assert data["camera"]["fx"] == 525.0

@@ -1,0 +1,87 @@
+import numpy as np
+import pytest
+
+from annotate_rgbd.camera import Camera
+from annotate_rgbd.config import FilterConfig, RansacConfig
+from annotate_rgbd.filters import INVALID_DEPTH, TOO_FAR, TOO_FEW_POINTS, drop_reasons, plane_statistics
+from annotate_rgbd.refine import fit_plane, refine_planes
+
+CAMERA = Camera(fx=100.0, fy=100.0, cx=19.5, cy=14.5, depth_scale=5000.0)
+
+
+def test_statistics_count_pixels_invalid_depth_and_distance():
+    labels = np.zeros((30, 40), np.int32)
+    labels[:10, :10] = 1
+    labels[20:, 20:] = 4
+    depth = np.full((30, 40), 2.0, np.float32)
+    depth[:5, :10] = np.nan  # half of plane 1 invalid
+    stats = plane_statistics(labels, depth, CAMERA)
+    assert stats.plane_ids.tolist() == [1, 4]
+    assert stats.pixels.tolist() == [100, 200]
+    assert stats.valid_pixels.tolist() == [50, 200]
+    np.testing.assert_allclose(stats.invalid_ratio, [0.5, 0.0])
+    # Euclidean distance along each pixel's ray, not just z.
+    rows, cols = np.nonzero(labels == 4)
+    expected = np.mean(2.0 * np.sqrt(((cols - 19.5) / 100) ** 2 + ((rows - 14.5) / 100) ** 2 + 1))
+    assert stats.mean_distance[1] == pytest.approx(expected)
+
+
+def test_drop_reasons_follow_the_rules_in_order():
+    labels = np.zeros((40, 40), np.int32)
+    labels[:10, :10] = 1  # fine
+    labels[:10, 10:20] = 2  # 90 % invalid
+    labels[10:20, :10] = 3  # far
+    labels[20:22, :2] = 4  # four pixels only
+    depth = np.full((40, 40), 1.5, np.float32)
+    depth[:9, 10:20] = np.nan
+    depth[10:20, :10] = 4.0
+    stats = plane_statistics(labels, depth, CAMERA)
+    reasons = drop_reasons(stats, FilterConfig(max_invalid_ratio=0.8, max_mean_distance=3.5, min_valid_pixels=10))
+    assert reasons == [None, INVALID_DEPTH, TOO_FAR, TOO_FEW_POINTS]
+
+
+def test_invalid_ratio_at_the_threshold_is_kept():
+    labels = np.ones((10, 10), np.int32)
+    depth = np.full((10, 10), 1.0, np.float32)
+    depth[:8] = np.nan  # exactly 0.8 invalid
+    stats = plane_statistics(labels, depth, CAMERA)
+    assert drop_reasons(stats, FilterConfig(min_valid_pixels=3)) == [None]
+
+
+def plane_depth(shape, camera, normal, d):
+    """Depth image of the plane n . X + d = 0 seen by ``camera``."""
+    rows, cols = np.mgrid[: shape[0], : shape[1]]
+    rays = np.stack([(cols - camera.cx) / camera.fx, (rows - camera.cy) / camera.fy, np.ones(shape)], -1)
+    return (-d / (rays @ np.asarray(normal))).astype(np.float32)
+
+
+def test_fit_plane_recovers_the_plane_and_is_deterministic():
+    rng = np.random.default_rng(3)
+    xy = rng.uniform(-1, 1, (2000, 2))
+    points = np.c_[xy, 2.0 + 0.1 * xy[:, 0] + rng.normal(0, 0.003, 2000)]
+    points[:300, 2] -= rng.uniform(0.1, 0.5, 300)  # clutter in front
+    config = RansacConfig(distance_threshold=0.02)
+    fit = fit_plane(points, config)
+    normal = np.array([-0.1, 0, 1]) / np.linalg.norm([-0.1, 0, 1])
+    assert abs(abs(fit.equation[:3] @ normal) - 1) < 1e-3
+    assert fit.equation[3] > 0
+    assert fit.inliers[300:].mean() > 0.99 and fit.inliers[:300].mean() < 0.1
+    again = fit_plane(points, config)
+    np.testing.assert_array_equal(fit.inliers, again.inliers)
+    np.testing.assert_array_equal(fit.equation, again.equation)
+
+
+def test_refine_removes_clutter_and_invalid_pixels_and_keeps_only_given_planes():
+    depth = plane_depth((30, 40), CAMERA, [0, 0, 1], -2.0)
+    depth[5:10, 5:10] = 1.5  # a box standing in front of the plane
+    depth[0, 0] = np.nan
+    labels = np.zeros((30, 40), np.int32)
+    labels[:, :20] = 3
+    labels[:, 20:] = 5
+    refined, fits = refine_planes(labels, depth, np.array([3]), CAMERA, RansacConfig())
+    assert set(fits) == {3}
+    expected = np.where(labels == 3, 3, 0)
+    expected[5:10, 5:10] = 0
+    expected[0, 0] = 0
+    np.testing.assert_array_equal(refined, expected)
+    np.testing.assert_allclose(fits[3].equation, [0, 0, -1, 2], atol=1e-6)

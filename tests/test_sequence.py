@@ -1,0 +1,106 @@
+import numpy as np
+import cv2
+import pytest
+
+from annotate_rgbd.errors import InputError
+from annotate_rgbd.sequence import associate, read_depth, read_rgb, read_sequence
+
+HEADER = "# color images\n# file: 'rgbd_dataset_freiburg1_rpy.bag'\n# timestamp filename\n"
+
+
+def write_list(path, rows):
+    path.write_text(HEADER + "".join(f"{ts} {file}\n" for ts, file in rows))
+
+
+def test_tum_lists_are_sorted_by_timestamp_as_numbers(tmp_path):
+    # Same integer second, listed out of order: sorting by int(ts) or by text would mix them up.
+    write_list(tmp_path / "rgb.txt", [("10.5", "rgb/10.5.png"), ("10.25", "rgb/10.25.png"), ("9.75", "rgb/9.75.png")])
+    write_list(tmp_path / "depth.txt", [("10.26", "depth/10.26.png")])
+    sequence = read_sequence(tmp_path)
+    assert sequence.rgb.files == ("rgb/9.75.png", "rgb/10.25.png", "rgb/10.5.png")
+    np.testing.assert_allclose(sequence.rgb.timestamps, [9.75, 10.25, 10.5])
+    assert sequence.depth.files == ("depth/10.26.png",)
+
+
+def test_folders_without_lists_use_file_names_as_timestamps(tmp_path):
+    for folder, names in {"rgb": ["2.5", "10.0", "2.25"], "depth": ["2.3"]}.items():
+        (tmp_path / folder).mkdir()
+        for name in names:
+            (tmp_path / folder / f"{name}.png").write_bytes(b"")
+    (tmp_path / "rgb" / "notes.txt").write_text("ignored")
+    sequence = read_sequence(tmp_path)
+    assert sequence.rgb.files == ("rgb/2.25.png", "rgb/2.5.png", "rgb/10.0.png")
+
+
+@pytest.mark.parametrize("depth_first", [True, False])
+def test_associations_txt_in_both_column_orders(tmp_path, depth_first):
+    lines = []
+    for i in range(3):
+        depth, rgb = f"{i / 30:.6f} depth/{i}.png", f"{i / 30 + 0.001:.6f} rgb/{i}.png"
+        lines.append(f"{depth} {rgb}" if depth_first else f"{rgb} {depth}")
+    (tmp_path / "associations.txt").write_text("\n".join(lines) + "\n")
+    sequence = read_sequence(tmp_path)
+    assert sequence.depth.files == ("depth/0.png", "depth/1.png", "depth/2.png")
+    assert sequence.rgb.files == ("rgb/0.png", "rgb/1.png", "rgb/2.png")
+    np.testing.assert_allclose(sequence.rgb.timestamps - sequence.depth.timestamps, 0.001, atol=1e-9)
+
+
+def test_real_tum_lists(shared_data):
+    sequence = read_sequence(shared_data / "tum_fr1_rpy")
+    assert len(sequence.rgb) == 30 and len(sequence.depth) == 30
+    assert np.all(np.diff(sequence.rgb.timestamps) > 0)
+    nearest, diff, matched = associate(sequence.depth.timestamps, sequence.rgb.timestamps, 0.02)
+    assert matched.sum() >= 28
+    assert np.all(np.abs(diff[matched]) <= 0.02)
+    depth = read_depth(sequence.root / sequence.depth.files[0])
+    assert depth.dtype == np.uint16 and depth.shape == (480, 640)
+    assert read_rgb(sequence.root / sequence.rgb.files[0]).shape == (480, 640, 3)
+
+
+def test_associate_picks_the_nearest_and_flags_the_far():
+    rgb = np.array([0.0, 0.033, 0.066, 0.2])
+    depth = np.array([-0.5, 0.01, 0.03, 0.05, 0.14, 0.2199, 0.3])
+    nearest, diff, matched = associate(depth, rgb, 0.02)
+    assert nearest.tolist() == [0, 0, 1, 2, 3, 3, 3]
+    assert matched.tolist() == [False, True, True, True, False, True, False]
+    np.testing.assert_allclose(diff, rgb[nearest] - depth)
+
+
+def test_associate_accepts_exactly_max_time_diff():
+    nearest, diff, matched = associate(np.array([1.02]), np.array([1.0]), 0.02)
+    assert matched.tolist() == [True]
+
+
+@pytest.mark.parametrize(
+    "setup, message",
+    [
+        (lambda p: None, "not an RGB-D sequence"),
+        (lambda p: (write_list(p / "rgb.txt", []), write_list(p / "depth.txt", [("1", "d.png")])), "lists no RGB frames"),
+        (lambda p: ((p / "rgb.txt").write_text("1.0\n"), write_list(p / "depth.txt", [])), "line 1: expected 2 columns"),
+        (lambda p: ((p / "rgb.txt").write_text("abc x.png\n"), write_list(p / "depth.txt", [])), "'abc' is not a timestamp"),
+        (
+            lambda p: (write_list(p / "rgb.txt", [("1.0", "a.png"), ("1.000000", "b.png")]), write_list(p / "depth.txt", [("1", "d")])),
+            "timestamp 1.000000 appears twice",
+        ),
+    ],
+)
+def test_bad_sequences_are_one_line_errors(tmp_path, setup, message):
+    setup(tmp_path)
+    with pytest.raises(InputError, match=message):
+        read_sequence(tmp_path)
+
+
+def test_missing_sequence_folder(tmp_path):
+    with pytest.raises(InputError, match="sequence folder not found"):
+        read_sequence(tmp_path / "nope")
+
+
+def test_depth_reading_errors(tmp_path):
+    with pytest.raises(InputError, match="file not found"):
+        read_depth(tmp_path / "missing.png")
+    (tmp_path / "corrupt.png").write_bytes(b"\x89PNG\r\n\x1a\nnot really")
+    with pytest.raises(InputError, match="not a readable image"):
+        read_depth(tmp_path / "corrupt.png")
+    cv2.imwrite(str(tmp_path / "colour.png"), np.zeros((4, 4, 3), np.uint8))
+    with pytest.raises(InputError, match="3 channels"):
+        read_depth(tmp_path / "colour.png")
