@@ -21,6 +21,15 @@ that is not listed is an error, so a typo never goes unnoticed::
     distance_threshold = 0.02
     num_iterations = 1000
     seed = 0
+    [stitch]            # several annotation parts of one sequence
+    min_iou = 0.5
+    [[parts]]           # where a part starts in the RGB list (repeat per part)
+    file = "950-1900.xml"
+    offset = 950
+    [[matches]]         # manual fix of the automatic track matching (repeat per fix)
+    part = "950-1900.xml"
+    track = 3
+    plane = 7           # or: with_part = "0-953.xml" and with_track = 5, or: new = true
 
 ``--config`` takes a file path or the name of a preset in ``configs/`` (``fr1_desk``, ...).
 """
@@ -113,6 +122,66 @@ class RansacConfig:
     seed: int = 0
 
 
+@dataclass(frozen=True)
+class StitchConfig:
+    """How tracks of consecutive annotation parts are matched into one plane.
+
+    Parameters
+    ----------
+    min_iou : float
+        Smallest IoU of two tracks' depth-refined masks on the frames the parts share (or on the
+        last frame of one part and the first of the next) for them to be the same plane. 0.5 is
+        the usual threshold for "the same object" (PASCAL VOC) and the one CVAT uses to merge
+        overlapping job segments.
+    """
+
+    min_iou: float = 0.5
+
+
+@dataclass(frozen=True)
+class PartConfig:
+    """Where one annotation part starts in the RGB sequence (``[[parts]]`` in a config file).
+
+    Parameters
+    ----------
+    file : str
+        The export's file name (as given on the command line, or its base name).
+    offset : int
+        RGB index of the part's frame 0.
+    """
+
+    file: str
+    offset: int
+
+
+@dataclass(frozen=True)
+class MatchConfig:
+    """A manual correction of the automatic track matching (``[[matches]]`` in a config file).
+
+    Exactly one of ``plane``, ``with_part`` + ``with_track`` or ``new`` is given.
+
+    Parameters
+    ----------
+    part : str
+        File name of the part the track is in.
+    track : int
+        The CVAT track id in that part.
+    plane : int, optional
+        Pin the track to this global plane id (a plane that an earlier part introduced).
+    with_part, with_track : str and int, optional
+        The track is the same plane as this track of another part.
+    new : bool
+        The track is a new plane, whatever the automatic matching says.
+    """
+
+    part: str
+    track: int
+    plane: int | None = None
+    with_part: str | None = None
+    with_track: int | None = None
+    new: bool = False
+
+
 #: Default camera: the ROS default calibration that TUM RGB-D recommends for its registered
 #: depth images (fx = fy = 525, cx = 319.5, cy = 239.5), depth in units of 1/5000 m.
 DEFAULT_CAMERA = Camera(fx=525.0, fy=525.0, cx=319.5, cy=239.5, depth_scale=5000.0)
@@ -127,6 +196,9 @@ class Config:
     annotation: AnnotationConfig = field(default_factory=AnnotationConfig)
     filter: FilterConfig = field(default_factory=FilterConfig)
     ransac: RansacConfig = field(default_factory=RansacConfig)
+    stitch: StitchConfig = field(default_factory=StitchConfig)
+    parts: tuple[PartConfig, ...] = ()
+    matches: tuple[MatchConfig, ...] = ()
 
 
 def preset_names() -> list[str]:
@@ -135,15 +207,21 @@ def preset_names() -> list[str]:
     return sorted(p.name[: -len(".toml")] for p in folder.iterdir() if p.name.endswith(".toml"))
 
 
-def config_to_dict(config: Config) -> dict[str, dict[str, Any]]:
-    """The configuration as nested plain values (for reports; ``labels`` becomes a list)."""
-    return {
-        section.name: {
-            key: list(value) if isinstance(value, tuple) else value
-            for key, value in dataclasses.asdict(getattr(config, section.name)).items()
-        }
-        for section in dataclasses.fields(config)
-    }
+#: Sections that hold a list of tables (``[[parts]]``) rather than one table.
+LIST_SECTIONS = {"parts": PartConfig, "matches": MatchConfig}
+
+
+def config_to_dict(config: Config) -> dict[str, Any]:
+    """The configuration as nested plain values (for reports: tuples become lists)."""
+
+    def plain(value: Any) -> Any:
+        if isinstance(value, (tuple, list)):
+            return [plain(v) for v in value]
+        if isinstance(value, dict):
+            return {k: plain(v) for k, v in value.items() if v is not None}
+        return value
+
+    return {f.name: plain(dataclasses.asdict(config)[f.name]) for f in dataclasses.fields(config)}
 
 
 def load_config(source: str | Path | None = None, overrides: Mapping[str, Any] | None = None) -> Config:
@@ -199,6 +277,9 @@ def _build(values: Mapping[str, Any], origin: str | Path | None) -> Config:
     sections = {f.name: getattr(defaults, f.name) for f in dataclasses.fields(Config)}
     built = {}
     for name, table in values.items():
+        if name in LIST_SECTIONS:
+            built[name] = _build_list(name, LIST_SECTIONS[name], table, origin)
+            continue
         if name not in sections:
             raise InputError(origin, f"unknown section [{name}] (known: {', '.join(sections)})")
         if not isinstance(table, Mapping):
@@ -207,6 +288,36 @@ def _build(values: Mapping[str, Any], origin: str | Path | None) -> Config:
     config = dataclasses.replace(defaults, **built)
     _check_ranges(config, origin)
     return config
+
+
+def _build_list(name: str, entry_type: type, tables: Any, origin: str | Path | None) -> tuple:
+    """Read a ``[[name]]`` list of tables into a tuple of ``entry_type``."""
+    if not isinstance(tables, list) or not all(isinstance(t, Mapping) for t in tables):
+        raise InputError(origin, f"'{name}' must be a list of tables: write each entry as [[{name}]]")
+    fields = {f.name: f for f in dataclasses.fields(entry_type)}
+    required = [f.name for f in fields.values() if f.default is dataclasses.MISSING]
+    entries = []
+    for number, table in enumerate(tables, start=1):
+        where = f"[[{name}]] entry {number}"
+        for key in table:
+            if key not in fields:
+                raise InputError(origin, f"{where}: unknown key '{key}' (known: {', '.join(fields)})")
+        for key in required:
+            if key not in table:
+                raise InputError(origin, f"{where}: '{key}' is missing")
+        values = {}
+        for key, value in table.items():
+            kind = fields[key].type
+            ok = (
+                (isinstance(value, str) if "str" in kind else False)
+                or (isinstance(value, bool) if "bool" in kind else False)
+                or (isinstance(value, int) and not isinstance(value, bool) if "int" in kind else False)
+            )
+            if not ok:
+                raise InputError(origin, f"{where}: '{key}' has the wrong type ({value!r})")
+            values[key] = value
+        entries.append(entry_type(**values))
+    return tuple(entries)
 
 
 def _build_section(name: str, default: Any, table: Mapping[str, Any], origin: str | Path | None) -> Any:
@@ -254,6 +365,7 @@ def _check_ranges(config: Config, origin: str | Path | None) -> None:
         ("ransac.distance_threshold", config.ransac.distance_threshold > 0, "must be > 0"),
         ("ransac.num_iterations", config.ransac.num_iterations >= 1, "must be >= 1"),
         ("ransac.seed", config.ransac.seed >= 0, "must be >= 0"),
+        ("stitch.min_iou", 0 < config.stitch.min_iou <= 1, "must be in (0, 1]"),
     ]
     for key, ok, rule in checks:
         if not ok:

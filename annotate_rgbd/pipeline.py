@@ -1,31 +1,30 @@
 """The ``cvat2mask`` job: CVAT export(s) + RGB-D sequence -> refined plane masks and a report.
 
-:func:`process_frame` is the pure per-frame core (label image in, refined label image and
-per-plane records out); :func:`run_cvat2mask` reads the inputs, walks the depth frames and
-writes the outputs.
+:func:`run_cvat2mask` reads the inputs, places the annotation parts in the sequence, gives every
+track its global plane (:mod:`annotate_rgbd.stitch`), plans one :class:`FrameJob` per depth frame
+that gets a mask, runs them (:func:`run_frame_job`: read depth, segment, write the PNG) and writes
+the tables and the report.
 """
 
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Sequence as SequenceType
+from typing import Callable, Mapping, Sequence as SequenceType
 
 import numpy as np
 
 from . import __version__
-from .annotation import Annotation, Shape
-from .camera import depth_to_metres
+from .annotation import Shape
 from .config import Config, config_to_dict
 from .cvat import read_cvat
 from .errors import InputError
-from .filters import drop_reasons, plane_statistics
-from .frames import rgb_indices
 from .palette import colour_hex, colourize, plane_colours
-from .rasterize import rasterize_frame
-from .refine import refine_planes
+from .parts import Part, frame_owners, place_parts
+from .segment import segment_frame
 from .sequence import Sequence, associate, read_depth, read_sequence
+from .stitch import PartTracks, TrackPlane, assign_planes, track_ious
 from .writer import write_csv, write_json, write_png
 
 log = logging.getLogger("annotate_rgbd")
@@ -36,36 +35,33 @@ NO_RGB_FRAME = "no_rgb_frame_within_max_time_diff"
 RGB_NOT_ANNOTATED = "rgb_frame_not_in_annotation"
 UNREADABLE_DEPTH = "unreadable_depth"
 
+#: At most this many shared frames of two parts are segmented to match their tracks.
+MAX_MATCH_FRAMES = 10
+
 
 @dataclass(frozen=True)
-class Plane:
-    """One physical plane of the output: its id, colour and where it came from.
+class FrameJob:
+    """Everything needed to produce one mask, independent of every other frame.
 
     Parameters
     ----------
-    plane_id : int
-        Global id, from 1; the mask colour is ``plane_colours(n)[plane_id - 1]``.
-    label : str
-        CVAT label.
-    part : str
-        The annotation file (part) the track is in.
-    track_id : int
-        CVAT track id within that part.
+    depth_path : Path
+        The depth image.
+    mask_path : Path
+        Where the colour mask goes.
+    shapes : tuple of (int, Shape)
+        ``(plane id, shape)`` of the owning part's tracks on the frame, in track order.
+    image_size : (int, int) or None
+        (width, height) of the annotated image, where the export states it.
+    part_path : str
+        The export the shapes come from (for messages).
     """
 
-    plane_id: int
-    label: str
-    part: str
-    track_id: int
-
-
-@dataclass
-class FrameResult:
-    """What :func:`process_frame` did on one depth frame."""
-
-    labels: np.ndarray
-    kept: list[dict] = field(default_factory=list)
-    dropped: list[dict] = field(default_factory=list)
+    depth_path: Path
+    mask_path: Path
+    shapes: tuple[tuple[int, Shape], ...]
+    image_size: tuple[int, int] | None
+    part_path: str
 
 
 @dataclass
@@ -73,7 +69,8 @@ class RunReport:
     """Summary of a finished run (the content of ``report.json``)."""
 
     frames: list[dict]
-    planes: list[Plane]
+    tracks: list[TrackPlane]
+    n_planes: int
     warnings: list[str]
     notes: list[str]
 
@@ -83,76 +80,41 @@ class RunReport:
         return sum(1 for f in self.frames if f["status"] == "written")
 
 
-def process_frame(depth_raw: np.ndarray, shapes: SequenceType[tuple[int, Shape]], config: Config) -> FrameResult:
-    """Rasterise, filter and refine the planes of one depth frame.
+def run_frame_job(job: FrameJob, config: Config, colours: np.ndarray) -> dict:
+    """Read the depth frame, segment it and write its mask.
 
     Parameters
     ----------
-    depth_raw : ndarray, shape (H, W)
-        Raw depth image.
-    shapes : sequence of (int, Shape)
-        ``(plane id, shape)`` of the frame, in track order.
+    job : FrameJob
     config : Config
+    colours : ndarray of uint8, shape (n_planes, 3)
+        The plane palette.
 
     Returns
     -------
-    FrameResult
-        ``labels`` holds the plane id of every pixel that lies on its plane (0 elsewhere);
-        ``kept`` and ``dropped`` one record per plane drawn on the frame.
+    dict
+        The report entries of the frame: ``kept`` and ``dropped`` plane records.
+
+    Raises
+    ------
+    InputError
+        The depth image is unreadable (the frame is skipped) or its size differs from the
+        annotated image (fatal).
     """
-    height, width = depth_raw.shape
-    drawn = rasterize_frame(shapes, height, width)
-    depth_m = depth_to_metres(depth_raw, config.camera.depth_scale)
-    stats = plane_statistics(drawn, depth_m, config.camera)
-    reasons = drop_reasons(stats, config.filter)
-    keep_ids = stats.plane_ids[[r is None for r in reasons]]
-    refined, fits = refine_planes(drawn, depth_m, keep_ids, config.camera, config.ransac)
-    result = FrameResult(labels=refined)
-    for i, plane_id in enumerate(stats.plane_ids.tolist()):
-        record = {
-            "plane": plane_id,
-            "pixels": int(stats.pixels[i]),
-            "valid_pixels": int(stats.valid_pixels[i]),
-            "mean_distance": _rounded(stats.mean_distance[i]),
-        }
-        if reasons[i] is None:
-            fit = fits[plane_id]
-            inliers = int(fit.inliers.sum())
-            record.update(
-                inliers=inliers,
-                inlier_ratio=round(inliers / max(int(stats.valid_pixels[i]), 1), 6),
-                equation=[round(float(v), 9) for v in fit.equation],
-            )
-            result.kept.append(record)
-        else:
-            record.update(reason=reasons[i], invalid_ratio=round(float(stats.invalid_ratio[i]), 6))
-            result.dropped.append(record)
-    return result
+    depth_raw = read_depth(job.depth_path)
+    if job.image_size is not None and depth_raw.shape != (job.image_size[1], job.image_size[0]):
+        raise SizeMismatch(
+            job.depth_path,
+            f"depth image is {depth_raw.shape[1]}x{depth_raw.shape[0]} but {Path(job.part_path).name} "
+            f"annotates {job.image_size[0]}x{job.image_size[1]} images",
+        )
+    result = segment_frame(depth_raw, job.shapes, config)
+    write_png(job.mask_path, colourize(result.labels, colours))
+    return {"kept": result.kept, "dropped": result.dropped}
 
 
-def plan_planes(annotations: SequenceType[Annotation]) -> tuple[list[Plane], dict[tuple[int, int], int]]:
-    """Give every track a global plane id.
-
-    Parameters
-    ----------
-    annotations : sequence of Annotation
-        The parts; a single export is one part.
-
-    Returns
-    -------
-    planes : list of Plane
-        Ordered by plane id.
-    plane_of : dict of (int, int) to int
-        ``(part index, track id) -> plane id``.
-    """
-    planes: list[Plane] = []
-    plane_of: dict[tuple[int, int], int] = {}
-    for part_index, annotation in enumerate(annotations):
-        for track in sorted(annotation.tracks, key=lambda t: t.track_id):
-            plane = Plane(len(planes) + 1, track.label, Path(annotation.path).name, track.track_id)
-            planes.append(plane)
-            plane_of[(part_index, track.track_id)] = plane.plane_id
-    return planes, plane_of
+class SizeMismatch(InputError):
+    """A depth image does not have the size of the annotated images: fatal for the run."""
 
 
 def run_cvat2mask(
@@ -160,21 +122,25 @@ def run_cvat2mask(
     annotation_paths: SequenceType[str | Path],
     out_dir: str | Path,
     config: Config,
+    offsets: Mapping[str, int] | None = None,
     progress: Callable[[int, int], None] | None = None,
 ) -> RunReport:
-    """Run the whole job and write ``masks/``, ``planes.csv`` and ``report.json`` in ``out_dir``.
+    """Run the whole job: ``masks/``, ``planes.csv``, ``tracks.csv`` and ``report.json`` in ``out_dir``.
 
     Parameters
     ----------
     sequence_dir : str or Path
         TUM / ICL-NUIM sequence folder.
     annotation_paths : sequence of str or Path
-        CVAT exports (one for now: one annotation part).
+        CVAT exports: one, or several annotation parts of the sequence.
     out_dir : str or Path
         Output folder (created if missing).
     config : Config
+    offsets : mapping of str to int, optional
+        Explicit part offsets by file name (``--part FILE:OFFSET``); they take precedence over
+        the configuration's ``[[parts]]``.
     progress : callable, optional
-        Called as ``progress(done, total)`` after each depth frame.
+        Called as ``progress(done, total)`` after each mask.
 
     Returns
     -------
@@ -183,33 +149,40 @@ def run_cvat2mask(
     Raises
     ------
     InputError
-        A fatal problem with an input (missing files, malformed export, sizes that do not
-        match): nothing sensible can be produced.
+        A fatal problem with an input (missing files, malformed export, parts that cannot be
+        placed, sizes that do not match): nothing sensible can be produced.
     """
     out_dir = Path(out_dir)
-    if len(annotation_paths) != 1:
-        raise InputError(None, "give exactly one CVAT export")
+    if not annotation_paths:
+        raise InputError(None, "no CVAT export given")
     sequence = read_sequence(sequence_dir)
     labels = config.annotation.labels or None
     annotations = [read_cvat(path, labels=labels) for path in annotation_paths]
-    warnings: list[str] = []
     notes = [f"{Path(a.path).name}: {note}" for a in annotations for note in a.notes]
+    warnings: list[str] = []
 
-    annotation = annotations[0]
-    frame_to_rgb, missing = rgb_indices(annotation, sequence.rgb)
+    all_offsets = {p.file: p.offset for p in config.parts}
+    all_offsets.update(offsets or {})
+    parts, missing = place_parts(annotations, sequence.rgb, all_offsets)
     for line in missing:
-        _warn(warnings, f"{annotation.path}: {line}; skipped")
-    planes, plane_of = plan_planes(annotations)
-    colours = plane_colours(len(planes))
-    shapes_at = _shapes_by_rgb_index(annotation, frame_to_rgb, plane_of, part_index=0)
-    size_at = {frame_to_rgb[f]: size for f, size in annotation.image_size.items() if f in frame_to_rgb}
-    cvat_frame_at = {rgb: frame for frame, rgb in frame_to_rgb.items()}
+        _warn(warnings, line)
+    owners = frame_owners(parts)
+    nearest, time_diff, matched = associate(sequence.depth.timestamps, sequence.rgb.timestamps, config.sequence.max_time_diff)
+    depth_of_rgb = _depth_for_rgb(nearest, time_diff, matched)
 
-    nearest, time_diff, matched = associate(
-        sequence.depth.timestamps, sequence.rgb.timestamps, config.sequence.max_time_diff
+    pair_iou = [_pair_iou(sequence, depth_of_rgb, a, b, config) for a, b in zip(parts, parts[1:])]
+    tracks = assign_planes(
+        [_part_tracks(p) for p in parts], pair_iou, config.matches, config.stitch.min_iou, "configuration"
     )
-    first, last = min(cvat_frame_at), max(cvat_frame_at)
-    frames = []
+    for line in _label_conflicts(tracks):
+        _warn(warnings, line)
+    plane_of = {(t.part, t.track): t.plane for t in tracks}
+    n_planes = max((t.plane for t in tracks), default=0)
+    colours = plane_colours(n_planes)
+
+    first, last = min(owners), max(owners)
+    frames: list[dict] = []
+    jobs: list[tuple[dict, FrameJob]] = []
     for d, depth_file in enumerate(sequence.depth.files):
         rgb = int(nearest[d])
         entry = {
@@ -221,65 +194,110 @@ def run_cvat2mask(
             "status": "skipped",
         }
         frames.append(entry)
-        if progress:
-            progress(d + 1, len(sequence.depth))
         if rgb < first or rgb > last:
             entry["reason"] = OUTSIDE_ANNOTATION
-            continue
-        if not matched[d]:
+        elif not matched[d]:
             entry["reason"] = NO_RGB_FRAME
             _warn(warnings, f"{sequence.root / depth_file}: no RGB frame within {config.sequence.max_time_diff} s; skipped")
-            continue
-        if rgb not in cvat_frame_at:
+        elif rgb not in owners:
             entry["reason"] = RGB_NOT_ANNOTATED
-            continue
-        entry["cvat_frame"] = cvat_frame_at[rgb]
+        else:
+            part = parts[owners[rgb]]
+            frame = _frame_of_rgb(part)[rgb]
+            entry.update(part=part.name, cvat_frame=frame)
+            shapes = tuple(
+                (plane_of[(part.name, track.track_id)], track.shapes[frame])
+                for track in part.annotation.tracks
+                if frame in track.shapes
+            )
+            job = FrameJob(
+                depth_path=sequence.root / depth_file,
+                mask_path=out_dir / "masks" / Path(depth_file).name,
+                shapes=shapes,
+                image_size=part.annotation.image_size.get(frame),
+                part_path=part.annotation.path,
+            )
+            jobs.append((entry, job))
+
+    for done, (entry, job) in enumerate(jobs, start=1):
         try:
-            depth_raw = read_depth(sequence.root / depth_file)
+            entry.update(run_frame_job(job, config, colours))
+        except SizeMismatch:
+            raise
         except InputError as exc:
             entry["reason"] = UNREADABLE_DEPTH
             _warn(warnings, f"{exc}; skipped")
-            continue
-        _check_size(sequence, depth_file, depth_raw, size_at.get(rgb), annotation.path)
-        result = process_frame(depth_raw, shapes_at.get(rgb, []), config)
-        mask_name = Path(depth_file).name
-        write_png(out_dir / "masks" / mask_name, colourize(result.labels, colours))
-        entry.update(status="written", mask=f"masks/{mask_name}", kept=result.kept, dropped=result.dropped)
-        entry.pop("reason", None)
+        else:
+            entry.update(status="written", mask=f"masks/{job.mask_path.name}")
+            entry.pop("reason", None)
+        if progress:
+            progress(done, len(jobs))
 
-    report = RunReport(frames=frames, planes=planes, warnings=warnings, notes=notes)
-    write_csv(
-        out_dir / "planes.csv",
-        ["plane_id", "colour", "r", "g", "b", "label", "part", "track_id"],
-        [[p.plane_id, colour_hex(c), *map(int, c), p.label, p.part, p.track_id] for p, c in zip(planes, colours)],
-    )
-    write_json(out_dir / "report.json", _report_json(report, sequence, annotation_paths, config, colours))
+    report = RunReport(frames=frames, tracks=tracks, n_planes=n_planes, warnings=warnings, notes=notes)
+    _write_tables(out_dir, report, colours)
+    write_json(out_dir / "report.json", _report_json(report, sequence, parts, config, colours))
     return report
 
 
-def _shapes_by_rgb_index(
-    annotation: Annotation, frame_to_rgb: dict[int, int], plane_of: dict[tuple[int, int], int], part_index: int
-) -> dict[int, list[tuple[int, Shape]]]:
-    """RGB index -> (plane id, shape) pairs in track order."""
-    shapes: dict[int, list[tuple[int, Shape]]] = {}
-    for track in annotation.tracks:
-        plane_id = plane_of[(part_index, track.track_id)]
-        for frame, shape in track.shapes.items():
-            if frame in frame_to_rgb:
-                shapes.setdefault(frame_to_rgb[frame], []).append((plane_id, shape))
-    return shapes
+def _part_tracks(part: Part) -> PartTracks:
+    tracks = sorted(part.annotation.tracks, key=lambda t: t.track_id)
+    return PartTracks(part.name, [t.track_id for t in tracks], [t.label for t in tracks])
 
 
-def _check_size(sequence: Sequence, depth_file: str, depth_raw: np.ndarray, size: tuple[int, int] | None, source: str) -> None:
-    if size is None:
-        return
-    width, height = size
-    if depth_raw.shape != (height, width):
-        raise InputError(
-            sequence.root / depth_file,
-            f"depth image is {depth_raw.shape[1]}x{depth_raw.shape[0]} but {Path(source).name} "
-            f"annotates {width}x{height} images",
-        )
+def _frame_of_rgb(part: Part) -> dict[int, int]:
+    return {rgb: frame for frame, rgb in part.rgb_of_frame.items()}
+
+
+def _depth_for_rgb(nearest: np.ndarray, time_diff: np.ndarray, matched: np.ndarray) -> dict[int, int]:
+    """RGB index -> the depth frame closest to it in time, among the matched ones."""
+    best: dict[int, int] = {}
+    for d in np.flatnonzero(matched).tolist():
+        rgb = int(nearest[d])
+        if rgb not in best or abs(time_diff[d]) < abs(time_diff[best[rgb]]):
+            best[rgb] = d
+    return best
+
+
+def _pair_iou(sequence: Sequence, depth_of_rgb: dict[int, int], a: Part, b: Part, config: Config) -> np.ndarray:
+    """IoU of part ``a``'s tracks (rows) with part ``b``'s (columns), on their refined masks.
+
+    On the frames both parts annotate (up to :data:`MAX_MATCH_FRAMES`, evenly spread); without
+    shared frames, ``a``'s last frame against ``b``'s first.
+    """
+    tracks_a = sorted(a.annotation.tracks, key=lambda t: t.track_id)
+    tracks_b = sorted(b.annotation.tracks, key=lambda t: t.track_id)
+    shared = sorted(set(a.rgb_of_frame.values()) & set(b.rgb_of_frame.values()) & set(depth_of_rgb))
+    if shared:
+        picks = np.unique(np.linspace(0, len(shared) - 1, min(len(shared), MAX_MATCH_FRAMES)).round().astype(int))
+        pairs = [(shared[i], shared[i]) for i in picks]
+    else:
+        pairs = [(a.last, b.first)] if a.last in depth_of_rgb and b.first in depth_of_rgb else []
+    intersection = np.zeros((len(tracks_a), len(tracks_b)), dtype=np.int64)
+    union = np.zeros_like(intersection)
+    for rgb_a, rgb_b in pairs:
+        masks = []
+        for part, tracks, rgb in ((a, tracks_a, rgb_a), (b, tracks_b, rgb_b)):
+            frame = _frame_of_rgb(part)[rgb]
+            depth = read_depth(sequence.root / sequence.depth.files[depth_of_rgb[rgb]])
+            shapes = [(i + 1, t.shapes[frame]) for i, t in enumerate(tracks) if frame in t.shapes]
+            masks.append(segment_frame(depth, shapes, config).labels)
+        inter, uni = track_ious(masks[0], masks[1], len(tracks_a), len(tracks_b))
+        intersection += inter
+        union += uni
+    return np.where(union > 0, intersection / np.maximum(union, 1), 0.0)
+
+
+def _label_conflicts(tracks: list[TrackPlane]) -> list[str]:
+    labels: dict[int, TrackPlane] = {}
+    lines = []
+    for t in tracks:
+        first = labels.setdefault(t.plane, t)
+        if first.label != t.label:
+            lines.append(
+                f"plane {t.plane} is labelled {first.label!r} in {first.part} (track {first.track}) "
+                f"but {t.label!r} in {t.part} (track {t.track})"
+            )
+    return lines
 
 
 def _warn(warnings: list[str], message: str) -> None:
@@ -287,34 +305,65 @@ def _warn(warnings: list[str], message: str) -> None:
     log.warning(message)
 
 
-def _rounded(value: float) -> float | None:
-    return None if not np.isfinite(value) else round(float(value), 6)
+def _write_tables(out_dir: Path, report: RunReport, colours: np.ndarray) -> None:
+    first_track: dict[int, TrackPlane] = {}
+    for t in report.tracks:
+        first_track.setdefault(t.plane, t)
+    write_csv(
+        out_dir / "planes.csv",
+        ["plane_id", "colour", "r", "g", "b", "label", "part", "track_id", "tracks"],
+        [
+            [
+                plane, colour_hex(colours[plane - 1]), *map(int, colours[plane - 1]), t.label, t.part, t.track,
+                " ".join(f"{u.part}:{u.track}" for u in report.tracks if u.plane == plane),
+            ]
+            for plane, t in sorted(first_track.items())
+        ],
+    )
+    write_csv(
+        out_dir / "tracks.csv",
+        ["part", "track", "label", "plane", "how", "iou", "matched_part", "matched_track"],
+        [
+            [t.part, t.track, t.label, t.plane, t.how, "" if t.iou is None else t.iou, t.matched_part or "",
+             "" if t.matched_track is None else t.matched_track]
+            for t in report.tracks
+        ],
+    )
 
 
-def _report_json(report: RunReport, sequence: Sequence, annotation_paths, config: Config, colours) -> dict:
+def _report_json(report: RunReport, sequence: Sequence, parts: list[Part], config: Config, colours) -> dict:
     written = [f for f in report.frames if f["status"] == "written"]
     skipped: dict[str, int] = {}
     for f in report.frames:
         if f["status"] == "skipped":
             skipped[f["reason"]] = skipped.get(f["reason"], 0) + 1
+    first_track: dict[int, TrackPlane] = {}
+    for t in report.tracks:
+        first_track.setdefault(t.plane, t)
     return {
         "tool": {"name": "annotate-rgbd", "version": __version__},
         "inputs": {
             "sequence": str(sequence.root),
-            "annotations": [str(p) for p in annotation_paths],
+            "parts": [
+                {"file": p.annotation.path, "name": p.name, "first_rgb": p.first, "last_rgb": p.last, "placed_by": p.offset_source}
+                for p in parts
+            ],
         },
         "config": config_to_dict(config),
         "summary": {
             "depth_frames": len(report.frames),
             "masks_written": len(written),
             "frames_skipped": skipped,
-            "planes": len(report.planes),
+            "planes": report.n_planes,
             "planes_kept": sum(len(f["kept"]) for f in written),
             "planes_dropped": sum(len(f["dropped"]) for f in written),
         },
         "planes": [
-            {"plane": p.plane_id, "colour": colour_hex(c), "label": p.label, "part": p.part, "track_id": p.track_id}
-            for p, c in zip(report.planes, colours)
+            {"plane": plane, "colour": colour_hex(colours[plane - 1]), "label": t.label, "part": t.part, "track_id": t.track}
+            for plane, t in sorted(first_track.items())
+        ],
+        "tracks": [
+            {k: v for k, v in vars(t).items() if v is not None} for t in report.tracks
         ],
         "frames": report.frames,
         "warnings": report.warnings,

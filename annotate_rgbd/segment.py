@@ -1,0 +1,79 @@
+"""One depth frame: the labeller's shapes -> the pixels that really lie on each plane.
+
+Rasterise the shapes in z-order, drop planes the depth cannot support, refine the rest with
+RANSAC. A pure function of the depth image, the shapes and the configuration.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+
+from .annotation import Shape
+from .camera import depth_to_metres
+from .config import Config
+from .filters import drop_reasons, plane_statistics
+from .rasterize import rasterize_frame
+from .refine import refine_planes
+
+
+@dataclass
+class FrameResult:
+    """What :func:`segment_frame` did on one depth frame."""
+
+    labels: np.ndarray
+    kept: list[dict] = field(default_factory=list)
+    dropped: list[dict] = field(default_factory=list)
+
+
+def segment_frame(depth_raw: np.ndarray, shapes: Sequence[tuple[int, Shape]], config: Config) -> FrameResult:
+    """Rasterise, filter and refine the planes of one depth frame.
+
+    Parameters
+    ----------
+    depth_raw : ndarray, shape (H, W)
+        Raw depth image.
+    shapes : sequence of (int, Shape)
+        ``(plane id, shape)`` of the frame, in track order.
+    config : Config
+
+    Returns
+    -------
+    FrameResult
+        ``labels`` holds the plane id of every pixel that lies on its plane (0 elsewhere);
+        ``kept`` and ``dropped`` one record per plane drawn on the frame.
+    """
+    height, width = depth_raw.shape
+    drawn = rasterize_frame(shapes, height, width)
+    depth_m = depth_to_metres(depth_raw, config.camera.depth_scale)
+    stats = plane_statistics(drawn, depth_m, config.camera)
+    reasons = drop_reasons(stats, config.filter)
+    keep_ids = stats.plane_ids[[r is None for r in reasons]]
+    refined, fits = refine_planes(drawn, depth_m, keep_ids, config.camera, config.ransac)
+    result = FrameResult(labels=refined)
+    for i, plane_id in enumerate(stats.plane_ids.tolist()):
+        record = {
+            "plane": plane_id,
+            "pixels": int(stats.pixels[i]),
+            "valid_pixels": int(stats.valid_pixels[i]),
+            "mean_distance": _rounded(stats.mean_distance[i]),
+        }
+        if reasons[i] is None:
+            fit = fits[plane_id]
+            inliers = int(fit.inliers.sum())
+            record.update(
+                inliers=inliers,
+                inlier_ratio=round(inliers / max(int(stats.valid_pixels[i]), 1), 6),
+                equation=[round(float(v), 9) for v in fit.equation],
+            )
+            result.kept.append(record)
+        else:
+            record.update(reason=reasons[i], invalid_ratio=round(float(stats.invalid_ratio[i]), 6))
+            result.dropped.append(record)
+    return result
+
+
+def _rounded(value: float) -> float | None:
+    return None if not np.isfinite(value) else round(float(value), 6)
