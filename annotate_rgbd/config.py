@@ -258,6 +258,11 @@ def load_config(source: str | Path | None = None, overrides: Mapping[str, Any] |
     return _build(values, origin)
 
 
+def config_from_dict(values: Mapping[str, Any], origin: str | Path | None = None) -> Config:
+    """The inverse of :func:`config_to_dict` (e.g. the ``config`` recorded in ``report.json``)."""
+    return _build(values, origin)
+
+
 def _read_source(source: str | Path) -> tuple[Path | str, str]:
     path = Path(source)
     if path.is_file():

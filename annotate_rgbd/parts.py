@@ -42,6 +42,8 @@ class Part:
     annotation : Annotation
     rgb_of_frame : dict of int to int
         CVAT frame number -> RGB index, for the part's frames that are in the sequence.
+    offset : int
+        RGB index of the part's frame 0 (0 for parts placed by image names).
     offset_source : str
         How the part was placed: ``image names``, ``explicit``, ``file name`` or ``single export``.
     """
@@ -49,6 +51,7 @@ class Part:
     name: str
     annotation: Annotation
     rgb_of_frame: dict[int, int]
+    offset: int
     offset_source: str
 
     @property
@@ -110,7 +113,7 @@ def place_parts(
         if missing and len(annotations) > 1 and source != "image names":
             raise InputError(annotation.path, f"part does not fit in the sequence: {missing[0]} (check its offset)")
         warnings.extend(f"{annotation.path}: {line}; skipped" for line in missing)
-        parts.append(Part(name, annotation, mapping, source))
+        parts.append(Part(name, annotation, mapping, offset, source))
     parts.sort(key=lambda p: (p.first, p.last))
     for earlier, later in zip(parts, parts[1:]):
         if later.first == earlier.first or later.last <= earlier.last:

@@ -117,6 +117,129 @@ class SizeMismatch(InputError):
     """A depth image does not have the size of the annotated images: fatal for the run."""
 
 
+@dataclass
+class RunPlan:
+    """Everything decided before any mask is made: what each depth frame gets, and from where.
+
+    Parameters
+    ----------
+    sequence : Sequence
+    parts : list of Part
+        The annotation parts in sequence order.
+    tracks : list of TrackPlane
+        The global plane of every track.
+    colours : ndarray of uint8, shape (n_planes, 3)
+        Plane colours (row ``k - 1`` for plane id ``k``).
+    frames : list of dict
+        One report entry per depth frame, in depth order.
+    jobs : list of (int, FrameJob)
+        The frames that get a mask: index into ``frames`` and the job.
+    warnings, notes : list of str
+    """
+
+    sequence: Sequence
+    parts: list[Part]
+    tracks: list[TrackPlane]
+    colours: np.ndarray
+    frames: list[dict]
+    jobs: list[tuple[int, FrameJob]]
+    warnings: list[str]
+    notes: list[str]
+
+    @property
+    def n_planes(self) -> int:
+        """Number of global planes."""
+        return len(self.colours)
+
+
+def plan_run(
+    sequence_dir: str | Path,
+    annotation_paths: SequenceType[str | Path],
+    out_dir: str | Path,
+    config: Config,
+    offsets: Mapping[str, int] | None = None,
+) -> RunPlan:
+    """Read the inputs and decide, for every depth frame, whether and how it gets a mask.
+
+    Parameters are those of :func:`run_cvat2mask`.
+
+    Returns
+    -------
+    RunPlan
+
+    Raises
+    ------
+    InputError
+        A fatal problem with an input.
+    """
+    out_dir = Path(out_dir)
+    if not annotation_paths:
+        raise InputError(None, "no CVAT export given")
+    sequence = read_sequence(sequence_dir)
+    labels = config.annotation.labels or None
+    annotations = [read_cvat(path, labels=labels) for path in annotation_paths]
+    notes = [f"{Path(a.path).name}: {note}" for a in annotations for note in a.notes]
+    warnings: list[str] = []
+
+    all_offsets = {p.file: p.offset for p in config.parts}
+    all_offsets.update(offsets or {})
+    parts, missing = place_parts(annotations, sequence.rgb, all_offsets)
+    for line in missing:
+        _warn(warnings, line)
+    owners = frame_owners(parts)
+    nearest, time_diff, matched = associate(sequence.depth.timestamps, sequence.rgb.timestamps, config.sequence.max_time_diff)
+    depth_of_rgb = _depth_for_rgb(nearest, time_diff, matched)
+
+    pair_iou = [_pair_iou(sequence, depth_of_rgb, a, b, config) for a, b in zip(parts, parts[1:])]
+    tracks = assign_planes(
+        [_part_tracks(p) for p in parts], pair_iou, config.matches, config.stitch.min_iou, "configuration"
+    )
+    for line in _label_conflicts(tracks):
+        _warn(warnings, line)
+    plane_of = {(t.part, t.track): t.plane for t in tracks}
+    colours = plane_colours(max((t.plane for t in tracks), default=0))
+
+    first, last = min(owners), max(owners)
+    frames: list[dict] = []
+    jobs: list[tuple[int, FrameJob]] = []
+    for d, depth_file in enumerate(sequence.depth.files):
+        rgb = int(nearest[d])
+        entry = {
+            "depth": depth_file,
+            "depth_timestamp": float(sequence.depth.timestamps[d]),
+            "rgb": sequence.rgb.files[rgb],
+            "rgb_index": rgb,
+            "time_offset": round(float(time_diff[d]), 6),
+            "status": "skipped",
+        }
+        frames.append(entry)
+        if rgb < first or rgb > last:
+            entry["reason"] = OUTSIDE_ANNOTATION
+        elif not matched[d]:
+            entry["reason"] = NO_RGB_FRAME
+            _warn(warnings, f"{sequence.root / depth_file}: no RGB frame within {config.sequence.max_time_diff} s; skipped")
+        elif rgb not in owners:
+            entry["reason"] = RGB_NOT_ANNOTATED
+        else:
+            part = parts[owners[rgb]]
+            frame = _frame_of_rgb(part)[rgb]
+            entry.update(part=part.name, cvat_frame=frame)
+            shapes = tuple(
+                (plane_of[(part.name, track.track_id)], track.shapes[frame])
+                for track in part.annotation.tracks
+                if frame in track.shapes
+            )
+            job = FrameJob(
+                depth_path=sequence.root / depth_file,
+                mask_path=out_dir / "masks" / Path(depth_file).name,
+                shapes=shapes,
+                image_size=part.annotation.image_size.get(frame),
+                part_path=part.annotation.path,
+            )
+            jobs.append((d, job))
+    return RunPlan(sequence, parts, tracks, colours, frames, jobs, warnings, notes)
+
+
 def run_cvat2mask(
     sequence_dir: str | Path,
     annotation_paths: SequenceType[str | Path],
@@ -153,75 +276,12 @@ def run_cvat2mask(
         placed, sizes that do not match): nothing sensible can be produced.
     """
     out_dir = Path(out_dir)
-    if not annotation_paths:
-        raise InputError(None, "no CVAT export given")
-    sequence = read_sequence(sequence_dir)
-    labels = config.annotation.labels or None
-    annotations = [read_cvat(path, labels=labels) for path in annotation_paths]
-    notes = [f"{Path(a.path).name}: {note}" for a in annotations for note in a.notes]
-    warnings: list[str] = []
-
-    all_offsets = {p.file: p.offset for p in config.parts}
-    all_offsets.update(offsets or {})
-    parts, missing = place_parts(annotations, sequence.rgb, all_offsets)
-    for line in missing:
-        _warn(warnings, line)
-    owners = frame_owners(parts)
-    nearest, time_diff, matched = associate(sequence.depth.timestamps, sequence.rgb.timestamps, config.sequence.max_time_diff)
-    depth_of_rgb = _depth_for_rgb(nearest, time_diff, matched)
-
-    pair_iou = [_pair_iou(sequence, depth_of_rgb, a, b, config) for a, b in zip(parts, parts[1:])]
-    tracks = assign_planes(
-        [_part_tracks(p) for p in parts], pair_iou, config.matches, config.stitch.min_iou, "configuration"
-    )
-    for line in _label_conflicts(tracks):
-        _warn(warnings, line)
-    plane_of = {(t.part, t.track): t.plane for t in tracks}
-    n_planes = max((t.plane for t in tracks), default=0)
-    colours = plane_colours(n_planes)
-
-    first, last = min(owners), max(owners)
-    frames: list[dict] = []
-    jobs: list[tuple[dict, FrameJob]] = []
-    for d, depth_file in enumerate(sequence.depth.files):
-        rgb = int(nearest[d])
-        entry = {
-            "depth": depth_file,
-            "depth_timestamp": float(sequence.depth.timestamps[d]),
-            "rgb": sequence.rgb.files[rgb],
-            "rgb_index": rgb,
-            "time_offset": round(float(time_diff[d]), 6),
-            "status": "skipped",
-        }
-        frames.append(entry)
-        if rgb < first or rgb > last:
-            entry["reason"] = OUTSIDE_ANNOTATION
-        elif not matched[d]:
-            entry["reason"] = NO_RGB_FRAME
-            _warn(warnings, f"{sequence.root / depth_file}: no RGB frame within {config.sequence.max_time_diff} s; skipped")
-        elif rgb not in owners:
-            entry["reason"] = RGB_NOT_ANNOTATED
-        else:
-            part = parts[owners[rgb]]
-            frame = _frame_of_rgb(part)[rgb]
-            entry.update(part=part.name, cvat_frame=frame)
-            shapes = tuple(
-                (plane_of[(part.name, track.track_id)], track.shapes[frame])
-                for track in part.annotation.tracks
-                if frame in track.shapes
-            )
-            job = FrameJob(
-                depth_path=sequence.root / depth_file,
-                mask_path=out_dir / "masks" / Path(depth_file).name,
-                shapes=shapes,
-                image_size=part.annotation.image_size.get(frame),
-                part_path=part.annotation.path,
-            )
-            jobs.append((entry, job))
-
-    for done, (entry, job) in enumerate(jobs, start=1):
+    plan = plan_run(sequence_dir, annotation_paths, out_dir, config, offsets)
+    warnings = plan.warnings
+    for done, (index, job) in enumerate(plan.jobs, start=1):
+        entry = plan.frames[index]
         try:
-            entry.update(run_frame_job(job, config, colours))
+            entry.update(run_frame_job(job, config, plan.colours))
         except SizeMismatch:
             raise
         except InputError as exc:
@@ -229,13 +289,12 @@ def run_cvat2mask(
             _warn(warnings, f"{exc}; skipped")
         else:
             entry.update(status="written", mask=f"masks/{job.mask_path.name}")
-            entry.pop("reason", None)
         if progress:
-            progress(done, len(jobs))
+            progress(done, len(plan.jobs))
 
-    report = RunReport(frames=frames, tracks=tracks, n_planes=n_planes, warnings=warnings, notes=notes)
-    _write_tables(out_dir, report, colours)
-    write_json(out_dir / "report.json", _report_json(report, sequence, parts, config, colours))
+    report = RunReport(frames=plan.frames, tracks=plan.tracks, n_planes=plan.n_planes, warnings=warnings, notes=plan.notes)
+    _write_tables(out_dir, report, plan.colours)
+    write_json(out_dir / "report.json", _report_json(report, plan, config))
     return report
 
 
@@ -331,7 +390,8 @@ def _write_tables(out_dir: Path, report: RunReport, colours: np.ndarray) -> None
     )
 
 
-def _report_json(report: RunReport, sequence: Sequence, parts: list[Part], config: Config, colours) -> dict:
+def _report_json(report: RunReport, plan: RunPlan, config: Config) -> dict:
+    colours = plan.colours
     written = [f for f in report.frames if f["status"] == "written"]
     skipped: dict[str, int] = {}
     for f in report.frames:
@@ -343,10 +403,17 @@ def _report_json(report: RunReport, sequence: Sequence, parts: list[Part], confi
     return {
         "tool": {"name": "annotate-rgbd", "version": __version__},
         "inputs": {
-            "sequence": str(sequence.root),
+            "sequence": str(plan.sequence.root.resolve()),
             "parts": [
-                {"file": p.annotation.path, "name": p.name, "first_rgb": p.first, "last_rgb": p.last, "placed_by": p.offset_source}
-                for p in parts
+                {
+                    "file": str(Path(p.annotation.path).resolve()),
+                    "name": p.name,
+                    "offset": p.offset,
+                    "first_rgb": p.first,
+                    "last_rgb": p.last,
+                    "placed_by": p.offset_source,
+                }
+                for p in plan.parts
             ],
         },
         "config": config_to_dict(config),

@@ -21,9 +21,20 @@ from .refine import refine_planes
 
 @dataclass
 class FrameResult:
-    """What :func:`segment_frame` did on one depth frame."""
+    """What :func:`segment_frame` did on one depth frame.
+
+    Parameters
+    ----------
+    labels : ndarray of int32, shape (H, W)
+        The refined mask: plane ids where a pixel lies on its plane, 0 elsewhere.
+    drawn : ndarray of int32, shape (H, W)
+        The labeller's shapes as rasterised, before any depth check (for review overlays).
+    kept, dropped : list of dict
+        One report record per plane drawn on the frame.
+    """
 
     labels: np.ndarray
+    drawn: np.ndarray
     kept: list[dict] = field(default_factory=list)
     dropped: list[dict] = field(default_factory=list)
 
@@ -52,7 +63,7 @@ def segment_frame(depth_raw: np.ndarray, shapes: Sequence[tuple[int, Shape]], co
     reasons = drop_reasons(stats, config.filter)
     keep_ids = stats.plane_ids[[r is None for r in reasons]]
     refined, fits = refine_planes(drawn, depth_m, keep_ids, config.camera, config.ransac)
-    result = FrameResult(labels=refined)
+    result = FrameResult(labels=refined, drawn=drawn)
     for i, plane_id in enumerate(stats.plane_ids.tolist()):
         record = {
             "plane": plane_id,
