@@ -1,0 +1,204 @@
+"""Score predicted plane masks against ground-truth masks over a sequence (``annotate-rgbd evaluate``).
+
+Ground truth (GT) and prediction (PRED) are two folders of per-frame label files, or two single files.
+Frames are matched by file name without its suffix, so ``1305031102.175304.png`` in GT pairs with
+``1305031102.175304.png``, ``.npy`` or ``.csv`` in PRED. A GT frame without a PRED file counts as an
+empty prediction (every plane missed) and is listed in ``frames_missing``; PRED files without a GT
+frame are ignored and listed in ``predictions_unmatched``. The sequence score of each statistic is
+its mean over the GT frames.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .errors import InputError
+from .labelmaps import LABEL_SUFFIXES, read_label_map
+from .metrics import METRIC_NAMES, FrameStatistics, frame_statistics
+
+
+@dataclass(frozen=True)
+class FramePair:
+    """One GT frame and the PRED file scored against it (``None`` when PRED has none)."""
+
+    name: str
+    gt: Path
+    pred: Path | None
+
+
+@dataclass(frozen=True)
+class FrameScore:
+    """The statistics of one frame; ``missing`` when PRED had no file for it."""
+
+    name: str
+    statistics: FrameStatistics
+    missing: bool
+
+
+@dataclass(frozen=True)
+class EvaluationResult:
+    """Per-frame statistics of a sequence and their means.
+
+    Attributes
+    ----------
+    frames : tuple of FrameScore
+        One per GT frame, in file name order.
+    full, part : float
+        The IoU thresholds used.
+    predictions_unmatched : tuple of str
+        Names of PRED files that have no GT frame (not scored).
+    """
+
+    frames: tuple[FrameScore, ...]
+    full: float
+    part: float
+    predictions_unmatched: tuple[str, ...] = ()
+
+    @property
+    def means(self) -> dict[str, float]:
+        """Sequence mean of each statistic, in :data:`~annotate_rgbd.metrics.METRIC_NAMES` order."""
+        table = np.array([[getattr(f.statistics, name) for name in METRIC_NAMES] for f in self.frames])
+        return dict(zip(METRIC_NAMES, table.mean(axis=0).tolist()))
+
+    @property
+    def frames_missing(self) -> list[str]:
+        """Names of the GT frames that PRED has no file for."""
+        return [f.name for f in self.frames if f.missing]
+
+    def to_dict(self) -> dict:
+        """The means plus ``frames`` (the frame count) and ``frames_missing`` (their names)."""
+        return {**self.means, "frames": len(self.frames), "frames_missing": self.frames_missing}
+
+
+def evaluate_paths(
+    gt: str | Path,
+    pred: str | Path,
+    full: float = 0.75,
+    part: float = 0.2,
+    measure: str = "iou",
+) -> EvaluationResult:
+    """Score a prediction against the ground truth, frame by frame.
+
+    Parameters
+    ----------
+    gt, pred : str or Path
+        Two folders of label files matched by name (see the module docstring), or two label files.
+    full, part : float, optional
+        IoU thresholds for a full match and a partial overlap, in ``(0, 1]``.
+    measure : {"iou", "dice"}, optional
+        What ``mean`` and ``panoptic`` average over the matched planes.
+
+    Returns
+    -------
+    EvaluationResult
+        Per-frame statistics and their sequence means.
+
+    Raises
+    ------
+    InputError
+        For a missing path, a GT folder without label files, an unreadable label file, or a PRED
+        frame whose size differs from its GT frame.
+    """
+    for value, name in ((full, "full"), (part, "part")):
+        if not 0.0 < value <= 1.0:
+            raise InputError(None, f"--{name} must be in (0, 1], not {value}")
+    pairs, unmatched = match_frames(gt, pred)
+    frames = tuple(score_frame(pair, full=full, part=part, measure=measure) for pair in pairs)
+    return EvaluationResult(frames=frames, full=full, part=part, predictions_unmatched=tuple(unmatched))
+
+
+def match_frames(gt: str | Path, pred: str | Path) -> tuple[list[FramePair], list[str]]:
+    """Pair GT frames with PRED files by name.
+
+    Parameters
+    ----------
+    gt, pred : str or Path
+        Two folders, or two files (paired whatever their names).
+
+    Returns
+    -------
+    pairs : list of FramePair
+        One per GT label file, sorted by name.
+    unmatched : list of str
+        PRED file names without a GT frame.
+    """
+    gt, pred = Path(gt), Path(pred)
+    for path in (gt, pred):
+        if not path.exists():
+            raise InputError(path, "not found")
+    if gt.is_file() and pred.is_file():
+        return [FramePair(gt.stem, gt, pred)], []
+    if gt.is_file() or pred.is_file():
+        raise InputError(pred if gt.is_dir() else gt, "GT and PRED must both be folders or both be files")
+    gt_files = _label_files(gt)
+    if not gt_files:
+        raise InputError(gt, f"no label files ({', '.join(LABEL_SUFFIXES)}) in the ground-truth folder")
+    pred_files = _label_files(pred)
+    pairs = [FramePair(name, path, pred_files.get(name)) for name, path in sorted(gt_files.items())]
+    unmatched = sorted(pred_files[name].name for name in pred_files.keys() - gt_files.keys())
+    return pairs, unmatched
+
+
+def score_frame(pair: FramePair, *, full: float, part: float, measure: str = "iou") -> FrameScore:
+    """Read one frame pair and compute its statistics (an absent PRED file is an empty prediction)."""
+    gt = read_label_map(pair.gt)
+    pred = np.zeros_like(gt) if pair.pred is None else read_label_map(pair.pred)
+    if pred.shape != gt.shape:
+        raise InputError(
+            pair.pred,
+            f"frame is {pred.shape[1]}x{pred.shape[0]} "
+            f"but ground truth {pair.gt.name} is {gt.shape[1]}x{gt.shape[0]}",
+        )
+    statistics = frame_statistics(gt, pred, full=full, part=part, measure=measure)
+    return FrameScore(pair.name, statistics, missing=pair.pred is None)
+
+
+def format_table(result: EvaluationResult) -> str:
+    """The sequence means as a two-column text table, with the frame counts below."""
+    width = max(len(name) for name in METRIC_NAMES)
+    lines = [f"{'metric':<{width}}  mean", f"{'-' * width}  ------"]
+    lines += [f"{name:<{width}}  {value:.4f}" for name, value in result.means.items()]
+    lines.append(f"frames: {len(result.frames)} (full IoU >= {result.full}, part IoU >= {result.part})")
+    missing = result.frames_missing
+    if missing:
+        shown = ", ".join(missing[:10]) + (", ..." if len(missing) > 10 else "")
+        lines.append(f"missing in PRED (scored as empty): {len(missing)}: {shown}")
+    if result.predictions_unmatched:
+        lines.append(f"PRED files without a GT frame (ignored): {len(result.predictions_unmatched)}")
+    return "\n".join(lines)
+
+
+def format_json(result: EvaluationResult) -> str:
+    """The result as one JSON object (see :meth:`EvaluationResult.to_dict`)."""
+    return json.dumps(result.to_dict(), indent=2)
+
+
+def write_per_frame_csv(result: EvaluationResult, path: str | Path) -> None:
+    """Write one CSV row per frame: its name, the statistics, and whether PRED was missing."""
+    path = Path(path)
+    try:
+        with path.open("w", newline="") as stream:
+            writer = csv.writer(stream)
+            writer.writerow(("frame", *METRIC_NAMES, "missing"))
+            for frame in result.frames:
+                values = (repr(getattr(frame.statistics, name)) for name in METRIC_NAMES)
+                writer.writerow((frame.name, *values, int(frame.missing)))
+    except OSError as error:
+        raise InputError(path, f"cannot write per-frame CSV: {error.strerror}") from None
+
+
+def _label_files(folder: Path) -> dict[str, Path]:
+    """Label files of a folder by name without suffix; two files of one name are ambiguous."""
+    files: dict[str, Path] = {}
+    for path in sorted(folder.iterdir()):
+        if not path.is_file() or path.suffix.lower() not in LABEL_SUFFIXES:
+            continue
+        if path.stem in files:
+            raise InputError(path, f"same frame name as {files[path.stem].name}: which to score is ambiguous")
+        files[path.stem] = path
+    return files

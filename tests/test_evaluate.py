@@ -1,0 +1,234 @@
+"""Label file reading, frame matching, sequence scoring and the ``evaluate`` command."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import cv2
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from annotate_rgbd.cli import app
+from annotate_rgbd.errors import InputError
+from annotate_rgbd.evaluate import evaluate_paths, match_frames
+from annotate_rgbd.labelmaps import colours_to_labels, read_cape_csv, read_label_map
+from annotate_rgbd.metrics import METRIC_NAMES, frame_statistics
+
+COLOURS = np.array([[0, 0, 0], [255, 0, 0], [0, 255, 0], [0, 0, 255], [255, 255, 0]], np.uint8)
+
+
+def _planes(shape=(12, 16), n=4, seed=0):
+    """A label image with planes 1..n in blocks and an unsegmented strip."""
+    rows, cols = np.indices(shape)
+    labels = (cols * n // shape[1]) + 1
+    labels[rows < 2] = 0
+    return np.roll(labels, seed, axis=1)
+
+
+def _same_partition(a, b):
+    """Two label images describe the same planes, whatever their ids (0 kept as 0)."""
+    pairs = np.unique(np.stack([a.ravel(), b.ravel()]), axis=1)
+    return (
+        np.array_equal(a == 0, b == 0)
+        and np.unique(pairs[0]).size == pairs.shape[1]
+        and np.unique(pairs[1]).size == pairs.shape[1]
+    )
+
+
+def _write_cape(path, labels, trailing_comma=True):
+    end = ",\n" if trailing_comma else "\n"
+    path.write_text("".join(",".join(map(str, row)) + end for row in labels))
+
+
+# --- label files ---------------------------------------------------------------------------------
+
+
+def test_colour_png_round_trip(tmp_path):
+    labels = _planes()
+    cv2.imwrite(str(tmp_path / "m.png"), COLOURS[labels])
+    read = read_label_map(tmp_path / "m.png")
+    assert read.shape == labels.shape
+    assert _same_partition(read, labels)
+
+
+def test_colour_mask_without_black_has_no_unsegmented_pixel():
+    image = COLOURS[1:3][np.indices((4, 4))[0] % 2]
+    labels = colours_to_labels(image)
+    assert labels.min() == 1 and np.unique(labels).size == 2
+
+
+def test_colours_differing_in_one_channel_are_different_planes():
+    image = np.array([[[10, 20, 30], [10, 20, 31], [0, 0, 0]]], np.uint8)
+    np.testing.assert_array_equal(colours_to_labels(image), [[1, 2, 0]])
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
+def test_single_channel_png_keeps_label_values(tmp_path, dtype):
+    labels = (_planes() * (1000 if dtype == np.uint16 else 10)).astype(dtype)
+    cv2.imwrite(str(tmp_path / "m.png"), labels)
+    read = read_label_map(tmp_path / "m.png")
+    assert read.dtype == dtype
+    np.testing.assert_array_equal(read, labels)
+
+
+def test_npy_and_cape_csv(tmp_path):
+    labels = _planes()
+    np.save(tmp_path / "a.npy", labels)
+    _write_cape(tmp_path / "b.csv", labels)
+    _write_cape(tmp_path / "c.csv", labels, trailing_comma=False)
+    for name in ("a.npy", "b.csv", "c.csv"):
+        np.testing.assert_array_equal(read_label_map(tmp_path / name), labels)
+
+
+@pytest.mark.parametrize(
+    ("name", "content", "message"),
+    [
+        ("ragged.csv", "1,2,3,\n1,2,\n", "differ in length"),
+        ("text.csv", "1,a,3,\n", "not an integer"),
+        ("empty.csv", "\n\n", "empty"),
+        ("broken.png", "not a png", "cannot read PNG"),
+        ("mask.jpg", "", "unsupported"),
+    ],
+)
+def test_unreadable_label_files(tmp_path, name, content, message):
+    (tmp_path / name).write_text(content)
+    with pytest.raises(InputError, match=message) as error:
+        read_label_map(tmp_path / name)
+    assert error.value.path == tmp_path / name
+
+
+@pytest.mark.parametrize(
+    ("array", "message"), [(np.ones((3, 3)), "integers"), (np.ones((2, 3, 3), int), "2-D")]
+)
+def test_rejects_npy_that_is_not_a_label_image(tmp_path, array, message):
+    np.save(tmp_path / "x.npy", array)
+    with pytest.raises(InputError, match=message):
+        read_label_map(tmp_path / "x.npy")
+
+
+def test_cape_csv_reads_large_frames_exactly(tmp_path):
+    labels = np.random.default_rng(1).integers(0, 40, (480, 640))
+    _write_cape(tmp_path / "f.csv", labels)
+    np.testing.assert_array_equal(read_cape_csv(tmp_path / "f.csv"), labels)
+
+
+# --- sequences -----------------------------------------------------------------------------------
+
+
+@pytest.fixture
+def sequence(tmp_path):
+    """GT: three colour masks. PRED: one per format, a merge on frame b, frame c missing, one extra."""
+    gt_dir, pred_dir = tmp_path / "gt", tmp_path / "pred"
+    gt_dir.mkdir()
+    pred_dir.mkdir()
+    frames = {name: _planes(seed=i) for i, name in enumerate(("0001.5", "0002.5", "0003.5"))}
+    for name, labels in frames.items():
+        cv2.imwrite(str(gt_dir / f"{name}.png"), COLOURS[labels])
+    predictions = {
+        "0001.5": np.where(frames["0001.5"] == 0, 0, frames["0001.5"] + 7),  # renumbered
+        "0002.5": np.where(frames["0002.5"] == 2, 1, frames["0002.5"]),  # planes 1 and 2 merged
+    }
+    np.save(pred_dir / "0001.5.npy", predictions["0001.5"])
+    _write_cape(pred_dir / "0002.5.csv", predictions["0002.5"])
+    np.save(pred_dir / "9999.npy", frames["0001.5"])
+    (pred_dir / "notes.txt").write_text("ignored")
+    return gt_dir, pred_dir, frames, predictions
+
+
+def test_evaluate_paths_scores_each_frame_and_averages(sequence):
+    gt_dir, pred_dir, frames, predictions = sequence
+    result = evaluate_paths(gt_dir, pred_dir)
+    assert [f.name for f in result.frames] == ["0001.5", "0002.5", "0003.5"]
+    assert result.frames_missing == ["0003.5"]
+    assert result.predictions_unmatched == ("9999.npy",)
+    expected = [
+        frame_statistics(frames["0001.5"], predictions["0001.5"]),
+        frame_statistics(frames["0002.5"], predictions["0002.5"]),
+        frame_statistics(frames["0003.5"], np.zeros_like(frames["0003.5"])),
+    ]
+    assert [f.statistics for f in result.frames] == expected
+    assert expected[0].fScore == 1.0 and expected[1].usr > 0 and expected[2].missed == 1.0
+    for name in METRIC_NAMES:
+        assert result.means[name] == pytest.approx(np.mean([getattr(s, name) for s in expected]))
+    assert set(result.to_dict()) == {*METRIC_NAMES, "frames", "frames_missing"}
+
+
+def test_thresholds_change_the_result(sequence):
+    gt_dir, pred_dir, _, _ = sequence
+    # The merged prediction overlaps each of its two planes with IoU 0.5: a partial overlap at
+    # part 0.2, none at part 0.6.
+    assert evaluate_paths(gt_dir, pred_dir, part=0.2).means["usr"] > 0
+    assert evaluate_paths(gt_dir, pred_dir, full=0.75, part=0.6).means["usr"] == 0
+
+
+def test_single_files_are_paired_whatever_their_names(tmp_path):
+    labels = _planes()
+    cv2.imwrite(str(tmp_path / "gt.png"), COLOURS[labels])
+    np.save(tmp_path / "out.npy", labels)
+    result = evaluate_paths(tmp_path / "gt.png", tmp_path / "out.npy")
+    assert len(result.frames) == 1 and result.means["panoptic"] == 1.0
+
+
+def test_input_errors(tmp_path, sequence):
+    gt_dir, pred_dir, frames, _ = sequence
+    np.save(pred_dir / "0003.5.npy", np.zeros((5, 5), int))
+    with pytest.raises(InputError, match="5x5 but ground truth 0003.5.png is 16x12") as error:
+        evaluate_paths(gt_dir, pred_dir)
+    assert error.value.path == pred_dir / "0003.5.npy"
+    np.save(pred_dir / "0002.5.npy", frames["0002.5"])
+    with pytest.raises(InputError, match="ambiguous"):
+        match_frames(gt_dir, pred_dir)
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(InputError, match="no label files"):
+        evaluate_paths(tmp_path / "empty", pred_dir)
+    with pytest.raises(InputError, match="both be folders or both be files"):
+        evaluate_paths(gt_dir, pred_dir / "0001.5.npy")
+    with pytest.raises(InputError, match="not found"):
+        evaluate_paths(gt_dir, tmp_path / "nowhere")
+    with pytest.raises(InputError, match="--full"):
+        evaluate_paths(gt_dir, pred_dir, full=0)
+
+
+# --- command line --------------------------------------------------------------------------------
+
+
+def test_cli_table(sequence):
+    gt_dir, pred_dir, _, _ = sequence
+    result = CliRunner().invoke(app, ["evaluate", str(gt_dir), str(pred_dir)])
+    assert result.exit_code == 0, result.output
+    for name in METRIC_NAMES:
+        assert name in result.output
+    assert "frames: 3" in result.output and "0003.5" in result.output
+
+
+def test_cli_json_and_per_frame_csv(sequence, tmp_path):
+    gt_dir, pred_dir, _, _ = sequence
+    per_frame = tmp_path / "frames.csv"
+    args = ["evaluate", str(gt_dir), str(pred_dir), "--json", "--full", "0.8", "--part", "0.3"]
+    result = CliRunner().invoke(app, [*args, "--per-frame", str(per_frame)])
+    assert result.exit_code == 0, result.output
+    payload = json.loads(result.stdout)
+    expected = evaluate_paths(gt_dir, pred_dir, full=0.8, part=0.3)
+    assert payload == expected.to_dict()
+    assert list(payload) == [*METRIC_NAMES, "frames", "frames_missing"]
+    assert payload["frames"] == 3 and payload["frames_missing"] == ["0003.5"]
+    with per_frame.open() as stream:
+        rows = list(csv.DictReader(stream))
+    assert [row["frame"] for row in rows] == ["0001.5", "0002.5", "0003.5"]
+    assert [row["missing"] for row in rows] == ["0", "0", "1"]
+    for row, frame in zip(rows, expected.frames):
+        assert float(row["recall"]) == frame.statistics.recall
+
+
+def test_cli_reports_bad_input_in_one_line(sequence, tmp_path):
+    gt_dir, _, _, _ = sequence
+    broken = tmp_path / "broken"
+    broken.mkdir()
+    (broken / "0001.5.csv").write_text("1,2,\n3,\n")
+    result = CliRunner().invoke(app, ["evaluate", str(gt_dir), str(broken)])
+    assert result.exit_code == 1
+    assert result.stderr.strip().count("\n") == 0
+    assert result.stderr.startswith(f"error: {broken / '0001.5.csv'}: ")
+    assert "Traceback" not in result.output
