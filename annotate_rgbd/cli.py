@@ -72,6 +72,17 @@ def parse_settings(settings: List[str]) -> dict:
     return overrides
 
 
+def parse_part_offsets(parts: List[str]) -> dict:
+    """``FILE:OFFSET`` strings -> {file: offset}."""
+    offsets = {}
+    for text in parts:
+        file, sep, offset = text.rpartition(":")
+        if not sep or not file or not offset.strip().isdigit():
+            raise InputError(None, f"--part {text!r}: expected FILE:OFFSET, e.g. --part 950-1900.xml:950")
+        offsets[file] = int(offset)
+    return offsets
+
+
 @app.command()
 def cvat2mask(
     sequence_dir: Path = typer.Argument(..., help="TUM RGB-D or ICL-NUIM (TUM format) sequence folder."),
@@ -84,8 +95,15 @@ def cvat2mask(
     max_mean_distance: Optional[float] = typer.Option(None, help="Drop a plane farther than this on average (m)."),
     max_time_diff: Optional[float] = typer.Option(None, help="Largest depth-to-RGB time difference (s)."),
     set_: List[str] = typer.Option([], "--set", help="Override any configuration key: SECTION.KEY=VALUE."),
+    part: List[str] = typer.Option(
+        [], "--part", help="Where an annotation part starts: FILE:OFFSET, the RGB index of its frame 0 (repeatable)."
+    ),
 ) -> None:
-    """Write one colour-coded plane mask per depth frame, refined against the depth."""
+    """Write one colour-coded plane mask per depth frame, refined against the depth.
+
+    Several exports are annotation parts of one sequence: their tracks are matched into one
+    plane id per physical plane (see tracks.csv).
+    """
     from .config import load_config
     from .pipeline import run_cvat2mask
 
@@ -99,8 +117,9 @@ def cvat2mask(
             "sequence.max_time_diff": max_time_diff,
         }
         overrides.update({k: v for k, v in named.items() if v is not None})
-        report = run_cvat2mask(sequence_dir, annotations, out, load_config(config, overrides))
-        summary = f"{report.written} masks written to {out / 'masks'}, {len(report.planes)} planes"
+        offsets = parse_part_offsets(part)
+        report = run_cvat2mask(sequence_dir, annotations, out, load_config(config, overrides), offsets=offsets)
+        summary = f"{report.written} masks written to {out / 'masks'}, {report.n_planes} planes"
         if report.warnings:
             summary += f", {len(report.warnings)} warnings (see {out / 'report.json'})"
         typer.echo(summary)
@@ -113,3 +132,22 @@ def presets() -> None:
 
     for name in preset_names():
         typer.echo(name)
+
+
+@app.command()
+def evaluate(
+    gt: Path = typer.Argument(..., help="Ground-truth masks: a folder of label files, or one file."),
+    pred: Path = typer.Argument(..., help="Predicted masks, matched to GT by file name; or one file."),
+    full: float = typer.Option(0.75, "--full", help="IoU for a full match (a true positive)."),
+    part: float = typer.Option(0.2, "--part", help="IoU for a partial overlap (usr, osr, noise, missed)."),
+    as_json: bool = typer.Option(False, "--json", help="Print one JSON object instead of a table."),
+    per_frame: Optional[Path] = typer.Option(None, "--per-frame", help="Also write each frame's statistics to this CSV."),
+) -> None:
+    """Score plane masks against ground truth with the EVOPS metrics (sequence means)."""
+    from .evaluate import evaluate_paths, format_json, format_table, write_per_frame_csv
+
+    with user_errors():
+        result = evaluate_paths(gt, pred, full=full, part=part)
+        if per_frame is not None:
+            write_per_frame_csv(result, per_frame)
+        typer.echo(format_json(result) if as_json else format_table(result))

@@ -31,8 +31,12 @@ class PlaneFit:
 def fit_plane(points: np.ndarray, config: RansacConfig) -> PlaneFit:
     """Fit a plane to 3-D points with Open3D's RANSAC.
 
-    Open3D's random generator is seeded before every call, so the result depends only on the
-    points and the configuration.
+    RANSAC searches for the plane among at most ``config.max_points`` of the points, taken
+    evenly through the input (for a plane's pixels in row-major order: a regular grid over the
+    plane); whether a point is an inlier is then decided for every point, with the same rule as
+    Open3D (distance to the plane below the threshold). Open3D runs single-threaded with its
+    generator seeded before every call: its multi-threaded RANSAC gives different planes from
+    run to run, and frames are parallelised across processes instead.
 
     Parameters
     ----------
@@ -44,17 +48,25 @@ def fit_plane(points: np.ndarray, config: RansacConfig) -> PlaneFit:
     -------
     PlaneFit
     """
-    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.ascontiguousarray(points, dtype=np.float64)))
-    o3d.utility.random.seed(config.seed)
-    model, inlier_index = cloud.segment_plane(
-        distance_threshold=config.distance_threshold, ransac_n=3, num_iterations=config.num_iterations
-    )
+    points = np.ascontiguousarray(points, dtype=np.float64)
+    sample = points
+    if config.max_points and len(points) > config.max_points:
+        sample = points[:: -(-len(points) // config.max_points)]
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(sample))
+    threads = o3d.utility.get_max_threads()
+    o3d.utility.set_max_threads(1)
+    try:
+        o3d.utility.random.seed(config.seed)
+        model, _ = cloud.segment_plane(
+            distance_threshold=config.distance_threshold, ransac_n=3, num_iterations=config.num_iterations
+        )
+    finally:
+        o3d.utility.set_max_threads(threads)
     equation = np.asarray(model, dtype=np.float64)
     equation = equation / np.linalg.norm(equation[:3])
     if equation[3] < 0:
         equation = -equation
-    inliers = np.zeros(len(points), dtype=bool)
-    inliers[np.asarray(inlier_index, dtype=np.intp)] = True
+    inliers = np.abs(points @ equation[:3] + equation[3]) < config.distance_threshold
     return PlaneFit(equation=equation, inliers=inliers)
 
 

@@ -85,3 +85,15 @@ def test_refine_removes_clutter_and_invalid_pixels_and_keeps_only_given_planes()
     expected[0, 0] = 0
     np.testing.assert_array_equal(refined, expected)
     np.testing.assert_allclose(fits[3].equation, [0, 0, -1, 2], atol=1e-6)
+
+
+def test_ransac_on_a_subsample_finds_the_same_plane_and_tests_every_point():
+    rng = np.random.default_rng(5)
+    xy = rng.uniform(-1, 1, (20000, 2))
+    points = np.c_[xy, 1.5 + 0.2 * xy[:, 1] + rng.normal(0, 0.003, 20000)]
+    points[::7, 2] -= 0.3  # clutter spread through the points
+    full = fit_plane(points, RansacConfig(max_points=0))
+    sampled = fit_plane(points, RansacConfig(max_points=1000))
+    assert sampled.inliers.shape == (20000,)
+    assert np.mean(full.inliers != sampled.inliers) < 0.002
+    assert not sampled.inliers[::7].any()
