@@ -98,6 +98,9 @@ def cvat2mask(
     part: List[str] = typer.Option(
         [], "--part", help="Where an annotation part starts: FILE:OFFSET, the RGB index of its frame 0 (repeatable)."
     ),
+    jobs: Optional[int] = typer.Option(None, "--jobs", "-j", min=1, help="Worker processes [default: all cores]."),
+    force: bool = typer.Option(False, "--force", help="Redo every frame, even those unchanged since the last run."),
+    raw_masks: bool = typer.Option(False, "--raw-masks", help="Also write masks_raw/: the shapes as drawn, unrefined."),
 ) -> None:
     """Write one colour-coded plane mask per depth frame, refined against the depth.
 
@@ -105,7 +108,9 @@ def cvat2mask(
     plane id per physical plane (see tracks.csv).
     """
     from .config import load_config
+    from .execute import default_workers
     from .pipeline import run_cvat2mask
+    from .progress import Progress
 
     with user_errors():
         overrides = parse_settings(set_)
@@ -118,11 +123,42 @@ def cvat2mask(
         }
         overrides.update({k: v for k, v in named.items() if v is not None})
         offsets = parse_part_offsets(part)
-        report = run_cvat2mask(sequence_dir, annotations, out, load_config(config, overrides), offsets=offsets)
-        summary = f"{report.written} masks written to {out / 'masks'}, {report.n_planes} planes"
+        progress = Progress({sequence_dir.name: 0})
+        report = run_cvat2mask(
+            sequence_dir, annotations, out, load_config(config, overrides), offsets=offsets,
+            workers=jobs or default_workers(), force=force, raw_masks=raw_masks,
+            progress=progress.callback(sequence_dir.name),
+        )
+        progress.finish()
+        summary = (
+            f"{report.written} masks in {out / 'masks'} ({report.counts['made']} made, "
+            f"{report.counts['reused']} unchanged), {report.n_planes} planes"
+        )
         if report.warnings:
             summary += f", {len(report.warnings)} warnings (see {out / 'report.json'})"
         typer.echo(summary)
+
+
+@app.command()
+def batch(
+    manifest: Path = typer.Argument(..., help="TOML manifest with one [[scene]] table per scene."),
+    jobs: Optional[int] = typer.Option(None, "--jobs", "-j", min=1, help="Worker processes [default: the manifest's, else all cores]."),
+    force: bool = typer.Option(False, "--force", help="Redo every frame, even those unchanged since the last run."),
+) -> None:
+    """Relabel several scenes with one pool of workers; only changed frames are redone."""
+    from .batch import read_manifest, run_batch, summary_lines
+    from .execute import default_workers
+    from .progress import Progress
+
+    with user_errors():
+        scenes, manifest_jobs = read_manifest(manifest)
+        progress = Progress({scene.name: 0 for scene in scenes})
+        outcomes = run_batch(scenes, jobs or manifest_jobs or default_workers(), force, progress.callback)
+        progress.finish()
+        for line in summary_lines(outcomes):
+            typer.echo(line)
+        if any(o.error is not None or o.failed_frames for o in outcomes):
+            raise typer.Exit(1)
 
 
 @app.command()

@@ -8,8 +8,9 @@ the tables and the report.
 
 from __future__ import annotations
 
+import json
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Mapping, Sequence as SequenceType
 
@@ -20,6 +21,7 @@ from .annotation import Shape
 from .config import Config, config_to_dict
 from .cvat import read_cvat
 from .errors import InputError
+from .execute import JOURNAL, fingerprint, previous_results, run_jobs
 from .palette import colour_hex, colourize, plane_colours
 from .parts import Part, frame_owners, place_parts
 from .segment import segment_frame
@@ -55,6 +57,8 @@ class FrameJob:
         (width, height) of the annotated image, where the export states it.
     part_path : str
         The export the shapes come from (for messages).
+    raw_mask_path : Path or None
+        Where the unrefined mask goes (the labeller's shapes as drawn), if wanted.
     """
 
     depth_path: Path
@@ -62,17 +66,20 @@ class FrameJob:
     shapes: tuple[tuple[int, Shape], ...]
     image_size: tuple[int, int] | None
     part_path: str
+    raw_mask_path: Path | None = None
 
 
 @dataclass
 class RunReport:
-    """Summary of a finished run (the content of ``report.json``)."""
+    """Summary of a finished run (the content of ``report.json``, and ``counts`` of frames
+    ``made``, ``reused`` from an earlier run and ``failed``)."""
 
     frames: list[dict]
     tracks: list[TrackPlane]
     n_planes: int
     warnings: list[str]
     notes: list[str]
+    counts: dict[str, int] = field(default_factory=dict)
 
     @property
     def written(self) -> int:
@@ -80,15 +87,14 @@ class RunReport:
         return sum(1 for f in self.frames if f["status"] == "written")
 
 
-def run_frame_job(job: FrameJob, config: Config, colours: np.ndarray) -> dict:
-    """Read the depth frame, segment it and write its mask.
+def run_frame_job(task: tuple[FrameJob, Config, np.ndarray]) -> dict:
+    """Read the depth frame, segment it and write its mask (and raw mask, if wanted).
 
     Parameters
     ----------
-    job : FrameJob
-    config : Config
-    colours : ndarray of uint8, shape (n_planes, 3)
-        The plane palette.
+    task : (FrameJob, Config, ndarray)
+        The job, the configuration and the plane palette (``(n_planes, 3)`` uint8), as one
+        picklable argument for worker processes.
 
     Returns
     -------
@@ -101,6 +107,7 @@ def run_frame_job(job: FrameJob, config: Config, colours: np.ndarray) -> dict:
         The depth image is unreadable (the frame is skipped) or its size differs from the
         annotated image (fatal).
     """
+    job, config, colours = task
     depth_raw = read_depth(job.depth_path)
     if job.image_size is not None and depth_raw.shape != (job.image_size[1], job.image_size[0]):
         raise SizeMismatch(
@@ -109,6 +116,8 @@ def run_frame_job(job: FrameJob, config: Config, colours: np.ndarray) -> dict:
             f"annotates {job.image_size[0]}x{job.image_size[1]} images",
         )
     result = segment_frame(depth_raw, job.shapes, config)
+    if job.raw_mask_path is not None:
+        write_png(job.raw_mask_path, colourize(result.drawn, colours))
     write_png(job.mask_path, colourize(result.labels, colours))
     return {"kept": result.kept, "dropped": result.dropped}
 
@@ -158,6 +167,7 @@ def plan_run(
     out_dir: str | Path,
     config: Config,
     offsets: Mapping[str, int] | None = None,
+    raw_masks: bool = False,
 ) -> RunPlan:
     """Read the inputs and decide, for every depth frame, whether and how it gets a mask.
 
@@ -235,6 +245,7 @@ def plan_run(
                 shapes=shapes,
                 image_size=part.annotation.image_size.get(frame),
                 part_path=part.annotation.path,
+                raw_mask_path=out_dir / "masks_raw" / Path(depth_file).name if raw_masks else None,
             )
             jobs.append((d, job))
     return RunPlan(sequence, parts, tracks, colours, frames, jobs, warnings, notes)
@@ -246,9 +257,15 @@ def run_cvat2mask(
     out_dir: str | Path,
     config: Config,
     offsets: Mapping[str, int] | None = None,
+    workers: int = 1,
+    force: bool = False,
+    raw_masks: bool = False,
     progress: Callable[[int, int], None] | None = None,
 ) -> RunReport:
     """Run the whole job: ``masks/``, ``planes.csv``, ``tracks.csv`` and ``report.json`` in ``out_dir``.
+
+    A re-run in the same ``out_dir`` redoes only the frames whose inputs changed
+    (:mod:`annotate_rgbd.execute`); masks of frames that no longer get one are removed.
 
     Parameters
     ----------
@@ -262,8 +279,14 @@ def run_cvat2mask(
     offsets : mapping of str to int, optional
         Explicit part offsets by file name (``--part FILE:OFFSET``); they take precedence over
         the configuration's ``[[parts]]``.
+    workers : int
+        Processes that make masks in parallel (1: in this process).
+    force : bool
+        Redo every frame, even those whose inputs are unchanged.
+    raw_masks : bool
+        Also write ``masks_raw/``: the labeller's shapes as drawn, before any depth check.
     progress : callable, optional
-        Called as ``progress(done, total)`` after each mask.
+        Called as ``progress(done, total)`` after each frame that gets a mask.
 
     Returns
     -------
@@ -275,27 +298,142 @@ def run_cvat2mask(
         A fatal problem with an input (missing files, malformed export, parts that cannot be
         placed, sizes that do not match): nothing sensible can be produced.
     """
-    out_dir = Path(out_dir)
-    plan = plan_run(sequence_dir, annotation_paths, out_dir, config, offsets)
-    warnings = plan.warnings
-    for done, (index, job) in enumerate(plan.jobs, start=1):
-        entry = plan.frames[index]
-        try:
-            entry.update(run_frame_job(job, config, plan.colours))
-        except SizeMismatch:
-            raise
-        except InputError as exc:
-            entry["reason"] = UNREADABLE_DEPTH
-            _warn(warnings, f"{exc}; skipped")
-        else:
-            entry.update(status="written", mask=f"masks/{job.mask_path.name}")
-        if progress:
-            progress(done, len(plan.jobs))
+    scene = SceneRun(Path(sequence_dir).name, plan_run(sequence_dir, annotation_paths, out_dir, config, offsets, raw_masks),
+                     Path(out_dir), config, progress)
+    execute_scenes([scene], workers=workers, force=force)
+    if scene.error is not None:
+        raise scene.error
+    return finish_scene(scene)
 
-    report = RunReport(frames=plan.frames, tracks=plan.tracks, n_planes=plan.n_planes, warnings=warnings, notes=plan.notes)
-    _write_tables(out_dir, report, plan.colours)
-    write_json(out_dir / "report.json", _report_json(report, plan, config))
+
+@dataclass
+class SceneRun:
+    """One scene's plan on its way through :func:`execute_scenes` and :func:`finish_scene`.
+
+    Parameters
+    ----------
+    name : str
+        For progress and summaries.
+    plan : RunPlan
+    out_dir : Path
+    config : Config
+    progress : callable, optional
+        ``progress(done, total)`` after each of the scene's frames.
+    counts : dict
+        Filled in: frames ``made``, ``reused`` (unchanged since an earlier run) and ``failed``.
+    error : InputError, optional
+        Set when a fatal problem stopped the scene (its other frames are then not made).
+    """
+
+    name: str
+    plan: RunPlan
+    out_dir: Path
+    config: Config
+    progress: Callable[[int, int], None] | None = None
+    counts: dict[str, int] = field(default_factory=lambda: {"made": 0, "reused": 0, "failed": 0})
+    error: InputError | None = None
+
+
+def execute_scenes(scenes: SequenceType[SceneRun], workers: int = 1, force: bool = False) -> None:
+    """Make the masks of several scenes with one pool of workers, reusing unchanged masks.
+
+    Fills in every frame's report entry. Each finished frame is appended to its scene's journal
+    at once, so that an interrupted run loses no finished work. A fatal problem in one scene
+    (a depth image of the wrong size) stops that scene only.
+
+    Parameters
+    ----------
+    scenes : sequence of SceneRun
+    workers : int
+        Worker processes (1: in this process).
+    force : bool
+        Redo every frame, even those unchanged since an earlier run.
+    """
+    tasks, owners = [], []
+    done = {id(scene): 0 for scene in scenes}
+    for scene in scenes:
+        previous = {} if force else previous_results(scene.out_dir)
+        plan = scene.plan
+        for index, job in plan.jobs:
+            entry = plan.frames[index]
+            entry["fingerprint"] = fingerprint(job, scene.config)
+            reusable = previous.get(job.mask_path.name)
+            outputs = [job.mask_path] + ([job.raw_mask_path] if job.raw_mask_path else [])
+            if reusable and reusable[0] == entry["fingerprint"] and all(p.is_file() for p in outputs):
+                _finish(entry, job, reusable[1])
+                scene.counts["reused"] += 1
+                _step(scene, done)
+            else:
+                tasks.append((job, scene.config, plan.colours))
+                owners.append((scene, index))
+        scene.out_dir.mkdir(parents=True, exist_ok=True)
+    for scene in scenes:
+        if scene.progress:
+            scene.progress(done[id(scene)], len(scene.plan.jobs))
+    failures: dict[int, dict[int, str]] = {id(scene): {} for scene in scenes}
+    journals = {id(scene): open(scene.out_dir / JOURNAL, "a", encoding="utf-8") for scene in scenes}
+    try:
+        for k, result in run_jobs(tasks, run_frame_job, workers):
+            scene, index = owners[k]
+            if scene.error is not None:
+                continue
+            job, entry = tasks[k][0], scene.plan.frames[index]
+            if isinstance(result, SizeMismatch):
+                scene.error = result
+            elif isinstance(result, InputError):
+                entry.update(status="failed", reason=UNREADABLE_DEPTH, error=str(result))
+                failures[id(scene)][index] = f"{result}; skipped"
+                scene.counts["failed"] += 1
+            else:
+                _finish(entry, job, result)
+                scene.counts["made"] += 1
+                record = {"mask": job.mask_path.name, "fingerprint": entry["fingerprint"], "result": result}
+                journals[id(scene)].write(json.dumps(record) + "\n")
+                journals[id(scene)].flush()
+            _step(scene, done)
+    finally:
+        for journal in journals.values():
+            journal.close()
+    for scene in scenes:
+        # In frame order, whatever order the workers finished in.
+        for index in sorted(failures[id(scene)]):
+            _warn(scene.plan.warnings, failures[id(scene)][index])
+
+
+def finish_scene(scene: SceneRun) -> RunReport:
+    """Write a scene's tables and report, remove stale masks and the journal."""
+    plan = scene.plan
+    report = RunReport(
+        frames=plan.frames, tracks=plan.tracks, n_planes=plan.n_planes, warnings=plan.warnings, notes=plan.notes,
+        counts=scene.counts,
+    )
+    _write_tables(scene.out_dir, report, plan.colours)
+    write_json(scene.out_dir / "report.json", _report_json(report, plan, scene.config))
+    remove_stale_outputs(scene.out_dir, plan)
+    (scene.out_dir / JOURNAL).unlink(missing_ok=True)
     return report
+
+
+def _step(scene: SceneRun, done: dict[int, int]) -> None:
+    done[id(scene)] += 1
+    if scene.progress:
+        scene.progress(done[id(scene)], len(scene.plan.jobs))
+
+
+def _finish(entry: dict, job: FrameJob, result: dict) -> None:
+    entry.update(result)
+    entry.update(status="written", mask=f"masks/{job.mask_path.name}")
+
+
+def remove_stale_outputs(out_dir: Path, plan: RunPlan) -> None:
+    """Delete masks that this run did not write (frames now skipped or failed) and temporary files."""
+    written = {Path(f["mask"]).name for f in plan.frames if f["status"] == "written"}
+    raw_written = written if any(job.raw_mask_path for _, job in plan.jobs) else set()
+    for folder, keep in (("masks", written), ("masks_raw", raw_written)):
+        for path in (out_dir / folder).glob("*"):
+            temporary = path.name.startswith(".") and path.name.endswith(".tmp")
+            if temporary or (path.suffix == ".png" and path.name not in keep):
+                path.unlink(missing_ok=True)
 
 
 def _part_tracks(part: Part) -> PartTracks:
@@ -421,6 +559,7 @@ def _report_json(report: RunReport, plan: RunPlan, config: Config) -> dict:
             "depth_frames": len(report.frames),
             "masks_written": len(written),
             "frames_skipped": skipped,
+            "frames_failed": sum(1 for f in report.frames if f["status"] == "failed"),
             "planes": report.n_planes,
             "planes_kept": sum(len(f["kept"]) for f in written),
             "planes_dropped": sum(len(f["dropped"]) for f in written),

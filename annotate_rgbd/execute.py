@@ -1,0 +1,144 @@
+"""Running frame jobs: in parallel, resumable, redoing only what changed.
+
+Every mask gets a *fingerprint*: a hash of what it is made from — the depth image's bytes, the
+frame's shapes and plane ids, the settings that change a mask (camera, filter, RANSAC) and the
+tool version. A finished frame's fingerprint is recorded twice: in a journal appended as frames
+finish (``.annotate-rgbd-journal.jsonl``, which survives an interrupted run) and in
+``report.json`` at the end of a run (when the journal is removed). A re-run reuses a mask whose
+recorded fingerprint matches and whose file exists, and makes the others anew; since every mask
+is written atomically and the work is deterministic, an interrupted run followed by a re-run
+gives exactly the files of one uninterrupted run.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import multiprocessing
+import os
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+from typing import Callable, Iterator, Sequence
+
+import numpy as np
+
+from . import __version__
+from .config import Config, config_to_dict
+from .errors import InputError
+
+JOURNAL = ".annotate-rgbd-journal.jsonl"
+
+
+def default_workers() -> int:
+    """Number of worker processes by default: every core this process may use."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # pragma: no cover - not on Linux
+        return max(1, os.cpu_count() or 1)
+
+
+def fingerprint(job, config: Config) -> str:
+    """Hash of everything one mask depends on.
+
+    Parameters
+    ----------
+    job : FrameJob
+    config : Config
+
+    Returns
+    -------
+    str
+        Hex digest; equal digests mean an equal mask.
+    """
+    digest = hashlib.sha256()
+    settings = config_to_dict(config)
+    digest.update(json.dumps([__version__, settings["camera"], settings["filter"], settings["ransac"]]).encode())
+    try:
+        digest.update(job.depth_path.read_bytes())
+    except OSError:
+        digest.update(b"<unreadable>")
+    digest.update(json.dumps(job.image_size).encode())
+    for plane_id, shape in job.shapes:
+        digest.update(f"{plane_id}:{shape.kind}:{shape.z_order}:".encode())
+        digest.update(np.ascontiguousarray(shape.points, dtype=np.float64).tobytes())
+        if shape.bitmap is not None:
+            digest.update(f"{shape.bitmap.shape}".encode())
+            digest.update(np.packbits(shape.bitmap).tobytes())
+    return digest.hexdigest()
+
+
+def previous_results(out_dir: Path) -> dict[str, tuple[str, dict]]:
+    """Finished frames of earlier runs in ``out_dir``: mask name -> (fingerprint, report entries).
+
+    Read from ``report.json`` and from the journal of an interrupted run (the journal is newer);
+    a torn last journal line (the run was killed while writing it) is ignored.
+    """
+    found: dict[str, tuple[str, dict]] = {}
+    try:
+        report = json.loads((out_dir / "report.json").read_text(encoding="utf-8"))
+        for entry in report.get("frames", []):
+            if entry.get("status") == "written" and "fingerprint" in entry:
+                found[Path(entry["mask"]).name] = (
+                    entry["fingerprint"],
+                    {"kept": entry["kept"], "dropped": entry["dropped"]},
+                )
+    except (OSError, ValueError, KeyError, TypeError):
+        pass
+    try:
+        lines = (out_dir / JOURNAL).read_text(encoding="utf-8").splitlines()
+    except (OSError, UnicodeDecodeError):
+        lines = []
+    for line in lines:
+        try:
+            record = json.loads(line)
+            found[record["mask"]] = (record["fingerprint"], record["result"])
+        except (ValueError, KeyError, TypeError):
+            continue
+    return found
+
+
+def run_jobs(
+    jobs: Sequence,
+    worker: Callable,
+    workers: int,
+) -> Iterator[tuple[int, dict | InputError]]:
+    """Run ``worker(job)`` for every job, in this process or in a pool of processes.
+
+    Parameters
+    ----------
+    jobs : sequence
+        Picklable arguments, one per task.
+    worker : callable
+        A module-level function (so that it can be sent to worker processes); it returns a
+        dict, or raises :class:`InputError` for a problem with that task's input.
+    workers : int
+        1: run here, one after the other. More: a pool of that many processes.
+
+    Yields
+    ------
+    (int, dict or InputError)
+        Index of the job and its result (or the input error it raised), in completion order.
+    """
+    if workers <= 1 or len(jobs) <= 1:
+        for index, job in enumerate(jobs):
+            yield index, _call(worker, job)
+        return
+    # "spawn": forking a process that has already run Open3D's thread pool is not safe.
+    context = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(max_workers=workers, mp_context=context) as pool:
+        futures = {pool.submit(_call, worker, job): index for index, job in enumerate(jobs)}
+        try:
+            from concurrent.futures import as_completed
+
+            for future in as_completed(futures):
+                yield futures[future], future.result()
+        except BaseException:
+            pool.shutdown(wait=False, cancel_futures=True)
+            raise
+
+
+def _call(worker: Callable, job) -> dict | InputError:
+    try:
+        return worker(job)
+    except InputError as exc:
+        return exc

@@ -1,0 +1,84 @@
+"""Progress of long runs: frames per second and ETA, per scene and overall.
+
+On a terminal one status line is redrawn in place; otherwise (a log file, CI) a plain line is
+printed at most every ``interval`` seconds and at the end of each scene.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from typing import Callable, TextIO
+
+
+class Progress:
+    """Tracks frames done per scene and prints the status.
+
+    Parameters
+    ----------
+    totals : dict of str to int
+        Frames to make per scene.
+    stream : text stream, optional
+        Where to print (default: standard error).
+    interval : float
+        Seconds between plain log lines when ``stream`` is not a terminal.
+    clock : callable
+        Time source (for tests).
+    """
+
+    def __init__(self, totals: dict[str, int], stream: TextIO | None = None, interval: float = 10.0,
+                 clock: Callable[[], float] = time.monotonic):
+        self.totals = dict(totals)
+        self.done = {scene: 0 for scene in totals}
+        self.stream = stream if stream is not None else sys.stderr
+        self.interval = interval
+        self.clock = clock
+        self.start = clock()
+        self.last_line = -float("inf")
+        self.interactive = hasattr(self.stream, "isatty") and self.stream.isatty()
+
+    def callback(self, scene: str) -> Callable[[int, int], None]:
+        """A ``progress(done, total)`` function for one scene."""
+
+        def update(done: int, total: int) -> None:
+            self.totals[scene] = total
+            self.done[scene] = done
+            self._show(scene, final=done >= total)
+
+        return update
+
+    def line(self, scene: str) -> str:
+        """The status text: the scene's progress and, for several scenes, the overall one."""
+        elapsed = max(self.clock() - self.start, 1e-9)
+        done, total = sum(self.done.values()), sum(self.totals.values())
+        rate = done / elapsed
+        eta = (total - done) / rate if rate > 0 else float("nan")
+        text = f"{scene}: {self.done[scene]}/{self.totals[scene]} frames"
+        if len(self.totals) > 1:
+            text += f" | all scenes: {done}/{total}"
+        text += f" | {rate:.1f} frames/s | ETA {_duration(eta)}"
+        return text
+
+    def finish(self) -> None:
+        """End the in-place line on a terminal."""
+        if self.interactive:
+            self.stream.write("\n")
+            self.stream.flush()
+
+    def _show(self, scene: str, final: bool) -> None:
+        now = self.clock()
+        if self.interactive:
+            self.stream.write("\r\033[K" + self.line(scene))
+            self.stream.flush()
+        elif final or now - self.last_line >= self.interval:
+            self.stream.write(self.line(scene) + "\n")
+            self.stream.flush()
+            self.last_line = now
+
+
+def _duration(seconds: float) -> str:
+    if seconds != seconds or seconds == float("inf"):
+        return "--:--"
+    seconds = int(round(seconds))
+    hours, rest = divmod(seconds, 3600)
+    return f"{hours}:{rest // 60:02d}:{rest % 60:02d}" if hours else f"{rest // 60:02d}:{rest % 60:02d}"

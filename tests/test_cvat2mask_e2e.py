@@ -1,0 +1,149 @@
+"""End to end on sample_data: the masks against the renderer's exact ground truth."""
+
+from __future__ import annotations
+
+import csv
+import json
+import shutil
+
+import cv2
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from annotate_rgbd.cli import app
+from annotate_rgbd.config import load_config
+from annotate_rgbd.pipeline import run_cvat2mask
+
+from conftest import SAMPLE_DATA
+
+SEQUENCE = SAMPLE_DATA / "sequence"
+ANNOTATIONS = SAMPLE_DATA / "annotations.xml"
+GROUND_TRUTH = SAMPLE_DATA / "ground_truth"
+
+
+@pytest.fixture(scope="module")
+def sample_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("sample_run")
+    report = run_cvat2mask(SEQUENCE, [ANNOTATIONS], out, load_config(SAMPLE_DATA / "camera.toml"))
+    return out, report
+
+
+def read_mask_ids(path, colour_to_plane):
+    image = cv2.cvtColor(cv2.imread(str(path)), cv2.COLOR_BGR2RGB)
+    packed = (image[..., 0].astype(np.int64) << 16) | (image[..., 1].astype(np.int64) << 8) | image[..., 2]
+    ids = np.zeros(packed.shape, np.int64)
+    for colour, plane in colour_to_plane.items():
+        ids[packed == colour] = plane
+    assert np.all((ids > 0) | (packed == 0)), "a colour that is in no plane of planes.csv"
+    return ids
+
+
+def planes_table(out):
+    with open(out / "planes.csv", newline="") as handle:
+        return list(csv.DictReader(handle))
+
+
+def test_masks_match_the_ground_truth(sample_run):
+    out, report = sample_run
+    truth = json.loads((GROUND_TRUTH / "planes.json").read_text())
+    gt_value_of_track = {p["track_id"]: p["gt_value"] for p in truth["planes"]}
+    kept_values = {p["gt_value"] for p in truth["planes"] if p["expected"] == "kept"}
+    rows = planes_table(out)
+    colour_to_plane = {(int(r["r"]) << 16) | (int(r["g"]) << 8) | int(r["b"]): int(r["plane_id"]) for r in rows}
+    gt_of_plane = {int(r["plane_id"]): gt_value_of_track[int(r["track_id"])] for r in rows}
+
+    ious, wrong, checked = [], 0, 0
+    written = [f for f in report.frames if f["status"] == "written"]
+    assert len(written) == 19
+    for frame in written:
+        ours = read_mask_ids(out / frame["mask"], colour_to_plane)
+        gt = cv2.imread(str(GROUND_TRUTH / (frame["mask"].split("/")[-1])), cv2.IMREAD_UNCHANGED).astype(np.int64)
+        ours_as_gt = np.vectorize(lambda p: gt_of_plane.get(p, 0))(ours) if ours.any() else ours
+        for value in kept_values & set(np.unique(gt).tolist()):
+            a, b = ours_as_gt == value, gt == value
+            ious.append((a & b).sum() / (a | b).sum())
+        # Clutter, missing depth, background and the planes that must be dropped.
+        should_be_empty = ~np.isin(gt, list(kept_values))
+        wrong += int((should_be_empty & (ours > 0)).sum())
+        checked += int(should_be_empty.sum())
+    assert np.mean(ious) >= 0.95
+    assert wrong / checked < 0.01
+
+
+def test_far_and_glass_planes_are_dropped_with_their_reason(sample_run):
+    out, report = sample_run
+    truth = json.loads((GROUND_TRUTH / "planes.json").read_text())
+    rows = {int(r["track_id"]): int(r["plane_id"]) for r in planes_table(out)}
+    expected_drop = {rows[p["track_id"]]: p["reason"] for p in truth["planes"] if p["expected"] == "dropped"}
+    assert set(expected_drop.values()) == {"too_far", "invalid_depth"}
+    for frame in (f for f in report.frames if f["status"] == "written"):
+        dropped = {d["plane"]: d["reason"] for d in frame["dropped"]}
+        kept = {k["plane"] for k in frame["kept"]}
+        for plane, reason in expected_drop.items():
+            assert plane not in kept
+            if plane in dropped:
+                assert dropped[plane] == reason
+
+
+def test_one_colour_per_plane_through_the_sequence(sample_run):
+    out, report = sample_run
+    truth = json.loads((GROUND_TRUTH / "planes.json").read_text())
+    rows = planes_table(out)
+    assert len({r["colour"] for r in rows}) == len(rows) == len(truth["planes"])
+    colour_to_plane = {(int(r["r"]) << 16) | (int(r["g"]) << 8) | int(r["b"]): int(r["plane_id"]) for r in rows}
+    gt_of_plane = {int(r["plane_id"]): int(r["track_id"]) + 1 for r in rows}
+    for frame in (f for f in report.frames if f["status"] == "written"):
+        ours = read_mask_ids(out / frame["mask"], colour_to_plane)
+        gt = cv2.imread(str(GROUND_TRUTH / frame["mask"].split("/")[-1]), cv2.IMREAD_UNCHANGED)
+        for plane in set(np.unique(ours).tolist()) - {0}:
+            values, counts = np.unique(gt[ours == plane], return_counts=True)
+            assert values[np.argmax(counts)] == gt_of_plane[plane]  # the same physical plane every frame
+
+
+def test_report_lists_every_depth_frame(sample_run):
+    out, report = sample_run
+    data = json.loads((out / "report.json").read_text())
+    depth_files = [line.split()[1] for line in (SEQUENCE / "depth.txt").read_text().splitlines() if not line.startswith("#")]
+    assert [f["depth"] for f in data["frames"]] == depth_files
+    skipped = [f for f in data["frames"] if f["status"] == "skipped"]
+    assert [f["reason"] for f in skipped] == ["no_rgb_frame_within_max_time_diff"]
+    for frame in (f for f in data["frames"] if f["status"] == "written"):
+        assert abs(frame["time_offset"]) <= 0.02
+        for kept in frame["kept"]:
+            assert kept["inliers"] <= kept["valid_pixels"] <= kept["pixels"]
+            assert len(kept["equation"]) == 4
+    assert data["summary"]["masks_written"] == 19
+
+
+def test_cli_rerun_parallel_gives_identical_files(sample_run, tmp_path):
+    out, _ = sample_run
+    runner = CliRunner()
+    args = ["cvat2mask", str(SEQUENCE), str(ANNOTATIONS), "--config", str(SAMPLE_DATA / "camera.toml")]
+    result = runner.invoke(app, args + ["--out", str(tmp_path / "again"), "--jobs", "2"])
+    assert result.exit_code == 0, result.output
+    assert "19 masks" in result.output
+    for name in ["planes.csv", "tracks.csv", "report.json", *(f"masks/{p.name}" for p in (out / "masks").iterdir())]:
+        assert (tmp_path / "again" / name).read_bytes() == (out / name).read_bytes(), name
+
+
+def test_rerun_redoes_only_changed_frames(tmp_path):
+    seq = tmp_path / "sequence"
+    shutil.copytree(SEQUENCE, seq)
+    config = load_config(SAMPLE_DATA / "camera.toml")
+    first = run_cvat2mask(seq, [ANNOTATIONS], tmp_path / "out", config)
+    assert first.counts == {"made": 19, "reused": 0, "failed": 0}
+    before = {p.name: p.read_bytes() for p in (tmp_path / "out" / "masks").iterdir()}
+    again = run_cvat2mask(seq, [ANNOTATIONS], tmp_path / "out", config)
+    assert again.counts == {"made": 0, "reused": 19, "failed": 0}
+    # A depth image changes: that frame only is made again.
+    depth_file = next(f for f in first.frames if f["status"] == "written")["depth"]
+    depth = cv2.imread(str(seq / depth_file), cv2.IMREAD_UNCHANGED)
+    depth[:20] = 0
+    cv2.imwrite(str(seq / depth_file), depth)
+    third = run_cvat2mask(seq, [ANNOTATIONS], tmp_path / "out", config)
+    assert third.counts == {"made": 1, "reused": 18, "failed": 0}
+    forced = run_cvat2mask(seq, [ANNOTATIONS], tmp_path / "out", config, force=True)
+    assert forced.counts == {"made": 19, "reused": 0, "failed": 0}
+    after = {p.name: p.read_bytes() for p in (tmp_path / "out" / "masks").iterdir()}
+    assert sum(before[name] != after[name] for name in before) == 1
