@@ -21,7 +21,7 @@ that is not listed is an error, so a typo never goes unnoticed::
     distance_threshold = 0.02
     num_iterations = 1000
     seed = 0
-    max_points = 20000
+    max_points = 5000
     [stitch]            # several annotation parts of one sequence
     min_iou = 0.5
     [[parts]]           # where a part starts in the RGB list (repeat per part)
@@ -118,15 +118,15 @@ class RansacConfig:
         identical masks.
     max_points : int
         RANSAC looks for the plane among at most this many of a plane's points, spread evenly
-        over it; every point is then tested against that plane. 20,000 points pin a plane down
-        as well as all 300,000 of a full VGA frame, at a fraction of the time (this project's
-        measurement, see benchmarks/). 0: use every point.
+        over it (a regular pixel grid); every pixel is then tested against that plane. A few
+        thousand points pin a plane down as well as the 300,000 of a full VGA frame, at a
+        fraction of the time (this project's measurement, see benchmarks/). 0: every point.
     """
 
     distance_threshold: float = 0.02
     num_iterations: int = 1000
     seed: int = 0
-    max_points: int = 20000
+    max_points: int = 5000
 
 
 @dataclass(frozen=True)

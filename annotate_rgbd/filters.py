@@ -59,16 +59,20 @@ def plane_statistics(labels: np.ndarray, depth_m: np.ndarray, camera: Camera) ->
     -------
     PlaneStats
     """
-    rows, cols = np.nonzero(labels)
-    ids = labels[rows, cols]
-    z = depth_m[rows, cols].astype(np.float64)
-    valid = np.isfinite(z)
-    ray = np.hypot(np.hypot((cols[valid] - camera.cx) / camera.fx, (rows[valid] - camera.cy) / camera.fy), 1.0)
-    plane_ids, index = np.unique(ids, return_inverse=True)
-    n = plane_ids.size
-    pixels = np.bincount(index, minlength=n)
-    valid_pixels = np.bincount(index[valid], minlength=n)
-    distance_sum = np.bincount(index[valid], weights=z[valid] * ray, minlength=n)
+    height, width = labels.shape
+    # Length of each pixel's viewing ray at z = 1: distance = depth * ray.
+    ray = np.sqrt(
+        (((np.arange(height, dtype=np.float32) - np.float32(camera.cy)) / np.float32(camera.fy)) ** 2)[:, None]
+        + (((np.arange(width, dtype=np.float32) - np.float32(camera.cx)) / np.float32(camera.fx)) ** 2)[None, :]
+        + np.float32(1.0)
+    )
+    on_valid = np.where(np.isfinite(depth_m), labels, 0).ravel()  # invalid pixels count for label 0
+    n = int(labels.max(initial=0)) + 1
+    pixels = np.bincount(labels.ravel(), minlength=n)
+    valid_pixels = np.bincount(on_valid, minlength=n)
+    distance_sum = np.bincount(on_valid, weights=(depth_m * ray).ravel(), minlength=n)
+    plane_ids = np.flatnonzero(pixels[1:]) + 1
+    pixels, valid_pixels, distance_sum = pixels[plane_ids], valid_pixels[plane_ids], distance_sum[plane_ids]
     with np.errstate(invalid="ignore", divide="ignore"):
         mean_distance = np.where(valid_pixels > 0, distance_sum / np.maximum(valid_pixels, 1), np.nan)
     return PlaneStats(plane_ids.astype(np.int32), pixels, valid_pixels, mean_distance)

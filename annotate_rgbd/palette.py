@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from functools import lru_cache
 
+import cv2
 import numpy as np
 from skimage.color import rgb2lab
 
@@ -55,6 +56,12 @@ def colourize(labels: np.ndarray, colours: np.ndarray) -> np.ndarray:
         RGB image, black where ``labels`` is 0.
     """
     lookup = np.vstack([np.zeros((1, 3), dtype=np.uint8), colours])
+    if len(lookup) <= 256:
+        # A table look-up on 8-bit labels is several times faster than fancy indexing.
+        table = np.zeros((256, 1, 3), dtype=np.uint8)
+        table[: len(lookup), 0] = lookup
+        small = labels.astype(np.uint8)
+        return cv2.LUT(cv2.merge([small, small, small]), table)
     return lookup[labels]
 
 

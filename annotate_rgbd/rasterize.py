@@ -2,6 +2,10 @@
 
 A pixel belongs to a shape when its centre lies inside it. In CVAT coordinates the image's
 top-left corner is (0, 0), so the centre of pixel ``(col, row)`` is ``(col + 0.5, row + 0.5)``.
+A centre exactly on an outline belongs to the shape on the outline's top and left sides only
+(half-open spans, the usual rasterisation rule), so two polygons that share an edge never share
+a pixel. Polygons are filled with the even-odd rule, as CVAT draws them.
+
 TUM and ICL-NUIM depth images are registered to the RGB images, so the labeller's pixel
 coordinates carry over to the depth grid unchanged.
 """
@@ -11,7 +15,6 @@ from __future__ import annotations
 from typing import Iterable
 
 import numpy as np
-from skimage.draw import polygon as polygon_pixels
 
 from .annotation import Shape
 
@@ -37,13 +40,14 @@ def rasterize_frame(shapes: Iterable[tuple[int, Shape]], height: int, width: int
     labels = np.zeros((height, width), dtype=np.int32)
     ordered = sorted(shapes, key=lambda item: item[1].z_order)  # stable: keeps track order
     for plane_id, shape in ordered:
-        rows, cols = shape_pixels(shape, height, width)
-        labels[rows, cols] = plane_id
+        top, left, inside = shape_mask(shape, height, width)
+        rows, cols = inside.shape
+        np.copyto(labels[top : top + rows, left : left + cols], plane_id, where=inside)
     return labels
 
 
-def shape_pixels(shape: Shape, height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
-    """Rows and columns of the pixels whose centres lie inside ``shape``, clipped to the image.
+def shape_mask(shape: Shape, height: int, width: int) -> tuple[int, int, np.ndarray]:
+    """The pixels of a shape, as a boolean window of the image.
 
     Parameters
     ----------
@@ -54,23 +58,77 @@ def shape_pixels(shape: Shape, height: int, width: int) -> tuple[np.ndarray, np.
 
     Returns
     -------
-    rows, cols : ndarray of intp
+    top, left : int
+        Position of the window in the image.
+    inside : ndarray of bool, shape (rows, cols)
+        ``True`` for the pixels of the window whose centres lie inside the shape; the window
+        lies within the image (it may be empty).
     """
     if shape.kind == "polygon":
-        # Shift to pixel-centre coordinates, where skimage tests pixel centres at integers.
-        return polygon_pixels(shape.points[:, 1] - 0.5, shape.points[:, 0] - 0.5, shape=(height, width))
+        top, inside = polygon_rows(shape.points, height, width)
+        return top, 0, inside
     if shape.kind == "box":
         (xtl, ytl), (xbr, ybr) = shape.points
-        col0, col1 = max(int(np.ceil(xtl - 0.5)), 0), min(int(np.floor(xbr - 0.5)), width - 1)
-        row0, row1 = max(int(np.ceil(ytl - 0.5)), 0), min(int(np.floor(ybr - 0.5)), height - 1)
-        if col1 < col0 or row1 < row0:
-            return np.empty(0, np.intp), np.empty(0, np.intp)
-        rows, cols = np.mgrid[row0 : row1 + 1, col0 : col1 + 1]
-        return rows.ravel(), cols.ravel()
+        left, right = _span(xtl, xbr, width)
+        top, bottom = _span(ytl, ybr, height)
+        return top, left, np.ones((max(bottom - top, 0), max(right - left, 0)), dtype=bool)
     if shape.kind == "mask":
         left, top = (int(round(v)) for v in shape.points[0])
-        rows, cols = np.nonzero(shape.bitmap)
-        rows, cols = rows + top, cols + left
-        inside = (rows >= 0) & (rows < height) & (cols >= 0) & (cols < width)
-        return rows[inside], cols[inside]
+        rows, cols = shape.bitmap.shape
+        row0, row1 = max(top, 0), min(top + rows, height)
+        col0, col1 = max(left, 0), min(left + cols, width)
+        if row1 <= row0 or col1 <= col0:
+            return 0, 0, np.zeros((0, 0), dtype=bool)
+        return row0, col0, shape.bitmap[row0 - top : row1 - top, col0 - left : col1 - left]
     raise ValueError(f"unsupported shape kind {shape.kind!r}")
+
+
+def polygon_rows(points: np.ndarray, height: int, width: int) -> tuple[int, np.ndarray]:
+    """Fill a polygon: the image rows it spans, with the pixels whose centres are inside.
+
+    Scanline fill, vectorised over rows and edges: each row's pixel-centre line crosses the
+    edges at sorted x positions; pairs of crossings bound the inside spans.
+
+    Parameters
+    ----------
+    points : ndarray, shape (N, 2)
+        Vertices (x, y) in CVAT coordinates.
+    height, width : int
+        Image size.
+
+    Returns
+    -------
+    top : int
+        First image row of the result.
+    inside : ndarray of bool, shape (rows, width)
+    """
+    x0, y0 = points[:, 0], points[:, 1]
+    x1, y1 = np.roll(x0, -1), np.roll(y0, -1)
+    top = max(int(np.floor(y0.min() - 0.5)), 0)
+    bottom = min(int(np.ceil(y0.max() - 0.5)), height - 1)
+    if bottom < top:
+        return 0, np.zeros((0, width), dtype=bool)
+    centre_y = (np.arange(top, bottom + 1) + 0.5)[:, None]
+    # Half-open in y: an edge counts for rows with centre in [min(y0, y1), max(y0, y1)).
+    crosses = ((y0 <= centre_y) & (centre_y < y1)) | ((y1 <= centre_y) & (centre_y < y0))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        xs = np.where(crosses, x0 + (centre_y - y0) * (x1 - x0) / (y1 - y0), np.inf)
+    xs.sort(axis=1)
+    starts, ends = xs[:, 0::2], xs[:, 1::2]
+    starts = starts[:, : ends.shape[1]]
+    missing = ~np.isfinite(ends)
+    # Pixels with centre c + 0.5 in [start, end): c from ceil(start - 0.5) to ceil(end - 0.5) - 1.
+    first = np.where(missing, 0, np.ceil(np.where(missing, 0, starts) - 0.5))
+    stop = np.where(missing, 0, np.ceil(np.where(missing, 0, ends) - 0.5))
+    cols = np.arange(width)
+    inside = np.zeros((bottom - top + 1, width), dtype=bool)
+    for k in range(ends.shape[1]):  # spans of a row are disjoint: one comparison per span
+        inside |= (cols >= first[:, k, None]) & (cols < stop[:, k, None])
+    return top, inside
+
+
+def _span(low: float, high: float, size: int) -> tuple[int, int]:
+    """Pixel range [first, stop) whose centres lie in [low, high), clipped to [0, size)."""
+    first = min(max(int(np.ceil(low - 0.5)), 0), size)
+    stop = min(max(int(np.ceil(high - 0.5)), 0), size)
+    return first, stop

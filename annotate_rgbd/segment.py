@@ -62,7 +62,8 @@ def segment_frame(depth_raw: np.ndarray, shapes: Sequence[tuple[int, Shape]], co
     stats = plane_statistics(drawn, depth_m, config.camera)
     reasons = drop_reasons(stats, config.filter)
     keep_ids = stats.plane_ids[[r is None for r in reasons]]
-    refined, fits = refine_planes(drawn, depth_m, keep_ids, config.camera, config.ransac)
+    refined, equations = refine_planes(drawn, depth_m, keep_ids, config.camera, config.ransac)
+    inlier_count = np.bincount(refined.ravel(), minlength=drawn.max(initial=0) + 1)
     result = FrameResult(labels=refined, drawn=drawn)
     for i, plane_id in enumerate(stats.plane_ids.tolist()):
         record = {
@@ -72,12 +73,11 @@ def segment_frame(depth_raw: np.ndarray, shapes: Sequence[tuple[int, Shape]], co
             "mean_distance": _rounded(stats.mean_distance[i]),
         }
         if reasons[i] is None:
-            fit = fits[plane_id]
-            inliers = int(fit.inliers.sum())
+            inliers = int(inlier_count[plane_id])
             record.update(
                 inliers=inliers,
                 inlier_ratio=round(inliers / max(int(stats.valid_pixels[i]), 1), 6),
-                equation=[round(float(v), 9) for v in fit.equation],
+                equation=[round(float(v), 9) for v in equations[plane_id]],
             )
             result.kept.append(record)
         else:

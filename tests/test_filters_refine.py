@@ -78,13 +78,13 @@ def test_refine_removes_clutter_and_invalid_pixels_and_keeps_only_given_planes()
     labels = np.zeros((30, 40), np.int32)
     labels[:, :20] = 3
     labels[:, 20:] = 5
-    refined, fits = refine_planes(labels, depth, np.array([3]), CAMERA, RansacConfig())
-    assert set(fits) == {3}
+    refined, equations = refine_planes(labels, depth, np.array([3]), CAMERA, RansacConfig())
+    assert set(equations) == {3}
     expected = np.where(labels == 3, 3, 0)
     expected[5:10, 5:10] = 0
     expected[0, 0] = 0
     np.testing.assert_array_equal(refined, expected)
-    np.testing.assert_allclose(fits[3].equation, [0, 0, -1, 2], atol=1e-6)
+    np.testing.assert_allclose(equations[3], [0, 0, -1, 2], atol=1e-6)
 
 
 def test_ransac_on_a_subsample_finds_the_same_plane_and_tests_every_point():
@@ -97,3 +97,14 @@ def test_ransac_on_a_subsample_finds_the_same_plane_and_tests_every_point():
     assert sampled.inliers.shape == (20000,)
     assert np.mean(full.inliers != sampled.inliers) < 0.002
     assert not sampled.inliers[::7].any()
+
+
+def test_refine_samples_large_planes_on_a_grid_and_tests_every_pixel():
+    camera = Camera(fx=300.0, fy=300.0, cx=99.5, cy=79.5, depth_scale=5000.0)
+    depth = plane_depth((160, 200), camera, [0.2, -0.1, 1], -2.5)
+    depth[40:60, 50:90] -= 0.2  # clutter
+    labels = np.ones((160, 200), np.int32)
+    everything = refine_planes(labels, depth, np.array([1]), camera, RansacConfig(max_points=0))
+    sampled = refine_planes(labels, depth, np.array([1]), camera, RansacConfig(max_points=500))
+    np.testing.assert_array_equal(sampled[0], everything[0])
+    assert (sampled[0][40:60, 50:90] == 0).all() and sampled[0].sum() == 160 * 200 - 20 * 40

@@ -1,7 +1,9 @@
 import numpy as np
+import pytest
+from skimage.draw import polygon as skimage_polygon
 
 from annotate_rgbd.annotation import Shape
-from annotate_rgbd.rasterize import rasterize_frame, shape_pixels
+from annotate_rgbd.rasterize import rasterize_frame, shape_mask
 
 
 def polygon(points, z=0):
@@ -16,14 +18,40 @@ def test_polygon_covers_pixels_whose_centres_are_inside():
     np.testing.assert_array_equal(labels, expected)
 
 
+@pytest.mark.parametrize("seed", range(40))
+def test_polygon_fill_equals_the_centre_in_polygon_test(seed):
+    # Random (also concave and self-intersecting) polygons, partly outside the image, against
+    # scikit-image's point-in-polygon test at the pixel centres.
+    rng = np.random.default_rng(seed)
+    n = rng.integers(3, 12)
+    angles = rng.uniform(0, 2 * np.pi, n)
+    if seed % 2:
+        angles.sort()
+    points = rng.uniform([-50, -50], [130, 110]) + np.c_[np.cos(angles), np.sin(angles)] * rng.uniform(3, 90, (n, 1))
+    expected = np.zeros((60, 80), np.int32)
+    rows, cols = skimage_polygon(points[:, 1] - 0.5, points[:, 0] - 0.5, shape=(60, 80))
+    expected[rows, cols] = 1
+    np.testing.assert_array_equal(rasterize_frame([(1, polygon(points))], 60, 80), expected)
+
+
+def test_polygons_sharing_an_edge_share_no_pixel():
+    # The shared edge x = 2.5 runs through pixel centres: they belong to the right polygon only.
+    left = polygon([[0, 0], [2.5, 0], [2.5, 4], [0, 4]])
+    right = polygon([[2.5, 0], [6, 0], [6, 4], [2.5, 4]])
+    a = rasterize_frame([(1, left)], 4, 6) > 0
+    b = rasterize_frame([(1, right)], 4, 6) > 0
+    assert not (a & b).any()
+    assert (a | b).all()
+
+
 def test_box_and_mask_shapes():
     box = Shape("box", np.array([[0.0, 0.0], [2.0, 3.0]]))
-    rows, cols = shape_pixels(box, 10, 10)
-    assert sorted(zip(rows.tolist(), cols.tolist())) == [(r, c) for r in range(3) for c in range(2)]
+    top, left, inside = shape_mask(box, 10, 10)
+    assert (top, left, inside.shape, inside.all()) == (0, 0, (3, 2), True)
     bitmap = np.array([[1, 0], [1, 1]], dtype=bool)
     mask = Shape("mask", np.array([[8.0, 9.0]]), bitmap=bitmap)
-    rows, cols = shape_pixels(mask, 10, 10)  # the bottom row of the bitmap falls off the image
-    assert sorted(zip(rows.tolist(), cols.tolist())) == [(9, 8)]
+    labels = rasterize_frame([(2, mask)], 10, 10)  # the bottom row of the bitmap falls off the image
+    assert list(zip(*np.nonzero(labels))) == [(9, 8)]
 
 
 def test_higher_z_order_is_on_top_and_equal_z_keeps_track_order():
@@ -41,3 +69,5 @@ def test_shapes_beyond_the_image_are_clipped():
     assert labels.sum() == 6
     box = Shape("box", np.array([[100.0, 100.0], [200.0, 200.0]]))
     assert rasterize_frame([(1, box)], 4, 4).sum() == 0
+    far = Shape("mask", np.array([[-10.0, -10.0]]), bitmap=np.ones((3, 3), bool))
+    assert rasterize_frame([(1, far)], 4, 4).sum() == 0

@@ -1,0 +1,112 @@
+"""Speed of ``cvat2mask`` against the I/O floor, with 1 worker and with all workers, in one run.
+
+Run from the repository root::
+
+    python benchmarks/bench_cvat2mask.py [--frames 300] [--width 640 --height 480] [--workdir DIR]
+
+It renders a synthetic sequence (the room of ``annotate_rgbd.synthetic``: about 10 planes,
+clutter, Kinect-like noise) once into ``--workdir`` (reused by later runs), then measures, on
+the same frames and in the same run:
+
+* the I/O floor: decoding each depth PNG and encoding and writing one colour mask per frame,
+  the work no implementation can skip;
+* ``run_cvat2mask`` with 1 worker and with all workers (``--force``: every frame is made).
+
+Targets (issue "Batch relabelling"): 1-worker time per frame at most 3x the I/O floor, and 2
+workers at least 1.7x faster than 1 on a 2-core machine.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import tempfile
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from annotate_rgbd.camera import Camera
+from annotate_rgbd.config import Config, RansacConfig
+from annotate_rgbd.cvat import write_cvat_video
+from annotate_rgbd.execute import default_workers
+from annotate_rgbd.palette import colourize, plane_colours
+from annotate_rgbd.pipeline import run_cvat2mask
+from annotate_rgbd.sequence import read_sequence
+from annotate_rgbd.synthetic import make_sequence
+
+
+def make_benchmark_sequence(folder: Path, frames: int, width: int, height: int) -> tuple[Path, Path, Camera]:
+    """Render the benchmark sequence once; reuse it when it is already there."""
+    scale = width / 640
+    camera = Camera(fx=525.0 * scale, fy=525.0 * scale, cx=width / 2 - 0.5, cy=height / 2 - 0.5, depth_scale=5000.0)
+    tag = folder / f"room_{frames}_{width}x{height}"
+    annotations = tag / "annotations.xml"
+    if not annotations.is_file():
+        shutil.rmtree(tag, ignore_errors=True)
+        started = time.perf_counter()
+        annotation = make_sequence(tag / "sequence", n_frames=frames, width=width, height=height, camera=camera,
+                                   seed=7, dropped_rgb_frames=())
+        write_cvat_video(annotation, annotations, width=width, height=height, keyframe_step=5)
+        print(f"rendered {frames} frames at {width}x{height} in {time.perf_counter() - started:.1f} s")
+    return tag / "sequence", annotations, camera
+
+
+def io_floor(sequence_dir: Path, out: Path) -> float:
+    """Seconds to decode every depth frame and encode and write one colour mask per frame."""
+    sequence = read_sequence(sequence_dir)
+    colours = plane_colours(12)
+    out.mkdir(parents=True, exist_ok=True)
+    started = time.perf_counter()
+    for name in sequence.depth.files:
+        depth = cv2.imread(str(sequence_dir / name), cv2.IMREAD_UNCHANGED)
+        # A mask with the structure of a real one: a few large regions and holes.
+        labels = np.minimum(depth // 2000, 12).astype(np.int32)
+        ok, png = cv2.imencode(".png", cv2.cvtColor(colourize(labels, colours), cv2.COLOR_RGB2BGR))
+        (out / Path(name).name).write_bytes(png.tobytes())
+    return time.perf_counter() - started
+
+
+def timed_run(sequence_dir: Path, annotations: Path, out: Path, config: Config, workers: int) -> float:
+    started = time.perf_counter()
+    report = run_cvat2mask(sequence_dir, [annotations], out, config, workers=workers, force=True)
+    elapsed = time.perf_counter() - started
+    assert report.counts["made"] == report.written > 0, report.counts
+    return elapsed
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--frames", type=int, default=300)
+    parser.add_argument("--width", type=int, default=640)
+    parser.add_argument("--height", type=int, default=480)
+    parser.add_argument("--workdir", type=Path, default=Path(tempfile.gettempdir()) / "annotate-rgbd-bench")
+    parser.add_argument("--workers", type=int, default=default_workers(), help="the 'all workers' run")
+    args = parser.parse_args()
+
+    sequence_dir, annotations, camera = make_benchmark_sequence(args.workdir, args.frames, args.width, args.height)
+    config = Config(camera=camera, ransac=RansacConfig(distance_threshold=0.03))
+    n = len(read_sequence(sequence_dir).depth)
+    outputs = args.workdir / "outputs"
+    shutil.rmtree(outputs, ignore_errors=True)
+
+    floor = io_floor(sequence_dir, outputs / "floor")
+    one = timed_run(sequence_dir, annotations, outputs / "one", config, 1)
+    many = timed_run(sequence_dir, annotations, outputs / "many", config, args.workers)
+    identical = all(
+        (outputs / "one" / "masks" / p.name).read_bytes() == p.read_bytes() for p in (outputs / "many" / "masks").iterdir()
+    )
+
+    print(f"{n} frames at {args.width}x{args.height}, {os.cpu_count()} cores")
+    print(f"I/O floor            {1000 * floor / n:7.1f} ms/frame  {n / floor:6.1f} frames/s")
+    print(f"cvat2mask, 1 worker  {1000 * one / n:7.1f} ms/frame  {n / one:6.1f} frames/s")
+    print(f"cvat2mask, {args.workers} workers {1000 * many / n:7.1f} ms/frame  {n / many:6.1f} frames/s")
+    print(f"1 worker / I/O floor      {one / floor:5.2f}x   (target <= 3)")
+    print(f"{args.workers} workers speed-up over 1  {one / many:5.2f}x   (target >= 1.7 with 2 workers)")
+    print(f"masks identical between the two runs: {identical}")
+
+
+if __name__ == "__main__":
+    main()
