@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import logging
+import signal
 import sys
+import threading
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator, List, Optional
@@ -23,22 +25,44 @@ app = typer.Typer(
 
 @contextmanager
 def user_errors() -> Iterator[None]:
-    """Turn input problems into one ``error:`` line and exit status 1 (2 for an interrupt)."""
+    """Turn input and file-system problems into one ``error:`` line and exit status 1.
+
+    An interrupt (Ctrl-C, SIGINT) exits with status 130 and SIGTERM with 143, after the
+    ``finally`` clauses have removed temporary files: finished outputs stay, a re-run goes on.
+    """
     handler = logging.StreamHandler(sys.stderr)
     handler.setFormatter(logging.Formatter("%(levelname)s: %(message)s"))
     logger = logging.getLogger("annotate_rgbd")
     logger.addHandler(handler)
     logger.setLevel(logging.INFO)
     logging.addLevelName(logging.WARNING, "warning")
+
+    def terminate(signum, frame):
+        # Unwind like Ctrl-C, so that no temporary file is left behind.
+        raise KeyboardInterrupt("SIGTERM")
+
+    in_main_thread = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGTERM, terminate) if in_main_thread else None
     try:
         yield
     except InputError as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(1) from None
-    except KeyboardInterrupt:
-        typer.echo("error: interrupted; finished files are complete, nothing partial was left", err=True)
-        raise typer.Exit(130) from None
+    except OSError as exc:  # a file system problem outside the writers (e.g. the journal)
+        where = f"{exc.filename}: " if exc.filename else ""
+        typer.echo(f"error: {where}{exc.strerror or exc}", err=True)
+        raise typer.Exit(1) from None
+    except KeyboardInterrupt as exc:
+        terminated = exc.args == ("SIGTERM",)
+        typer.echo(
+            f"error: {'terminated' if terminated else 'interrupted'}; finished files are complete, "
+            "nothing partial was left; run the same command again to continue",
+            err=True,
+        )
+        raise typer.Exit(143 if terminated else 130) from None
     finally:
+        if in_main_thread:
+            signal.signal(signal.SIGTERM, signal.SIG_DFL if previous is None else previous)
         logger.removeHandler(handler)
 
 
@@ -98,14 +122,13 @@ def cvat2mask(
     part: List[str] = typer.Option(
         [], "--part", help="Where an annotation part starts: FILE:OFFSET, the RGB index of its frame 0 (repeatable)."
     ),
-    jobs: Optional[int] = typer.Option(None, "--jobs", "-j", min=1, help="Worker processes [default: all cores]."),
+    jobs: Optional[int] = typer.Option(None, "--jobs", "-j", min=1, help="Worker processes (default: all cores)."),
     force: bool = typer.Option(False, "--force", help="Redo every frame, even those unchanged since the last run."),
     raw_masks: bool = typer.Option(False, "--raw-masks", help="Also write masks_raw/: the shapes as drawn, unrefined."),
 ) -> None:
     """Write one colour-coded plane mask per depth frame, refined against the depth.
 
-    Several exports are annotation parts of one sequence: their tracks are matched into one
-    plane id per physical plane (see tracks.csv).
+    Several exports are annotation parts of one sequence: their tracks are matched into one plane id per physical plane (see tracks.csv).
     """
     from .config import load_config
     from .execute import default_workers
@@ -142,7 +165,7 @@ def cvat2mask(
 @app.command()
 def batch(
     manifest: Path = typer.Argument(..., help="TOML manifest with one [[scene]] table per scene."),
-    jobs: Optional[int] = typer.Option(None, "--jobs", "-j", min=1, help="Worker processes [default: the manifest's, else all cores]."),
+    jobs: Optional[int] = typer.Option(None, "--jobs", "-j", min=1, help="Worker processes (default: the manifest's jobs, else all cores)."),
     force: bool = typer.Option(False, "--force", help="Redo every frame, even those unchanged since the last run."),
 ) -> None:
     """Relabel several scenes with one pool of workers; only changed frames are redone."""
@@ -187,3 +210,36 @@ def evaluate(
         if per_frame is not None:
             write_per_frame_csv(result, per_frame)
         typer.echo(format_json(result) if as_json else format_table(result))
+
+
+@app.command()
+def review(
+    out_dir: Path = typer.Argument(..., help="Output folder of a finished cvat2mask run."),
+    overlays: bool = typer.Option(True, "--overlays/--no-overlays", help="Segment the frames again and write overlays/."),
+    page: bool = typer.Option(True, "--page/--no-page", help="Write review.html."),
+    sheet: bool = typer.Option(True, "--sheet/--no-sheet", help="Write contact_sheet.png from overlays/."),
+) -> None:
+    """Write review overlays, the offline review page and a contact sheet for a finished run."""
+    from .review import review_run
+
+    with user_errors():
+        output = review_run(out_dir, overlays=overlays, page=page, sheet=sheet)
+        lines = [f"{len(output.overlays)} overlays in {out_dir / 'overlays'}"] if overlays else []
+        lines += [str(path) for path in (output.page, output.sheet) if path is not None]
+        if output.warnings:
+            lines.append(f"{len(output.warnings)} frames segment differently from report.json (see the warnings above)")
+        typer.echo("\n".join(lines))
+
+
+@app.command()
+def stats(
+    out_dir: Path = typer.Argument(..., help="Output folder of a finished cvat2mask run."),
+    as_json: bool = typer.Option(False, "--json", help="Print one JSON object instead of a table."),
+) -> None:
+    """Summarise a run: observations, planes per observation, dropped planes, inlier ratio."""
+    from .review import read_report
+    from .stats import format_stats, format_stats_json, run_stats
+
+    with user_errors():
+        summary = run_stats(read_report(out_dir))
+        typer.echo(format_stats_json(summary) if as_json else format_stats(summary))
