@@ -6,7 +6,8 @@ The offset comes from, in this order of preference:
 
 1. the image names of a "CVAT for images 1.1" export (exact; no offset needed);
 2. an explicit offset: ``--part FILE:OFFSET`` or a ``[[parts]]`` entry of the configuration;
-3. the original EVOPS tooling's file names, ``<offset>-<anything>.xml`` (``950-1900.xml``);
+3. the original EVOPS tooling's file names, ``<first>-<anything>.xml`` (``950-1900.xml``), where
+   ``<first>`` is the RGB index of the export's first frame;
 4. a single export alone: offset 0 (CVAT frame numbers are RGB indices).
 
 Where parts overlap, **the later part wins from its first frame on**: a frame belongs to the
@@ -148,7 +149,9 @@ def _offset(annotation: Annotation, name: str, explicit: Mapping[str, int], seve
         return explicit[name], "explicit"
     match = PART_NAME.match(name)
     if match:
-        offset = int(match.group(1))
+        # The name gives the RGB index of the export's first frame: 0 for a task export, and the
+        # task-absolute start for a job export (whose frames do not restart at 0).
+        offset = int(match.group(1)) - annotation.frames[0]
         if match.group(2) is not None:
             _check_name_range(annotation, name, offset, int(match.group(2)))
         return offset, "file name"

@@ -456,7 +456,8 @@ def _depth_for_rgb(nearest: np.ndarray, time_diff: np.ndarray, matched: np.ndarr
 
 
 def _pair_iou(sequence: Sequence, depth_of_rgb: dict[int, int], a: Part, b: Part, config: Config) -> np.ndarray:
-    """IoU of part ``a``'s tracks (rows) with part ``b``'s (columns), on their refined masks.
+    """IoU of part ``a``'s tracks (rows) with part ``b``'s (columns), on their refined masks
+    (on the shapes as drawn for tracks that the depth checks drop on those frames).
 
     On the frames both parts annotate (up to :data:`MAX_MATCH_FRAMES`, evenly spread); without
     shared frames, ``a``'s last frame against ``b``'s first.
@@ -469,19 +470,26 @@ def _pair_iou(sequence: Sequence, depth_of_rgb: dict[int, int], a: Part, b: Part
         pairs = [(shared[i], shared[i]) for i in picks]
     else:
         pairs = [(a.last, b.first)] if a.last in depth_of_rgb and b.first in depth_of_rgb else []
-    intersection = np.zeros((len(tracks_a), len(tracks_b)), dtype=np.int64)
-    union = np.zeros_like(intersection)
+    shape = (len(tracks_a), len(tracks_b))
+    sums = {kind: [np.zeros(shape, np.int64), np.zeros(shape, np.int64)] for kind in ("labels", "drawn")}
+    kept_a, kept_b = np.zeros(shape[0], bool), np.zeros(shape[1], bool)
     for rgb_a, rgb_b in pairs:
-        masks = []
+        results = []
         for part, tracks, rgb in ((a, tracks_a, rgb_a), (b, tracks_b, rgb_b)):
             frame = _frame_of_rgb(part)[rgb]
             depth = read_depth(sequence.root / sequence.depth.files[depth_of_rgb[rgb]])
             shapes = [(i + 1, t.shapes[frame]) for i, t in enumerate(tracks) if frame in t.shapes]
-            masks.append(segment_frame(depth, shapes, config).labels)
-        inter, uni = track_ious(masks[0], masks[1], len(tracks_a), len(tracks_b))
-        intersection += inter
-        union += uni
-    return np.where(union > 0, intersection / np.maximum(union, 1), 0.0)
+            results.append(segment_frame(depth, shapes, config))
+        for kind, (intersection, union) in sums.items():
+            inter, uni = track_ious(getattr(results[0], kind), getattr(results[1], kind), *shape)
+            intersection += inter
+            union += uni
+        kept_a |= np.bincount(results[0].labels.ravel(), minlength=shape[0] + 1)[1:] > 0
+        kept_b |= np.bincount(results[1].labels.ravel(), minlength=shape[1] + 1)[1:] > 0
+    iou = {kind: np.where(u > 0, i / np.maximum(u, 1), 0.0) for kind, (i, u) in sums.items()}
+    # Planes the depth checks drop on these frames (too far, glass) have no refined pixels:
+    # they are matched on their shapes as drawn instead.
+    return np.where(kept_a[:, None] & kept_b[None, :], iou["labels"], iou["drawn"])
 
 
 def _label_conflicts(tracks: list[TrackPlane]) -> list[str]:

@@ -130,3 +130,10 @@ def test_a_single_export_needs_no_offset():
 def test_parts_that_cannot_be_placed_are_errors(annotations, offsets, message):
     with pytest.raises(InputError, match=message):
         place_parts(annotations, RGB, offsets)
+
+
+def test_a_job_export_named_by_its_first_frame_is_placed_there():
+    # A job export's frames are task-absolute (here 7..16); its file name gives RGB index 7.
+    job = Annotation(path="/x/7-16.xml", format="video", tracks=[], frames=list(range(7, 17)))
+    parts, _ = place_parts([video("0-9.xml", 10), job], RGB, {})
+    assert [(p.name, p.first, p.last) for p in parts] == [("0-9.xml", 0, 9), ("7-16.xml", 7, 16)]

@@ -1,0 +1,165 @@
+"""Batch runs: several scenes, one pool, resumable after a kill, only changed frames redone."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from annotate_rgbd.batch import read_manifest
+from annotate_rgbd.cli import app
+from annotate_rgbd.errors import InputError
+from annotate_rgbd.execute import JOURNAL
+
+from conftest import REPO_ROOT, SAMPLE_DATA
+
+
+def write_manifest(folder: Path, annotations: Path, extra: str = "") -> Path:
+    manifest = folder / "batch.toml"
+    manifest.write_text(
+        f"""
+[[scene]]
+name = "room"
+sequence = "{SAMPLE_DATA / 'sequence'}"
+annotations = ["{annotations}"]
+config = "{SAMPLE_DATA / 'camera.toml'}"
+out = "out/room"
+
+[[scene]]
+name = "room_tight"
+sequence = "{SAMPLE_DATA / 'sequence'}"
+annotations = ["{annotations}"]
+config = "{SAMPLE_DATA / 'camera.toml'}"
+set = ["ransac.distance_threshold=0.02"]
+out = "out/room_tight"
+{extra}"""
+    )
+    return manifest
+
+
+def snapshot(folder: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+@pytest.fixture(scope="module")
+def uninterrupted(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("uninterrupted")
+    result = CliRunner().invoke(app, ["batch", str(write_manifest(folder, SAMPLE_DATA / "annotations.xml")), "--jobs", "1"])
+    assert result.exit_code == 0, result.output
+    return snapshot(folder / "out")
+
+
+def test_batch_summary_per_scene(uninterrupted):
+    assert {"room/report.json", "room_tight/report.json", "room/planes.csv"} <= set(uninterrupted)
+    assert sum(name.startswith("room/masks/") for name in uninterrupted) == 19
+    assert not any(JOURNAL in name or name.endswith(".tmp") for name in uninterrupted)
+    # The scenes differ only by the threshold, so their masks differ.
+    assert uninterrupted["room/report.json"] != uninterrupted["room_tight/report.json"]
+
+
+def test_killed_batch_resumes_to_identical_files(tmp_path, uninterrupted):
+    manifest = write_manifest(tmp_path, SAMPLE_DATA / "annotations.xml")
+    command = [sys.executable, "-m", "annotate_rgbd", "batch", str(manifest), "--jobs", "2"]
+    process = subprocess.Popen(command, cwd=REPO_ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                               start_new_session=True)
+    journal = tmp_path / "out" / "room" / JOURNAL
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and process.poll() is None:
+        if journal.is_file() and journal.read_text().count("\n") >= 3:
+            break
+        time.sleep(0.02)
+    assert process.poll() is None, "the batch finished before it could be killed"
+    os.killpg(process.pid, signal.SIGKILL)  # the harshest interruption: no clean-up at all
+    process.wait()
+    assert not (tmp_path / "out" / "room" / "report.json").exists()
+
+    result = CliRunner().invoke(app, ["batch", str(manifest), "--jobs", "2"])
+    assert result.exit_code == 0, result.output
+    assert "unchanged" in result.output and "0 failed" in result.output
+    made = [line for line in result.output.splitlines() if line.startswith("room:")][0]
+    assert "(19 made" not in made  # finished frames of the killed run were reused
+    assert snapshot(tmp_path / "out") == uninterrupted
+
+
+def test_changed_polygon_redoes_one_frame_and_force_redoes_all(tmp_path, uninterrupted):
+    annotations = tmp_path / "annotations.xml"
+    text = (SAMPLE_DATA / "annotations.xml").read_text()
+    original = 'points="118.52,175.41;176.57,195.26;178.43,101.47;114.54,93.25"'
+    assert text.count(original) == 1
+    annotations.write_text(text)
+    manifest = write_manifest(tmp_path, annotations)
+    runner = CliRunner()
+    assert runner.invoke(app, ["batch", str(manifest), "--jobs", "1"]).exit_code == 0
+    before = snapshot(tmp_path / "out")
+    annotations.write_text(text.replace(original, 'points="100.52,175.41;176.57,195.26;178.43,101.47;114.54,93.25"'))
+    result = runner.invoke(app, ["batch", str(manifest), "--jobs", "1"])
+    assert result.exit_code == 0, result.output
+    assert "room: 19 masks (1 made, 18 unchanged)" in result.output
+    after = snapshot(tmp_path / "out")
+    changed = sorted(name for name in before if name.startswith("room/masks/") and before[name] != after[name])
+    assert len(changed) == 1
+    forced = runner.invoke(app, ["batch", str(manifest), "--jobs", "1", "--force"])
+    assert "room: 19 masks (19 made, 0 unchanged)" in forced.output
+    assert "room_tight: 19 masks (19 made, 0 unchanged)" in forced.output
+
+
+def test_a_broken_scene_fails_alone(tmp_path):
+    extra = f"""
+[[scene]]
+name = "broken"
+sequence = "{SAMPLE_DATA / 'sequence'}"
+annotations = ["missing.xml"]
+out = "out/broken"
+"""
+    manifest = write_manifest(tmp_path, SAMPLE_DATA / "annotations.xml", extra)
+    result = CliRunner().invoke(app, ["batch", str(manifest), "--jobs", "1"])
+    assert result.exit_code == 1
+    assert f"broken: FAILED: {tmp_path / 'missing.xml'}: file not found" in result.output
+    assert (tmp_path / "out" / "room" / "report.json").is_file()
+    assert (tmp_path / "out" / "room_tight" / "report.json").is_file()
+    assert not (tmp_path / "out" / "broken").exists()
+
+
+def test_a_failed_frame_fails_the_batch_and_is_listed(tmp_path):
+    sequence = tmp_path / "sequence"
+    import shutil
+
+    shutil.copytree(SAMPLE_DATA / "sequence", sequence)
+    broken = sorted((sequence / "depth").iterdir())[3]
+    broken.write_bytes(b"not a png")
+    manifest = tmp_path / "batch.toml"
+    manifest.write_text(
+        f'[[scene]]\nsequence = "sequence"\nannotations = ["{SAMPLE_DATA / "annotations.xml"}"]\n'
+        f'config = "{SAMPLE_DATA / "camera.toml"}"\nout = "out/one"\n'
+    )
+    result = CliRunner().invoke(app, ["batch", str(manifest), "--jobs", "1"])
+    assert result.exit_code == 1
+    assert "one: 18 masks" in result.output and "1 failed" in result.output
+    assert f"failed: depth/{broken.name}: {broken}: not a readable image" in result.output
+
+
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("", "no scenes"),
+        ("[[scene]]\nsequence = 'a'\nout = 'o'\n", "'annotations' is missing"),
+        ("[[scene]]\nsequence = 'a'\nannotations = ['x.xml']\nout = 'o'\ncolour = 1\n", "unknown key 'colour'"),
+        ("jobs = 0\n[[scene]]\nsequence = 'a'\nannotations = ['x.xml']\nout = 'o'\n", "'jobs' must be a positive integer"),
+        ("[[scene]]\nsequence = 'a'\nannotations = 'x.xml'\nout = 'o'\n[[scene]]\nsequence = 'b'\nannotations = 'y.xml'\nout = 'o'\n",
+         "two scenes write to"),
+        ("[[scene]]\nsequence = 'a'\nannotations = ['x.xml']\nout = 'o'\nparts = ['x.xml']\n", "expected FILE:OFFSET"),
+        ("[[scene\n", "invalid TOML"),
+    ],
+)
+def test_bad_manifests_are_one_line_errors(tmp_path, text, message):
+    manifest = tmp_path / "batch.toml"
+    manifest.write_text(text)
+    with pytest.raises(InputError, match=message) as error:
+        read_manifest(manifest)
+    assert str(manifest) in str(error.value)
