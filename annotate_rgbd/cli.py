@@ -125,6 +125,7 @@ def cvat2mask(
     jobs: Optional[int] = typer.Option(None, "--jobs", "-j", min=1, help="Worker processes (default: all cores)."),
     force: bool = typer.Option(False, "--force", help="Redo every frame, even those unchanged since the last run."),
     raw_masks: bool = typer.Option(False, "--raw-masks", help="Also write masks_raw/: the shapes as drawn, unrefined."),
+    overlays: bool = typer.Option(False, "--overlays", help="Also write overlays/, review.html and contact_sheet.png."),
 ) -> None:
     """Write one colour-coded plane mask per depth frame, refined against the depth.
 
@@ -149,10 +150,14 @@ def cvat2mask(
         progress = Progress({sequence_dir.name: 0})
         report = run_cvat2mask(
             sequence_dir, annotations, out, load_config(config, overrides), offsets=offsets,
-            workers=jobs or default_workers(), force=force, raw_masks=raw_masks,
+            workers=jobs or default_workers(), force=force, raw_masks=raw_masks, overlays=overlays,
             progress=progress.callback(sequence_dir.name),
         )
         progress.finish()
+        if overlays:
+            from .review import review_run
+
+            review_run(out, overlays=False)
         summary = (
             f"{report.written} masks in {out / 'masks'} ({report.counts['made']} made, "
             f"{report.counts['reused']} unchanged), {report.n_planes} planes"

@@ -22,6 +22,7 @@ from .config import Config, config_to_dict
 from .cvat import read_cvat
 from .errors import InputError
 from .execute import JOURNAL, fingerprint, previous_results, run_jobs
+from .overlay import OVERLAY_DIR, overlay_for_frame
 from .palette import colour_hex, colourize, plane_colours
 from .parts import Part, frame_owners, place_parts
 from .segment import segment_frame
@@ -59,6 +60,10 @@ class FrameJob:
         The export the shapes come from (for messages).
     raw_mask_path : Path or None
         Where the unrefined mask goes (the labeller's shapes as drawn), if wanted.
+    overlay_path : Path or None
+        Where the review overlay goes, if wanted.
+    rgb_path : Path or None
+        The RGB image the overlay is drawn on.
     """
 
     depth_path: Path
@@ -67,6 +72,8 @@ class FrameJob:
     image_size: tuple[int, int] | None
     part_path: str
     raw_mask_path: Path | None = None
+    overlay_path: Path | None = None
+    rgb_path: Path | None = None
 
 
 @dataclass
@@ -118,6 +125,8 @@ def run_frame_job(task: tuple[FrameJob, Config, np.ndarray]) -> dict:
     result = segment_frame(depth_raw, job.shapes, config)
     if job.raw_mask_path is not None:
         write_png(job.raw_mask_path, colourize(result.drawn, colours))
+    if job.overlay_path is not None:
+        write_png(job.overlay_path, overlay_for_frame(job.rgb_path, result, colours))
     write_png(job.mask_path, colourize(result.labels, colours))
     return {"kept": result.kept, "dropped": result.dropped}
 
@@ -168,6 +177,7 @@ def plan_run(
     config: Config,
     offsets: Mapping[str, int] | None = None,
     raw_masks: bool = False,
+    overlays: bool = False,
 ) -> RunPlan:
     """Read the inputs and decide, for every depth frame, whether and how it gets a mask.
 
@@ -246,6 +256,8 @@ def plan_run(
                 image_size=part.annotation.image_size.get(frame),
                 part_path=part.annotation.path,
                 raw_mask_path=out_dir / "masks_raw" / Path(depth_file).name if raw_masks else None,
+                overlay_path=out_dir / OVERLAY_DIR / Path(depth_file).name if overlays else None,
+                rgb_path=sequence.root / sequence.rgb.files[rgb],
             )
             jobs.append((d, job))
     return RunPlan(sequence, parts, tracks, colours, frames, jobs, warnings, notes)
@@ -260,6 +272,7 @@ def run_cvat2mask(
     workers: int = 1,
     force: bool = False,
     raw_masks: bool = False,
+    overlays: bool = False,
     progress: Callable[[int, int], None] | None = None,
 ) -> RunReport:
     """Run the whole job: ``masks/``, ``planes.csv``, ``tracks.csv`` and ``report.json`` in ``out_dir``.
@@ -285,6 +298,8 @@ def run_cvat2mask(
         Redo every frame, even those whose inputs are unchanged.
     raw_masks : bool
         Also write ``masks_raw/``: the labeller's shapes as drawn, before any depth check.
+    overlays : bool
+        Also write ``overlays/``: the review overlays (:mod:`annotate_rgbd.overlay`).
     progress : callable, optional
         Called as ``progress(done, total)`` after each frame that gets a mask.
 
@@ -298,7 +313,7 @@ def run_cvat2mask(
         A fatal problem with an input (missing files, malformed export, parts that cannot be
         placed, sizes that do not match): nothing sensible can be produced.
     """
-    scene = SceneRun(Path(sequence_dir).name, plan_run(sequence_dir, annotation_paths, out_dir, config, offsets, raw_masks),
+    scene = SceneRun(Path(sequence_dir).name, plan_run(sequence_dir, annotation_paths, out_dir, config, offsets, raw_masks, overlays),
                      Path(out_dir), config, progress)
     execute_scenes([scene], workers=workers, force=force)
     if scene.error is not None:
@@ -358,7 +373,7 @@ def execute_scenes(scenes: SequenceType[SceneRun], workers: int = 1, force: bool
             entry = plan.frames[index]
             entry["fingerprint"] = fingerprint(job, scene.config)
             reusable = previous.get(job.mask_path.name)
-            outputs = [job.mask_path] + ([job.raw_mask_path] if job.raw_mask_path else [])
+            outputs = [p for p in (job.mask_path, job.raw_mask_path, job.overlay_path) if p is not None]
             if reusable and reusable[0] == entry["fingerprint"] and all(p.is_file() for p in outputs):
                 _finish(entry, job, reusable[1])
                 scene.counts["reused"] += 1
@@ -429,7 +444,8 @@ def remove_stale_outputs(out_dir: Path, plan: RunPlan) -> None:
     """Delete masks that this run did not write (frames now skipped or failed) and temporary files."""
     written = {Path(f["mask"]).name for f in plan.frames if f["status"] == "written"}
     raw_written = written if any(job.raw_mask_path for _, job in plan.jobs) else set()
-    for folder, keep in (("masks", written), ("masks_raw", raw_written)):
+    overlays_written = written if any(job.overlay_path for _, job in plan.jobs) else set()
+    for folder, keep in (("masks", written), ("masks_raw", raw_written), (OVERLAY_DIR, overlays_written)):
         for path in (out_dir / folder).glob("*"):
             temporary = path.name.startswith(".") and path.name.endswith(".tmp")
             if temporary or (path.suffix == ".png" and path.name not in keep):

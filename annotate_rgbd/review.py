@@ -1,0 +1,198 @@
+"""Review a finished ``cvat2mask`` run: overlays, the review page and a contact sheet.
+
+:func:`review_run` reads ``OUT_DIR/report.json``, rebuilds the run's plan from the inputs and
+the configuration recorded there, segments every written frame again (the result is the same:
+RANSAC is seeded) to get what the labeller drew next to what was kept, and writes
+
+* ``overlays/<mask name>``: one overlay per mask (:func:`annotate_rgbd.overlay.render_overlay`);
+* ``review.html``: the offline review page (:mod:`annotate_rgbd.review_page`);
+* ``contact_sheet.png``: a grid of overlay thumbnails spread over the sequence.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .config import Config, config_from_dict
+from .errors import InputError
+from .overlay import OVERLAY_DIR, contact_sheet, overlay_for_frame
+from .pipeline import RunPlan, plan_run
+from .review_page import render_review_page
+from .segment import FrameResult, segment_frame
+from .sequence import read_depth, read_rgb
+from .writer import write_bytes_atomic, write_png
+
+log = logging.getLogger("annotate_rgbd")
+
+REPORT_NAME = "report.json"
+PAGE_NAME = "review.html"
+SHEET_NAME = "contact_sheet.png"
+#: Thumbnails on the contact sheet, evenly spread over the written frames.
+SHEET_FRAMES = 12
+#: How parts were placed whose recorded offset must be passed again to place them the same way.
+OFFSET_SOURCES = ("explicit", "file name")
+
+
+@dataclass
+class ReviewOutput:
+    """What :func:`review_run` wrote.
+
+    Parameters
+    ----------
+    overlays : list of Path
+        The overlay images written.
+    page, sheet : Path or None
+        ``review.html`` and ``contact_sheet.png``, where written.
+    warnings : list of str
+        Frames that did not segment as the report says (the inputs or the tool changed since
+        the run).
+    """
+
+    overlays: list[Path] = field(default_factory=list)
+    page: Path | None = None
+    sheet: Path | None = None
+    warnings: list[str] = field(default_factory=list)
+
+
+def read_report(out_dir: str | Path) -> dict:
+    """Read ``report.json`` of a finished run.
+
+    Raises
+    ------
+    InputError
+        No report (the folder is not the output of a finished run) or not a report.
+    """
+    path = Path(out_dir) / REPORT_NAME
+    try:
+        report = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise InputError(path, "no report: not the output folder of a finished cvat2mask run") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InputError(path, f"cannot read the report: {exc}") from None
+    if not isinstance(report, dict) or not {"inputs", "config", "frames", "planes"} <= report.keys():
+        raise InputError(path, "not a cvat2mask report (inputs, config, frames or planes missing)")
+    return report
+
+
+def replan(report: dict, out_dir: str | Path, config: Config) -> RunPlan:
+    """Rebuild the plan of a finished run from its report.
+
+    Parameters
+    ----------
+    report : dict
+        The content of ``report.json``.
+    out_dir : str or Path
+        The run's output folder.
+    config : Config
+        The run's configuration (``config_from_dict(report["config"])``).
+
+    Returns
+    -------
+    RunPlan
+
+    Raises
+    ------
+    InputError
+        An input is gone or unreadable, or the inputs no longer give the run's frames and planes.
+    """
+    parts = report["inputs"]["parts"]
+    offsets = {p["name"]: p["offset"] for p in parts if p.get("placed_by") in OFFSET_SOURCES}
+    plan = plan_run(report["inputs"]["sequence"], [p["file"] for p in parts], out_dir, config, offsets)
+    if [f["depth"] for f in plan.frames] != [f["depth"] for f in report["frames"]] or plan.n_planes != len(report["planes"]):
+        raise InputError(
+            Path(out_dir) / REPORT_NAME,
+            "the sequence or the annotation changed since this run: its frames or planes differ; run cvat2mask again",
+        )
+    return plan
+
+
+def review_run(
+    out_dir: str | Path,
+    overlays: bool = True,
+    page: bool = True,
+    sheet: bool = True,
+    progress: Callable[[int, int], None] | None = None,
+) -> ReviewOutput:
+    """Write the review files of a finished run.
+
+    Parameters
+    ----------
+    out_dir : str or Path
+        The output folder of a finished ``cvat2mask`` run.
+    overlays : bool
+        Segment every written frame again and write ``overlays/``.
+    page : bool
+        Write ``review.html``.
+    sheet : bool
+        Write ``contact_sheet.png`` from the overlays in ``overlays/`` (not for a run without
+        masks).
+    progress : callable, optional
+        Called as ``progress(done, total)`` after each overlay.
+
+    Returns
+    -------
+    ReviewOutput
+
+    Raises
+    ------
+    InputError
+        No finished run in ``out_dir``, inputs gone or changed, or (for the sheet) no overlays.
+    """
+    out_dir = Path(out_dir)
+    report = read_report(out_dir)
+    output = ReviewOutput()
+    written = [f for f in report["frames"] if f["status"] == "written"]
+    if overlays and written:
+        config = config_from_dict(report["config"], origin=out_dir / REPORT_NAME)
+        plan = replan(report, out_dir, config)
+        jobs = {job.mask_path.name: job for _, job in plan.jobs}
+        for done, frame in enumerate(written, start=1):
+            path = _overlay_path(out_dir, frame)
+            job = jobs.get(path.name)
+            if job is None:
+                raise InputError(out_dir / REPORT_NAME, f"{frame['depth']}: no longer gets a mask from the inputs; run cvat2mask again")
+            result = segment_frame(read_depth(job.depth_path), job.shapes, config)
+            _check_records(frame, result, output.warnings)
+            write_png(path, overlay_for_frame(plan.sequence.root / frame["rgb"], result, plan.colours))
+            output.overlays.append(path)
+            if progress:
+                progress(done, len(written))
+    available = [f for f in written if _overlay_path(out_dir, f).is_file()]
+    if page:
+        output.page = out_dir / PAGE_NAME
+        relative = {f["mask"]: f"{OVERLAY_DIR}/{_overlay_path(out_dir, f).name}" for f in available}
+        html = render_review_page(report, relative, title=out_dir.resolve().name)
+        write_bytes_atomic(output.page, html.encode("utf-8"))
+    if sheet and written:
+        if not available:
+            raise InputError(out_dir / OVERLAY_DIR, "no overlays for the contact sheet: run review with overlays")
+        picks = np.unique(np.linspace(0, len(available) - 1, min(len(available), SHEET_FRAMES)).round().astype(int))
+        frames = [available[i] for i in picks]
+        images = [read_rgb(_overlay_path(out_dir, f)) for f in frames]
+        output.sheet = out_dir / SHEET_NAME
+        write_png(output.sheet, contact_sheet(images, [Path(f["depth"]).stem for f in frames]))
+    return output
+
+
+def _overlay_path(out_dir: Path, frame: dict) -> Path:
+    return out_dir / OVERLAY_DIR / Path(frame["mask"]).name
+
+
+def _check_records(frame: dict, result: FrameResult, warnings: list[str]) -> None:
+    """Warn when a frame no longer segments as the report says (its overlay would mislead)."""
+    def summary(kept: list[dict], dropped: list[dict]) -> list[tuple]:
+        return sorted([(r["plane"], r["pixels"], r.get("inliers"), r.get("reason")) for r in kept + dropped])
+
+    if summary(result.kept, result.dropped) != summary(frame.get("kept", []), frame.get("dropped", [])):
+        message = (
+            f"{frame['depth']}: segments differently from report.json (inputs or annotate-rgbd changed "
+            "since the run?); the overlay shows what a run would make now"
+        )
+        warnings.append(message)
+        log.warning(message)

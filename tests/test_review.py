@@ -1,0 +1,392 @@
+"""Review of a finished run: overlays, contact sheet, the review page (also in a real browser)."""
+
+from __future__ import annotations
+
+import base64
+import fcntl
+import json
+import os
+import select
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import SAMPLE_DATA
+from typer.testing import CliRunner
+
+from annotate_rgbd.cli import app
+from annotate_rgbd.config import load_config
+from annotate_rgbd.errors import InputError
+from annotate_rgbd.pipeline import run_cvat2mask
+from annotate_rgbd.review import review_run
+from annotate_rgbd.review_page import page_data, render_review_page
+from annotate_rgbd.sequence import read_rgb
+
+#: Set to a path to keep a copy of the browser test's screenshot (the README's sample_data/review.png).
+SCREENSHOT_COPY = "ANNOTATE_RGBD_REVIEW_SCREENSHOT"
+
+
+@pytest.fixture(scope="module")
+def finished_run(tmp_path_factory) -> Path:
+    """The sample sequence through cvat2mask and review (fewer RANSAC iterations: faster, same scene)."""
+    out = tmp_path_factory.mktemp("run") / "sample_masks"
+    config = load_config(SAMPLE_DATA / "camera.toml", {"ransac.num_iterations": 200})
+    run_cvat2mask(SAMPLE_DATA / "sequence", [SAMPLE_DATA / "annotations.xml"], out, config)
+    review_run(out)
+    return out
+
+
+def _report(out: Path) -> dict:
+    return json.loads((out / "report.json").read_text(encoding="utf-8"))
+
+
+def test_review_writes_one_overlay_per_mask(finished_run):
+    written = [f for f in _report(finished_run)["frames"] if f["status"] == "written"]
+    assert written
+    overlays = sorted(p.name for p in (finished_run / "overlays").iterdir())
+    assert overlays == sorted(Path(f["mask"]).name for f in written)
+    assert (finished_run / "contact_sheet.png").is_file()
+    assert not list(finished_run.rglob("*.tmp"))
+
+
+def test_overlay_is_tinted_with_the_mask_colours(finished_run):
+    sequence = SAMPLE_DATA / "sequence"
+    for frame in [f for f in _report(finished_run)["frames"] if f["status"] == "written"][:3]:
+        mask = read_rgb(finished_run / frame["mask"]).astype(float)
+        overlay = read_rgb(finished_run / "overlays" / Path(frame["mask"]).name).astype(float)
+        rgb = read_rgb(sequence / frame["rgb"]).astype(float)
+        on_plane = mask.any(axis=2)
+        assert overlay.shape == mask.shape
+        # On the mask's pixels the overlay is pulled towards the plane colour.
+        before = np.linalg.norm(rgb - mask, axis=2)[on_plane].mean()
+        after = np.linalg.norm(overlay - mask, axis=2)[on_plane].mean()
+        assert after < 0.7 * before
+
+
+def test_review_needs_a_finished_run(tmp_path):
+    with pytest.raises(InputError, match="no report"):
+        review_run(tmp_path)
+
+
+def test_review_warns_when_a_frame_no_longer_matches_the_report(finished_run, tmp_path):
+    out = tmp_path / "out"
+    shutil.copytree(finished_run, out)
+    report = _report(out)
+    frame = next(f for f in report["frames"] if f["status"] == "written")
+    frame["kept"][0]["pixels"] += 1
+    (out / "report.json").write_text(json.dumps(report), encoding="utf-8")
+    result = review_run(out, sheet=False, page=False)
+    assert len(result.warnings) == 1 and frame["depth"] in result.warnings[0]
+
+
+def test_review_of_a_run_without_masks_writes_only_the_page(tmp_path):
+    report = {"inputs": {"sequence": "gone", "parts": []}, "config": {}, "planes": [],
+              "frames": [{"depth": "depth/1.png", "status": "skipped", "reason": "outside_annotated_range"}]}
+    (tmp_path / "report.json").write_text(json.dumps(report), encoding="utf-8")
+    result = review_run(tmp_path)
+    assert result.overlays == [] and result.sheet is None and result.page.is_file()
+    assert _embedded_data(result.page.read_text(encoding="utf-8"))["stats"]["depth_frames"] == 1
+
+
+def test_contact_sheet_needs_overlays(finished_run, tmp_path):
+    out = tmp_path / "out"
+    shutil.copytree(finished_run, out, ignore=shutil.ignore_patterns("overlays"))
+    with pytest.raises(InputError, match="no overlays"):
+        review_run(out, overlays=False, page=False)
+
+
+def test_page_without_overlays_refers_to_none(finished_run, tmp_path):
+    out = tmp_path / "out"
+    shutil.copytree(finished_run, out, ignore=shutil.ignore_patterns("overlays"))
+    result = review_run(out, overlays=False, sheet=False)
+    assert result.overlays == [] and result.page is not None
+    data = _embedded_data(result.page.read_text(encoding="utf-8"))
+    assert all(f["overlay"] is None for f in data["frames"])
+
+
+def test_page_data_follows_the_report(finished_run):
+    report = _report(finished_run)
+    data = page_data(report, {})
+    written = [(i, f) for i, f in enumerate(report["frames"]) if f["status"] == "written"]
+    assert [f["index"] for f in data["frames"]] == [i for i, _ in written]
+    for entry, (_, frame) in zip(data["frames"], written):
+        assert entry["planes"] == _expected_rows(frame)
+    assert data["stats"]["observations"] == len(written)
+
+
+def test_page_is_self_contained_and_references_images_by_path(finished_run):
+    page = (finished_run / "review.html").read_text(encoding="utf-8")
+    assert "http://" not in page and "https://" not in page
+    assert "data:image" not in page and "<link" not in page and "src=" not in page
+    data = _embedded_data(page)
+    assert data["frames"][0]["overlay"] == "overlays/" + Path(data["frames"][0]["mask"]).name
+    assert all((finished_run / f["overlay"]).is_file() and (finished_run / f["mask"]).is_file() for f in data["frames"])
+
+
+def test_page_data_cannot_end_the_script_block():
+    report = {
+        "planes": [{"plane": 1, "colour": "#00ff00", "label": "</script><b>x"}],
+        "frames": [],
+    }
+    page = render_review_page(report, {}, title="<run>")
+    assert "</script><b>" not in page and "&lt;run&gt;" in page
+    assert _embedded_data(page)["planes"][0]["label"] == "</script><b>x"
+
+
+def test_cli_review(finished_run, tmp_path):
+    out = tmp_path / "out"
+    shutil.copytree(finished_run, out, ignore=shutil.ignore_patterns("overlays", "review.html", "contact_sheet.png"))
+    result = CliRunner().invoke(app, ["review", str(out), "--no-sheet"])
+    assert result.exit_code == 0, result.output
+    assert (out / "review.html").is_file() and not (out / "contact_sheet.png").exists()
+    assert len(list((out / "overlays").iterdir())) == _report(out)["summary"]["masks_written"]
+    missing = CliRunner().invoke(app, ["review", str(tmp_path / "nothing")])
+    assert missing.exit_code == 1 and "error:" in missing.output
+
+
+def _expected_rows(frame: dict) -> list[list]:
+    rows = [[r["plane"], "kept", None, r["pixels"], r["inliers"], r["inlier_ratio"]] for r in frame["kept"]]
+    rows += [[r["plane"], "dropped", r["reason"], r["pixels"], 0, None] for r in frame["dropped"]]
+    return sorted(rows, key=lambda row: row[0])
+
+
+def _embedded_data(page: str) -> dict:
+    start = page.index('<script type="application/json" id="run-data">') + len('<script type="application/json" id="run-data">')
+    return json.loads(page[start : page.index("</script>", start)])
+
+
+# ----------------------------------------------------------------------------------------------
+# The page in a real headless browser (Debian's chromium), driven over the DevTools protocol.
+# ----------------------------------------------------------------------------------------------
+
+BROWSER_FLAGS = [
+    "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+    "--disable-background-networking", "--disable-component-update", "--disable-sync",
+    "--remote-debugging-pipe",
+]
+#: Bound on installing the browser and on every wait for it.
+INSTALL_TIMEOUT = 600
+REPLY_TIMEOUT = 30
+
+
+@pytest.fixture(scope="module")
+def chromium() -> str:
+    """Path of Debian's chromium; installed with apt-get when missing and running as root."""
+    found = shutil.which("chromium")
+    if found:
+        return found
+    if not hasattr(os, "geteuid") or os.geteuid() != 0 or not shutil.which("apt-get"):
+        pytest.skip("no browser: chromium is not installed and apt-get cannot install it here (not root)")
+    env = {**os.environ, "DEBIAN_FRONTEND": "noninteractive"}
+    try:
+        for command in (["apt-get", "update", "-qq"], ["apt-get", "install", "-y", "-qq", "chromium"]):
+            subprocess.run(command, check=True, env=env, timeout=INSTALL_TIMEOUT, capture_output=True)
+    except (subprocess.SubprocessError, OSError) as exc:
+        pytest.skip(f"no browser: chromium is not installed and installing it failed ({exc})")
+    found = shutil.which("chromium")
+    if not found:
+        pytest.skip("no browser: apt-get installed chromium but it is not on PATH")
+    return found
+
+
+class DevTools:
+    """A minimal Chrome DevTools protocol client over ``--remote-debugging-pipe`` (fds 3 and 4).
+
+    Messages are JSON texts ended by a NUL byte. Events are kept in ``events`` as they arrive.
+    """
+
+    def __init__(self, executable: str, profile: Path):
+        to_browser_read, self._write = os.pipe()
+        self._read, from_browser_write = os.pipe()
+        # The browser expects the pipe on fds 3 (commands) and 4 (replies): a small Python
+        # trampoline moves them there (from numbers above 4, so neither move overwrites the
+        # other's source) and execs the browser.
+        to_browser_read, from_browser_write = (_above_4(fd) for fd in (to_browser_read, from_browser_write))
+        self.log_path = profile.parent / f"{profile.name}.log"
+        self._log = open(self.log_path, "wb")  # noqa: SIM115 - open for the browser's lifetime
+        command = [executable, *BROWSER_FLAGS, f"--user-data-dir={profile}", "about:blank"]
+        trampoline = f"import os, sys; os.dup2({to_browser_read}, 3); os.dup2({from_browser_write}, 4); os.execv(sys.argv[1], sys.argv[1:])"
+        self.process = subprocess.Popen(
+            [sys.executable, "-c", trampoline, *command],
+            pass_fds=(to_browser_read, from_browser_write), stdin=subprocess.DEVNULL,
+            stdout=subprocess.DEVNULL, stderr=self._log,
+        )
+        os.close(to_browser_read)
+        os.close(from_browser_write)
+        self._buffer = b""
+        self._next_id = 0
+        self.events: list[dict] = []
+
+    def call(self, method: str, session: str | None = None, **params) -> dict:
+        self._next_id += 1
+        message = {"id": self._next_id, "method": method, "params": params}
+        if session:
+            message["sessionId"] = session
+        os.write(self._write, json.dumps(message).encode() + b"\0")
+        deadline = time.monotonic() + REPLY_TIMEOUT
+        while True:
+            reply = self._receive(deadline)
+            if reply.get("id") == self._next_id:
+                if "error" in reply:
+                    raise RuntimeError(f"{method}: {reply['error']}")
+                return reply["result"]
+            self.events.append(reply)
+
+    def wait_for_event(self, method: str) -> dict:
+        deadline = time.monotonic() + REPLY_TIMEOUT
+        while True:
+            for event in self.events:
+                if event.get("method") == method:
+                    self.events.remove(event)
+                    return event
+            self.events.append(self._receive(deadline))
+
+    def _receive(self, deadline: float) -> dict:
+        while b"\0" not in self._buffer:
+            remaining = deadline - time.monotonic()
+            if remaining <= 0 or not select.select([self._read], [], [], remaining)[0]:
+                raise TimeoutError("no answer from the browser")
+            chunk = os.read(self._read, 1 << 20)
+            if not chunk:
+                log = self.log_path.read_text(errors="replace").splitlines()
+                raise RuntimeError("the browser closed the DevTools pipe; its last words:\n" + "\n".join(log[-10:]))
+            self._buffer += chunk
+        text, _, self._buffer = self._buffer.partition(b"\0")
+        return json.loads(text)
+
+    def close(self) -> None:
+        try:
+            self.call("Browser.close")
+        except (RuntimeError, TimeoutError, OSError):
+            pass
+        try:
+            self.process.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            self.process.kill()
+            self.process.wait()
+        os.close(self._write)
+        os.close(self._read)
+        self._log.close()
+
+
+def _above_4(fd: int) -> int:
+    moved = fcntl.fcntl(fd, fcntl.F_DUPFD_CLOEXEC, 10)
+    os.close(fd)
+    return moved
+
+
+class Page:
+    """One browser tab attached in flat mode: commands go to it by session id."""
+
+    def __init__(self, tools: DevTools):
+        self.tools = tools
+        target = tools.call("Target.createTarget", url="about:blank")["targetId"]
+        self.session = tools.call("Target.attachToTarget", targetId=target, flatten=True)["sessionId"]
+        for domain in ("Page", "Runtime", "Log"):
+            self.call(f"{domain}.enable")
+
+    def call(self, method: str, **params) -> dict:
+        return self.tools.call(method, self.session, **params)
+
+    def evaluate(self, expression: str):
+        result = self.call("Runtime.evaluate", expression=expression, returnByValue=True, awaitPromise=True)
+        if "exceptionDetails" in result:
+            raise RuntimeError(f"{expression}: {result['exceptionDetails']}")
+        return result["result"].get("value")
+
+    def press(self, key: str, code: int) -> None:
+        for kind in ("keyDown", "keyUp"):
+            self.call("Input.dispatchKeyEvent", type=kind, key=key, code=key, windowsVirtualKeyCode=code)
+
+    def errors(self) -> list[str]:
+        """Console errors, uncaught exceptions and failed loads so far."""
+        found = []
+        for event in self.tools.events:
+            params = event.get("params", {})
+            if event.get("method") == "Runtime.exceptionThrown":
+                found.append(str(params["exceptionDetails"]))
+            elif event.get("method") == "Runtime.consoleAPICalled" and params.get("type") in ("error", "assert"):
+                found.append(str(params.get("args")))
+            elif event.get("method") == "Log.entryAdded" and params["entry"]["level"] == "error":
+                found.append(params["entry"].get("text", ""))
+        return found
+
+
+@pytest.fixture
+def browser(chromium, tmp_path):
+    profile = tmp_path / "browser-profile"
+    profile.mkdir()
+    tools = DevTools(chromium, profile)
+    try:
+        yield tools
+    finally:
+        tools.close()
+
+
+TABLE_ROWS = """Array.from(document.querySelectorAll('#planes tbody tr')).map(tr =>
+    Array.from(tr.cells).map(td => td.textContent))"""
+IMAGES_LOADED = """(async () => {
+    for (let i = 0; i < 200; i++) {
+        const imgs = ['overlay', 'mask'].map(id => document.getElementById(id));
+        if (imgs.every(img => img.complete && img.naturalWidth > 0)) return true;
+        await new Promise(r => setTimeout(r, 25));
+    }
+    return false;
+})()"""
+
+
+def test_review_page_in_a_browser(finished_run, browser, tmp_path):
+    report = _report(finished_run)
+    written = [f for f in report["frames"] if f["status"] == "written"]
+    page = Page(browser)
+    page.call("Emulation.setDeviceMetricsOverride", width=1280, height=900, deviceScaleFactor=1, mobile=False)
+    page.call("Page.navigate", url=(finished_run / "review.html").resolve().as_uri())
+    browser.wait_for_event("Page.loadEventFired")
+    assert page.evaluate(IMAGES_LOADED)
+
+    def shown() -> tuple[str, str, list[list[str]]]:
+        return (page.evaluate("document.getElementById('counter').textContent"),
+                page.evaluate("document.getElementById('mask').getAttribute('src')"),
+                page.evaluate(TABLE_ROWS))
+
+    counter, mask, rows = shown()
+    assert counter == f"frame 1 of {len(written)}" and mask == written[0]["mask"]
+    assert rows == _table_text(written[0], report)
+
+    page.press("ArrowRight", 39)
+    page.press("ArrowRight", 39)
+    counter, mask, rows = shown()
+    assert counter == f"frame 3 of {len(written)}" and mask == written[2]["mask"]
+    assert rows == _table_text(written[2], report)
+    assert page.evaluate("document.getElementById('overlay').getAttribute('src')") == "overlays/" + Path(written[2]["mask"]).name
+    page.press("ArrowLeft", 37)
+    counter, mask, rows = shown()
+    assert counter == f"frame 2 of {len(written)}" and mask == written[1]["mask"]
+    assert rows == _table_text(written[1], report)
+
+    # Totals and timeline are drawn from the same data.
+    totals = dict(page.evaluate("""Array.from(document.querySelectorAll('#totals tr')).map(tr =>
+        Array.from(tr.cells).map(td => td.textContent))"""))
+    assert totals["observations (masks)"] == str(len(written))
+    assert page.evaluate("document.getElementById('timeline').height") > 0
+
+    assert page.evaluate(IMAGES_LOADED)
+    shot = base64.b64decode(page.call("Page.captureScreenshot", format="png", captureBeyondViewport=True)["data"])
+    assert shot.startswith(b"\x89PNG")
+    (tmp_path / "review.png").write_bytes(shot)
+    if os.environ.get(SCREENSHOT_COPY):
+        Path(os.environ[SCREENSHOT_COPY]).write_bytes(shot)
+    assert page.errors() == []
+
+
+def _table_text(frame: dict, report: dict) -> list[list[str]]:
+    """The plane table of a frame as the page should show it, from report.json."""
+    labels = {p["plane"]: p["label"] for p in report["planes"]}
+    return [
+        [str(plane), labels[plane], status, reason or "", str(pixels), str(kept), "" if ratio is None else f"{ratio:.3f}"]
+        for plane, status, reason, pixels, kept, ratio in _expected_rows(frame)
+    ]

@@ -1,0 +1,90 @@
+"""Run summary: EVOPS dataset-table numbers, drops by reason, inlier ratio; the stats command."""
+
+from __future__ import annotations
+
+import json
+
+from typer.testing import CliRunner
+
+from annotate_rgbd.cli import app
+from annotate_rgbd.stats import format_stats, run_stats
+
+
+def _kept(plane: int, ratio: float) -> dict:
+    return {"plane": plane, "pixels": 100, "inliers": round(100 * ratio), "inlier_ratio": ratio}
+
+
+def _dropped(plane: int, reason: str) -> dict:
+    return {"plane": plane, "pixels": 50, "reason": reason}
+
+
+REPORT = {
+    "inputs": {"sequence": "seq", "parts": []},
+    "config": {},
+    "planes": [{"plane": k, "colour": "#000000", "label": f"p{k}"} for k in (1, 2, 3, 4)],
+    "frames": [
+        {"depth": "d0.png", "status": "skipped", "reason": "outside_annotated_range"},
+        {"depth": "d1.png", "status": "written", "mask": "masks/d1.png",
+         "kept": [_kept(1, 0.9), _kept(2, 0.8)], "dropped": [_dropped(3, "too_far")]},
+        {"depth": "d2.png", "status": "written", "mask": "masks/d2.png",
+         "kept": [_kept(1, 1.0)], "dropped": [_dropped(3, "too_far"), _dropped(2, "invalid_depth")]},
+        {"depth": "d3.png", "status": "written", "mask": "masks/d3.png", "kept": [], "dropped": []},
+        {"depth": "d4.png", "status": "skipped", "reason": "no_rgb_frame_within_max_time_diff"},
+        {"depth": "d5.png", "status": "skipped", "reason": "outside_annotated_range"},
+    ],
+}
+
+
+def test_run_stats_counts_observations_planes_and_drops():
+    stats = run_stats(REPORT)
+    assert stats["observations"] == 3
+    assert stats["total_planes"] == 3
+    assert stats["planes_per_observation"] == 1.0
+    assert stats["distinct_planes"] == 2  # plane 3 is never kept, plane 4 never drawn
+    assert stats["planes_annotated"] == 4
+    assert stats["depth_frames"] == 6
+    assert stats["frames_skipped"] == {"no_rgb_frame_within_max_time_diff": 1, "outside_annotated_range": 2}
+    assert stats["planes_dropped"] == 3
+    assert stats["dropped_by_reason"] == {"invalid_depth": 1, "too_far": 2}
+    assert stats["mean_inlier_ratio"] == 0.9
+
+
+def test_run_stats_of_a_run_without_masks():
+    stats = run_stats({"planes": [], "frames": [REPORT["frames"][0]]})
+    assert stats["observations"] == 0 and stats["planes_per_observation"] == 0.0
+    assert stats["mean_inlier_ratio"] is None
+    last = format_stats(stats).splitlines()[-1]
+    assert last.startswith("mean inlier ratio") and last.endswith(" -")
+
+
+def test_format_stats_is_an_aligned_table():
+    lines = format_stats(run_stats(REPORT)).splitlines()
+    names = [line.rsplit("  ", 1)[0] for line in lines]
+    assert len({len(name) for name in names}) == 1  # the values start in one column
+    table = {name.strip(): line[len(name) + 2 :] for name, line in zip(names, lines)}
+    assert table["observations (masks)"] == "3"
+    assert table["planes per observation"] == "1.00"
+    assert table["distinct planes"] == "2 of 4 annotated"
+    assert table["too_far"] == "2" and table["invalid_depth"] == "1"
+    assert table["skipped: outside_annotated_range"] == "2"
+    assert table["mean inlier ratio"] == "0.900"
+
+
+def test_stats_command_prints_table_and_json(tmp_path):
+    (tmp_path / "report.json").write_text(json.dumps(REPORT), encoding="utf-8")
+    runner = CliRunner()
+    table = runner.invoke(app, ["stats", str(tmp_path)])
+    assert table.exit_code == 0, table.output
+    assert table.output.startswith("observations (masks)")
+    as_json = runner.invoke(app, ["stats", str(tmp_path), "--json"])
+    assert as_json.exit_code == 0, as_json.output
+    assert json.loads(as_json.output) == run_stats(REPORT)
+
+
+def test_stats_command_on_a_folder_without_a_run(tmp_path):
+    result = CliRunner().invoke(app, ["stats", str(tmp_path)])
+    assert result.exit_code == 1
+    assert "error:" in result.output and "report.json" in result.output
+    (tmp_path / "report.json").write_text("{not json", encoding="utf-8")
+    broken = CliRunner().invoke(app, ["stats", str(tmp_path)])
+    assert broken.exit_code == 1 and "cannot read the report" in broken.output
