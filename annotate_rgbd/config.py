@@ -21,7 +21,7 @@ that is not listed is an error, so a typo never goes unnoticed::
     distance_threshold = 0.02
     num_iterations = 1000
     seed = 0
-    max_points = 5000
+    max_points = 3000
     [stitch]            # several annotation parts of one sequence
     min_iou = 0.5
     [[parts]]           # where a part starts in the RGB list (repeat per part)
@@ -126,7 +126,7 @@ class RansacConfig:
     distance_threshold: float = 0.02
     num_iterations: int = 1000
     seed: int = 0
-    max_points: int = 5000
+    max_points: int = 3000
 
 
 @dataclass(frozen=True)

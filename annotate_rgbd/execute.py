@@ -16,7 +16,9 @@ import hashlib
 import json
 import multiprocessing
 import os
-from concurrent.futures import ProcessPoolExecutor
+from functools import lru_cache
+from collections import deque
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from pathlib import Path
 from typing import Callable, Iterator, Sequence
 
@@ -50,9 +52,7 @@ def fingerprint(job, config: Config) -> str:
     str
         Hex digest; equal digests mean an equal mask.
     """
-    digest = hashlib.sha256()
-    settings = config_to_dict(config)
-    digest.update(json.dumps([__version__, settings["camera"], settings["filter"], settings["ransac"]]).encode())
+    digest = hashlib.sha256(_mask_settings(config))
     try:
         digest.update(job.depth_path.read_bytes())
     except OSError:
@@ -65,6 +65,14 @@ def fingerprint(job, config: Config) -> str:
             digest.update(f"{shape.bitmap.shape}".encode())
             digest.update(np.packbits(shape.bitmap).tobytes())
     return digest.hexdigest()
+
+
+@lru_cache(maxsize=16)
+def _mask_settings(config: Config) -> bytes:
+    """The tool version and the settings that change a mask (not stitching or part placement,
+    whose effect is in the shapes' plane ids)."""
+    settings = config_to_dict(config)
+    return json.dumps([__version__, settings["camera"], settings["filter"], settings["ransac"]]).encode()
 
 
 def previous_results(out_dir: Path) -> dict[str, tuple[str, dict]]:
@@ -102,36 +110,49 @@ def run_jobs(
     worker: Callable,
     workers: int,
 ) -> Iterator[tuple[int, dict | InputError]]:
-    """Run ``worker(job)`` for every job, in this process or in a pool of processes.
+    """Run ``worker(job)`` for every job, in this process and ``workers - 1`` helper processes.
+
+    This process works too: it takes jobs itself while the helpers start (a new Python process
+    needs a few seconds to import Open3D) and whenever they have enough queued.
 
     Parameters
     ----------
     jobs : sequence
         Picklable arguments, one per task.
     worker : callable
-        A module-level function (so that it can be sent to worker processes); it returns a
+        A module-level function (so that it can be sent to other processes); it returns a
         dict, or raises :class:`InputError` for a problem with that task's input.
     workers : int
-        1: run here, one after the other. More: a pool of that many processes.
+        Processes working at once, this one included (1: only this one).
 
     Yields
     ------
     (int, dict or InputError)
         Index of the job and its result (or the input error it raised), in completion order.
     """
+    pending = deque(enumerate(jobs))
     if workers <= 1 or len(jobs) <= 1:
-        for index, job in enumerate(jobs):
+        for index, job in pending:
             yield index, _call(worker, job)
         return
     # "spawn": forking a process that has already run Open3D's thread pool is not safe.
     context = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(max_workers=workers, mp_context=context) as pool:
-        futures = {pool.submit(_call, worker, job): index for index, job in enumerate(jobs)}
+    helpers = workers - 1
+    with ProcessPoolExecutor(max_workers=helpers, mp_context=context) as pool:
+        in_flight: dict = {}
         try:
-            from concurrent.futures import as_completed
-
-            for future in as_completed(futures):
-                yield futures[future], future.result()
+            while pending or in_flight:
+                # Keep every helper busy with one job and one more queued.
+                while pending and len(in_flight) < 2 * helpers:
+                    index, job = pending.popleft()
+                    in_flight[pool.submit(_call, worker, job)] = index
+                for future in [f for f in in_flight if f.done()]:
+                    yield in_flight.pop(future), future.result()
+                if pending:
+                    index, job = pending.popleft()
+                    yield index, _call(worker, job)
+                elif in_flight:
+                    wait(in_flight, return_when=FIRST_COMPLETED)
         except BaseException:
             pool.shutdown(wait=False, cancel_futures=True)
             raise

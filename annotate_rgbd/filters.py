@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
@@ -59,23 +60,38 @@ def plane_statistics(labels: np.ndarray, depth_m: np.ndarray, camera: Camera) ->
     -------
     PlaneStats
     """
-    height, width = labels.shape
-    # Length of each pixel's viewing ray at z = 1: distance = depth * ray.
-    ray = np.sqrt(
-        (((np.arange(height, dtype=np.float32) - np.float32(camera.cy)) / np.float32(camera.fy)) ** 2)[:, None]
-        + (((np.arange(width, dtype=np.float32) - np.float32(camera.cx)) / np.float32(camera.fx)) ** 2)[None, :]
-        + np.float32(1.0)
-    )
-    on_valid = np.where(np.isfinite(depth_m), labels, 0).ravel()  # invalid pixels count for label 0
-    n = int(labels.max(initial=0)) + 1
-    pixels = np.bincount(labels.ravel(), minlength=n)
-    valid_pixels = np.bincount(on_valid, minlength=n)
-    distance_sum = np.bincount(on_valid, weights=(depth_m * ray).ravel(), minlength=n)
+    ray = ray_lengths(camera, *labels.shape)
+    flat = labels.ravel()
+    n = int(flat.max(initial=0)) + 1
+    # One pass counts pixels and invalid pixels per plane: bin 2 * id + (depth invalid).
+    counts = np.bincount(2 * flat + np.isnan(depth_m).ravel(), minlength=2 * n).reshape(n, 2)
+    pixels = counts.sum(axis=1)
+    valid_pixels = counts[:, 0]
+    # fmax turns the NaN of invalid pixels into 0, so they add nothing to the sum.
+    distance_sum = np.bincount(flat, weights=np.fmax(depth_m * ray, 0).ravel(), minlength=n)
     plane_ids = np.flatnonzero(pixels[1:]) + 1
     pixels, valid_pixels, distance_sum = pixels[plane_ids], valid_pixels[plane_ids], distance_sum[plane_ids]
     with np.errstate(invalid="ignore", divide="ignore"):
         mean_distance = np.where(valid_pixels > 0, distance_sum / np.maximum(valid_pixels, 1), np.nan)
     return PlaneStats(plane_ids.astype(np.int32), pixels, valid_pixels, mean_distance)
+
+
+@lru_cache(maxsize=4)
+def ray_lengths(camera: Camera, height: int, width: int) -> np.ndarray:
+    """Length of each pixel's viewing ray at z = 1 (so that distance = depth x length).
+
+    Returns
+    -------
+    ndarray of float32, shape (height, width)
+        Read-only (cached: every frame of a sequence uses the same one).
+    """
+    ray = np.sqrt(
+        (((np.arange(height, dtype=np.float32) - np.float32(camera.cy)) / np.float32(camera.fy)) ** 2)[:, None]
+        + (((np.arange(width, dtype=np.float32) - np.float32(camera.cx)) / np.float32(camera.fx)) ** 2)[None, :]
+        + np.float32(1.0)
+    )
+    ray.setflags(write=False)
+    return ray
 
 
 def drop_reasons(stats: PlaneStats, config: FilterConfig) -> list[str | None]:

@@ -118,9 +118,9 @@ def polygon_rows(points: np.ndarray, height: int, width: int) -> tuple[int, np.n
     starts = starts[:, : ends.shape[1]]
     missing = ~np.isfinite(ends)
     # Pixels with centre c + 0.5 in [start, end): c from ceil(start - 0.5) to ceil(end - 0.5) - 1.
-    first = np.where(missing, 0, np.ceil(np.where(missing, 0, starts) - 0.5))
-    stop = np.where(missing, 0, np.ceil(np.where(missing, 0, ends) - 0.5))
-    cols = np.arange(width)
+    first = np.where(missing, 0, np.ceil(np.where(missing, 0, starts) - 0.5)).clip(0, width).astype(np.int32)
+    stop = np.where(missing, 0, np.ceil(np.where(missing, 0, ends) - 0.5)).clip(0, width).astype(np.int32)
+    cols = np.arange(width, dtype=np.int32)
     inside = np.zeros((bottom - top + 1, width), dtype=bool)
     for k in range(ends.shape[1]):  # spans of a row are disjoint: one comparison per span
         inside |= (cols >= first[:, k, None]) & (cols < stop[:, k, None])

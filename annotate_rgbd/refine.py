@@ -71,7 +71,12 @@ def fit_plane(points: np.ndarray, config: RansacConfig) -> PlaneFit:
 
 
 def refine_planes(
-    labels: np.ndarray, depth_m: np.ndarray, plane_ids: np.ndarray, camera: Camera, config: RansacConfig
+    labels: np.ndarray,
+    depth_m: np.ndarray,
+    plane_ids: np.ndarray,
+    camera: Camera,
+    config: RansacConfig,
+    valid_pixels: np.ndarray | None = None,
 ) -> tuple[np.ndarray, dict[int, np.ndarray]]:
     """Keep, for each plane, only its pixels with valid depth that lie on the plane RANSAC finds.
 
@@ -89,6 +94,9 @@ def refine_planes(
         The planes to refine; every other label becomes 0.
     camera : Camera
     config : RansacConfig
+    valid_pixels : ndarray of int, optional
+        Number of valid-depth pixels of each plane of ``plane_ids`` (as counted by
+        :func:`annotate_rgbd.filters.plane_statistics`); counted here when not given.
 
     Returns
     -------
@@ -100,13 +108,15 @@ def refine_planes(
     valid = np.isfinite(depth_m)
     on_valid = np.where(valid, labels, 0)  # plane ids where the depth is valid
     n_labels = int(labels.max(initial=0)) + 1
-    valid_count = np.bincount(on_valid.ravel(), minlength=n_labels)
+    plane_ids = np.asarray(plane_ids)
+    if valid_pixels is None:
+        valid_pixels = np.bincount(on_valid.ravel(), minlength=n_labels)[plane_ids]
     table = np.zeros((n_labels, 4), dtype=np.float32)  # (a, b, c, d) per label; 0 = no plane
     equations = {}
-    for plane_id in np.asarray(plane_ids).tolist():
+    for plane_id, count in zip(plane_ids.tolist(), np.asarray(valid_pixels).tolist()):
         step = 1
         if config.max_points:
-            step = max(1, int(np.ceil(np.sqrt(valid_count[plane_id] / config.max_points))))
+            step = max(1, int(np.ceil(np.sqrt(count / config.max_points))))
         rows, cols = np.nonzero(on_valid[::step, ::step] == plane_id)
         if rows.size < 3 and step > 1:
             rows, cols = np.nonzero(on_valid == plane_id)
@@ -120,7 +130,7 @@ def refine_planes(
     # Distance of every pixel to its own label's plane: |z (a x_n + b y_n + c) + d| with
     # x_n = (col - cx) / fx, y_n = (row - cy) / fy the pixel's ray at z = 1.
     # float32 is ample here: depth has 0.2 mm steps, and the threshold is millimetres or more.
-    a, b, c, d = (np.take(table[:, k], on_valid) for k in range(4))
+    a, b, c, d = np.moveaxis(np.take(table, on_valid, axis=0), -1, 0)
     x_n = ((np.arange(labels.shape[1], dtype=np.float32) - np.float32(camera.cx)) / np.float32(camera.fx))[None, :]
     y_n = ((np.arange(labels.shape[0], dtype=np.float32) - np.float32(camera.cy)) / np.float32(camera.fy))[:, None]
     with np.errstate(invalid="ignore"):

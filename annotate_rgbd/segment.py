@@ -61,8 +61,10 @@ def segment_frame(depth_raw: np.ndarray, shapes: Sequence[tuple[int, Shape]], co
     depth_m = depth_to_metres(depth_raw, config.camera.depth_scale)
     stats = plane_statistics(drawn, depth_m, config.camera)
     reasons = drop_reasons(stats, config.filter)
-    keep_ids = stats.plane_ids[[r is None for r in reasons]]
-    refined, equations = refine_planes(drawn, depth_m, keep_ids, config.camera, config.ransac)
+    kept = np.array([r is None for r in reasons], dtype=bool)
+    refined, equations = refine_planes(
+        drawn, depth_m, stats.plane_ids[kept], config.camera, config.ransac, stats.valid_pixels[kept]
+    )
     inlier_count = np.bincount(refined.ravel(), minlength=drawn.max(initial=0) + 1)
     result = FrameResult(labels=refined, drawn=drawn)
     for i, plane_id in enumerate(stats.plane_ids.tolist()):
