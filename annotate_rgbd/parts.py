@@ -61,6 +61,11 @@ class Part:
         return min(self.rgb_of_frame.values())
 
     @property
+    def frame_of_rgb(self) -> dict[int, int]:
+        """RGB index -> CVAT frame number, for the part's frames in the sequence."""
+        return {rgb: frame for frame, rgb in self.rgb_of_frame.items()}
+
+    @property
     def last(self) -> int:
         """RGB index of the part's last frame."""
         return max(self.rgb_of_frame.values())

@@ -16,19 +16,19 @@ from typing import Callable, Mapping, Sequence as SequenceType
 
 import numpy as np
 
-from . import __version__
 from .annotation import Shape
-from .config import Config, config_to_dict
+from .config import Config
 from .cvat import read_cvat
 from .errors import InputError
 from .execute import JOURNAL, fingerprint, previous_results, run_jobs
 from .overlay import OVERLAY_DIR, overlay_for_frame
-from .palette import colour_hex, colourize, plane_colours
+from .palette import colourize, plane_colours
 from .parts import Part, frame_owners, place_parts
 from .segment import segment_frame
 from .sequence import Sequence, associate, read_depth, read_sequence
-from .stitch import PartTracks, TrackPlane, assign_planes, track_ious
-from .writer import write_csv, write_json, write_png
+from .report import report_json, write_tables
+from .stitch import PartTracks, TrackPlane, assign_planes, label_conflicts, part_pair_iou
+from .writer import write_json, write_png
 
 log = logging.getLogger("annotate_rgbd")
 
@@ -210,11 +210,13 @@ def plan_run(
     nearest, time_diff, matched = associate(sequence.depth.timestamps, sequence.rgb.timestamps, config.sequence.max_time_diff)
     depth_of_rgb = _depth_for_rgb(nearest, time_diff, matched)
 
-    pair_iou = [_pair_iou(sequence, depth_of_rgb, a, b, config) for a, b in zip(parts, parts[1:])]
+    pair_iou = [
+        part_pair_iou(sequence, depth_of_rgb, a, b, config, MAX_MATCH_FRAMES) for a, b in zip(parts, parts[1:])
+    ]
     tracks = assign_planes(
-        [_part_tracks(p) for p in parts], pair_iou, config.matches, config.stitch.min_iou, "configuration"
+        [PartTracks.of(p) for p in parts], pair_iou, config.matches, config.stitch.min_iou, "configuration"
     )
-    for line in _label_conflicts(tracks):
+    for line in label_conflicts(tracks):
         _warn(warnings, line)
     plane_of = {(t.part, t.track): t.plane for t in tracks}
     colours = plane_colours(max((t.plane for t in tracks), default=0))
@@ -242,7 +244,7 @@ def plan_run(
             entry["reason"] = RGB_NOT_ANNOTATED
         else:
             part = parts[owners[rgb]]
-            frame = _frame_of_rgb(part)[rgb]
+            frame = part.frame_of_rgb[rgb]
             entry.update(part=part.name, cvat_frame=frame)
             shapes = tuple(
                 (plane_of[(part.name, track.track_id)], track.shapes[frame])
@@ -422,8 +424,8 @@ def finish_scene(scene: SceneRun) -> RunReport:
         frames=plan.frames, tracks=plan.tracks, n_planes=plan.n_planes, warnings=plan.warnings, notes=plan.notes,
         counts=scene.counts,
     )
-    _write_tables(scene.out_dir, report, plan.colours)
-    write_json(scene.out_dir / "report.json", _report_json(report, plan, scene.config))
+    write_tables(scene.out_dir, report.tracks, plan.colours)
+    write_json(scene.out_dir / "report.json", report_json(report, plan, scene.config))
     remove_stale_outputs(scene.out_dir, plan)
     (scene.out_dir / JOURNAL).unlink(missing_ok=True)
     return report
@@ -452,15 +454,6 @@ def remove_stale_outputs(out_dir: Path, plan: RunPlan) -> None:
                 path.unlink(missing_ok=True)
 
 
-def _part_tracks(part: Part) -> PartTracks:
-    tracks = sorted(part.annotation.tracks, key=lambda t: t.track_id)
-    return PartTracks(part.name, [t.track_id for t in tracks], [t.label for t in tracks])
-
-
-def _frame_of_rgb(part: Part) -> dict[int, int]:
-    return {rgb: frame for frame, rgb in part.rgb_of_frame.items()}
-
-
 def _depth_for_rgb(nearest: np.ndarray, time_diff: np.ndarray, matched: np.ndarray) -> dict[int, int]:
     """RGB index -> the depth frame closest to it in time, among the matched ones."""
     best: dict[int, int] = {}
@@ -471,131 +464,8 @@ def _depth_for_rgb(nearest: np.ndarray, time_diff: np.ndarray, matched: np.ndarr
     return best
 
 
-def _pair_iou(sequence: Sequence, depth_of_rgb: dict[int, int], a: Part, b: Part, config: Config) -> np.ndarray:
-    """IoU of part ``a``'s tracks (rows) with part ``b``'s (columns), on their refined masks
-    (on the shapes as drawn for tracks that the depth checks drop on those frames).
-
-    On the frames both parts annotate (up to :data:`MAX_MATCH_FRAMES`, evenly spread); without
-    shared frames, ``a``'s last frame against ``b``'s first.
-    """
-    tracks_a = sorted(a.annotation.tracks, key=lambda t: t.track_id)
-    tracks_b = sorted(b.annotation.tracks, key=lambda t: t.track_id)
-    shared = sorted(set(a.rgb_of_frame.values()) & set(b.rgb_of_frame.values()) & set(depth_of_rgb))
-    if shared:
-        picks = np.unique(np.linspace(0, len(shared) - 1, min(len(shared), MAX_MATCH_FRAMES)).round().astype(int))
-        pairs = [(shared[i], shared[i]) for i in picks]
-    else:
-        pairs = [(a.last, b.first)] if a.last in depth_of_rgb and b.first in depth_of_rgb else []
-    shape = (len(tracks_a), len(tracks_b))
-    sums = {kind: [np.zeros(shape, np.int64), np.zeros(shape, np.int64)] for kind in ("labels", "drawn")}
-    kept_a, kept_b = np.zeros(shape[0], bool), np.zeros(shape[1], bool)
-    for rgb_a, rgb_b in pairs:
-        results = []
-        for part, tracks, rgb in ((a, tracks_a, rgb_a), (b, tracks_b, rgb_b)):
-            frame = _frame_of_rgb(part)[rgb]
-            depth = read_depth(sequence.root / sequence.depth.files[depth_of_rgb[rgb]])
-            shapes = [(i + 1, t.shapes[frame]) for i, t in enumerate(tracks) if frame in t.shapes]
-            results.append(segment_frame(depth, shapes, config))
-        for kind, (intersection, union) in sums.items():
-            inter, uni = track_ious(getattr(results[0], kind), getattr(results[1], kind), *shape)
-            intersection += inter
-            union += uni
-        kept_a |= np.bincount(results[0].labels.ravel(), minlength=shape[0] + 1)[1:] > 0
-        kept_b |= np.bincount(results[1].labels.ravel(), minlength=shape[1] + 1)[1:] > 0
-    iou = {kind: np.where(u > 0, i / np.maximum(u, 1), 0.0) for kind, (i, u) in sums.items()}
-    # Planes the depth checks drop on these frames (too far, glass) have no refined pixels:
-    # they are matched on their shapes as drawn instead.
-    return np.where(kept_a[:, None] & kept_b[None, :], iou["labels"], iou["drawn"])
-
-
-def _label_conflicts(tracks: list[TrackPlane]) -> list[str]:
-    labels: dict[int, TrackPlane] = {}
-    lines = []
-    for t in tracks:
-        first = labels.setdefault(t.plane, t)
-        if first.label != t.label:
-            lines.append(
-                f"plane {t.plane} is labelled {first.label!r} in {first.part} (track {first.track}) "
-                f"but {t.label!r} in {t.part} (track {t.track})"
-            )
-    return lines
-
-
 def _warn(warnings: list[str], message: str) -> None:
     warnings.append(message)
     log.warning(message)
 
 
-def _write_tables(out_dir: Path, report: RunReport, colours: np.ndarray) -> None:
-    first_track: dict[int, TrackPlane] = {}
-    for t in report.tracks:
-        first_track.setdefault(t.plane, t)
-    write_csv(
-        out_dir / "planes.csv",
-        ["plane_id", "colour", "r", "g", "b", "label", "part", "track_id", "tracks"],
-        [
-            [
-                plane, colour_hex(colours[plane - 1]), *map(int, colours[plane - 1]), t.label, t.part, t.track,
-                " ".join(f"{u.part}:{u.track}" for u in report.tracks if u.plane == plane),
-            ]
-            for plane, t in sorted(first_track.items())
-        ],
-    )
-    write_csv(
-        out_dir / "tracks.csv",
-        ["part", "track", "label", "plane", "how", "iou", "matched_part", "matched_track"],
-        [
-            [t.part, t.track, t.label, t.plane, t.how, "" if t.iou is None else t.iou, t.matched_part or "",
-             "" if t.matched_track is None else t.matched_track]
-            for t in report.tracks
-        ],
-    )
-
-
-def _report_json(report: RunReport, plan: RunPlan, config: Config) -> dict:
-    colours = plan.colours
-    written = [f for f in report.frames if f["status"] == "written"]
-    skipped: dict[str, int] = {}
-    for f in report.frames:
-        if f["status"] == "skipped":
-            skipped[f["reason"]] = skipped.get(f["reason"], 0) + 1
-    first_track: dict[int, TrackPlane] = {}
-    for t in report.tracks:
-        first_track.setdefault(t.plane, t)
-    return {
-        "tool": {"name": "annotate-rgbd", "version": __version__},
-        "inputs": {
-            "sequence": str(plan.sequence.root.resolve()),
-            "parts": [
-                {
-                    "file": str(Path(p.annotation.path).resolve()),
-                    "name": p.name,
-                    "offset": p.offset,
-                    "first_rgb": p.first,
-                    "last_rgb": p.last,
-                    "placed_by": p.offset_source,
-                }
-                for p in plan.parts
-            ],
-        },
-        "config": config_to_dict(config),
-        "summary": {
-            "depth_frames": len(report.frames),
-            "masks_written": len(written),
-            "frames_skipped": skipped,
-            "frames_failed": sum(1 for f in report.frames if f["status"] == "failed"),
-            "planes": report.n_planes,
-            "planes_kept": sum(len(f["kept"]) for f in written),
-            "planes_dropped": sum(len(f["dropped"]) for f in written),
-        },
-        "planes": [
-            {"plane": plane, "colour": colour_hex(colours[plane - 1]), "label": t.label, "part": t.part, "track_id": t.track}
-            for plane, t in sorted(first_track.items())
-        ],
-        "tracks": [
-            {k: v for k, v in vars(t).items() if v is not None} for t in report.tracks
-        ],
-        "frames": report.frames,
-        "warnings": report.warnings,
-        "notes": report.notes,
-    }
