@@ -20,12 +20,17 @@ Rules the reader follows (checked against CVAT's exporter and interpolation code
   note says so. Tracks are numbered 0, 1, ... in order of first appearance.
 - Rotated boxes become 4-vertex polygons; masks are decoded into bitmaps. Polylines, points,
   ellipses, cuboids, skeletons and tags carry no usable area and are counted in the notes.
-- Shapes that cannot be used (too few points, NaN, zero area, inverted box, bad RLE, frame off
-  the task grid) are skipped with a note; a broken file raises
-  :class:`~annotate_rgbd.errors.InputError`.
+- Shapes that cannot be used (too few points, NaN, infinite or absurdly large coordinates,
+  all vertices on one line, inverted box, bad RLE, a mask larger than the image, frame off the
+  task grid) are skipped with a note; a broken file raises
+  :class:`~annotate_rgbd.errors.InputError`. A self-intersecting polygon is used as drawn
+  (filled by the even-odd rule); those a labeller drew (not CVAT's interpolated frames) are
+  counted in a note, so that they can be fixed.
 
 The file is parsed incrementally with entity expansion, DTD loading and network access
-disabled; a document that declares a DTD is refused.
+disabled; a document that declares a DTD is refused. Memory stays bounded whatever the file
+says: at most :data:`MAX_TASK_FRAMES` task frames, :data:`MAX_SHAPES` shapes after filling in
+the frames of tracks, and :data:`MAX_MASK_PIXELS_TOTAL` decoded mask pixels.
 """
 
 from __future__ import annotations
@@ -49,6 +54,19 @@ from annotate_rgbd.interpolate import (
 
 #: The CVAT XML version this reader understands.
 SUPPORTED_VERSION = "1.1"
+
+#: Bounds that keep a hostile or broken export from exhausting memory. A TUM or ICL-NUIM
+#: sequence has at most a few thousand frames and a few dozen planes, far below them.
+#: Frames of one task (``start_frame`` to ``stop_frame``).
+MAX_TASK_FRAMES = 200_000
+#: Shapes of a video export once its tracks are expanded to one shape per visible frame.
+MAX_SHAPES = 2_000_000
+#: Pixels of one mask's box when the export states no image size (4096 x 4096).
+MAX_MASK_PIXELS = 1 << 24
+#: Decoded mask pixels of the whole export (1 GiB of bitmaps).
+MAX_MASK_PIXELS_TOTAL = 1 << 30
+#: Coordinates farther than this from the image origin, in pixels, are a broken shape.
+MAX_COORDINATE = 1e6
 
 #: "x,y;x,y;..." (the numbers themselves are checked by float()).
 _POINTS = re.compile(r"[^,;]+,[^,;]+(?:;[^,;]+,[^,;]+)*")
@@ -88,9 +106,9 @@ def read_cvat(path: str | Path, labels: Collection[str] | None = None) -> Annota
     Raises
     ------
     InputError
-        The file is missing, unreadable, not well-formed, not a CVAT 1.1 export, declares a
-        DTD, lacks a required attribute or number, repeats a track or image id, or is a video
-        export without a frame range.
+        The file is missing, unreadable, not well-formed (or cut short), not a CVAT 1.1
+        export, declares a DTD, lacks a required attribute or number, repeats a track or image
+        id, is a video export without a frame range, or exceeds one of the memory bounds.
     """
     path = Path(path)
     if not path.exists():
@@ -118,7 +136,7 @@ def read_cvat(path: str | Path, labels: Collection[str] | None = None) -> Annota
         elif tag == "meta":
             meta = _read_meta(element, path)
         elif tag == "track":
-            track = _read_track(element, context)
+            track = _read_track(element, context, meta.original_size)
             if track.track_id in track_lines:
                 raise InputError(
                     path,
@@ -226,11 +244,17 @@ class _Notes:
     def skip(self, reason: str, where: str) -> None:
         self._entries.setdefault(("skip", reason), [0, where])[0] += 1
 
+    def count(self, what: str, where: str) -> None:
+        """Count a remarkable but usable shape."""
+        self._entries.setdefault(("count", what), [0, where])[0] += 1
+
     def lines(self) -> list[str]:
         lines = []
         for (kind, text), (count, where) in self._entries.items():
             if kind == "note":
                 lines.append(text)
+            elif kind == "count":
+                lines.append(f"{text}: {count} (first at {where})")
             else:
                 noun = "shape" if count == 1 else "shapes"
                 lines.append(f"skipped {count} {noun}: {text} (first at {where})")
@@ -247,6 +271,7 @@ class _ReadContext:
     ignored: Counter = field(default_factory=Counter)
     dropped_by_filter: int = 0
     labels_seen: set[str] = field(default_factory=set)
+    mask_pixels: int = 0  # decoded so far, against MAX_MASK_PIXELS_TOTAL
 
     def keep_label(self, label: str, shape_count: int) -> bool:
         self.labels_seen.add(label)
@@ -289,12 +314,17 @@ def _top_level_elements(path: Path) -> Iterator[etree._Element]:
         remove_pis=True,
     )
     depth = 0
+    started = False  # whether the root element began (else a syntax error is no truncation)
+    root = None  # checked at the next event, so that a file cut inside its root tag reads as cut
     try:
         for event, element in events:
+            if root is not None:
+                _check_root(root, path)
+                root = None
             if event == "start":
                 depth += 1
                 if depth == 1:
-                    _check_root(element, path)
+                    root, started = element, True
                 continue
             depth -= 1
             if depth == 1:
@@ -305,11 +335,41 @@ def _top_level_elements(path: Path) -> Iterator[etree._Element]:
                 while element.getprevious() is not None:
                     del parent[0]
     except etree.XMLSyntaxError as error:
-        message = re.sub(r", line \d+, column \d+$", "", error.msg or "not well-formed")
-        line = max(error.lineno or 1, 1)
-        raise InputError(path, f"malformed XML at line {line}: {message}") from None
+        raise InputError(path, _syntax_message(error, path, started)) from None
     except OSError as error:
         raise InputError(path, f"cannot read the file: {error.strerror or error}") from None
+
+
+def _syntax_message(error: etree.XMLSyntaxError, path: Path, started: bool) -> str:
+    """libxml2's complaint, reworded where its own words mislead the user.
+
+    An error on the last line of a document whose root began but that does not end with
+    ``</annotations>`` is reported as a cut-off file, whatever libxml2 stumbled on there.
+    """
+    line = max(error.lineno or 1, 1)
+    message = re.sub(r", line \d+, column \d+$", "", (error.msg or "not well-formed").strip())
+    message = " ".join(message.split())  # libxml2 may end a message with a newline
+    if message.startswith("Excessive depth in document"):
+        # libxml2's limit without XML_PARSE_HUGE; CVAT exports nest about 6 levels deep.
+        return f"malformed XML at line {line}: elements nested more than 256 levels deep"
+    last_line, ending = _last_line(path) if started else (0, b"")
+    if started and line >= last_line and not ending.endswith(b"</annotations>"):
+        return (
+            f"the file ends at line {last_line} before </annotations> (a truncated export or "
+            f"download?): {message}"
+        )
+    return f"malformed XML at line {line}: {message}"
+
+
+def _last_line(path: Path) -> tuple[int, bytes]:
+    """Number of the last non-blank line and the file's last bytes, whitespace stripped."""
+    newlines, tail = 0, b""
+    with open(path, "rb") as handle:
+        for chunk in iter(lambda: handle.read(1 << 20), b""):
+            newlines += chunk.count(b"\n")
+            tail = (tail + chunk)[-4096:]
+    stripped = tail.rstrip()
+    return newlines + 1 - tail[len(stripped):].count(b"\n"), stripped
 
 
 def _check_root(root: etree._Element, path: Path) -> None:
@@ -345,6 +405,15 @@ def _read_meta(meta: etree._Element, path: Path) -> _Meta:
     frame_filter = source.find("frame_filter")
     if frame_filter is not None:
         result.step = _step(frame_filter, path)
+    if result.start_frame is not None:
+        count = (result.stop_frame - result.start_frame) // result.step + 1
+        if count > MAX_TASK_FRAMES:
+            raise InputError(
+                path,
+                f"<stop_frame> at line {stop.sourceline}: a task of {count} frames "
+                f"({result.start_frame}-{result.stop_frame}, step {result.step}); at most "
+                f"{MAX_TASK_FRAMES} are read: export a task or job of the sequence",
+            )
     size = source.find("original_size")
     if size is None:
         size = meta.find("original_size")
@@ -368,7 +437,9 @@ def _step(frame_filter: etree._Element, path: Path) -> int:
     )
 
 
-def _read_track(element: etree._Element, context: _ReadContext) -> _RawTrack:
+def _read_track(
+    element: etree._Element, context: _ReadContext, image_size: tuple[int, int] | None
+) -> _RawTrack:
     path = context.path
     track_id = _int_attr(element, "id", path)
     label = _attr(element, "label", path)
@@ -381,7 +452,8 @@ def _read_track(element: etree._Element, context: _ReadContext) -> _RawTrack:
             context.ignored[child.tag] += 1
             continue
         outside = _flag(child, "outside")
-        keyframe = _read_shape(child, _int_attr(child, "frame", path), context, check=not outside)
+        frame = _int_attr(child, "frame", path)
+        keyframe = _read_shape(child, frame, context, image_size, check=not outside)
         if keyframe is not None:
             keyframe.outside = outside
             track.keyframes.append(keyframe)
@@ -405,7 +477,7 @@ def _read_image(element: etree._Element, context: _ReadContext) -> _RawImage:
         if child.tag in IGNORED_KINDS:
             context.ignored[child.tag] += 1
             continue
-        keyframe = _read_shape(child, frame, context, check=True)
+        keyframe = _read_shape(child, frame, context, size, check=True)
         if keyframe is None:
             continue
         group = _int_attr(child, "group_id", path, default=0)
@@ -415,12 +487,17 @@ def _read_image(element: etree._Element, context: _ReadContext) -> _RawImage:
 
 
 def _read_shape(
-    element: etree._Element, frame: int, context: _ReadContext, *, check: bool
+    element: etree._Element,
+    frame: int,
+    context: _ReadContext,
+    image_size: tuple[int, int] | None,
+    *,
+    check: bool,
 ) -> _Keyframe | None:
     """Read one polygon, box or mask; ``None`` (with a note) when it has no usable area.
 
     ``check=False`` reads the geometry without judging it (an ``outside`` shape only marks
-    where a track ends).
+    where a track ends). ``image_size`` (width, height), where known, bounds a mask's box.
     """
     path = context.path
     kind = element.tag
@@ -436,6 +513,13 @@ def _read_shape(
     if kind == "polygon":
         shape.points = _points_attr(element, path)
         problem = _polygon_problem(shape.points)
+        # Checked on the shapes a labeller drew, not on the frames CVAT interpolated from them.
+        drawn = element.get("keyframe") != "0"
+        if problem is None and check and drawn and _crosses_itself(shape.points):
+            context.notes.count(
+                "self-intersecting polygons, used as drawn (filled by the even-odd rule)",
+                f"line {line}",
+            )
     elif kind == "box":
         corners = [_float_attr(element, name, path) for name in ("xtl", "ytl", "xbr", "ybr")]
         shape.points = np.array(corners, dtype=np.float64).reshape(2, 2)
@@ -447,10 +531,15 @@ def _read_shape(
         )
         runs = _runs_attr(element, path)
         shape.points = np.array([[left, top]], dtype=np.float64)
-        problem = None
-        if width < 1 or height < 1 or np.any(runs < 0) or runs.sum() != width * height:
-            problem = "mask RLE runs do not add up to width x height"
-        else:
+        problem = _mask_problem(runs, width, height, image_size)
+        if problem is None:
+            context.mask_pixels += width * height
+            if context.mask_pixels > MAX_MASK_PIXELS_TOTAL:
+                raise InputError(
+                    path,
+                    f"{_where(element)}: the masks decode to more than {MAX_MASK_PIXELS_TOTAL} "
+                    "pixels: export a shorter task or job",
+                )
             shape.bitmap = decode_rle(runs, width, height)
     if problem is not None and check:
         context.notes.skip(problem, f"line {line}")
@@ -462,16 +551,78 @@ def _read_shape(
 def _polygon_problem(points: np.ndarray) -> str | None:
     if len(points) < 3:
         return "polygon with fewer than 3 points"
-    area = _polygon_area(points)
-    if not np.isfinite(area):
-        return "non-finite coordinates"
-    if abs(area) < 1e-9:
+    problem = _coordinate_problem(points)
+    if problem is not None:
+        return problem
+    # Zero area: every triangle of the fan from the first vertex is flat, so the polygon covers
+    # nothing. (Its signed area is no test: the lobes of a figure of eight cancel out.)
+    d = points[1:] - points[0]
+    if np.abs(d[:-1, 0] * d[1:, 1] - d[:-1, 1] * d[1:, 0]).sum() < 1e-9:
         return "polygon with zero area"
     return None
 
 
+def _crosses_itself(points: np.ndarray) -> bool:
+    """Whether two edges of the closed polygon properly cross (not merely touch).
+
+    Edges i and j cross when the ends of each lie strictly on opposite sides of the other;
+    neighbouring edges share a vertex, which lies on neither side, so they never count. All
+    pairs are tested at once, in blocks of rows to bound memory.
+    """
+    if len(points) < 4:
+        return False
+    start = points
+    end = np.concatenate([points[1:], points[:1]])
+    along = end - start
+    for first in range(0, len(points), 512):
+        block = slice(first, first + 512)
+        # Ends of every edge against the block's edges, and the block's ends against every edge.
+        others_straddle = _straddles(start[block], along[block], start, end)
+        block_straddles = _straddles(start, along, start[block], end[block]).T
+        if (others_straddle & block_straddles).any():
+            return True
+    return False
+
+
+def _straddles(
+    origin: np.ndarray, along: np.ndarray, first: np.ndarray, second: np.ndarray
+) -> np.ndarray:
+    """``[i, j]``: points ``first[j]`` and ``second[j]`` lie strictly on opposite sides of the
+    line through ``origin[i]`` along ``along[i]``."""
+    def side(points: np.ndarray) -> np.ndarray:
+        dx = points[None, :, 0] - origin[:, None, 0]
+        dy = points[None, :, 1] - origin[:, None, 1]
+        return along[:, None, 0] * dy - along[:, None, 1] * dx
+
+    return side(first) * side(second) < 0
+
+
+def _coordinate_problem(points: np.ndarray) -> str | None:
+    largest = np.abs(points).max()
+    if not np.isfinite(largest):
+        return "non-finite coordinates"
+    if largest > MAX_COORDINATE:
+        return f"coordinates beyond {MAX_COORDINATE:.0f} pixels"
+    return None
+
+
+def _mask_problem(
+    runs: np.ndarray, width: int, height: int, image_size: tuple[int, int] | None
+) -> str | None:
+    if width < 1 or height < 1 or np.any(runs < 0) or runs.sum() != width * height:
+        return "mask RLE runs do not add up to width x height"
+    if image_size is not None and (width > image_size[0] or height > image_size[1]):
+        return "mask larger than the image"
+    if image_size is None and width * height > MAX_MASK_PIXELS:
+        return f"mask larger than {MAX_MASK_PIXELS} pixels"
+    return None
+
+
 def _box_problem(corners: np.ndarray, rotation: float) -> str | None:
-    if not (np.isfinite(corners).all() and np.isfinite(rotation)):
+    problem = _coordinate_problem(corners)
+    if problem is not None:
+        return problem
+    if not np.isfinite(rotation):
         return "non-finite coordinates"
     (xtl, ytl), (xbr, ybr) = corners
     if xbr <= xtl or ybr <= ytl:
@@ -489,11 +640,19 @@ def _assemble_video(raw_tracks: list[_RawTrack], meta: _Meta, context: _ReadCont
     if frames is None:
         raise InputError(path, "video export without <start_frame>/<stop_frame> in <meta>")
     tracks = []
+    total = 0
     for raw in raw_tracks:
         if not raw.keyframes:
             continue  # filtered out, or only shapes without area
         keyframes = _task_keyframes(raw, meta, context.notes)
         shapes = _track_shapes(keyframes, meta.stop_frame, meta.step, context.notes, raw.track_id)
+        total += len(shapes)
+        if total > MAX_SHAPES:
+            raise InputError(
+                path,
+                f"<track> at line {raw.line}: the tracks fill more than {MAX_SHAPES} frames in "
+                "all (one shape per track and frame): export a shorter task or job",
+            )
         if shapes:
             tracks.append(Track(raw.track_id, raw.label, shapes))
         else:
@@ -714,15 +873,6 @@ def _int_text(element: etree._Element, path: Path) -> int:
 # --------------------------------------------------------------------------------------------
 # Geometry helpers
 # --------------------------------------------------------------------------------------------
-
-
-def _polygon_area(points: np.ndarray) -> float:
-    """Signed area of a polygon (N, 2), summed as a fan of triangles from its first vertex.
-
-    NaN or infinite coordinates give a non-finite area.
-    """
-    d = points[1:] - points[0]
-    return 0.5 * float(d[:-1, 0] @ d[1:, 1] - d[:-1, 1] @ d[1:, 0])
 
 
 def rotated_box_corners(corners: np.ndarray, rotation: float) -> np.ndarray:

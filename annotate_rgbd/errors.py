@@ -1,4 +1,4 @@
-"""The one exception type the command line turns into a one-line message."""
+"""The exception types the command line turns into a one-line message."""
 
 from __future__ import annotations
 
@@ -23,3 +23,11 @@ class InputError(Exception):
 
     def __str__(self) -> str:
         return self.message if self.path is None else f"{self.path}: {self.message}"
+
+
+class OutputError(InputError):
+    """An output file cannot be written (permissions, full disk): fatal for the run.
+
+    Unlike a problem with one input frame, it would recur on every frame, so a run stops at the
+    first one. ``path`` is the file that could not be written.
+    """

@@ -19,16 +19,16 @@ import numpy as np
 from .annotation import Shape
 from .config import Config
 from .cvat import read_cvat
-from .errors import InputError
+from .errors import InputError, OutputError
 from .execute import JOURNAL, fingerprint, previous_results, run_jobs
 from .overlay import OVERLAY_DIR, overlay_for_frame
 from .palette import colourize, plane_colours
 from .parts import Part, frame_owners, place_parts
 from .segment import segment_frame
-from .sequence import Sequence, associate, read_depth, read_sequence
+from .sequence import Sequence, associate, camera_problem, read_depth, read_sequence
 from .report import report_json, write_tables
 from .stitch import PartTracks, TrackPlane, assign_planes, label_conflicts, part_pair_iou
-from .writer import write_json, write_png
+from .writer import prepare_output, write_json, write_png
 
 log = logging.getLogger("annotate_rgbd")
 
@@ -262,7 +262,22 @@ def plan_run(
                 rgb_path=sequence.root / sequence.rgb.files[rgb],
             )
             jobs.append((d, job))
+    _check_camera(jobs, config, warnings)
     return RunPlan(sequence, parts, tracks, colours, frames, jobs, warnings, notes)
+
+
+def _check_camera(jobs: list[tuple[int, FrameJob]], config: Config, warnings: list[str]) -> None:
+    """Warn when the camera's principal point does not fit the first masked depth frame."""
+    if not jobs:
+        return
+    depth_path = jobs[0][1].depth_path
+    try:
+        height, width = read_depth(depth_path).shape
+    except InputError:
+        return  # reported with its frame
+    problem = camera_problem(config.camera.cx, config.camera.cy, width, height)
+    if problem is not None:
+        _warn(warnings, f"{depth_path}: {problem}")
 
 
 def run_cvat2mask(
@@ -369,6 +384,11 @@ def execute_scenes(scenes: SequenceType[SceneRun], workers: int = 1, force: bool
     tasks, owners = [], []
     done = {id(scene): 0 for scene in scenes}
     for scene in scenes:
+        try:
+            prepare_output(scene.out_dir)
+        except OutputError as exc:
+            scene.error = exc  # this scene only: the others may write elsewhere
+            continue
         previous = {} if force else previous_results(scene.out_dir)
         plan = scene.plan
         for index, job in plan.jobs:
@@ -383,19 +403,20 @@ def execute_scenes(scenes: SequenceType[SceneRun], workers: int = 1, force: bool
             else:
                 tasks.append((job, scene.config, plan.colours))
                 owners.append((scene, index))
-        scene.out_dir.mkdir(parents=True, exist_ok=True)
     for scene in scenes:
         if scene.progress:
             scene.progress(done[id(scene)], len(scene.plan.jobs))
     failures: dict[int, dict[int, str]] = {id(scene): {} for scene in scenes}
-    journals = {id(scene): open(scene.out_dir / JOURNAL, "a", encoding="utf-8") for scene in scenes}
+    journals = {
+        id(scene): open(scene.out_dir / JOURNAL, "a", encoding="utf-8") for scene in scenes if scene.error is None
+    }
     try:
         for k, result in run_jobs(tasks, run_frame_job, workers):
             scene, index = owners[k]
             if scene.error is not None:
                 continue
             job, entry = tasks[k][0], scene.plan.frames[index]
-            if isinstance(result, SizeMismatch):
+            if isinstance(result, (SizeMismatch, OutputError)):
                 scene.error = result
             elif isinstance(result, InputError):
                 entry.update(status="failed", reason=UNREADABLE_DEPTH, error=str(result))
@@ -405,8 +426,11 @@ def execute_scenes(scenes: SequenceType[SceneRun], workers: int = 1, force: bool
                 _finish(entry, job, result)
                 scene.counts["made"] += 1
                 record = {"mask": job.mask_path.name, "fingerprint": entry["fingerprint"], "result": result}
-                journals[id(scene)].write(json.dumps(record) + "\n")
-                journals[id(scene)].flush()
+                try:
+                    journals[id(scene)].write(json.dumps(record) + "\n")
+                    journals[id(scene)].flush()
+                except OSError as exc:
+                    scene.error = OutputError(scene.out_dir / JOURNAL, f"cannot write output: {exc.strerror or exc}")
             _step(scene, done)
     finally:
         for journal in journals.values():

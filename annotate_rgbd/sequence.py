@@ -12,12 +12,16 @@ A sequence folder holds either
 Frames are always ordered by their timestamp as a number: sorting names as text, or by the
 integer part of the timestamp only, mixes up frames within the same second (a pitfall of the
 original EVOPS tooling).
+
+A listed file must lie inside the sequence folder (no absolute path, no ``..``), so that a list
+can never make the tool read elsewhere; depth file names must be distinct, since each names its
+mask.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
+from pathlib import Path, PurePosixPath, PureWindowsPath
 
 import cv2
 import numpy as np
@@ -77,12 +81,15 @@ def read_sequence(root: str | Path) -> Sequence:
         raise InputError(root, "sequence folder not found")
     if (root / "rgb.txt").is_file() and (root / "depth.txt").is_file():
         rgb = read_frame_list(root / "rgb.txt")
-        depth = read_frame_list(root / "depth.txt")
+        depth_source = root / "depth.txt"
+        depth = read_frame_list(depth_source)
     elif (root / "associations.txt").is_file():
-        rgb, depth = read_associations(root / "associations.txt")
+        depth_source = root / "associations.txt"
+        rgb, depth = read_associations(depth_source)
     elif (root / "rgb").is_dir() and (root / "depth").is_dir():
         rgb = list_image_folder(root / "rgb", root)
-        depth = list_image_folder(root / "depth", root)
+        depth_source = root / "depth"
+        depth = list_image_folder(depth_source, root)
     else:
         raise InputError(
             root, "not an RGB-D sequence: expected rgb.txt and depth.txt, associations.txt, "
@@ -91,13 +98,34 @@ def read_sequence(root: str | Path) -> Sequence:
     for name, frames in (("RGB", rgb), ("depth", depth)):
         if len(frames) == 0:
             raise InputError(root, f"the sequence lists no {name} frames")
+    check_depth_names(depth, depth_source)
     return Sequence(root=root, rgb=rgb, depth=depth)
+
+
+def check_depth_names(depth: FrameList, source: Path) -> None:
+    """Refuse two depth files with one file name: each names its mask, one would overwrite the other.
+
+    Raises
+    ------
+    InputError
+        Naming ``source`` (the depth list) and both files.
+    """
+    first: dict[str, str] = {}
+    for file in depth.files:
+        name = PurePosixPath(file).name
+        if name in first:
+            raise InputError(
+                source,
+                f"depth files {first[name]!r} and {file!r} have one file name; masks are named "
+                "after depth files, so each needs its own",
+            )
+        first[name] = file
 
 
 def read_frame_list(path: Path) -> FrameList:
     """Read a TUM ``rgb.txt`` / ``depth.txt``: ``#`` comments, then ``timestamp path`` lines."""
     rows = _read_rows(path, min_columns=2)
-    return _frame_list(path, [(ts, row[1], line) for line, ts, row in rows])
+    return _frame_list(path, [(ts, _inside(path, line, row[1]), line) for line, ts, row in rows])
 
 
 def read_associations(path: Path) -> tuple[FrameList, FrameList]:
@@ -110,7 +138,7 @@ def read_associations(path: Path) -> tuple[FrameList, FrameList]:
     rgb, depth = [], []
     for line, first_ts, row in rows:
         second_ts = _timestamp(path, line, row[2])
-        pairs = [(first_ts, row[1]), (second_ts, row[3])]
+        pairs = [(first_ts, _inside(path, line, row[1])), (second_ts, _inside(path, line, row[3]))]
         if "depth" in Path(row[3]).parts[0].lower() or "rgb" in Path(row[1]).parts[0].lower():
             pairs.reverse()
         (d_ts, d_file), (r_ts, r_file) = pairs
@@ -171,17 +199,49 @@ def associate(depth_times: np.ndarray, rgb_times: np.ndarray, max_time_diff: flo
     return nearest, time_diff, matched
 
 
+def camera_problem(cx: float, cy: float, width: int, height: int) -> str | None:
+    """Why intrinsics with principal point ``(cx, cy)`` look wrong for ``width x height`` images.
+
+    The principal point of a real RGB-D camera lies near the image centre; one outside the
+    middle half of the image usually means intrinsics for another resolution (TUM's 640x480
+    values on half-size images, or the other way round).
+
+    Parameters
+    ----------
+    cx, cy : float
+        Principal point in pixels.
+    width, height : int
+        Size of the depth images.
+
+    Returns
+    -------
+    str or None
+        A one-line warning, or ``None`` when the principal point is plausible.
+    """
+    if abs(cx - width / 2) <= width / 4 and abs(cy - height / 2) <= height / 4:
+        return None
+    where = "outside" if not (0 <= cx <= width and 0 <= cy <= height) else "far from the centre of"
+    return (
+        f"the camera's principal point ({cx:g}, {cy:g}) is {where} the {width}x{height} depth "
+        "images: are the [camera] intrinsics for another resolution?"
+    )
+
+
 def read_depth(path: Path) -> np.ndarray:
     """Read a depth image as a single-channel array of raw values.
 
     Raises
     ------
     InputError
-        Missing or undecodable file, or an image with colour channels (not a depth map).
+        Missing or undecodable file, an image with colour channels or an 8-bit image (not a
+        depth map).
     """
     image = _read_image(path, cv2.IMREAD_UNCHANGED)
     if image.ndim != 2:
         raise InputError(path, f"depth image has {image.shape[2]} channels; expected a single-channel depth map")
+    if image.dtype.itemsize == 1:
+        # An 8-bit image is a preview or a visualisation: its values are not depth.
+        raise InputError(path, "depth image is 8-bit; expected 16-bit depth (TUM / ICL-NUIM PNG)")
     return image
 
 
@@ -218,6 +278,18 @@ def _read_rows(path: Path, min_columns: int) -> list[tuple[int, float, list[str]
             raise InputError(path, f"line {number}: expected {min_columns} columns, got {len(columns)}")
         rows.append((number, _timestamp(path, number, columns[0]), columns))
     return rows
+
+
+def _inside(path: Path, line: int, file: str) -> str:
+    """``file`` as listed, if it names a file inside the sequence folder."""
+    posix = PurePosixPath(file.replace("\\", "/"))
+    if posix.is_absolute() or PureWindowsPath(file).drive:
+        raise InputError(path, f"line {line}: {file!r} is an absolute path; list files relative to the sequence folder")
+    if ".." in posix.parts:
+        raise InputError(path, f"line {line}: {file!r} leads outside the sequence folder ('..')")
+    if posix.name in ("", "."):
+        raise InputError(path, f"line {line}: {file!r} is not a file name")
+    return file
 
 
 def _timestamp(path: Path, line: int, text: str) -> float:

@@ -10,6 +10,7 @@ import csv
 import io
 import json
 import os
+import secrets
 import tempfile
 from pathlib import Path
 from typing import Any, Iterable, Sequence
@@ -17,7 +18,29 @@ from typing import Any, Iterable, Sequence
 import cv2
 import numpy as np
 
-from .errors import InputError
+from .errors import InputError, OutputError
+
+
+def prepare_output(folder: Path) -> None:
+    """Create the output folder if needed and check that files can be created in it.
+
+    Called before any work, so that an unusable folder is reported at once rather than after
+    the first mask has been computed.
+
+    Raises
+    ------
+    OutputError
+        The folder cannot be created (a file is in the way, no permission) or written.
+    """
+    folder = Path(folder)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=folder):
+            pass
+    except FileExistsError:
+        raise OutputError(folder, "cannot create the output folder: a file of that name is in the way") from None
+    except OSError as exc:
+        raise OutputError(folder, f"cannot write to the output folder: {exc.strerror or exc}") from None
 
 
 def write_bytes_atomic(path: Path, data: bytes) -> None:
@@ -25,25 +48,32 @@ def write_bytes_atomic(path: Path, data: bytes) -> None:
 
     Raises
     ------
-    InputError
+    OutputError
         The folder cannot be written (permissions, full disk, ...); no partial file remains.
     """
     path = Path(path)
-    tmp_name = None
+    # Named before it exists, so that an interrupt at any point (even inside the open call)
+    # leaves nothing behind: the finally clause removes whatever was created.
+    tmp = path.parent / f".{path.name}.{secrets.token_hex(4)}.tmp"
+    done = False
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp_name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+        # Mode 0o666 minus the umask, like any file the user creates (mkstemp's 0o600 is not).
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
         with os.fdopen(fd, "wb") as handle:
             handle.write(data)
             handle.flush()
             os.fsync(handle.fileno())
-        os.replace(tmp_name, path)
-        tmp_name = None
+        os.replace(tmp, path)
+        done = True
     except OSError as exc:
-        raise InputError(path, f"cannot write output: {exc.strerror or exc}") from None
+        raise OutputError(path, f"cannot write output: {exc.strerror or exc}") from None
     finally:
-        if tmp_name is not None:
-            Path(tmp_name).unlink(missing_ok=True)
+        if not done:
+            try:
+                tmp.unlink()
+            except OSError:  # never created (no folder, no permission): nothing to remove
+                pass
 
 
 def write_png(path: Path, image: np.ndarray) -> None:

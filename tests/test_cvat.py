@@ -709,7 +709,8 @@ def test_real_images_job_export(shared_data):
         "LB_Advanced": 21,
         "LB_EarlyStage": 3,
     }
-    assert annotation.notes == []
+    # A real labeller's polygons: five of them cross themselves, and are used as drawn.
+    assert annotation.notes == ["self-intersecting polygons, used as drawn (filled by the even-odd rule): 5 (first at line 375)"]
     healthy = read_cvat(shared_data / "cvat/images_1.1_job_polygons.xml", labels={"Healthy"})
     assert [t.label for t in healthy.tracks] == ["Healthy"]
     assert healthy.notes == ["label filter dropped 74 shapes with other labels"]
