@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from functools import lru_cache
 
+import cv2
 import numpy as np
 
 from .camera import Camera
@@ -61,19 +62,39 @@ def plane_statistics(labels: np.ndarray, depth_m: np.ndarray, camera: Camera) ->
     PlaneStats
     """
     ray = ray_lengths(camera, *labels.shape)
-    flat = labels.ravel()
-    n = int(flat.max(initial=0)) + 1
-    # One pass counts pixels and invalid pixels per plane: bin 2 * id + (depth invalid).
-    counts = np.bincount(2 * flat + np.isnan(depth_m).ravel(), minlength=2 * n).reshape(n, 2)
-    pixels = counts.sum(axis=1)
-    valid_pixels = counts[:, 0]
+    n = int(labels.max(initial=0)) + 1
+    valid = ~np.isnan(depth_m)
+    pixels = label_histogram(labels, n)
+    valid_pixels = label_histogram(labels, n, where=valid)
     # fmax turns the NaN of invalid pixels into 0, so they add nothing to the sum.
-    distance_sum = np.bincount(flat, weights=np.fmax(depth_m * ray, 0).ravel(), minlength=n)
+    distance_sum = np.bincount(labels.ravel(), weights=np.fmax(depth_m * ray, 0).ravel(), minlength=n)
     plane_ids = np.flatnonzero(pixels[1:]) + 1
     pixels, valid_pixels, distance_sum = pixels[plane_ids], valid_pixels[plane_ids], distance_sum[plane_ids]
     with np.errstate(invalid="ignore", divide="ignore"):
         mean_distance = np.where(valid_pixels > 0, distance_sum / np.maximum(valid_pixels, 1), np.nan)
     return PlaneStats(plane_ids.astype(np.int32), pixels, valid_pixels, mean_distance)
+
+
+def label_histogram(labels: np.ndarray, n: int, where: np.ndarray | None = None) -> np.ndarray:
+    """Pixel count of every label 0..n-1 (of the pixels where ``where`` is true, if given).
+
+    Parameters
+    ----------
+    labels : ndarray of non-negative int, shape (H, W)
+    n : int
+        Number of bins (> the largest label).
+    where : ndarray of bool, shape (H, W), optional
+
+    Returns
+    -------
+    ndarray of int64, shape (n,)
+    """
+    if labels.dtype == np.uint8:  # OpenCV's histogram is several times faster than bincount
+        mask = None if where is None else where.view(np.uint8)
+        counts = cv2.calcHist([labels], [0], mask, [256], [0, 256]).ravel()[:n]
+        return np.rint(counts).astype(np.int64)
+    selected = labels.ravel() if where is None else labels[where]
+    return np.bincount(selected, minlength=n)[:n]
 
 
 @lru_cache(maxsize=4)

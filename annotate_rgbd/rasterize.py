@@ -34,16 +34,27 @@ def rasterize_frame(shapes: Iterable[tuple[int, Shape]], height: int, width: int
 
     Returns
     -------
-    ndarray of int32, shape (height, width)
-        The plane id on top at each pixel, 0 where no shape covers it.
+    ndarray of uint8, uint16 or int32, shape (height, width)
+        The plane id on top at each pixel, 0 where no shape covers it; the smallest of these
+        types that holds the largest id (uint8 for the usual < 256 planes: every later pass
+        over the image moves a quarter of the bytes).
     """
-    labels = np.zeros((height, width), dtype=np.int32)
+    shapes = list(shapes)
+    labels = np.zeros((height, width), dtype=label_dtype(max((pid for pid, _ in shapes), default=0)))
     ordered = sorted(shapes, key=lambda item: item[1].z_order)  # stable: keeps track order
     for plane_id, shape in ordered:
         top, left, inside = shape_mask(shape, height, width)
         rows, cols = inside.shape
         np.copyto(labels[top : top + rows, left : left + cols], plane_id, where=inside)
     return labels
+
+
+def label_dtype(largest: int) -> np.dtype:
+    """The smallest label image type for plane ids up to ``largest``."""
+    for dtype in (np.uint8, np.uint16):
+        if largest <= np.iinfo(dtype).max:
+            return np.dtype(dtype)
+    return np.dtype(np.int32)
 
 
 def shape_mask(shape: Shape, height: int, width: int) -> tuple[int, int, np.ndarray]:

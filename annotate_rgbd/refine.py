@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 import open3d as o3d
 
@@ -86,7 +87,7 @@ def refine_planes(
 
     Parameters
     ----------
-    labels : ndarray of int32, shape (H, W)
+    labels : ndarray of non-negative int, shape (H, W)
         The rasterised polygons (plane ids, 0 = none).
     depth_m : ndarray of float32, shape (H, W)
         Depth in metres, NaN where invalid.
@@ -100,7 +101,7 @@ def refine_planes(
 
     Returns
     -------
-    refined : ndarray of int32, shape (H, W)
+    refined : ndarray, shape (H, W), of the type of ``labels``
         Plane ids on inlier pixels, 0 everywhere else (off-plane and invalid-depth pixels too).
     equations : dict of int to ndarray
         The plane of each refined plane id, as in :class:`PlaneFit`.
@@ -130,12 +131,21 @@ def refine_planes(
     # Distance of every pixel to its own label's plane: |z (a x_n + b y_n + c) + d| with
     # x_n = (col - cx) / fx, y_n = (row - cy) / fy the pixel's ray at z = 1.
     # float32 is ample here: depth has 0.2 mm steps, and the threshold is millimetres or more.
-    a, b, c, d = np.moveaxis(np.take(table, on_valid, axis=0), -1, 0)
+    a, b, c, d = (_lookup(table[:, k], on_valid) for k in range(4))
     x_n = ((np.arange(labels.shape[1], dtype=np.float32) - np.float32(camera.cx)) / np.float32(camera.fx))[None, :]
     y_n = ((np.arange(labels.shape[0], dtype=np.float32) - np.float32(camera.cy)) / np.float32(camera.fy))[:, None]
     with np.errstate(invalid="ignore"):
         distance = np.abs(depth_m * (a * x_n + b * y_n + c) + d)
-    fitted = np.zeros(n_labels, dtype=bool)
-    fitted[list(equations)] = True
-    on_plane = (distance < config.distance_threshold) & np.take(fitted, on_valid)
-    return np.where(on_plane, labels, 0).astype(np.int32), equations
+    fitted = np.zeros(n_labels, dtype=np.float32)
+    fitted[list(equations)] = 1
+    on_plane = (distance < config.distance_threshold) & (_lookup(fitted, on_valid) > 0)
+    return np.where(on_plane, labels, 0).astype(labels.dtype), equations
+
+
+def _lookup(table: np.ndarray, labels: np.ndarray) -> np.ndarray:
+    """``table[labels]`` for a float32 table (OpenCV's table look-up for 8-bit labels)."""
+    if labels.dtype == np.uint8:
+        padded = np.zeros(256, dtype=np.float32)
+        padded[: len(table)] = table
+        return cv2.LUT(labels, padded)
+    return np.take(table, labels)

@@ -14,7 +14,7 @@ import numpy as np
 from .annotation import Shape
 from .camera import depth_to_metres
 from .config import Config
-from .filters import drop_reasons, plane_statistics
+from .filters import drop_reasons, label_histogram, plane_statistics
 from .rasterize import rasterize_frame
 from .refine import refine_planes
 
@@ -25,9 +25,9 @@ class FrameResult:
 
     Parameters
     ----------
-    labels : ndarray of int32, shape (H, W)
+    labels : ndarray of uint8, uint16 or int32, shape (H, W)
         The refined mask: plane ids where a pixel lies on its plane, 0 elsewhere.
-    drawn : ndarray of int32, shape (H, W)
+    drawn : ndarray of the same type, shape (H, W)
         The labeller's shapes as rasterised, before any depth check (for review overlays).
     kept, dropped : list of dict
         One report record per plane drawn on the frame.
@@ -65,7 +65,7 @@ def segment_frame(depth_raw: np.ndarray, shapes: Sequence[tuple[int, Shape]], co
     refined, equations = refine_planes(
         drawn, depth_m, stats.plane_ids[kept], config.camera, config.ransac, stats.valid_pixels[kept]
     )
-    inlier_count = np.bincount(refined.ravel(), minlength=drawn.max(initial=0) + 1)
+    inlier_count = label_histogram(refined, int(drawn.max(initial=0)) + 1)
     result = FrameResult(labels=refined, drawn=drawn)
     for i, plane_id in enumerate(stats.plane_ids.tolist()):
         record = {

@@ -3,7 +3,7 @@ import pytest
 
 from annotate_rgbd.camera import Camera
 from annotate_rgbd.config import FilterConfig, RansacConfig
-from annotate_rgbd.filters import INVALID_DEPTH, TOO_FAR, TOO_FEW_POINTS, drop_reasons, plane_statistics
+from annotate_rgbd.filters import INVALID_DEPTH, TOO_FAR, TOO_FEW_POINTS, drop_reasons, label_histogram, plane_statistics
 from annotate_rgbd.refine import fit_plane, refine_planes
 
 CAMERA = Camera(fx=100.0, fy=100.0, cx=19.5, cy=14.5, depth_scale=5000.0)
@@ -108,3 +108,18 @@ def test_refine_samples_large_planes_on_a_grid_and_tests_every_pixel():
     sampled = refine_planes(labels, depth, np.array([1]), camera, RansacConfig(max_points=500))
     np.testing.assert_array_equal(sampled[0], everything[0])
     assert (sampled[0][40:60, 50:90] == 0).all() and sampled[0].sum() == 160 * 200 - 20 * 40
+
+
+def test_label_histogram_and_refine_agree_for_every_label_type():
+    rng = np.random.default_rng(2)
+    labels8 = rng.integers(0, 5, (30, 40)).astype(np.uint8)
+    where = rng.random((30, 40)) > 0.3
+    for dtype in (np.uint16, np.int32):
+        np.testing.assert_array_equal(label_histogram(labels8, 5, where), label_histogram(labels8.astype(dtype), 5, where))
+        np.testing.assert_array_equal(label_histogram(labels8, 5), np.bincount(labels8.ravel(), minlength=5))
+    depth = plane_depth((30, 40), CAMERA, [0.1, 0, 1], -2.0)
+    depth[5:9, 5:9] -= 0.3
+    refined8, eq8 = refine_planes(labels8, depth, np.array([1, 2, 3, 4]), CAMERA, RansacConfig())
+    refined16, eq16 = refine_planes(labels8.astype(np.uint16) * 100, depth, np.array([100, 200, 300, 400]), CAMERA, RansacConfig())
+    assert refined8.dtype == np.uint8 and refined16.dtype == np.uint16
+    np.testing.assert_array_equal(refined8.astype(np.uint16) * 100, refined16)

@@ -71,3 +71,11 @@ def test_shapes_beyond_the_image_are_clipped():
     assert rasterize_frame([(1, box)], 4, 4).sum() == 0
     far = Shape("mask", np.array([[-10.0, -10.0]]), bitmap=np.ones((3, 3), bool))
     assert rasterize_frame([(1, far)], 4, 4).sum() == 0
+
+
+def test_label_images_use_the_smallest_type_for_the_plane_ids():
+    square = polygon([[0, 0], [2, 0], [2, 2], [0, 2]])
+    assert rasterize_frame([(255, square)], 4, 4).dtype == np.uint8
+    big = rasterize_frame([(256, square)], 4, 4)
+    assert big.dtype == np.uint16 and big[0, 0] == 256
+    assert rasterize_frame([(70000, square)], 4, 4).dtype == np.int32
