@@ -27,6 +27,7 @@ from typing import Any, Callable
 
 from .config import load_config, tomllib
 from .errors import InputError
+from .execute import start_helpers
 from .pipeline import RunReport, SceneRun, execute_scenes, finish_scene, plan_run
 
 SCENE_KEYS = {"name", "sequence", "annotations", "config", "out", "parts", "set", "raw_masks"}
@@ -174,16 +175,21 @@ def run_batch(
     """
     outcomes = [SceneOutcome(spec.name, spec.out) for spec in scenes]
     runs: list[tuple[SceneOutcome, SceneRun]] = []
-    for spec, outcome in zip(scenes, outcomes):
-        try:
-            config = load_config(spec.config, spec.overrides)
-            plan = plan_run(spec.sequence, spec.annotations, spec.out, config, spec.offsets, spec.raw_masks)
-        except InputError as exc:
-            outcome.error = str(exc)
-            continue
-        progress = progress_for(spec.name) if progress_for else None
-        runs.append((outcome, SceneRun(spec.name, plan, spec.out, config, progress)))
-    execute_scenes([run for _, run in runs], workers=workers, force=force)
+    helpers = start_helpers(workers)  # they start while the scenes are planned
+    try:
+        for spec, outcome in zip(scenes, outcomes):
+            try:
+                config = load_config(spec.config, spec.overrides)
+                plan = plan_run(spec.sequence, spec.annotations, spec.out, config, spec.offsets, spec.raw_masks)
+            except InputError as exc:
+                outcome.error = str(exc)
+                continue
+            progress = progress_for(spec.name) if progress_for else None
+            runs.append((outcome, SceneRun(spec.name, plan, spec.out, config, progress)))
+        execute_scenes([run for _, run in runs], helpers, force=force)
+    finally:
+        if helpers is not None:
+            helpers.shutdown(cancel_futures=True)
     for outcome, run in runs:
         if run.error is not None:
             outcome.error = str(run.error)

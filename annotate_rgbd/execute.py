@@ -105,15 +105,44 @@ def previous_results(out_dir: Path) -> dict[str, tuple[str, dict]]:
     return found
 
 
+class HelperPool(ProcessPoolExecutor):
+    """A pool of ``size`` helper processes ("spawn": forking a process that has already run
+    Open3D's thread pool is not safe)."""
+
+    def __init__(self, size: int):
+        super().__init__(max_workers=size, mp_context=multiprocessing.get_context("spawn"))
+        self.size = size
+
+
+def start_helpers(workers: int) -> HelperPool | None:
+    """Start the ``workers - 1`` helper processes now, so that they are ready when work comes.
+
+    A new Python process needs a few seconds to import Open3D; started before the inputs are
+    read and planned, the helpers do that meanwhile. Shut the pool down when done
+    (``pool.shutdown()``, or use it in a ``with`` block).
+
+    Returns
+    -------
+    HelperPool or None
+        None when ``workers`` <= 1.
+    """
+    if workers <= 1:
+        return None
+    pool = HelperPool(workers - 1)
+    for _ in range(pool.size):
+        pool.submit(_import_frame_job)
+    return pool
+
+
 def run_jobs(
     jobs: Sequence,
     worker: Callable,
-    workers: int,
+    helpers: HelperPool | None,
 ) -> Iterator[tuple[int, dict | InputError]]:
-    """Run ``worker(job)`` for every job, in this process and ``workers - 1`` helper processes.
+    """Run ``worker(job)`` for every job, in this process and in the helper processes.
 
-    This process works too: it takes jobs itself while the helpers start (a new Python process
-    needs a few seconds to import Open3D) and whenever they have enough queued.
+    This process works too: it takes jobs itself while the helpers start and whenever they
+    have enough queued.
 
     Parameters
     ----------
@@ -122,8 +151,8 @@ def run_jobs(
     worker : callable
         A module-level function (so that it can be sent to other processes); it returns a
         dict, or raises :class:`InputError` for a problem with that task's input.
-    workers : int
-        Processes working at once, this one included (1: only this one).
+    helpers : HelperPool or None
+        From :func:`start_helpers`; None: only this process works.
 
     Yields
     ------
@@ -131,31 +160,32 @@ def run_jobs(
         Index of the job and its result (or the input error it raised), in completion order.
     """
     pending = deque(enumerate(jobs))
-    if workers <= 1 or len(jobs) <= 1:
+    if helpers is None or len(jobs) <= 1:
         for index, job in pending:
             yield index, _call(worker, job)
         return
-    # "spawn": forking a process that has already run Open3D's thread pool is not safe.
-    context = multiprocessing.get_context("spawn")
-    helpers = workers - 1
-    with ProcessPoolExecutor(max_workers=helpers, mp_context=context) as pool:
-        in_flight: dict = {}
-        try:
-            while pending or in_flight:
-                # Keep every helper busy with one job and one more queued.
-                while pending and len(in_flight) < 2 * helpers:
-                    index, job = pending.popleft()
-                    in_flight[pool.submit(_call, worker, job)] = index
-                for future in [f for f in in_flight if f.done()]:
-                    yield in_flight.pop(future), future.result()
-                if pending:
-                    index, job = pending.popleft()
-                    yield index, _call(worker, job)
-                elif in_flight:
-                    wait(in_flight, return_when=FIRST_COMPLETED)
-        except BaseException:
-            pool.shutdown(wait=False, cancel_futures=True)
-            raise
+    queue_length = 2 * helpers.size  # every helper busy with one job, one more queued
+    in_flight: dict = {}
+    try:
+        while pending or in_flight:
+            while pending and len(in_flight) < queue_length:
+                index, job = pending.popleft()
+                in_flight[helpers.submit(_call, worker, job)] = index
+            for future in [f for f in in_flight if f.done()]:
+                yield in_flight.pop(future), future.result()
+            if pending:
+                index, job = pending.popleft()
+                yield index, _call(worker, job)
+            elif in_flight:
+                wait(in_flight, return_when=FIRST_COMPLETED)
+    except BaseException:
+        helpers.shutdown(wait=False, cancel_futures=True)
+        raise
+
+
+def _import_frame_job() -> None:
+    """Warm-up task of a helper process: import what the frame jobs need."""
+    import annotate_rgbd.frame_job  # noqa: F401
 
 
 def _call(worker: Callable, job) -> dict | InputError:

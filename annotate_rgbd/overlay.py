@@ -38,8 +38,6 @@ STRIPE_WIDTH = 2
 DASH_LENGTH = 6
 DROPPED_LINE_WIDTH = 2
 
-#: Folder of the overlays in a run's output folder; an overlay has its mask's file name.
-OVERLAY_DIR = "overlays"
 
 FONT = cv2.FONT_HERSHEY_SIMPLEX
 #: Smallest default font scale: below it OpenCV's font is no longer readable.

@@ -13,7 +13,6 @@ from functools import lru_cache
 
 import cv2
 import numpy as np
-from skimage.color import rgb2lab
 
 #: Colours darker than this CIELAB lightness are not used (too close to black = unsegmented).
 MIN_LIGHTNESS = 25.0
@@ -72,6 +71,8 @@ def colour_hex(colour: np.ndarray) -> str:
 
 @lru_cache(maxsize=8)
 def _palette(count: int) -> np.ndarray:
+    from skimage.color import rgb2lab  # here: worker processes only colour masks, never build palettes
+
     levels = np.linspace(0, 255, 16).round().astype(np.uint8)
     grid = np.stack(np.meshgrid(levels, levels, levels, indexing="ij"), axis=-1).reshape(-1, 3)
     lab = rgb2lab(grid[None].astype(np.float64) / 255.0)[0]

@@ -16,19 +16,17 @@ from typing import Callable, Mapping, Sequence as SequenceType
 
 import numpy as np
 
-from .annotation import Shape
 from .config import Config
 from .cvat import read_cvat
 from .errors import InputError, OutputError
-from .execute import JOURNAL, fingerprint, previous_results, run_jobs
-from .overlay import OVERLAY_DIR, overlay_for_frame
-from .palette import colourize, plane_colours
+from .execute import JOURNAL, HelperPool, fingerprint, previous_results, run_jobs, start_helpers
+from .frame_job import OVERLAY_DIR, FrameJob, SizeMismatch, run_frame_job
+from .palette import plane_colours
 from .parts import Part, frame_owners, place_parts
-from .segment import segment_frame
 from .sequence import Sequence, associate, camera_problem, read_depth, read_sequence
 from .report import report_json, write_tables
 from .stitch import PartTracks, TrackPlane, assign_planes, label_conflicts, part_pair_iou
-from .writer import prepare_output, write_json, write_png
+from .writer import prepare_output, write_json
 
 log = logging.getLogger("annotate_rgbd")
 
@@ -40,40 +38,6 @@ UNREADABLE_DEPTH = "unreadable_depth"
 
 #: At most this many shared frames of two parts are segmented to match their tracks.
 MAX_MATCH_FRAMES = 10
-
-
-@dataclass(frozen=True)
-class FrameJob:
-    """Everything needed to produce one mask, independent of every other frame.
-
-    Parameters
-    ----------
-    depth_path : Path
-        The depth image.
-    mask_path : Path
-        Where the colour mask goes.
-    shapes : tuple of (int, Shape)
-        ``(plane id, shape)`` of the owning part's tracks on the frame, in track order.
-    image_size : (int, int) or None
-        (width, height) of the annotated image, where the export states it.
-    part_path : str
-        The export the shapes come from (for messages).
-    raw_mask_path : Path or None
-        Where the unrefined mask goes (the labeller's shapes as drawn), if wanted.
-    overlay_path : Path or None
-        Where the review overlay goes, if wanted.
-    rgb_path : Path or None
-        The RGB image the overlay is drawn on.
-    """
-
-    depth_path: Path
-    mask_path: Path
-    shapes: tuple[tuple[int, Shape], ...]
-    image_size: tuple[int, int] | None
-    part_path: str
-    raw_mask_path: Path | None = None
-    overlay_path: Path | None = None
-    rgb_path: Path | None = None
 
 
 @dataclass
@@ -92,47 +56,6 @@ class RunReport:
     def written(self) -> int:
         """Number of masks written."""
         return sum(1 for f in self.frames if f["status"] == "written")
-
-
-def run_frame_job(task: tuple[FrameJob, Config, np.ndarray]) -> dict:
-    """Read the depth frame, segment it and write its mask (and raw mask, if wanted).
-
-    Parameters
-    ----------
-    task : (FrameJob, Config, ndarray)
-        The job, the configuration and the plane palette (``(n_planes, 3)`` uint8), as one
-        picklable argument for worker processes.
-
-    Returns
-    -------
-    dict
-        The report entries of the frame: ``kept`` and ``dropped`` plane records.
-
-    Raises
-    ------
-    InputError
-        The depth image is unreadable (the frame is skipped) or its size differs from the
-        annotated image (fatal).
-    """
-    job, config, colours = task
-    depth_raw = read_depth(job.depth_path)
-    if job.image_size is not None and depth_raw.shape != (job.image_size[1], job.image_size[0]):
-        raise SizeMismatch(
-            job.depth_path,
-            f"depth image is {depth_raw.shape[1]}x{depth_raw.shape[0]} but {Path(job.part_path).name} "
-            f"annotates {job.image_size[0]}x{job.image_size[1]} images",
-        )
-    result = segment_frame(depth_raw, job.shapes, config)
-    if job.raw_mask_path is not None:
-        write_png(job.raw_mask_path, colourize(result.drawn, colours))
-    if job.overlay_path is not None:
-        write_png(job.overlay_path, overlay_for_frame(job.rgb_path, result, colours))
-    write_png(job.mask_path, colourize(result.labels, colours))
-    return {"kept": result.kept, "dropped": result.dropped}
-
-
-class SizeMismatch(InputError):
-    """A depth image does not have the size of the annotated images: fatal for the run."""
 
 
 @dataclass
@@ -330,9 +253,14 @@ def run_cvat2mask(
         A fatal problem with an input (missing files, malformed export, parts that cannot be
         placed, sizes that do not match): nothing sensible can be produced.
     """
-    scene = SceneRun(Path(sequence_dir).name, plan_run(sequence_dir, annotation_paths, out_dir, config, offsets, raw_masks, overlays),
-                     Path(out_dir), config, progress)
-    execute_scenes([scene], workers=workers, force=force)
+    helpers = start_helpers(workers)
+    try:
+        plan = plan_run(sequence_dir, annotation_paths, out_dir, config, offsets, raw_masks, overlays)
+        scene = SceneRun(Path(sequence_dir).name, plan, Path(out_dir), config, progress)
+        execute_scenes([scene], helpers, force=force)
+    finally:
+        if helpers is not None:
+            helpers.shutdown(cancel_futures=True)
     if scene.error is not None:
         raise scene.error
     return finish_scene(scene)
@@ -366,7 +294,9 @@ class SceneRun:
     error: InputError | None = None
 
 
-def execute_scenes(scenes: SequenceType[SceneRun], workers: int = 1, force: bool = False) -> None:
+def execute_scenes(
+    scenes: SequenceType[SceneRun], helpers: HelperPool | None = None, force: bool = False
+) -> None:
     """Make the masks of several scenes with one pool of workers, reusing unchanged masks.
 
     Fills in every frame's report entry. Each finished frame is appended to its scene's journal
@@ -376,8 +306,8 @@ def execute_scenes(scenes: SequenceType[SceneRun], workers: int = 1, force: bool
     Parameters
     ----------
     scenes : sequence of SceneRun
-    workers : int
-        Worker processes (1: in this process).
+    helpers : HelperPool, optional
+        Helper processes (:func:`annotate_rgbd.execute.start_helpers`) working beside this one.
     force : bool
         Redo every frame, even those unchanged since an earlier run.
     """
@@ -411,7 +341,7 @@ def execute_scenes(scenes: SequenceType[SceneRun], workers: int = 1, force: bool
         id(scene): open(scene.out_dir / JOURNAL, "a", encoding="utf-8") for scene in scenes if scene.error is None
     }
     try:
-        for k, result in run_jobs(tasks, run_frame_job, workers):
+        for k, result in run_jobs(tasks, run_frame_job, helpers):
             scene, index = owners[k]
             if scene.error is not None:
                 continue

@@ -21,7 +21,8 @@ import numpy as np
 
 from .config import Config, config_from_dict
 from .errors import InputError
-from .overlay import OVERLAY_DIR, contact_sheet, overlay_for_frame
+from .frame_job import OVERLAY_DIR
+from .overlay import contact_sheet, overlay_for_frame
 from .pipeline import RunPlan, plan_run
 from .review_page import render_review_page
 from .segment import FrameResult, segment_frame

@@ -8,12 +8,15 @@ It renders a synthetic sequence (the room of ``annotate_rgbd.synthetic``: about 
 clutter, Kinect-like noise) once into ``--workdir`` (reused by later runs), then measures, on
 the same frames and in the same run:
 
-* the I/O floor: decoding each depth PNG and encoding and writing one colour mask per frame,
-  the work no implementation can skip;
+* the I/O floor: decoding each depth PNG and encoding one colour mask per frame and writing it
+  the way the tool must (atomically: a temporary file, then a rename), the work no
+  implementation can skip;
 * ``run_cvat2mask`` with 1 worker and with all workers (``--force``: every frame is made).
 
-Targets (issue "Batch relabelling"): 1-worker time per frame at most 3x the I/O floor, and 2
-workers at least 1.7x faster than 1 on a 2-core machine.
+The three measurements take turns for ``--rounds`` rounds and each keeps its best, so that a
+burst of load from other work on a shared machine does not decide the ratios. Targets (issue
+"Batch relabelling"): 1-worker time per frame at most 3x the I/O floor, and 2 workers at least
+1.7x faster than 1 on a 2-core machine.
 """
 
 from __future__ import annotations
@@ -36,6 +39,7 @@ from annotate_rgbd.palette import colourize, plane_colours
 from annotate_rgbd.pipeline import run_cvat2mask
 from annotate_rgbd.sequence import read_sequence
 from annotate_rgbd.synthetic import make_sequence
+from annotate_rgbd.writer import write_png
 
 
 def make_benchmark_sequence(folder: Path, frames: int, width: int, height: int) -> tuple[Path, Path, Camera]:
@@ -55,7 +59,7 @@ def make_benchmark_sequence(folder: Path, frames: int, width: int, height: int) 
 
 
 def io_floor(sequence_dir: Path, out: Path) -> float:
-    """Seconds to decode every depth frame and encode and write one colour mask per frame."""
+    """Seconds to decode every depth frame and encode and write (atomically) one colour mask per frame."""
     sequence = read_sequence(sequence_dir)
     colours = plane_colours(12)
     out.mkdir(parents=True, exist_ok=True)
@@ -63,9 +67,8 @@ def io_floor(sequence_dir: Path, out: Path) -> float:
     for name in sequence.depth.files:
         depth = cv2.imread(str(sequence_dir / name), cv2.IMREAD_UNCHANGED)
         # A mask with the structure of a real one: a few large regions and holes.
-        labels = np.minimum(depth // 2000, 12).astype(np.int32)
-        ok, png = cv2.imencode(".png", cv2.cvtColor(colourize(labels, colours), cv2.COLOR_RGB2BGR))
-        (out / Path(name).name).write_bytes(png.tobytes())
+        labels = np.minimum(depth // 2000, 12).astype(np.uint8)
+        write_png(out / Path(name).name, colourize(labels, colours))
     return time.perf_counter() - started
 
 
@@ -84,6 +87,7 @@ def main() -> None:
     parser.add_argument("--height", type=int, default=480)
     parser.add_argument("--workdir", type=Path, default=Path(tempfile.gettempdir()) / "annotate-rgbd-bench")
     parser.add_argument("--workers", type=int, default=default_workers(), help="the 'all workers' run")
+    parser.add_argument("--rounds", type=int, default=3, help="rounds of the three measurements; the best counts")
     args = parser.parse_args()
 
     sequence_dir, annotations, camera = make_benchmark_sequence(args.workdir, args.frames, args.width, args.height)
@@ -92,14 +96,17 @@ def main() -> None:
     outputs = args.workdir / "outputs"
     shutil.rmtree(outputs, ignore_errors=True)
 
-    floor = io_floor(sequence_dir, outputs / "floor")
-    one = timed_run(sequence_dir, annotations, outputs / "one", config, 1)
-    many = timed_run(sequence_dir, annotations, outputs / "many", config, args.workers)
+    # Shared machines are noisy: the three measurements take turns, and each keeps its best round.
+    floor = one = many = float("inf")
+    for _ in range(args.rounds):
+        floor = min(floor, io_floor(sequence_dir, outputs / "floor"))
+        one = min(one, timed_run(sequence_dir, annotations, outputs / "one", config, 1))
+        many = min(many, timed_run(sequence_dir, annotations, outputs / "many", config, args.workers))
     identical = all(
         (outputs / "one" / "masks" / p.name).read_bytes() == p.read_bytes() for p in (outputs / "many" / "masks").iterdir()
     )
 
-    print(f"{n} frames at {args.width}x{args.height}, {os.cpu_count()} cores")
+    print(f"{n} frames at {args.width}x{args.height}, {os.cpu_count()} cores, best of {args.rounds} rounds")
     print(f"I/O floor            {1000 * floor / n:7.1f} ms/frame  {n / floor:6.1f} frames/s")
     print(f"cvat2mask, 1 worker  {1000 * one / n:7.1f} ms/frame  {n / one:6.1f} frames/s")
     print(f"cvat2mask, {args.workers} workers {1000 * many / n:7.1f} ms/frame  {n / many:6.1f} frames/s")

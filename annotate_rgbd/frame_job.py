@@ -1,0 +1,102 @@
+"""One depth frame's job: read the depth image, segment it, write its mask (and extras).
+
+Kept apart from :mod:`annotate_rgbd.pipeline` so that worker processes import only what a frame
+needs (Open3D, OpenCV, numpy), not the CVAT reader or the planning: a worker starts faster.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .annotation import Shape
+from .config import Config
+from .errors import InputError
+from .palette import colourize
+from .segment import segment_frame
+from .sequence import read_depth
+from .writer import write_png
+
+#: Folder of the review overlays in a run's output folder.
+OVERLAY_DIR = "overlays"
+
+
+@dataclass(frozen=True)
+class FrameJob:
+    """Everything needed to produce one mask, independent of every other frame.
+
+    Parameters
+    ----------
+    depth_path : Path
+        The depth image.
+    mask_path : Path
+        Where the colour mask goes.
+    shapes : tuple of (int, Shape)
+        ``(plane id, shape)`` of the owning part's tracks on the frame, in track order.
+    image_size : (int, int) or None
+        (width, height) of the annotated image, where the export states it.
+    part_path : str
+        The export the shapes come from (for messages).
+    raw_mask_path : Path or None
+        Where the unrefined mask goes (the labeller's shapes as drawn), if wanted.
+    overlay_path : Path or None
+        Where the review overlay goes, if wanted.
+    rgb_path : Path or None
+        The RGB image the overlay is drawn on.
+    """
+
+    depth_path: Path
+    mask_path: Path
+    shapes: tuple[tuple[int, Shape], ...]
+    image_size: tuple[int, int] | None
+    part_path: str
+    raw_mask_path: Path | None = None
+    overlay_path: Path | None = None
+    rgb_path: Path | None = None
+
+
+def run_frame_job(task: tuple[FrameJob, Config, np.ndarray]) -> dict:
+    """Read the depth frame, segment it and write its mask (and raw mask and overlay, if wanted).
+
+    Parameters
+    ----------
+    task : (FrameJob, Config, ndarray)
+        The job, the configuration and the plane palette (``(n_planes, 3)`` uint8), as one
+        picklable argument for worker processes.
+
+    Returns
+    -------
+    dict
+        The report entries of the frame: ``kept`` and ``dropped`` plane records.
+
+    Raises
+    ------
+    InputError
+        The depth image is unreadable (the frame is skipped) or its size differs from the
+        annotated image (fatal).
+    """
+    job, config, colours = task
+    depth_raw = read_depth(job.depth_path)
+    if job.image_size is not None and depth_raw.shape != (job.image_size[1], job.image_size[0]):
+        raise SizeMismatch(
+            job.depth_path,
+            f"depth image is {depth_raw.shape[1]}x{depth_raw.shape[0]} but {Path(job.part_path).name} "
+            f"annotates {job.image_size[0]}x{job.image_size[1]} images",
+        )
+    result = segment_frame(depth_raw, job.shapes, config)
+    if job.raw_mask_path is not None:
+        write_png(job.raw_mask_path, colourize(result.drawn, colours))
+    if job.overlay_path is not None:
+        from .overlay import overlay_for_frame  # only when overlays are wanted (SciPy is slow to import)
+
+        write_png(job.overlay_path, overlay_for_frame(job.rgb_path, result, colours))
+    write_png(job.mask_path, colourize(result.labels, colours))
+    return {"kept": result.kept, "dropped": result.dropped}
+
+
+class SizeMismatch(InputError):
+    """A depth image does not have the size of the annotated images: fatal for the run."""
+
+
