@@ -52,7 +52,7 @@ def fingerprint(job, config: Config) -> str:
     str
         Hex digest; equal digests mean an equal mask.
     """
-    digest = hashlib.sha256(_mask_settings(config))
+    digest = hashlib.blake2b(_mask_settings(config), digest_size=32)
     try:
         digest.update(job.depth_path.read_bytes())
     except OSError:
