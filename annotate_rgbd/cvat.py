@@ -808,31 +808,25 @@ def _attr(element: etree._Element, name: str, path: Path) -> str:
 
 
 def _int_attr(element: etree._Element, name: str, path: Path, default: int | None = None) -> int:
-    value = element.get(name)
-    if value is None and default is not None:
-        return default
-    value = _attr(element, name, path)
-    try:
-        return int(value)
-    except ValueError:
-        raise InputError(
-            path, f"{_where(element)}: attribute {name}={value!r} is not an integer"
-        ) from None
+    return _number_attr(element, name, path, int, "an integer", default)
 
 
 def _float_attr(
     element: etree._Element, name: str, path: Path, default: float | None = None
 ) -> float:
+    return _number_attr(element, name, path, float, "a number", default)
+
+
+def _number_attr(element, name, path, parse, kind, default):
+    """Attribute ``name`` parsed by ``parse``; ``default`` when absent (if given)."""
     value = element.get(name)
     if value is None and default is not None:
         return default
     value = _attr(element, name, path)
     try:
-        return float(value)
+        return parse(value)
     except ValueError:
-        raise InputError(
-            path, f"{_where(element)}: attribute {name}={value!r} is not a number"
-        ) from None
+        raise InputError(path, f"{_where(element)}: attribute {name}={value!r} is not {kind}") from None
 
 
 def _points_attr(element: etree._Element, path: Path) -> np.ndarray:
