@@ -169,7 +169,7 @@ def cvat2mask(
 
 @app.command()
 def batch(
-    manifest: Path = typer.Argument(..., help="TOML manifest with one [[scene]] table per scene."),
+    manifest: Path = typer.Argument(..., help="TOML manifest: one scene table per scene (see the README)."),
     jobs: Optional[int] = typer.Option(None, "--jobs", "-j", min=1, help="Worker processes (default: the manifest's jobs, else all cores)."),
     force: bool = typer.Option(False, "--force", help="Redo every frame, even those unchanged since the last run."),
 ) -> None:

@@ -259,10 +259,14 @@ def load_config(source: str | Path | None = None, overrides: Mapping[str, Any] |
             values = tomllib.loads(text)
         except tomllib.TOMLDecodeError as exc:
             raise InputError(origin, f"invalid TOML: {exc}") from None
-    for dotted, value in (overrides or {}).items():
+    config = _build(values, origin)
+    if not overrides:
+        return config
+    for dotted, value in overrides.items():
         section, _, key = dotted.partition(".")
         values.setdefault(section, {})[key] = value
-    return _build(values, origin)
+    # The file alone was valid: what fails now comes from the command line.
+    return _build(values, "command-line option")
 
 
 def config_from_dict(values: Mapping[str, Any], origin: str | Path | None = None) -> Config:

@@ -24,6 +24,10 @@ class InputError(Exception):
     def __str__(self) -> str:
         return self.message if self.path is None else f"{self.path}: {self.message}"
 
+    def __reduce__(self):
+        # Errors raised in worker processes travel back pickled: rebuild them from both fields.
+        return (self.__class__, (self.path, self.message))
+
 
 class OutputError(InputError):
     """An output file cannot be written (permissions, full disk): fatal for the run.

@@ -139,6 +139,9 @@ def plan_run(
     tracks = assign_planes(
         [PartTracks.of(p) for p in parts], pair_iou, config.matches, config.stitch.min_iou, "configuration"
     )
+    present = {track.label for a in annotations for track in a.tracks}
+    for label in sorted(set(config.annotation.labels) - present):
+        _warn(warnings, f"no shape in the exports has the label {label!r} (--label / [annotation] labels)")
     for line in label_conflicts(tracks):
         _warn(warnings, line)
     plane_of = {(t.part, t.track): t.plane for t in tracks}
@@ -397,7 +400,9 @@ def _finish(entry: dict, job: FrameJob, result: dict) -> None:
 
 
 def remove_stale_outputs(out_dir: Path, plan: RunPlan) -> None:
-    """Delete masks that this run did not write (frames now skipped or failed) and temporary files."""
+    """Delete what this run did not write: masks of frames now skipped or failed, raw masks and
+    overlays that were not asked for, a review page and contact sheet of an earlier run, and
+    temporary files."""
     written = {Path(f["mask"]).name for f in plan.frames if f["status"] == "written"}
     raw_written = written if any(job.raw_mask_path for _, job in plan.jobs) else set()
     overlays_written = written if any(job.overlay_path for _, job in plan.jobs) else set()
@@ -406,6 +411,11 @@ def remove_stale_outputs(out_dir: Path, plan: RunPlan) -> None:
             temporary = path.name.startswith(".") and path.name.endswith(".tmp")
             if temporary or (path.suffix == ".png" and path.name not in keep):
                 path.unlink(missing_ok=True)
+        if not keep and (out_dir / folder).is_dir() and not any((out_dir / folder).iterdir()):
+            (out_dir / folder).rmdir()
+    # They show the masks of an earlier run (cvat2mask --overlays and review write them anew).
+    for name in ("review.html", "contact_sheet.png"):
+        (out_dir / name).unlink(missing_ok=True)
 
 
 def _depth_for_rgb(nearest: np.ndarray, time_diff: np.ndarray, matched: np.ndarray) -> dict[int, int]:

@@ -97,3 +97,21 @@ def test_config_to_dict_is_plain_data():
     data = config_to_dict(load_config(None, {"annotation.labels": ["a"]}))
     assert data["annotation"]["labels"] == ["a"]
     assert data["camera"]["fx"] == 525.0
+
+
+def test_a_bad_override_is_blamed_on_the_command_line(tmp_path):
+    path = tmp_path / "scene.toml"
+    path.write_text(ISSUE_EXAMPLE)
+    with pytest.raises(InputError) as error:
+        load_config(path, {"ransac.sed": 3})
+    assert str(error.value).startswith("command-line option: unknown key 'ransac.sed'")
+
+
+def test_input_errors_survive_pickling_between_processes():
+    import pickle
+
+    from annotate_rgbd.errors import OutputError
+
+    for error in (InputError("a/b.png", "broken"), OutputError("out", "disk full"), InputError(None, "no path")):
+        again = pickle.loads(pickle.dumps(error))
+        assert type(again) is type(error) and str(again) == str(error)

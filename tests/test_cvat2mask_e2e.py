@@ -147,3 +147,37 @@ def test_rerun_redoes_only_changed_frames(tmp_path):
     assert forced.counts == {"made": 19, "reused": 0, "failed": 0}
     after = {p.name: p.read_bytes() for p in (tmp_path / "out" / "masks").iterdir()}
     assert sum(before[name] != after[name] for name in before) == 1
+
+
+def test_errors_raised_in_worker_processes_stay_one_line(tmp_path):
+    # The annotation is for 320x240 images; a 640x480 depth image is a fatal size mismatch,
+    # raised inside a worker process and carried back pickled.
+    sequence = tmp_path / "sequence"
+    shutil.copytree(SEQUENCE, sequence)
+    for path in (sequence / "depth").iterdir():
+        cv2.imwrite(str(path), cv2.resize(cv2.imread(str(path), cv2.IMREAD_UNCHANGED), (640, 480)))
+    result = CliRunner().invoke(
+        app, ["cvat2mask", str(sequence), str(ANNOTATIONS), "--out", str(tmp_path / "out"), "--jobs", "2",
+              "--config", str(SAMPLE_DATA / "camera.toml")]
+    )
+    assert result.exit_code == 1
+    last = result.output.strip().splitlines()[-1]
+    assert last.startswith(f"error: {sequence}/depth/") and "depth image is 640x480 but annotations.xml annotates 320x240" in last
+    assert "Traceback" not in result.output
+
+
+def test_a_rerun_removes_outputs_it_did_not_make(tmp_path):
+    config = load_config(SAMPLE_DATA / "camera.toml")
+    run_cvat2mask(SEQUENCE, [ANNOTATIONS], tmp_path, config, raw_masks=True)
+    (tmp_path / "review.html").write_text("an earlier review")
+    (tmp_path / "masks" / "old_frame.png").write_bytes(b"stale")
+    run_cvat2mask(SEQUENCE, [ANNOTATIONS], tmp_path, config)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["masks", "planes.csv", "report.json", "tracks.csv"]
+    assert len(list((tmp_path / "masks").iterdir())) == 19
+
+
+def test_an_unknown_label_is_a_warning(tmp_path):
+    config = load_config(SAMPLE_DATA / "camera.toml", {"annotation.labels": ["floor", "ceiling"]})
+    report = run_cvat2mask(SEQUENCE, [ANNOTATIONS], tmp_path, config)
+    assert "no shape in the exports has the label 'ceiling' (--label / [annotation] labels)" in report.warnings
+    assert report.n_planes == 1
