@@ -215,7 +215,7 @@ def summary_lines(outcomes: list[SceneOutcome]) -> list[str]:
         skipped = sum(1 for f in report.frames if f["status"] == "skipped")
         lines.append(
             f"{outcome.name}: {len(written)} masks ({report.counts['made']} made, {report.counts['reused']} unchanged), "
-            f"{skipped} frames skipped, {report.counts['failed']} failed; {kept} planes kept, {dropped} dropped"
+            f"{skipped} skipped, {report.counts['failed']} failed; {kept} planes kept, {dropped} dropped"
         )
         lines.extend(f"  failed: {line}" for line in outcome.failed_frames)
     return lines

@@ -163,7 +163,8 @@ def cvat2mask(
             f"{report.counts['reused']} unchanged), {report.n_planes} planes"
         )
         if report.warnings:
-            summary += f", {len(report.warnings)} warnings (see {out / 'report.json'})"
+            count = len(report.warnings)
+            summary += f", {count} warning{'s' if count > 1 else ''} (see {out / 'report.json'})"
         typer.echo(summary)
 
 
