@@ -20,10 +20,11 @@ from __future__ import annotations
 import re
 from bisect import bisect_right
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 from typing import Mapping, Sequence
 
-from .annotation import Annotation
+from .annotation import Annotation, Track
 from .errors import InputError
 from .frames import rgb_indices
 from .sequence import FrameList
@@ -60,10 +61,16 @@ class Part:
         """RGB index of the part's first frame."""
         return min(self.rgb_of_frame.values())
 
-    @property
+    @cached_property
     def frame_of_rgb(self) -> dict[int, int]:
-        """RGB index -> CVAT frame number, for the part's frames in the sequence."""
+        """RGB index -> CVAT frame number, for the part's frames in the sequence (built once:
+        planning looks up every depth frame)."""
         return {rgb: frame for frame, rgb in self.rgb_of_frame.items()}
+
+    @cached_property
+    def tracks_by_id(self) -> list[Track]:
+        """The part's tracks in ascending track id (the order of plane matching)."""
+        return sorted(self.annotation.tracks, key=lambda t: t.track_id)
 
     @property
     def last(self) -> int:

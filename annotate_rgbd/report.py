@@ -10,19 +10,11 @@ import numpy as np
 from . import __version__
 from .config import Config, config_to_dict
 from .palette import colour_hex
-from .stitch import TrackPlane
+from .stitch import TrackPlane, plane_origins
 from .writer import write_csv
 
 if TYPE_CHECKING:  # pipeline imports this module
     from .pipeline import RunPlan, RunReport
-
-
-def plane_origins(tracks: list[TrackPlane]) -> dict[int, TrackPlane]:
-    """Plane id -> its first track (the one that introduced the plane)."""
-    first: dict[int, TrackPlane] = {}
-    for track in tracks:
-        first.setdefault(track.plane, track)
-    return first
 
 
 def write_tables(out_dir: Path, tracks: list[TrackPlane], colours: np.ndarray) -> None:

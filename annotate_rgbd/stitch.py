@@ -23,6 +23,7 @@ from .config import MatchConfig
 from .errors import InputError
 from .config import Config
 from .parts import Part, part_name
+from .filters import label_histogram
 from .segment import segment_frame
 from .sequence import Sequence as RGBDSequence, read_depth
 
@@ -54,8 +55,7 @@ class PartTracks:
     @classmethod
     def of(cls, part: Part) -> "PartTracks":
         """The tracks of a placed part, by track id."""
-        tracks = sorted(part.annotation.tracks, key=lambda t: t.track_id)
-        return cls(part.name, [t.track_id for t in tracks], [t.label for t in tracks])
+        return cls(part.name, [t.track_id for t in part.tracks_by_id], [t.label for t in part.tracks_by_id])
 
 
 @dataclass(frozen=True)
@@ -258,8 +258,7 @@ def part_pair_iou(
     -------
     ndarray of float64, shape (tracks of a, tracks of b)
     """
-    tracks_a = sorted(a.annotation.tracks, key=lambda t: t.track_id)
-    tracks_b = sorted(b.annotation.tracks, key=lambda t: t.track_id)
+    tracks_a, tracks_b = a.tracks_by_id, b.tracks_by_id
     shared = sorted(set(a.rgb_of_frame.values()) & set(b.rgb_of_frame.values()) & set(depth_of_rgb))
     if shared:
         picks = np.unique(np.linspace(0, len(shared) - 1, min(len(shared), max_frames)).round().astype(int))
@@ -270,33 +269,38 @@ def part_pair_iou(
     sums = {kind: [np.zeros(shape, np.int64), np.zeros(shape, np.int64)] for kind in ("labels", "drawn")}
     kept_a, kept_b = np.zeros(shape[0], bool), np.zeros(shape[1], bool)
     for rgb_a, rgb_b in pairs:
+        depth = {rgb: read_depth(sequence.root / sequence.depth.files[depth_of_rgb[rgb]]) for rgb in {rgb_a, rgb_b}}
         results = []
         for part, tracks, rgb in ((a, tracks_a, rgb_a), (b, tracks_b, rgb_b)):
             frame = part.frame_of_rgb[rgb]
-            depth = read_depth(sequence.root / sequence.depth.files[depth_of_rgb[rgb]])
             shapes = [(i + 1, t.shapes[frame]) for i, t in enumerate(tracks) if frame in t.shapes]
-            results.append(segment_frame(depth, shapes, config))
+            results.append(segment_frame(depth[rgb], shapes, config))
         for kind, (intersection, union) in sums.items():
             inter, uni = track_ious(getattr(results[0], kind), getattr(results[1], kind), *shape)
             intersection += inter
             union += uni
-        kept_a |= np.bincount(results[0].labels.ravel(), minlength=shape[0] + 1)[1:] > 0
-        kept_b |= np.bincount(results[1].labels.ravel(), minlength=shape[1] + 1)[1:] > 0
+        kept_a |= label_histogram(results[0].labels, shape[0] + 1)[1:] > 0
+        kept_b |= label_histogram(results[1].labels, shape[1] + 1)[1:] > 0
     iou = {kind: np.where(u > 0, i / np.maximum(u, 1), 0.0) for kind, (i, u) in sums.items()}
     # Planes the depth checks drop on these frames (too far, glass) have no refined pixels:
     # they are matched on their shapes as drawn instead.
     return np.where(kept_a[:, None] & kept_b[None, :], iou["labels"], iou["drawn"])
 
 
+def plane_origins(tracks: list[TrackPlane]) -> dict[int, TrackPlane]:
+    """Plane id -> its first track (the one that introduced the plane)."""
+    first: dict[int, TrackPlane] = {}
+    for track in tracks:
+        first.setdefault(track.plane, track)
+    return first
+
+
 def label_conflicts(tracks: list[TrackPlane]) -> list[str]:
-    """One line per plane whose tracks carry different CVAT labels (a likely wrong match)."""
-    labels: dict[int, TrackPlane] = {}
-    lines = []
-    for t in tracks:
-        first = labels.setdefault(t.plane, t)
-        if first.label != t.label:
-            lines.append(
-                f"plane {t.plane} is labelled {first.label!r} in {first.part} (track {first.track}) "
-                f"but {t.label!r} in {t.part} (track {t.track})"
-            )
-    return lines
+    """One line per track whose CVAT label differs from its plane's first track (a likely wrong match)."""
+    origins = plane_origins(tracks)
+    return [
+        f"plane {t.plane} is labelled {origins[t.plane].label!r} in {origins[t.plane].part} "
+        f"(track {origins[t.plane].track}) but {t.label!r} in {t.part} (track {t.track})"
+        for t in tracks
+        if t.label != origins[t.plane].label
+    ]
