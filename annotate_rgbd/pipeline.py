@@ -41,24 +41,6 @@ MAX_MATCH_FRAMES = 10
 
 
 @dataclass
-class RunReport:
-    """Summary of a finished run (the content of ``report.json``, and ``counts`` of frames
-    ``made``, ``reused`` from an earlier run and ``failed``)."""
-
-    frames: list[dict]
-    tracks: list[TrackPlane]
-    n_planes: int
-    warnings: list[str]
-    notes: list[str]
-    counts: dict[str, int] = field(default_factory=dict)
-
-    @property
-    def written(self) -> int:
-        """Number of masks written."""
-        return sum(1 for f in self.frames if f["status"] == "written")
-
-
-@dataclass
 class RunPlan:
     """Everything decided before any mask is made: what each depth frame gets, and from where.
 
@@ -91,6 +73,45 @@ class RunPlan:
     def n_planes(self) -> int:
         """Number of global planes."""
         return len(self.colours)
+
+
+@dataclass
+class RunReport:
+    """A finished run: its plan, with every frame's entry filled in, and the ``counts`` of
+    frames ``made``, ``reused`` from an earlier run and ``failed``."""
+
+    plan: RunPlan
+    counts: dict[str, int]
+
+    @property
+    def frames(self) -> list[dict]:
+        """One report entry per depth frame."""
+        return self.plan.frames
+
+    @property
+    def tracks(self) -> list[TrackPlane]:
+        """The global plane of every track."""
+        return self.plan.tracks
+
+    @property
+    def n_planes(self) -> int:
+        """Number of global planes."""
+        return self.plan.n_planes
+
+    @property
+    def warnings(self) -> list[str]:
+        """Warnings of the run, one line each."""
+        return self.plan.warnings
+
+    @property
+    def notes(self) -> list[str]:
+        """What the exports held that was not used."""
+        return self.plan.notes
+
+    @property
+    def written(self) -> int:
+        """Number of masks written."""
+        return sum(1 for f in self.frames if f["status"] == "written")
 
 
 def plan_run(
@@ -315,7 +336,6 @@ def execute_scenes(
         Redo every frame, even those unchanged since an earlier run.
     """
     tasks, owners = [], []
-    done = {id(scene): 0 for scene in scenes}
     for scene in scenes:
         try:
             prepare_output(scene.out_dir)
@@ -332,14 +352,12 @@ def execute_scenes(
             if reusable and reusable[0] == entry["fingerprint"] and all(p.is_file() for p in outputs):
                 _finish(entry, job, reusable[1])
                 scene.counts["reused"] += 1
-                _step(scene, done)
+                _step(scene)
             else:
                 tasks.append((job, scene.config, plan.colours))
                 owners.append((scene, index))
     for scene in scenes:
-        if scene.progress:
-            scene.progress(done[id(scene)], len(scene.plan.jobs))
-    failures: dict[int, dict[int, str]] = {id(scene): {} for scene in scenes}
+        _step(scene)
     journals = {
         id(scene): open(scene.out_dir / JOURNAL, "a", encoding="utf-8") for scene in scenes if scene.error is None
     }
@@ -353,7 +371,6 @@ def execute_scenes(
                 scene.error = result
             elif isinstance(result, InputError):
                 entry.update(status="failed", reason=UNREADABLE_DEPTH, error=str(result))
-                failures[id(scene)][index] = f"{result}; skipped"
                 scene.counts["failed"] += 1
             else:
                 _finish(entry, job, result)
@@ -364,34 +381,32 @@ def execute_scenes(
                     journals[id(scene)].flush()
                 except OSError as exc:
                     scene.error = OutputError(scene.out_dir / JOURNAL, f"cannot write output: {exc.strerror or exc}")
-            _step(scene, done)
+            _step(scene)
     finally:
         for journal in journals.values():
             journal.close()
     for scene in scenes:
         # In frame order, whatever order the workers finished in.
-        for index in sorted(failures[id(scene)]):
-            _warn(scene.plan.warnings, failures[id(scene)][index])
+        for entry in scene.plan.frames:
+            if entry["status"] == "failed":
+                _warn(scene.plan.warnings, f"{entry['error']}; skipped")
 
 
 def finish_scene(scene: SceneRun) -> RunReport:
     """Write a scene's tables and report, remove stale masks and the journal."""
     plan = scene.plan
-    report = RunReport(
-        frames=plan.frames, tracks=plan.tracks, n_planes=plan.n_planes, warnings=plan.warnings, notes=plan.notes,
-        counts=scene.counts,
-    )
-    write_tables(scene.out_dir, report.tracks, plan.colours)
-    write_json(scene.out_dir / "report.json", report_json(report, plan, scene.config))
+    report = RunReport(plan, scene.counts)
+    write_tables(scene.out_dir, plan.tracks, plan.colours)
+    write_json(scene.out_dir / "report.json", report_json(report, scene.config))
     remove_stale_outputs(scene.out_dir, plan)
     (scene.out_dir / JOURNAL).unlink(missing_ok=True)
     return report
 
 
-def _step(scene: SceneRun, done: dict[int, int]) -> None:
-    done[id(scene)] += 1
+def _step(scene: SceneRun) -> None:
+    """Report the scene's progress: frames done (made, reused or failed) of its jobs."""
     if scene.progress:
-        scene.progress(done[id(scene)], len(scene.plan.jobs))
+        scene.progress(sum(scene.counts.values()), len(scene.plan.jobs))
 
 
 def _finish(entry: dict, job: FrameJob, result: dict) -> None:

@@ -14,7 +14,7 @@ from .stitch import TrackPlane, plane_origins
 from .writer import write_csv
 
 if TYPE_CHECKING:  # pipeline imports this module
-    from .pipeline import RunPlan, RunReport
+    from .pipeline import RunReport
 
 
 def write_tables(out_dir: Path, tracks: list[TrackPlane], colours: np.ndarray) -> None:
@@ -42,8 +42,9 @@ def write_tables(out_dir: Path, tracks: list[TrackPlane], colours: np.ndarray) -
     )
 
 
-def report_json(report: RunReport, plan: RunPlan, config: Config) -> dict:
+def report_json(report: RunReport, config: Config) -> dict:
     """The content of ``report.json``: inputs, configuration, summary, planes, tracks, frames."""
+    plan = report.plan
     colours = plan.colours
     written = [f for f in report.frames if f["status"] == "written"]
     skipped: dict[str, int] = {}
