@@ -10,7 +10,6 @@ its mean over the GT frames.
 
 from __future__ import annotations
 
-import csv
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -18,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import InputError
+from .writer import write_csv
 from .labelmaps import LABEL_SUFFIXES, read_label_map
 from .metrics import METRIC_NAMES, FrameStatistics, frame_statistics
 
@@ -179,17 +179,15 @@ def format_json(result: EvaluationResult) -> str:
 
 
 def write_per_frame_csv(result: EvaluationResult, path: str | Path) -> None:
-    """Write one CSV row per frame: its name, the statistics, and whether PRED was missing."""
-    path = Path(path)
-    try:
-        with path.open("w", newline="") as stream:
-            writer = csv.writer(stream)
-            writer.writerow(("frame", *METRIC_NAMES, "missing"))
-            for frame in result.frames:
-                values = (repr(getattr(frame.statistics, name)) for name in METRIC_NAMES)
-                writer.writerow((frame.name, *values, int(frame.missing)))
-    except OSError as error:
-        raise InputError(path, f"cannot write per-frame CSV: {error.strerror}") from None
+    """Write one CSV row per frame (atomically): its name, the statistics, and whether PRED was missing."""
+    write_csv(
+        Path(path),
+        ("frame", *METRIC_NAMES, "missing"),
+        [
+            (frame.name, *(repr(getattr(frame.statistics, name)) for name in METRIC_NAMES), int(frame.missing))
+            for frame in result.frames
+        ],
+    )
 
 
 def _label_files(folder: Path) -> dict[str, Path]:

@@ -21,6 +21,7 @@ import cv2
 import numpy as np
 
 from .errors import InputError
+from .sequence import read_image
 
 #: File suffixes that :func:`read_label_map` understands.
 LABEL_SUFFIXES = (".png", ".npy", ".csv")
@@ -117,9 +118,10 @@ def read_cape_csv(path: str | Path) -> np.ndarray:
 
 
 def _read_png(path: Path) -> np.ndarray:
-    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if image is None:
-        raise InputError(path, "cannot read PNG image")
+    try:
+        image = read_image(path, cv2.IMREAD_UNCHANGED)
+    except InputError as exc:
+        raise InputError(path, f"cannot read PNG image: {exc.message}") from None
     if image.ndim == 2:
         if image.dtype not in (np.uint8, np.uint16):
             raise InputError(path, f"single-channel label PNG must be 8 or 16 bit, not {image.dtype}")

@@ -81,7 +81,9 @@ def render_overlay(
     dropped_ids = np.array([r["plane"] for r in result.dropped], dtype=np.int64)
 
     out = rgb.astype(np.float32)
-    removed = removed_pixels(drawn, labels, kept_ids)
+    in_kept = np.isin(drawn, kept_ids)
+    # Drawn for a kept plane but not in its refined mask (a dropped plane shows by its outline).
+    removed = (labels != drawn) & in_kept
     out[removed] *= REMOVED_DARKEN
     striped = removed & stripes(labels.shape)
     out[striped] = lookup[drawn[striped]]
@@ -89,7 +91,7 @@ def render_overlay(
     on_plane = labels > 0
     out[on_plane] = (1 - alpha) * out[on_plane] + alpha * lookup[labels[on_plane]]
     # The outline is the labeller's polygon, not the refined mask: the mask's holes are speckle.
-    kept_region = np.where(np.isin(drawn, kept_ids), drawn, 0)
+    kept_region = np.where(in_kept, drawn, 0)
     edge = inner_boundary(kept_region, 1)
     out[edge] = lookup[kept_region[edge]]
 
@@ -143,25 +145,6 @@ def overlay_for_frame(rgb_path: Path, result: FrameResult, colours: np.ndarray) 
     if rgb.shape[:2] != (height, width):
         rgb = cv2.resize(rgb, (width, height), interpolation=cv2.INTER_AREA)
     return render_overlay(rgb, result, colours)
-
-
-def removed_pixels(drawn: np.ndarray, labels: np.ndarray, kept_ids: np.ndarray) -> np.ndarray:
-    """Pixels a kept plane's polygon covers that its refined mask does not.
-
-    Parameters
-    ----------
-    drawn : ndarray of int, shape (H, W)
-        The labeller's shapes, rasterised.
-    labels : ndarray of int, shape (H, W)
-        The refined mask.
-    kept_ids : ndarray of int
-        The planes kept on the frame (a dropped plane's pixels are shown by its outline).
-
-    Returns
-    -------
-    ndarray of bool, shape (H, W)
-    """
-    return (labels != drawn) & np.isin(drawn, kept_ids)
 
 
 def stripes(shape: tuple[int, int], period: int = STRIPE_PERIOD, width: int = STRIPE_WIDTH) -> np.ndarray:

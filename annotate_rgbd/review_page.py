@@ -182,6 +182,7 @@ PAGE = """<!DOCTYPE html>
       ["distinct planes", s.distinct_planes + " of " + s.planes_annotated],
       ["depth frames", s.depth_frames]];
     for (const [reason, count] of Object.entries(s.frames_skipped)) rows.push(["skipped: " + reason, count]);
+    if (s.frames_failed) rows.push(["failed (unreadable depth)", s.frames_failed]);
     rows.push(["planes dropped", s.planes_dropped]);
     for (const [reason, count] of Object.entries(s.dropped_by_reason)) rows.push(["dropped: " + reason, count]);
     rows.push(["mean inlier ratio", s.mean_inlier_ratio === null ? "-" : s.mean_inlier_ratio.toFixed(3)]);

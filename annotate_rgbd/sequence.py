@@ -236,7 +236,7 @@ def read_depth(path: Path) -> np.ndarray:
         Missing or undecodable file, an image with colour channels or an 8-bit image (not a
         depth map).
     """
-    image = _read_image(path, cv2.IMREAD_UNCHANGED)
+    image = read_image(path, cv2.IMREAD_UNCHANGED)
     if image.ndim != 2:
         raise InputError(path, f"depth image has {image.shape[2]} channels; expected a single-channel depth map")
     if image.dtype.itemsize == 1:
@@ -247,10 +247,17 @@ def read_depth(path: Path) -> np.ndarray:
 
 def read_rgb(path: Path) -> np.ndarray:
     """Read an RGB image as an ``(H, W, 3)`` uint8 array in RGB order."""
-    return cv2.cvtColor(_read_image(path, cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+    return cv2.cvtColor(read_image(path, cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
 
 
-def _read_image(path: Path, flags: int) -> np.ndarray:
+def read_image(path: Path, flags: int) -> np.ndarray:
+    """Read any image with OpenCV's ``imread`` ``flags``.
+
+    Raises
+    ------
+    InputError
+        Missing, unreadable, empty or undecodable file (one line naming the file).
+    """
     try:
         data = np.fromfile(path, dtype=np.uint8)
     except OSError as exc:

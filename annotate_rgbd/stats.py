@@ -26,7 +26,7 @@ def run_stats(report: dict) -> dict:
         ``observations`` (masks written), ``total_planes`` (kept planes summed over the masks),
         ``planes_per_observation``, ``distinct_planes`` (global planes kept in at least one
         mask), ``planes_annotated`` (global planes of the annotation), ``depth_frames``,
-        ``frames_skipped`` (by reason), ``planes_dropped`` and ``dropped_by_reason`` (plane
+        ``frames_skipped`` (by reason), ``frames_failed`` (unreadable depth), ``planes_dropped`` and ``dropped_by_reason`` (plane
         records of the written frames), ``mean_inlier_ratio`` (over the kept plane records;
         ``None`` without any).
     """
@@ -42,7 +42,8 @@ def run_stats(report: dict) -> dict:
         "distinct_planes": len({r["plane"] for r in kept}),
         "planes_annotated": len(report.get("planes", [])),
         "depth_frames": len(frames),
-        "frames_skipped": dict(sorted(Counter(f.get("reason", "unknown") for f in frames if f["status"] != "written").items())),
+        "frames_skipped": dict(sorted(Counter(f.get("reason", "unknown") for f in frames if f["status"] == "skipped").items())),
+        "frames_failed": sum(1 for f in frames if f["status"] == "failed"),
         "planes_dropped": len(dropped),
         "dropped_by_reason": dict(sorted(Counter(r.get("reason", "unknown") for r in dropped).items())),
         "mean_inlier_ratio": round(sum(ratios) / len(ratios), 4) if ratios else None,
@@ -69,6 +70,8 @@ def format_stats(stats: dict) -> str:
         ("depth frames", stats["depth_frames"]),
     ]
     rows += [(f"  skipped: {reason}", count) for reason, count in stats["frames_skipped"].items()]
+    if stats["frames_failed"]:
+        rows.append(("  failed (unreadable depth)", stats["frames_failed"]))
     rows.append(("planes dropped", stats["planes_dropped"]))
     rows += [(f"  {reason}", count) for reason, count in stats["dropped_by_reason"].items()]
     ratio = stats["mean_inlier_ratio"]
