@@ -847,7 +847,7 @@ def _points_attr(element: etree._Element, path: Path) -> np.ndarray:
 def _runs_attr(element: etree._Element, path: Path) -> np.ndarray:
     text = _attr(element, "rle", path)
     try:
-        return np.array([int(run) for run in text.split(",") if run.strip()], dtype=np.int64)
+        return np.array([run for run in text.split(",") if run.strip()], dtype=np.int64)
     except ValueError:
         raise InputError(path, f"{_where(element)}: attribute 'rle' holds a non-integer") from None
 
@@ -981,8 +981,9 @@ def write_cvat_video(
             etree.SubElement(size, "width").text = str(width)
             etree.SubElement(size, "height").text = str(height)
             xml.write(meta, pretty_print=True)
+            index = {frame: i for i, frame in enumerate(frames)}  # built once, not per track
             for track in annotation.tracks:
-                element = _track_element(track, frames, keyframe_step, keyframes_only)
+                element = _track_element(track, frames, index, keyframe_step, keyframes_only)
                 xml.write(element, pretty_print=True)
 
 
@@ -1031,11 +1032,10 @@ def write_cvat_images(annotation: Annotation, path: str | Path, *, width: int, h
 
 
 def _track_element(
-    track: Track, frames: list[int], keyframe_step: int, keyframes_only: bool
+    track: Track, frames: list[int], index: dict[int, int], keyframe_step: int, keyframes_only: bool
 ) -> etree._Element:
-    """One ``<track>`` as CVAT's file (or API) export writes it."""
+    """One ``<track>`` as CVAT's file (or API) export writes it (``index``: frame -> position)."""
     element = etree.Element("track", id=str(track.track_id), label=track.label, source="manual")
-    index = {frame: i for i, frame in enumerate(frames)}
     for run in _runs_of_frames(sorted(track.shapes), index):
         for k, frame in enumerate(run):
             keyframe = k % keyframe_step == 0 or k == len(run) - 1
