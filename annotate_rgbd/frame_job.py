@@ -15,7 +15,7 @@ from .annotation import Shape
 from .config import Config
 from .errors import InputError
 from .palette import colourize
-from .segment import segment_frame
+from .segment import FrameResult, segment_frame
 from .sequence import read_depth
 from .writer import write_png
 
@@ -57,6 +57,25 @@ class FrameJob:
     rgb_path: Path | None = None
 
 
+def segment_job(job: FrameJob, config: Config) -> FrameResult:
+    """Read the job's depth frame, check its size against the annotation, and segment it.
+
+    Raises
+    ------
+    InputError
+        The depth image is unreadable; :class:`SizeMismatch` when its size differs from the
+        annotated image.
+    """
+    depth_raw = read_depth(job.depth_path)
+    if job.image_size is not None and depth_raw.shape != (job.image_size[1], job.image_size[0]):
+        raise SizeMismatch(
+            job.depth_path,
+            f"depth image is {depth_raw.shape[1]}x{depth_raw.shape[0]} but {Path(job.part_path).name} "
+            f"annotates {job.image_size[0]}x{job.image_size[1]} images",
+        )
+    return segment_frame(depth_raw, job.shapes, config)
+
+
 def run_frame_job(task: tuple[FrameJob, Config, np.ndarray]) -> dict:
     """Read the depth frame, segment it and write its mask (and raw mask and overlay, if wanted).
 
@@ -78,14 +97,7 @@ def run_frame_job(task: tuple[FrameJob, Config, np.ndarray]) -> dict:
         annotated image (fatal).
     """
     job, config, colours = task
-    depth_raw = read_depth(job.depth_path)
-    if job.image_size is not None and depth_raw.shape != (job.image_size[1], job.image_size[0]):
-        raise SizeMismatch(
-            job.depth_path,
-            f"depth image is {depth_raw.shape[1]}x{depth_raw.shape[0]} but {Path(job.part_path).name} "
-            f"annotates {job.image_size[0]}x{job.image_size[1]} images",
-        )
-    result = segment_frame(depth_raw, job.shapes, config)
+    result = segment_job(job, config)
     if job.raw_mask_path is not None:
         write_png(job.raw_mask_path, colourize(result.drawn, colours))
     if job.overlay_path is not None:

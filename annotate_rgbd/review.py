@@ -21,12 +21,12 @@ import numpy as np
 
 from .config import Config, config_from_dict
 from .errors import InputError
-from .frame_job import OVERLAY_DIR
+from .frame_job import OVERLAY_DIR, segment_job
 from .overlay import contact_sheet, overlay_for_frame
 from .pipeline import RunPlan, plan_run
 from .review_page import render_review_page
-from .segment import FrameResult, segment_frame
-from .sequence import read_depth, read_rgb
+from .segment import FrameResult
+from .sequence import read_rgb
 from .writer import write_bytes_atomic, write_png
 
 log = logging.getLogger("annotate_rgbd")
@@ -158,7 +158,7 @@ def review_run(
             job = jobs.get(path.name)
             if job is None:
                 raise InputError(out_dir / REPORT_NAME, f"{frame['depth']}: no longer gets a mask from the inputs; run cvat2mask again")
-            result = segment_frame(read_depth(job.depth_path), job.shapes, config)
+            result = segment_job(job, config)
             _check_records(frame, result, output.warnings)
             write_png(path, overlay_for_frame(plan.sequence.root / frame["rgb"], result, plan.colours))
             output.overlays.append(path)
