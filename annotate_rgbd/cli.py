@@ -131,8 +131,12 @@ def cvat2mask(
 
     Several exports are annotation parts of one sequence: their tracks are matched into one plane id per physical plane (see tracks.csv).
     """
+    from .execute import default_workers, prepare_helpers
+
+    workers = jobs or default_workers()
+    prepare_helpers(workers)  # the helpers' server imports Open3D while this process does
+
     from .config import load_config
-    from .execute import default_workers
     from .pipeline import run_cvat2mask
     from .progress import Progress
 
@@ -150,7 +154,7 @@ def cvat2mask(
         progress = Progress({sequence_dir.name: 0})
         report = run_cvat2mask(
             sequence_dir, annotations, out, load_config(config, overrides), offsets=offsets,
-            workers=jobs or default_workers(), force=force, raw_masks=raw_masks, overlays=overlays,
+            workers=workers, force=force, raw_masks=raw_masks, overlays=overlays,
             progress=progress.callback(sequence_dir.name),
         )
         progress.finish()
@@ -175,8 +179,11 @@ def batch(
     force: bool = typer.Option(False, "--force", help="Redo every frame, even those unchanged since the last run."),
 ) -> None:
     """Relabel several scenes with one pool of workers; only changed frames are redone."""
+    from .execute import default_workers, prepare_helpers
+
+    prepare_helpers(jobs or default_workers())  # the helpers' server imports Open3D meanwhile
+
     from .batch import read_manifest, run_batch, summary_lines
-    from .execute import default_workers
     from .progress import Progress
 
     with user_errors():

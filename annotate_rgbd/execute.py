@@ -13,9 +13,12 @@ gives exactly the files of one uninterrupted run.
 from __future__ import annotations
 
 import hashlib
+import importlib
 import json
+import logging
 import multiprocessing
 import os
+import threading
 from functools import lru_cache
 from collections import deque
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
@@ -28,7 +31,13 @@ from . import __version__
 from .config import Config, config_to_dict
 from .errors import InputError
 
+log = logging.getLogger("annotate_rgbd")
+
 JOURNAL = ".annotate-rgbd-journal.jsonl"
+
+#: Jobs handed to each helper ahead of time (the ones it has not started go back to this
+#: process when nothing else is left).
+QUEUED_PER_HELPER = 4
 
 
 def default_workers() -> int:
@@ -105,20 +114,68 @@ def previous_results(out_dir: Path) -> dict[str, tuple[str, dict]]:
     return found
 
 
+#: What a helper process imports before its first job.
+FRAME_JOB_MODULE = "annotate_rgbd.frame_job"
+
+
+def helper_context() -> multiprocessing.context.BaseContext:
+    """How helper processes are started.
+
+    "forkserver" where the platform has it: a server process imports what frame jobs need once
+    and every helper is forked from it, so a helper is ready in milliseconds instead of the ~2 s
+    a new interpreter needs to import Open3D ("spawn"), and it inherits nothing of this
+    process's thread pools (forking a process that has run Open3D's OpenMP code is not safe).
+    """
+    if "forkserver" in multiprocessing.get_all_start_methods():
+        context = multiprocessing.get_context("forkserver")
+        context.set_forkserver_preload([FRAME_JOB_MODULE])
+        return context
+    return multiprocessing.get_context("spawn")  # pragma: no cover - not on Linux
+
+
+def prepare_helpers(workers: int) -> None:
+    """Start, in the background, the server that helper processes are forked from.
+
+    Call it as early as possible (the command line calls it before importing the pipeline):
+    the server's imports then overlap this process's own, and :func:`start_helpers` finds it
+    ready. Does nothing when ``workers`` <= 1 or where helpers are spawned.
+    """
+    if workers > 1 and helper_context().get_start_method() == "forkserver":
+        from multiprocessing import forkserver
+
+        forkserver.ensure_running()
+
+
 class HelperPool(ProcessPoolExecutor):
-    """A pool of ``size`` helper processes ("spawn": forking a process that has already run
-    Open3D's thread pool is not safe)."""
+    """A pool of ``size`` helper processes, started by :func:`helper_context`.
+
+    The processes are started in a background thread (while the helper server is still
+    importing, starting one waits for it); ``ready`` is set once they are running.
+    """
 
     def __init__(self, size: int):
-        super().__init__(max_workers=size, mp_context=multiprocessing.get_context("spawn"))
+        super().__init__(max_workers=size, mp_context=helper_context())
         self.size = size
+        self.ready = threading.Event()
+        threading.Thread(target=self._start, name="annotate-rgbd-helpers", daemon=True).start()
+
+    def _start(self) -> None:
+        try:
+            for _ in range(self.size):
+                self.submit(_import_frame_job)
+        except RuntimeError:  # shut down before the helpers were up: nothing to start
+            return
+        except OSError as exc:  # e.g. out of processes: this process does all the work
+            log.warning("helper processes could not start (%s); working in one process", exc)
+            return
+        self.ready.set()
 
 
 def start_helpers(workers: int) -> HelperPool | None:
-    """Start the ``workers - 1`` helper processes now, so that they are ready when work comes.
+    """Start the ``workers - 1`` helper processes, in the background.
 
-    A new Python process needs a few seconds to import Open3D; started before the inputs are
-    read and planned, the helpers do that meanwhile. Shut the pool down when done
+    Started before the inputs are read and planned, the helpers get ready meanwhile (see
+    :func:`prepare_helpers` to start their server earlier still). Shut the pool down when done
     (``pool.shutdown()``, or use it in a ``with`` block).
 
     Returns
@@ -128,10 +185,8 @@ def start_helpers(workers: int) -> HelperPool | None:
     """
     if workers <= 1:
         return None
-    pool = HelperPool(workers - 1)
-    for _ in range(pool.size):
-        pool.submit(_import_frame_job)
-    return pool
+    prepare_helpers(workers)
+    return HelperPool(workers - 1)
 
 
 def run_jobs(
@@ -141,8 +196,8 @@ def run_jobs(
 ) -> Iterator[tuple[int, dict | InputError]]:
     """Run ``worker(job)`` for every job, in this process and in the helper processes.
 
-    This process works too: it takes jobs itself while the helpers start and whenever they
-    have enough queued.
+    This process works too: it takes jobs itself until the helpers are ready and whenever
+    they have enough queued, and at the end it takes back the jobs no helper has started.
 
     Parameters
     ----------
@@ -164,28 +219,39 @@ def run_jobs(
         for index, job in pending:
             yield index, _call(worker, job)
         return
-    queue_length = 2 * helpers.size  # every helper busy with one job, one more queued
+    # Enough queued that a helper never waits for this process to finish its own job.
+    queue_length = QUEUED_PER_HELPER * helpers.size
     in_flight: dict = {}
     try:
         while pending or in_flight:
-            while pending and len(in_flight) < queue_length:
+            while pending and len(in_flight) < queue_length and helpers.ready.is_set():
                 index, job = pending.popleft()
-                in_flight[helpers.submit(_call, worker, job)] = index
+                in_flight[helpers.submit(_call, worker, job)] = (index, job)
             for future in [f for f in in_flight if f.done()]:
-                yield in_flight.pop(future), future.result()
+                yield in_flight.pop(future)[0], future.result()
             if pending:
                 index, job = pending.popleft()
                 yield index, _call(worker, job)
-            elif in_flight:
-                wait(in_flight, return_when=FIRST_COMPLETED)
+                continue
+            # Nothing left to hand out: take back the queued jobs no helper has started and do
+            # them here, rather than wait for the helpers to get through their queues.
+            for future in reversed(list(in_flight)):
+                if future.cancel():
+                    index, job = in_flight.pop(future)
+                    yield index, _call(worker, job)
+                    break
+            else:
+                if in_flight:
+                    wait(in_flight, return_when=FIRST_COMPLETED)
     except BaseException:
         helpers.shutdown(wait=False, cancel_futures=True)
         raise
 
 
 def _import_frame_job() -> None:
-    """Warm-up task of a helper process: import what the frame jobs need."""
-    import annotate_rgbd.frame_job  # noqa: F401
+    """Warm-up task of a helper process: import what the frame jobs need (already done where
+    the helper was forked from a server that imported it)."""
+    importlib.import_module(FRAME_JOB_MODULE)
 
 
 def _call(worker: Callable, job) -> dict | InputError:
