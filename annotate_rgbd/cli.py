@@ -131,10 +131,11 @@ def cvat2mask(
 
     Several exports are annotation parts of one sequence: their tracks are matched into one plane id per physical plane (see tracks.csv).
     """
-    from .execute import default_workers, prepare_helpers
+    from .execute import default_workers, prepare_helpers, reuse_freed_memory
 
     workers = jobs or default_workers()
     prepare_helpers(workers)  # the helpers' server imports Open3D while this process does
+    reuse_freed_memory()
 
     from .config import load_config
     from .pipeline import run_cvat2mask
@@ -179,9 +180,10 @@ def batch(
     force: bool = typer.Option(False, "--force", help="Redo every frame, even those unchanged since the last run."),
 ) -> None:
     """Relabel several scenes with one pool of workers; only changed frames are redone."""
-    from .execute import default_workers, prepare_helpers
+    from .execute import default_workers, prepare_helpers, reuse_freed_memory
 
     prepare_helpers(jobs or default_workers())  # the helpers' server imports Open3D meanwhile
+    reuse_freed_memory()
 
     from .batch import read_manifest, run_batch, summary_lines
     from .progress import Progress

@@ -66,8 +66,10 @@ def plane_statistics(labels: np.ndarray, depth_m: np.ndarray, camera: Camera) ->
     valid = ~np.isnan(depth_m)
     pixels = label_histogram(labels, n)
     valid_pixels = label_histogram(labels, n, where=valid)
-    # fmax turns the NaN of invalid pixels into 0, so they add nothing to the sum.
-    distance_sum = np.bincount(labels.ravel(), weights=np.fmax(depth_m * ray, 0).ravel(), minlength=n)
+    # fmax turns the NaN of invalid pixels into 0, so they add nothing to the sum. bincount
+    # sums in float64 and takes float64 weights several times faster than float32 ones.
+    distance = np.fmax(depth_m * ray, 0).astype(np.float64)
+    distance_sum = np.bincount(labels.ravel(), weights=distance.ravel(), minlength=n)
     plane_ids = np.flatnonzero(pixels[1:]) + 1
     pixels, valid_pixels, distance_sum = pixels[plane_ids], valid_pixels[plane_ids], distance_sum[plane_ids]
     with np.errstate(invalid="ignore", divide="ignore"):

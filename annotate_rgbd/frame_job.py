@@ -14,9 +14,10 @@ import numpy as np
 from .annotation import Shape
 from .config import Config
 from .errors import InputError
+from .execute import fingerprint
 from .palette import colourize
 from .segment import FrameResult, segment_frame
-from .sequence import read_depth
+from .sequence import read_bytes, read_depth
 from .writer import write_png
 
 #: Folder of the review overlays in a run's output folder.
@@ -56,9 +57,21 @@ class FrameJob:
     overlay_path: Path | None = None
     rgb_path: Path | None = None
 
+    @property
+    def outputs(self) -> list[Path]:
+        """The files this job writes."""
+        return [p for p in (self.mask_path, self.raw_mask_path, self.overlay_path) if p is not None]
 
-def segment_job(job: FrameJob, config: Config) -> FrameResult:
+
+def segment_job(job: FrameJob, config: Config, depth_file: np.ndarray | None = None) -> FrameResult:
     """Read the job's depth frame, check its size against the annotation, and segment it.
+
+    Parameters
+    ----------
+    job : FrameJob
+    config : Config
+    depth_file : ndarray of uint8, optional
+        The depth image file's bytes, when already read.
 
     Raises
     ------
@@ -66,7 +79,7 @@ def segment_job(job: FrameJob, config: Config) -> FrameResult:
         The depth image is unreadable; :class:`SizeMismatch` when its size differs from the
         annotated image.
     """
-    depth_raw = read_depth(job.depth_path)
+    depth_raw = read_depth(job.depth_path, depth_file)
     if job.image_size is not None and depth_raw.shape != (job.image_size[1], job.image_size[0]):
         raise SizeMismatch(
             job.depth_path,
@@ -76,19 +89,22 @@ def segment_job(job: FrameJob, config: Config) -> FrameResult:
     return segment_frame(depth_raw, job.shapes, config)
 
 
-def run_frame_job(task: tuple[FrameJob, Config, np.ndarray]) -> dict:
-    """Read the depth frame, segment it and write its mask (and raw mask and overlay, if wanted).
+def run_frame_job(task: tuple[FrameJob, Config, np.ndarray, str | None]) -> dict:
+    """Make one frame's mask (and raw mask and overlay, if wanted), unless it is up to date.
 
     Parameters
     ----------
-    task : (FrameJob, Config, ndarray)
-        The job, the configuration and the plane palette (``(n_planes, 3)`` uint8), as one
-        picklable argument for worker processes.
+    task : (FrameJob, Config, ndarray, str or None)
+        The job, the configuration, the plane palette (``(n_planes, 3)`` uint8) and the
+        fingerprint recorded when the frame's outputs were last written (None: make them in
+        any case), as one picklable argument for worker processes.
 
     Returns
     -------
     dict
-        The report entries of the frame: ``kept`` and ``dropped`` plane records.
+        ``fingerprint``: of the frame's inputs (:func:`annotate_rgbd.execute.fingerprint`);
+        ``reused``: True when it equals the recorded one and every output exists (nothing was
+        written); otherwise ``kept`` and ``dropped``, the frame's plane records for the report.
 
     Raises
     ------
@@ -96,8 +112,12 @@ def run_frame_job(task: tuple[FrameJob, Config, np.ndarray]) -> dict:
         The depth image is unreadable (the frame is skipped) or its size differs from the
         annotated image (fatal).
     """
-    job, config, colours = task
-    result = segment_job(job, config)
+    job, config, colours, recorded = task
+    depth_file = read_bytes(job.depth_path)
+    made_from = fingerprint(job, config, depth_file)
+    if made_from == recorded and all(p.is_file() for p in job.outputs):
+        return {"fingerprint": made_from, "reused": True}
+    result = segment_job(job, config, depth_file)
     if job.raw_mask_path is not None:
         write_png(job.raw_mask_path, colourize(result.drawn, colours))
     if job.overlay_path is not None:
@@ -105,7 +125,7 @@ def run_frame_job(task: tuple[FrameJob, Config, np.ndarray]) -> dict:
 
         write_png(job.overlay_path, overlay_for_frame(job.rgb_path, result, colours))
     write_png(job.mask_path, colourize(result.labels, colours))
-    return {"kept": result.kept, "dropped": result.dropped}
+    return {"fingerprint": made_from, "kept": result.kept, "dropped": result.dropped}
 
 
 class SizeMismatch(InputError):

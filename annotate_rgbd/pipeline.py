@@ -19,7 +19,7 @@ import numpy as np
 from .config import Config
 from .cvat import read_cvat
 from .errors import InputError, OutputError
-from .execute import JOURNAL, HelperPool, fingerprint, previous_results, run_jobs, start_helpers
+from .execute import JOURNAL, HelperPool, previous_results, run_jobs, start_helpers
 from .frame_job import OVERLAY_DIR, FrameJob, SizeMismatch, run_frame_job
 from .palette import plane_colours
 from .parts import Part, frame_owners, place_parts
@@ -343,19 +343,10 @@ def execute_scenes(
             scene.error = exc  # this scene only: the others may write elsewhere
             continue
         previous = {} if force else previous_results(scene.out_dir)
-        plan = scene.plan
-        for index, job in plan.jobs:
-            entry = plan.frames[index]
-            entry["fingerprint"] = fingerprint(job, scene.config)
-            reusable = previous.get(job.mask_path.name)
-            outputs = [p for p in (job.mask_path, job.raw_mask_path, job.overlay_path) if p is not None]
-            if reusable and reusable[0] == entry["fingerprint"] and all(p.is_file() for p in outputs):
-                _finish(entry, job, reusable[1])
-                scene.counts["reused"] += 1
-                _step(scene)
-            else:
-                tasks.append((job, scene.config, plan.colours))
-                owners.append((scene, index))
+        for index, job in scene.plan.jobs:
+            recorded = previous.get(job.mask_path.name)
+            tasks.append((job, scene.config, scene.plan.colours, recorded[0] if recorded else None))
+            owners.append((scene, index, recorded[1] if recorded else None))
     for scene in scenes:
         _step(scene)
     journals = {
@@ -363,7 +354,7 @@ def execute_scenes(
     }
     try:
         for k, result in run_jobs(tasks, run_frame_job, helpers):
-            scene, index = owners[k]
+            scene, index, recorded_entries = owners[k]
             if scene.error is not None:
                 continue
             job, entry = tasks[k][0], scene.plan.frames[index]
@@ -372,10 +363,14 @@ def execute_scenes(
             elif isinstance(result, InputError):
                 entry.update(status="failed", reason=UNREADABLE_DEPTH, error=str(result))
                 scene.counts["failed"] += 1
+            elif result.pop("reused", False):
+                _finish(entry, job, {**result, **recorded_entries})
+                scene.counts["reused"] += 1
             else:
                 _finish(entry, job, result)
                 scene.counts["made"] += 1
-                record = {"mask": job.mask_path.name, "fingerprint": entry["fingerprint"], "result": result}
+                made = {"kept": result["kept"], "dropped": result["dropped"]}
+                record = {"mask": job.mask_path.name, "fingerprint": result["fingerprint"], "result": made}
                 try:
                     journals[id(scene)].write(json.dumps(record) + "\n")
                     journals[id(scene)].flush()

@@ -76,8 +76,7 @@ def shape_mask(shape: Shape, height: int, width: int) -> tuple[int, int, np.ndar
         lies within the image (it may be empty).
     """
     if shape.kind == "polygon":
-        top, inside = polygon_rows(shape.points, height, width)
-        return top, 0, inside
+        return polygon_window(shape.points, height, width)
     if shape.kind == "box":
         (xtl, ytl), (xbr, ybr) = shape.points
         left, right = _span(xtl, xbr, width)
@@ -94,8 +93,8 @@ def shape_mask(shape: Shape, height: int, width: int) -> tuple[int, int, np.ndar
     raise ValueError(f"unsupported shape kind {shape.kind!r}")
 
 
-def polygon_rows(points: np.ndarray, height: int, width: int) -> tuple[int, np.ndarray]:
-    """Fill a polygon: the image rows it spans, with the pixels whose centres are inside.
+def polygon_window(points: np.ndarray, height: int, width: int) -> tuple[int, int, np.ndarray]:
+    """Fill a polygon: the pixels whose centres are inside, in the window of the image it spans.
 
     Scanline fill, vectorised over rows and edges: each row's pixel-centre line crosses the
     edges at sorted x positions; pairs of crossings bound the inside spans.
@@ -109,16 +108,17 @@ def polygon_rows(points: np.ndarray, height: int, width: int) -> tuple[int, np.n
 
     Returns
     -------
-    top : int
-        First image row of the result.
-    inside : ndarray of bool, shape (rows, width)
+    top, left : int
+        Position of the window in the image.
+    inside : ndarray of bool, shape (rows, cols)
+        The polygon's pixels in the window (which lies within the image; it may be empty).
     """
     x0, y0 = points[:, 0], points[:, 1]
-    x1, y1 = np.roll(x0, -1), np.roll(y0, -1)
+    x1, y1 = np.concatenate([x0[1:], x0[:1]]), np.concatenate([y0[1:], y0[:1]])  # each edge's end
     top = max(int(np.floor(y0.min() - 0.5)), 0)
     bottom = min(int(np.ceil(y0.max() - 0.5)), height - 1)
     if bottom < top:
-        return 0, np.zeros((0, width), dtype=bool)
+        return 0, 0, np.zeros((0, 0), dtype=bool)
     centre_y = (np.arange(top, bottom + 1) + 0.5)[:, None]
     # Half-open in y: an edge counts for rows with centre in [min(y0, y1), max(y0, y1)).
     crosses = ((y0 <= centre_y) & (centre_y < y1)) | ((y1 <= centre_y) & (centre_y < y0))
@@ -131,11 +131,18 @@ def polygon_rows(points: np.ndarray, height: int, width: int) -> tuple[int, np.n
     # Pixels with centre c + 0.5 in [start, end): c from ceil(start - 0.5) to ceil(end - 0.5) - 1.
     first = np.where(missing, 0, np.ceil(np.where(missing, 0, starts) - 0.5)).clip(0, width).astype(np.int32)
     stop = np.where(missing, 0, np.ceil(np.where(missing, 0, ends) - 0.5)).clip(0, width).astype(np.int32)
-    cols = np.arange(width, dtype=np.int32)
-    inside = np.zeros((bottom - top + 1, width), dtype=bool)
-    for k in range(ends.shape[1]):  # spans of a row are disjoint: one comparison per span
+    filled = stop > first
+    if not filled.any():
+        return 0, 0, np.zeros((0, 0), dtype=bool)
+    # Only the columns the spans reach (most shapes cover a fraction of the image's width), and
+    # only as many spans per row as some row has (one for a convex polygon).
+    left, right = int(first[filled].min()), int(stop[filled].max())
+    k, *more = np.flatnonzero(filled.any(axis=0)).tolist()
+    cols = np.arange(left, right, dtype=np.int32)
+    inside = (cols >= first[:, k, None]) & (cols < stop[:, k, None])
+    for k in more:  # spans of a row are disjoint: one comparison per span
         inside |= (cols >= first[:, k, None]) & (cols < stop[:, k, None])
-    return top, inside
+    return top, left, inside
 
 
 def _span(low: float, high: float, size: int) -> tuple[int, int]:

@@ -227,8 +227,14 @@ def camera_problem(cx: float, cy: float, width: int, height: int) -> str | None:
     )
 
 
-def read_depth(path: Path) -> np.ndarray:
+def read_depth(path: Path, data: np.ndarray | None = None) -> np.ndarray:
     """Read a depth image as a single-channel array of raw values.
+
+    Parameters
+    ----------
+    path : Path
+    data : ndarray of uint8, optional
+        The file's bytes, when already read (:func:`read_bytes`).
 
     Raises
     ------
@@ -236,7 +242,7 @@ def read_depth(path: Path) -> np.ndarray:
         Missing or undecodable file, an image with colour channels or an 8-bit image (not a
         depth map).
     """
-    image = read_image(path, cv2.IMREAD_UNCHANGED)
+    image = decode_image(read_bytes(path) if data is None else data, path, cv2.IMREAD_UNCHANGED)
     if image.ndim != 2:
         raise InputError(path, f"depth image has {image.shape[2]} channels; expected a single-channel depth map")
     if image.dtype.itemsize == 1:
@@ -258,11 +264,32 @@ def read_image(path: Path, flags: int) -> np.ndarray:
     InputError
         Missing, unreadable, empty or undecodable file (one line naming the file).
     """
+    return decode_image(read_bytes(path), path, flags)
+
+
+def read_bytes(path: Path) -> np.ndarray:
+    """A file's bytes as a uint8 array.
+
+    Raises
+    ------
+    InputError
+        Missing or unreadable file.
+    """
     try:
-        data = np.fromfile(path, dtype=np.uint8)
+        return np.fromfile(path, dtype=np.uint8)
     except OSError as exc:
         reason = "file not found" if isinstance(exc, FileNotFoundError) else f"cannot read ({exc.strerror})"
         raise InputError(path, reason) from None
+
+
+def decode_image(data: np.ndarray, path: Path, flags: int) -> np.ndarray:
+    """Decode an image file's bytes with OpenCV's ``imread`` ``flags``.
+
+    Raises
+    ------
+    InputError
+        Empty or undecodable data (the message names ``path``).
+    """
     image = cv2.imdecode(data, flags) if data.size else None
     if image is None:
         raise InputError(path, "not a readable image (corrupt or unsupported format)")

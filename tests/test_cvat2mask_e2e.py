@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import json
 import shutil
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -143,6 +144,13 @@ def test_rerun_redoes_only_changed_frames(tmp_path):
     cv2.imwrite(str(seq / depth_file), depth)
     third = run_cvat2mask(seq, [ANNOTATIONS], tmp_path / "out", config)
     assert third.counts == {"made": 1, "reused": 18, "failed": 0}
+    # A mask is deleted: that frame only is made again, with the same bytes.
+    lost = tmp_path / "out" / "masks" / Path(depth_file).name
+    kept_bytes = lost.read_bytes()
+    lost.unlink()
+    fourth = run_cvat2mask(seq, [ANNOTATIONS], tmp_path / "out", config, workers=2)
+    assert fourth.counts == {"made": 1, "reused": 18, "failed": 0}
+    assert lost.read_bytes() == kept_bytes
     forced = run_cvat2mask(seq, [ANNOTATIONS], tmp_path / "out", config, force=True)
     assert forced.counts == {"made": 19, "reused": 0, "failed": 0}
     after = {p.name: p.read_bytes() for p in (tmp_path / "out" / "masks").iterdir()}
