@@ -34,7 +34,7 @@ import numpy as np
 from annotate_rgbd.camera import Camera
 from annotate_rgbd.config import Config, RansacConfig
 from annotate_rgbd.cvat import write_cvat_video
-from annotate_rgbd.execute import default_workers, prepare_helpers
+from annotate_rgbd.execute import default_workers, prepare_helpers, reuse_freed_memory
 from annotate_rgbd.palette import colourize, plane_colours
 from annotate_rgbd.pipeline import run_cvat2mask
 from annotate_rgbd.sequence import read_sequence
@@ -72,12 +72,23 @@ def io_floor(sequence_dir: Path, out: Path) -> float:
     return time.perf_counter() - started
 
 
-def timed_run(sequence_dir: Path, annotations: Path, out: Path, config: Config, workers: int) -> float:
+def timed_run(
+    sequence_dir: Path, annotations: Path, out: Path, config: Config, workers: int, memory: list[float] | None = None
+) -> float:
+    """Seconds of one forced ``run_cvat2mask``; with ``memory``, this process's resident memory
+    (MiB) is appended to it after every frame."""
+    sample = (lambda done, total: memory.append(resident_mib())) if memory is not None else None
     started = time.perf_counter()
-    report = run_cvat2mask(sequence_dir, [annotations], out, config, workers=workers, force=True)
+    report = run_cvat2mask(sequence_dir, [annotations], out, config, workers=workers, force=True, progress=sample)
     elapsed = time.perf_counter() - started
     assert report.counts["made"] == report.written > 0, report.counts
     return elapsed
+
+
+def resident_mib() -> float:
+    """This process's resident memory now, in MiB (Linux)."""
+    pages = int(Path("/proc/self/statm").read_text().split()[1])
+    return pages * os.sysconf("SC_PAGE_SIZE") / 2**20
 
 
 def main() -> None:
@@ -89,8 +100,10 @@ def main() -> None:
     parser.add_argument("--workers", type=int, default=default_workers(), help="the 'all workers' run")
     parser.add_argument("--rounds", type=int, default=3, help="rounds of the three measurements; the best counts")
     args = parser.parse_args()
-    # As the command line does first thing: the helpers' server imports Open3D in the background.
+    # As the command line does first thing: the helpers' server imports Open3D in the background,
+    # and this process keeps freed image buffers for reuse.
     prepare_helpers(args.workers)
+    reuse_freed_memory()
 
     sequence_dir, annotations, camera = make_benchmark_sequence(args.workdir, args.frames, args.width, args.height)
     config = Config(camera=camera, ransac=RansacConfig(distance_threshold=0.03))
@@ -100,10 +113,11 @@ def main() -> None:
 
     # Shared machines are noisy: the three measurements take turns, and each keeps its best round.
     floor = one = many = float("inf")
+    memory: list[float] = []  # of the first 1-worker run, after each frame
     for round_ in range(1, args.rounds + 1):
         times = (
             io_floor(sequence_dir, outputs / "floor"),
-            timed_run(sequence_dir, annotations, outputs / "one", config, 1),
+            timed_run(sequence_dir, annotations, outputs / "one", config, 1, memory if round_ == 1 else None),
             timed_run(sequence_dir, annotations, outputs / "many", config, args.workers),
         )
         print(f"round {round_}: I/O floor {times[0]:.2f} s, 1 worker {times[1]:.2f} s, {args.workers} workers {times[2]:.2f} s")
@@ -119,6 +133,11 @@ def main() -> None:
     print(f"1 worker / I/O floor      {one / floor:5.2f}x   (target <= 3)")
     print(f"{args.workers} workers speed-up over 1  {one / many:5.2f}x   (target >= 1.7 with 2 workers)")
     print(f"masks identical between the two runs: {identical}")
+    fifth = max(1, n // 5)
+    print(
+        f"memory of the 1-worker run: {max(memory[:fifth]):.0f} MiB up to frame {fifth}, "
+        f"{max(memory):.0f} MiB up to frame {n} (flat: frames are streamed)"
+    )
 
 
 if __name__ == "__main__":
