@@ -1,50 +1,21 @@
-"""Relabel whole scenes in one command: a manifest of scenes, one pool of workers.
-
-A manifest is a TOML file with one ``[[scene]]`` table per scene; paths are relative to the
-manifest::
-
-    jobs = 2                       # optional; default: all cores (--jobs overrides)
-
-    [[scene]]
-    name = "fr1_desk"              # optional; default: the output folder's name
-    sequence = "data/rgbd_dataset_freiburg1_desk"
-    annotations = ["labels/fr1_desk/0-299.xml", "labels/fr1_desk/295-573.xml"]
-    config = "fr1_desk"            # a preset name or a TOML file; optional
-    out = "out/fr1_desk"
-    parts = ["0-299.xml:0"]        # optional, as --part FILE:OFFSET
-    set = ["ransac.distance_threshold=0.01"]   # optional, as --set
-    raw_masks = false              # optional, as --raw-masks
+"""Relabel whole scenes in one command: the scenes of a manifest (:mod:`annotate_rgbd.manifest`),
+one pool of workers.
 
 Scenes are planned one after the other (a scene whose inputs are broken fails alone), then
-the frames of all scenes are made by one pool of processes.
+the frames of all scenes are made by this process and one pool of helper processes.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable
+from typing import Callable
 
-from .config import load_config, tomllib
+from .config import load_config
 from .errors import InputError
 from .execute import start_helpers
+from .manifest import SceneSpec
 from .pipeline import RunReport, SceneRun, execute_scenes, finish_scene, plan_run
-
-SCENE_KEYS = {"name", "sequence", "annotations", "config", "out", "parts", "set", "raw_masks"}
-
-
-@dataclass(frozen=True)
-class SceneSpec:
-    """One ``[[scene]]`` of a manifest, with paths resolved against the manifest's folder."""
-
-    name: str
-    sequence: Path
-    annotations: tuple[Path, ...]
-    out: Path
-    config: str | None = None
-    offsets: dict[str, int] = field(default_factory=dict)
-    overrides: dict[str, Any] = field(default_factory=dict)
-    raw_masks: bool = False
 
 
 @dataclass
@@ -62,92 +33,6 @@ class SceneOutcome:
         if self.report is None:
             return []
         return [f"{f['depth']}: {f.get('error', f['reason'])}" for f in self.report.frames if f["status"] == "failed"]
-
-
-def read_manifest(path: str | Path) -> tuple[list[SceneSpec], int | None]:
-    """Read a batch manifest.
-
-    Parameters
-    ----------
-    path : str or Path
-        The TOML manifest.
-
-    Returns
-    -------
-    scenes : list of SceneSpec
-    jobs : int or None
-        The manifest's ``jobs``, if given.
-
-    Raises
-    ------
-    InputError
-        Unreadable or invalid TOML, no scenes, unknown or missing keys, values of the wrong
-        type, or two scenes writing to one output folder.
-    """
-    from .cli import parse_part_offsets, parse_settings
-
-    path = Path(path)
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise InputError(path, f"cannot read manifest: {exc.strerror or exc}") from None
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise InputError(path, f"invalid TOML: {exc}") from None
-    unknown = set(data) - {"scene", "jobs"}
-    if unknown:
-        raise InputError(path, f"unknown key '{sorted(unknown)[0]}' (a manifest has 'jobs' and [[scene]] tables)")
-    jobs = data.get("jobs")
-    if jobs is not None and (not isinstance(jobs, int) or isinstance(jobs, bool) or jobs < 1):
-        raise InputError(path, "'jobs' must be a positive integer")
-    tables = data.get("scene")
-    if not isinstance(tables, list) or not tables:
-        raise InputError(path, "no scenes: add one [[scene]] table per scene")
-    base = path.parent
-    scenes = []
-    for number, table in enumerate(tables, start=1):
-        where = f"[[scene]] {number}"
-        if not isinstance(table, dict):
-            raise InputError(path, f"{where}: must be a table")
-        extra = set(table) - SCENE_KEYS
-        if extra:
-            raise InputError(path, f"{where}: unknown key '{sorted(extra)[0]}' (known: {', '.join(sorted(SCENE_KEYS))})")
-        for key in ("sequence", "annotations", "out"):
-            if key not in table:
-                raise InputError(path, f"{where}: '{key}' is missing")
-        annotations = table["annotations"]
-        if isinstance(annotations, str):
-            annotations = [annotations]
-        strings = {"sequence": table["sequence"], "out": table["out"], "name": table.get("name", ""),
-                   "config": table.get("config", "")}
-        lists = {"annotations": annotations, "parts": table.get("parts", []), "set": table.get("set", [])}
-        if not all(isinstance(v, str) for v in strings.values()) or not all(
-            isinstance(v, list) and all(isinstance(x, str) for x in v) for v in lists.values()
-        ) or not isinstance(table.get("raw_masks", False), bool):
-            raise InputError(path, f"{where}: wrong type (paths and names are strings; annotations, parts and set are lists of strings)")
-        config = table.get("config")
-        if config is not None and (base / config).is_file():
-            config = str(base / config)
-        out = base / table["out"]
-        try:
-            offsets = {str(base / k) if (base / k).exists() else k: v for k, v in parse_part_offsets(lists["parts"]).items()}
-            overrides = parse_settings(lists["set"])
-        except InputError as exc:
-            raise InputError(path, f"{where}: {exc.message}") from None
-        scenes.append(SceneSpec(
-            name=table.get("name") or out.name,
-            sequence=base / table["sequence"],
-            annotations=tuple(base / a for a in annotations),
-            out=out,
-            config=config,
-            offsets=offsets,
-            overrides=overrides,
-            raw_masks=table.get("raw_masks", False),
-        ))
-    outs = [s.out.resolve() for s in scenes]
-    for out in set(outs):
-        if outs.count(out) > 1:
-            raise InputError(path, f"two scenes write to {out}: give each scene its own 'out'")
-    return scenes, jobs
 
 
 def run_batch(

@@ -181,17 +181,19 @@ def batch(
 ) -> None:
     """Relabel several scenes with one pool of workers; only changed frames are redone."""
     from .execute import default_workers, prepare_helpers, reuse_freed_memory
-
-    prepare_helpers(jobs or default_workers())  # the helpers' server imports Open3D meanwhile
-    reuse_freed_memory()
-
-    from .batch import read_manifest, run_batch, summary_lines
-    from .progress import Progress
+    from .manifest import read_manifest
 
     with user_errors():
         scenes, manifest_jobs = read_manifest(manifest)
+        workers = jobs or manifest_jobs or default_workers()
+        prepare_helpers(workers)  # the helpers' server imports Open3D while this process does
+        reuse_freed_memory()
+
+        from .batch import run_batch, summary_lines
+        from .progress import Progress
+
         progress = Progress({scene.name: 0 for scene in scenes})
-        outcomes = run_batch(scenes, jobs or manifest_jobs or default_workers(), force, progress.callback)
+        outcomes = run_batch(scenes, workers, force, progress.callback)
         progress.finish()
         for line in summary_lines(outcomes):
             typer.echo(line)

@@ -24,7 +24,7 @@ import platform
 import threading
 from functools import lru_cache
 from collections import deque
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, BrokenExecutor, ProcessPoolExecutor, wait
 from pathlib import Path
 from typing import Callable, Iterator, Sequence
 
@@ -179,23 +179,24 @@ class HelperPool(ProcessPoolExecutor):
     """A pool of ``size`` helper processes, started by :func:`helper_context`.
 
     The processes are started in a background thread (while the helper server is still
-    importing, starting one waits for it); ``ready`` is set once they are running.
+    importing, starting one waits for it); ``ready`` is set once they are running. Each runs
+    :func:`_start_helper` first.
     """
 
     def __init__(self, size: int):
-        super().__init__(max_workers=size, mp_context=helper_context())
+        super().__init__(max_workers=size, mp_context=helper_context(), initializer=_start_helper)
         self.size = size
         self.ready = threading.Event()
         threading.Thread(target=self._start, name="annotate-rgbd-helpers", daemon=True).start()
 
     def _start(self) -> None:
         try:
-            for _ in range(self.size):
-                self.submit(_import_frame_job)
-        except RuntimeError:  # shut down before the helpers were up: nothing to start
-            return
-        except OSError as exc:  # e.g. out of processes: this process does all the work
+            for _ in range(self.size):  # the pool starts one process per task it is given
+                self.submit(_no_op)
+        except (BrokenExecutor, OSError) as exc:  # e.g. out of processes
             log.warning("helper processes could not start (%s); working in one process", exc)
+            return
+        except RuntimeError:  # shut down before the helpers were up: nothing to start
             return
         self.ready.set()
 
@@ -226,7 +227,8 @@ def run_jobs(
     """Run ``worker(job)`` for every job, in this process and in the helper processes.
 
     This process works too: it takes jobs itself until the helpers are ready and whenever
-    they have enough queued, and at the end it takes back the jobs no helper has started.
+    they have enough queued, and at the end it takes back the jobs no helper has started. If a
+    helper dies, this process does its jobs and all that remain.
 
     Parameters
     ----------
@@ -251,13 +253,29 @@ def run_jobs(
     # Enough queued that a helper never waits for this process to finish its own job.
     queue_length = QUEUED_PER_HELPER * helpers.size
     in_flight: dict = {}
+    helpers_alive = True
     try:
         while pending or in_flight:
-            while pending and len(in_flight) < queue_length and helpers.ready.is_set():
+            while helpers_alive and pending and len(in_flight) < queue_length and helpers.ready.is_set():
                 index, job = pending.popleft()
-                in_flight[helpers.submit(_call, worker, job)] = (index, job)
+                try:
+                    in_flight[helpers.submit(_call, worker, job)] = (index, job)
+                except BrokenExecutor:
+                    pending.appendleft((index, job))
+                    helpers_alive = False
             for future in [f for f in in_flight if f.done()]:
-                yield in_flight.pop(future)[0], future.result()
+                index, job = in_flight.pop(future)
+                try:
+                    result = future.result()
+                except BrokenExecutor as exc:
+                    # A helper died (killed, out of memory): its jobs and the rest are done here
+                    # (a job's outputs are written atomically, so doing it again is safe).
+                    if helpers_alive:
+                        log.warning("a helper process stopped (%s); the remaining frames are made in this process", exc)
+                    helpers_alive = False
+                    pending.appendleft((index, job))
+                    continue
+                yield index, result
             if pending:
                 index, job = pending.popleft()
                 yield index, _call(worker, job)
@@ -277,11 +295,25 @@ def run_jobs(
         raise
 
 
-def _import_frame_job() -> None:
-    """Warm-up task of a helper process: import what the frame jobs need (already done where
-    the helper was forked from a server that imported it) and reuse freed buffers."""
+def _start_helper() -> None:
+    """First thing in every helper process: import what frame jobs need (nothing to do where the
+    helper was forked from a server that imported it), reuse freed buffers, and exit when the
+    main process dies (killed with SIGKILL, it cannot tell its helpers to stop; they would wait
+    for work forever and keep their server alive)."""
     importlib.import_module(FRAME_JOB_MODULE)
     reuse_freed_memory()
+    parent = multiprocessing.parent_process()
+    if parent is not None:
+        threading.Thread(target=_exit_after, args=(parent,), name="annotate-rgbd-watch", daemon=True).start()
+
+
+def _exit_after(parent: multiprocessing.process.BaseProcess) -> None:
+    parent.join()
+    os._exit(1)
+
+
+def _no_op() -> None:
+    """A task that only makes the pool start a process."""
 
 
 def _call(worker: Callable, job) -> dict | InputError:

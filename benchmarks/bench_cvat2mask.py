@@ -11,7 +11,10 @@ the same frames and in the same run:
 * the I/O floor: decoding each depth PNG and encoding one colour mask per frame and writing it
   the way the tool must (atomically: a temporary file, then a rename), the work no
   implementation can skip;
-* ``run_cvat2mask`` with 1 worker and with all workers (``--force``: every frame is made).
+* ``run_cvat2mask`` with 1 worker and with all workers (``--force``: every frame is made), in
+  this process with the settings the command line makes first (helper server started, freed
+  buffers kept: see ``annotate_rgbd.execute``); the 1-worker run also samples this process's
+  resident memory after every frame, to show that it stays flat along the sequence.
 
 The three measurements take turns for ``--rounds`` rounds and each keeps its best, so that a
 burst of load from other work on a shared machine does not decide the ratios. Targets (issue

@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from annotate_rgbd.batch import read_manifest
+from annotate_rgbd.manifest import read_manifest
 from annotate_rgbd.cli import app
 from annotate_rgbd.errors import InputError
 from annotate_rgbd.execute import JOURNAL

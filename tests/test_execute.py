@@ -2,7 +2,12 @@
 
 from __future__ import annotations
 
+import logging
 import os
+import signal
+import subprocess
+import sys
+import textwrap
 import time
 
 import pytest
@@ -12,9 +17,12 @@ from annotate_rgbd.execute import helper_context, run_jobs, start_helpers
 
 
 def square(job: tuple[int, int, float, float]) -> dict:
-    """A test job: ``(value, pid of this process, seconds it takes here, seconds in a helper)``."""
+    """A test job: ``(value, pid of this process, seconds it takes here, seconds in a helper)``;
+    a helper given a negative time dies."""
     value, main_pid, main_seconds, helper_seconds = job
-    time.sleep(main_seconds if os.getpid() == main_pid else helper_seconds)
+    if helper_seconds < 0 and os.getpid() != main_pid:
+        os._exit(1)
+    time.sleep(main_seconds if os.getpid() == main_pid else max(helper_seconds, 0))
     if value < 0:
         raise InputError(f"job{value}.png", "negative")
     return {"square": value * value, "pid": os.getpid()}
@@ -63,3 +71,59 @@ def test_without_helpers_this_process_does_everything():
     results = list(run_jobs([(3, os.getpid(), 0.0, 0.0), (4, os.getpid(), 0.0, 0.0)], square, None))
     assert [(index, result["square"]) for index, result in results] == [(0, 9), (1, 16)]
     assert start_helpers(1) is None
+
+
+def test_when_a_helper_dies_this_process_does_the_rest(caplog):
+    pool = start_helpers(2)
+    assert pool.ready.wait(timeout=120)
+    try:
+        jobs = [(value, os.getpid(), 0.01, -1) for value in range(40)]
+        with caplog.at_level(logging.WARNING, logger="annotate_rgbd"):
+            results = list(run_jobs(jobs, square, pool))
+    finally:
+        pool.shutdown()
+    assert sorted(index for index, _ in results) == list(range(40))
+    assert all(result["square"] == jobs[index][0] ** 2 for index, result in results)
+    assert "a helper process stopped" in caplog.text
+
+
+def test_helpers_exit_when_the_main_process_is_killed(tmp_path):
+    # SIGKILL leaves the main process no chance to stop its helpers: they notice and exit,
+    # and so does the server they were forked from.
+    script = tmp_path / "main.py"
+    script.write_text(textwrap.dedent("""
+        import time
+        from multiprocessing import forkserver
+        from annotate_rgbd.execute import start_helpers
+
+        if __name__ == "__main__":
+            pool = start_helpers(3)
+            assert pool.ready.wait(timeout=120)
+            pids = [*pool._processes, forkserver._forkserver._forkserver_pid]
+            print(*pids, flush=True)
+            time.sleep(600)
+    """))
+    main = subprocess.Popen([sys.executable, str(script)], stdout=subprocess.PIPE, text=True)
+    try:
+        pids = [int(pid) for pid in main.stdout.readline().split()]
+        assert len(pids) == 3
+    finally:
+        main.send_signal(signal.SIGKILL)
+        main.wait()
+    deadline = time.monotonic() + 20
+    while time.monotonic() < deadline and any(_alive(pid) for pid in pids):
+        time.sleep(0.1)
+    assert not any(_alive(pid) for pid in pids)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    # A process that exited but was not yet reaped by its parent is a zombie: gone for our purposes.
+    try:
+        with open(f"/proc/{pid}/stat") as stat:
+            return stat.read().split(")")[-1].split()[0] != "Z"
+    except FileNotFoundError:
+        return False
