@@ -101,7 +101,7 @@ def main() -> None:
     parser.add_argument("--height", type=int, default=480)
     parser.add_argument("--workdir", type=Path, default=Path(tempfile.gettempdir()) / "annotate-rgbd-bench")
     parser.add_argument("--workers", type=int, default=default_workers(), help="the 'all workers' run")
-    parser.add_argument("--rounds", type=int, default=3, help="rounds of the three measurements; the best counts")
+    parser.add_argument("--rounds", type=int, default=5, help="rounds of the three measurements; the best counts")
     args = parser.parse_args()
     # As the command line does first thing: the helpers' server imports Open3D in the background,
     # and this process keeps freed image buffers for reuse.
