@@ -22,6 +22,7 @@ import multiprocessing
 import os
 import platform
 import threading
+from contextlib import contextmanager
 from functools import lru_cache
 from collections import deque
 from concurrent.futures import FIRST_COMPLETED, BrokenExecutor, ProcessPoolExecutor, wait
@@ -127,8 +128,8 @@ def reuse_freed_memory() -> bool:
 
     Every frame allocates and frees the same few dozen image-sized arrays. By default glibc
     gives large freed blocks back to the system, and the next frame then pays a page fault for
-    every 4 KiB page again: on a 2-core virtual machine about 10 ms of a 50 ms frame at
-    640x480. With higher mmap and trim thresholds the blocks stay in the heap and are reused;
+    every 4 KiB page again: on a 2-core virtual machine a frame at 640x480 took 41 ms instead
+    of 31 ms. With higher mmap and trim thresholds the blocks stay in the heap and are reused;
     the process keeps about one frame's working set (tens of MiB), whatever the sequence length.
     The command line and the helper processes call this; it changes this whole process.
 
@@ -250,58 +251,82 @@ def run_jobs(
         for index, job in pending:
             yield index, _call(worker, job)
         return
-    # Enough queued that a helper never waits for this process to finish its own job.
-    queue_length = QUEUED_PER_HELPER * helpers.size
-    in_flight: dict = {}
-    helpers_alive = True
     try:
-        while pending or in_flight:
-            while helpers_alive and pending and len(in_flight) < queue_length and helpers.ready.is_set():
-                index, job = pending.popleft()
-                try:
-                    in_flight[helpers.submit(_call, worker, job)] = (index, job)
-                except BrokenExecutor:
-                    pending.appendleft((index, job))
-                    helpers_alive = False
-            for future in [f for f in in_flight if f.done()]:
-                index, job = in_flight.pop(future)
-                try:
-                    result = future.result()
-                except BrokenExecutor as exc:
-                    # A helper died (killed, out of memory): its jobs and the rest are done here
-                    # (a job's outputs are written atomically, so doing it again is safe).
-                    if helpers_alive:
-                        log.warning("a helper process stopped (%s); the remaining frames are made in this process", exc)
-                    helpers_alive = False
-                    pending.appendleft((index, job))
-                    continue
-                yield index, result
-            if pending:
-                index, job = pending.popleft()
-                yield index, _call(worker, job)
-                continue
-            # Nothing left to hand out: take back the queued jobs no helper has started and do
-            # them here, rather than wait for the helpers to get through their queues.
-            for future in reversed(list(in_flight)):
-                if future.cancel():
-                    index, job = in_flight.pop(future)
-                    yield index, _call(worker, job)
-                    break
-            else:
-                if in_flight:
-                    wait(in_flight, return_when=FIRST_COMPLETED)
+        with _one_thread_each():
+            yield from _share(pending, worker, helpers)
     except BaseException:
         helpers.shutdown(wait=False, cancel_futures=True)
         raise
 
 
+def _share(pending: deque, worker: Callable, helpers: HelperPool) -> Iterator[tuple[int, dict | InputError]]:
+    """The loop of :func:`run_jobs` with helpers: ``pending`` holds ``(index, job)`` pairs."""
+    # Enough queued that a helper never waits for this process to finish its own job.
+    queue_length = QUEUED_PER_HELPER * helpers.size
+    in_flight: dict = {}
+    helpers_alive = True
+    while pending or in_flight:
+        while helpers_alive and pending and len(in_flight) < queue_length and helpers.ready.is_set():
+            index, job = pending.popleft()
+            try:
+                in_flight[helpers.submit(_call, worker, job)] = (index, job)
+            except BrokenExecutor:
+                pending.appendleft((index, job))
+                helpers_alive = False
+        for future in [f for f in in_flight if f.done()]:
+            index, job = in_flight.pop(future)
+            try:
+                result = future.result()
+            except BrokenExecutor as exc:
+                # A helper died (killed, out of memory): its jobs and the rest are done here
+                # (a job's outputs are written atomically, so doing it again is safe).
+                if helpers_alive:
+                    log.warning("a helper process stopped (%s); the remaining frames are made in this process", exc)
+                helpers_alive = False
+                pending.appendleft((index, job))
+                continue
+            yield index, result
+        if pending:
+            index, job = pending.popleft()
+            yield index, _call(worker, job)
+            continue
+        # Nothing left to hand out: take back the queued jobs no helper has started and do them
+        # here, rather than wait for the helpers to get through their queues.
+        for future in reversed(list(in_flight)):
+            if future.cancel():
+                index, job = in_flight.pop(future)
+                yield index, _call(worker, job)
+                break
+        else:
+            if in_flight:
+                wait(in_flight, return_when=FIRST_COMPLETED)
+
+
+@contextmanager
+def _one_thread_each() -> Iterator[None]:
+    """OpenCV single-threaded in this process while helpers work beside it: its thread pool
+    would compete with them for the cores (2 workers on 2 cores: 7 % slower)."""
+    import cv2  # loaded already by the frame jobs; this module stays light for the CLI's start
+
+    threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    try:
+        yield
+    finally:
+        cv2.setNumThreads(threads)
+
+
 def _start_helper() -> None:
     """First thing in every helper process: import what frame jobs need (nothing to do where the
-    helper was forked from a server that imported it), reuse freed buffers, and exit when the
+    helper was forked from a server that imported it), reuse freed buffers, run OpenCV in one
+    thread (see :func:`_one_thread_each`), and exit when the
     main process dies (killed with SIGKILL, it cannot tell its helpers to stop; they would wait
     for work forever and keep their server alive)."""
     importlib.import_module(FRAME_JOB_MODULE)
     reuse_freed_memory()
+    import cv2  # imported above
+
+    cv2.setNumThreads(1)  # one of several processes sharing the cores
     parent = multiprocessing.parent_process()
     if parent is not None:
         threading.Thread(target=_exit_after, args=(parent,), name="annotate-rgbd-watch", daemon=True).start()

@@ -10,6 +10,7 @@ import sys
 import textwrap
 import time
 
+import cv2
 import pytest
 
 from annotate_rgbd.errors import InputError
@@ -25,7 +26,7 @@ def square(job: tuple[int, int, float, float]) -> dict:
     time.sleep(main_seconds if os.getpid() == main_pid else max(helper_seconds, 0))
     if value < 0:
         raise InputError(f"job{value}.png", "negative")
-    return {"square": value * value, "pid": os.getpid()}
+    return {"square": value * value, "pid": os.getpid(), "opencv_threads": cv2.getNumThreads()}
 
 
 @pytest.fixture(scope="module")
@@ -41,12 +42,16 @@ def test_helpers_are_forked_from_a_server_where_the_platform_allows():
 
 
 def test_every_job_runs_once_in_this_process_and_the_helper(helpers):
+    threads = cv2.getNumThreads()
     jobs = [(value, os.getpid(), 0.02, 0.02) for value in range(60)]
     results = list(run_jobs(jobs, square, helpers))
     assert sorted(index for index, _ in results) == list(range(60))
     assert all(result["square"] == jobs[index][0] ** 2 for index, result in results)
     pids = {result["pid"] for _, result in results}
     assert os.getpid() in pids and len(pids) == 2
+    # One OpenCV thread per process while they share the cores; this process's setting is back after.
+    assert {result["opencv_threads"] for _, result in results} == {1}
+    assert cv2.getNumThreads() == threads
 
 
 def test_queued_jobs_come_back_when_this_process_runs_out_of_work(helpers):
