@@ -21,6 +21,7 @@ import logging
 import multiprocessing
 import os
 import platform
+import signal
 import threading
 from contextlib import contextmanager
 from functools import lru_cache
@@ -319,7 +320,7 @@ def _one_thread_each() -> Iterator[None]:
 def _start_helper() -> None:
     """First thing in every helper process: import what frame jobs need (nothing to do where the
     helper was forked from a server that imported it), reuse freed buffers, run OpenCV in one
-    thread (see :func:`_one_thread_each`), and exit when the
+    thread (see :func:`_one_thread_each`), leave Ctrl-C to the main process, and exit when the
     main process dies (killed with SIGKILL, it cannot tell its helpers to stop; they would wait
     for work forever and keep their server alive)."""
     importlib.import_module(FRAME_JOB_MODULE)
@@ -327,6 +328,9 @@ def _start_helper() -> None:
     import cv2  # imported above
 
     cv2.setNumThreads(1)  # one of several processes sharing the cores
+    # Ctrl-C reaches the whole process group: the main process stops the helpers (after their
+    # current frame), so they do not print tracebacks of their own.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     parent = multiprocessing.parent_process()
     if parent is not None:
         threading.Thread(target=_exit_after, args=(parent,), name="annotate-rgbd-watch", daemon=True).start()

@@ -64,6 +64,18 @@ def test_queued_jobs_come_back_when_this_process_runs_out_of_work(helpers):
     assert done_by_helper <= 3  # the job it was running and the one already passed to it
 
 
+def test_helpers_leave_ctrl_c_to_the_main_process(helpers):
+    # Ctrl-C signals the whole process group; only the main process acts on it.
+    for pid in helpers._processes:
+        os.kill(pid, signal.SIGINT)
+    time.sleep(0.3)
+    jobs = [(value, os.getpid(), 0.02, 0.02) for value in range(30)]
+    results = list(run_jobs(jobs, square, helpers))
+    assert sorted(index for index, _ in results) == list(range(30))
+    assert {result["pid"] for _, result in results} - {os.getpid()} <= set(helpers._processes)
+    assert len({result["pid"] for _, result in results}) == 2
+
+
 def test_input_errors_come_back_as_results(helpers):
     jobs = [(value, os.getpid(), 0.0, 0.0) for value in (-1, 2, -3, 4, 5, 6)]
     results = dict(run_jobs(jobs, square, helpers))
