@@ -131,11 +131,10 @@ def cvat2mask(
 
     Several exports are annotation parts of one sequence: their tracks are matched into one plane id per physical plane (see tracks.csv).
     """
-    from .execute import default_workers, prepare_helpers, reuse_freed_memory
+    from .execute import default_workers, prepare_process
 
     workers = jobs or default_workers()
-    prepare_helpers(workers)  # the helpers' server imports Open3D while this process does
-    reuse_freed_memory()
+    prepare_process(workers)  # the helpers' server imports Open3D while this process does
 
     from .config import load_config
     from .pipeline import run_cvat2mask
@@ -180,14 +179,13 @@ def batch(
     force: bool = typer.Option(False, "--force", help="Redo every frame, even those unchanged since the last run."),
 ) -> None:
     """Relabel several scenes with one pool of workers; only changed frames are redone."""
-    from .execute import default_workers, prepare_helpers, reuse_freed_memory
+    from .execute import default_workers, prepare_process
     from .manifest import read_manifest
 
     with user_errors():
         scenes, manifest_jobs = read_manifest(manifest)
         workers = jobs or manifest_jobs or default_workers()
-        prepare_helpers(workers)  # the helpers' server imports Open3D while this process does
-        reuse_freed_memory()
+        prepare_process(workers)  # the helpers' server imports Open3D while this process does
 
         from .batch import run_batch, summary_lines
         from .progress import Progress

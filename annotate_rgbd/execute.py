@@ -177,6 +177,13 @@ def prepare_helpers(workers: int) -> None:
         forkserver.ensure_running()
 
 
+def prepare_process(workers: int) -> None:
+    """What the command line does first, before its heavy imports: start the helpers' server
+    (:func:`prepare_helpers`) and keep freed image buffers for reuse (:func:`reuse_freed_memory`)."""
+    prepare_helpers(workers)
+    reuse_freed_memory()
+
+
 class HelperPool(ProcessPoolExecutor):
     """A pool of ``size`` helper processes, started by :func:`helper_context`.
 

@@ -37,7 +37,7 @@ import numpy as np
 from annotate_rgbd.camera import Camera
 from annotate_rgbd.config import Config, RansacConfig
 from annotate_rgbd.cvat import write_cvat_video
-from annotate_rgbd.execute import default_workers, prepare_helpers, reuse_freed_memory
+from annotate_rgbd.execute import default_workers, prepare_process
 from annotate_rgbd.palette import colourize, plane_colours
 from annotate_rgbd.pipeline import run_cvat2mask
 from annotate_rgbd.sequence import read_sequence
@@ -105,8 +105,7 @@ def main() -> None:
     args = parser.parse_args()
     # As the command line does first thing: the helpers' server imports Open3D in the background,
     # and this process keeps freed image buffers for reuse.
-    prepare_helpers(args.workers)
-    reuse_freed_memory()
+    prepare_process(args.workers)
 
     sequence_dir, annotations, camera = make_benchmark_sequence(args.workdir, args.frames, args.width, args.height)
     config = Config(camera=camera, ransac=RansacConfig(distance_threshold=0.03))
