@@ -38,6 +38,7 @@ from __future__ import annotations
 import re
 from collections import Counter
 from collections.abc import Collection, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -972,19 +973,16 @@ def write_cvat_video(
         raise ValueError("keyframe_step must be at least 1")
     frames = annotation.frames
     step = _uniform_step(frames)
-    with etree.xmlfile(str(path), encoding="utf-8") as xml:
-        xml.write_declaration()
-        with xml.element("annotations"):
-            xml.write(_text_element("version", SUPPORTED_VERSION), pretty_print=True)
-            meta = _meta_element(annotation, "interpolation", step)
-            size = etree.SubElement(meta[0], "original_size")
-            etree.SubElement(size, "width").text = str(width)
-            etree.SubElement(size, "height").text = str(height)
-            xml.write(meta, pretty_print=True)
-            index = {frame: i for i, frame in enumerate(frames)}  # built once, not per track
-            for track in annotation.tracks:
-                element = _track_element(track, frames, index, keyframe_step, keyframes_only)
-                xml.write(element, pretty_print=True)
+    with _export_file(path) as xml:
+        meta = _meta_element(annotation, "interpolation", step)
+        size = etree.SubElement(meta[0], "original_size")
+        etree.SubElement(size, "width").text = str(width)
+        etree.SubElement(size, "height").text = str(height)
+        xml.write(meta, pretty_print=True)
+        index = {frame: i for i, frame in enumerate(frames)}  # built once, not per track
+        for track in annotation.tracks:
+            element = _track_element(track, frames, index, keyframe_step, keyframes_only)
+            xml.write(element, pretty_print=True)
 
 
 def write_cvat_images(annotation: Annotation, path: str | Path, *, width: int, height: int) -> None:
@@ -1005,30 +1003,37 @@ def write_cvat_images(annotation: Annotation, path: str | Path, *, width: int, h
     """
     frames = annotation.frames
     step = _uniform_step(frames)
+    with _export_file(path) as xml:
+        xml.write(_meta_element(annotation, "annotation", step), pretty_print=True)
+        for frame in frames:
+            image_width, image_height = annotation.image_size.get(frame, (width, height))
+            image = etree.Element(
+                "image",
+                id=str(frame),
+                name=annotation.image_names.get(frame, f"frame_{frame:06d}"),
+                width=str(image_width),
+                height=str(image_height),
+            )
+            for group, track in enumerate(annotation.tracks, start=1):
+                shape = track.shapes.get(frame)
+                if shape is not None:
+                    attributes = {"label": track.label, "source": "manual"}
+                    attributes["occluded"] = str(int(shape.occluded))
+                    attributes.update(_geometry_attributes(shape))
+                    attributes["z_order"] = str(shape.z_order)
+                    attributes["group_id"] = str(group)
+                    etree.SubElement(image, _xml_kind(shape), attributes)
+            xml.write(image, pretty_print=True)
+
+
+@contextmanager
+def _export_file(path: str | Path) -> Iterator[etree.xmlfile]:
+    """An export being written: the XML declaration, ``<annotations>`` and its ``<version>``."""
     with etree.xmlfile(str(path), encoding="utf-8") as xml:
         xml.write_declaration()
         with xml.element("annotations"):
             xml.write(_text_element("version", SUPPORTED_VERSION), pretty_print=True)
-            xml.write(_meta_element(annotation, "annotation", step), pretty_print=True)
-            for frame in frames:
-                image_width, image_height = annotation.image_size.get(frame, (width, height))
-                image = etree.Element(
-                    "image",
-                    id=str(frame),
-                    name=annotation.image_names.get(frame, f"frame_{frame:06d}"),
-                    width=str(image_width),
-                    height=str(image_height),
-                )
-                for group, track in enumerate(annotation.tracks, start=1):
-                    shape = track.shapes.get(frame)
-                    if shape is not None:
-                        attributes = {"label": track.label, "source": "manual"}
-                        attributes["occluded"] = str(int(shape.occluded))
-                        attributes.update(_geometry_attributes(shape))
-                        attributes["z_order"] = str(shape.z_order)
-                        attributes["group_id"] = str(group)
-                        etree.SubElement(image, _xml_kind(shape), attributes)
-                xml.write(image, pretty_print=True)
+            yield xml
 
 
 def _track_element(
