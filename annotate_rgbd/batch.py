@@ -13,9 +13,11 @@ from typing import Callable
 
 from .config import load_config
 from .errors import InputError
-from .execute import start_helpers
+from .execute import SceneRun, execute_scenes, start_frame_helpers
 from .manifest import SceneSpec
-from .pipeline import RunReport, SceneRun, execute_scenes, finish_scene, plan_run
+from .pipeline import finish_scene
+from .plan import plan_run
+from .records import FAILED, summarize
 
 
 @dataclass
@@ -24,15 +26,15 @@ class SceneOutcome:
 
     name: str
     out: Path
-    report: RunReport | None = None
+    run: SceneRun | None = None
     error: str | None = None
 
     @property
     def failed_frames(self) -> list[str]:
         """Depth frames that failed, with the reason."""
-        if self.report is None:
+        if self.run is None:
             return []
-        return [f"{f['depth']}: {f.get('error', f['reason'])}" for f in self.report.frames if f["status"] == "failed"]
+        return [f"{f.depth}: {f.error or f.reason}" for f in self.run.frames if f.status == FAILED]
 
 
 def run_batch(
@@ -60,7 +62,7 @@ def run_batch(
     """
     outcomes = [SceneOutcome(spec.name, spec.out) for spec in scenes]
     runs: list[tuple[SceneOutcome, SceneRun]] = []
-    helpers = start_helpers(workers)  # they start while the scenes are planned
+    helpers = start_frame_helpers(workers)  # they start while the scenes are planned
     try:
         for spec, outcome in zip(scenes, outcomes):
             try:
@@ -80,7 +82,8 @@ def run_batch(
             outcome.error = str(run.error)
             continue
         try:
-            outcome.report = finish_scene(run)
+            finish_scene(run)
+            outcome.run = run
         except InputError as exc:
             outcome.error = str(exc)
     return outcomes
@@ -93,14 +96,11 @@ def summary_lines(outcomes: list[SceneOutcome]) -> list[str]:
         if outcome.error is not None:
             lines.append(f"{outcome.name}: FAILED: {outcome.error}")
             continue
-        report = outcome.report
-        written = [f for f in report.frames if f["status"] == "written"]
-        kept = sum(len(f["kept"]) for f in written)
-        dropped = sum(len(f["dropped"]) for f in written)
-        skipped = sum(1 for f in report.frames if f["status"] == "skipped")
+        counts, summary = outcome.run.counts, summarize(outcome.run.frames)
         lines.append(
-            f"{outcome.name}: {len(written)} masks ({report.counts['made']} made, {report.counts['reused']} unchanged), "
-            f"{skipped} skipped, {report.counts['failed']} failed; {kept} planes kept, {dropped} dropped"
+            f"{outcome.name}: {summary.masks_written} masks ({counts.made} made, {counts.reused} unchanged), "
+            f"{summary.skipped} skipped, {counts.failed} failed; {summary.planes_kept} planes kept, "
+            f"{summary.planes_dropped} dropped"
         )
         lines.extend(f"  failed: {line}" for line in outcome.failed_frames)
     return lines

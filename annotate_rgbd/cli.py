@@ -163,8 +163,8 @@ def cvat2mask(
 
             review_run(out, overlays=False)
         summary = (
-            f"{report.written} masks in {out / 'masks'} ({report.counts['made']} made, "
-            f"{report.counts['reused']} unchanged), {report.n_planes} planes"
+            f"{report.written} masks in {out / 'masks'} ({report.counts.made} made, "
+            f"{report.counts.reused} unchanged), {report.n_planes} planes"
         )
         if report.warnings:
             count = len(report.warnings)

@@ -14,8 +14,9 @@ import numpy as np
 from .annotation import Shape
 from .config import Config
 from .errors import InputError
-from .execute import fingerprint
 from .palette import colourize
+from .records import MaskRecord
+from .resume import fingerprint
 from .segment import FrameResult, segment_frame
 from .sequence import read_bytes, read_depth
 from .writer import write_png
@@ -63,6 +64,49 @@ class FrameJob:
         return [p for p in (self.mask_path, self.raw_mask_path, self.overlay_path) if p is not None]
 
 
+@dataclass(frozen=True)
+class FrameTask:
+    """A frame job with what it needs to run in any process (one picklable argument).
+
+    Parameters
+    ----------
+    job : FrameJob
+    config : Config
+    colours : ndarray of uint8, shape (n_planes, 3)
+        The plane palette.
+    recorded : str or None
+        The fingerprint recorded when the frame's outputs were last written (None: make them
+        in any case).
+    """
+
+    job: FrameJob
+    config: Config
+    colours: np.ndarray
+    recorded: str | None = None
+
+
+@dataclass(frozen=True)
+class FrameOutcome:
+    """What :func:`run_frame_job` did.
+
+    Parameters
+    ----------
+    fingerprint : str
+        Of the frame's inputs (:func:`annotate_rgbd.resume.fingerprint`).
+    made : MaskRecord or None
+        The planes of the mask just made; None when the outputs were up to date and reused
+        (their recorded planes stand).
+    """
+
+    fingerprint: str
+    made: MaskRecord | None = None
+
+    @property
+    def reused(self) -> bool:
+        """Whether nothing was written (the recorded outputs are up to date)."""
+        return self.made is None
+
+
 def segment_job(job: FrameJob, config: Config, depth_file: np.ndarray | None = None) -> FrameResult:
     """Read the job's depth frame, check its size against the annotation, and segment it.
 
@@ -89,22 +133,16 @@ def segment_job(job: FrameJob, config: Config, depth_file: np.ndarray | None = N
     return segment_frame(depth_raw, job.shapes, config)
 
 
-def run_frame_job(task: tuple[FrameJob, Config, np.ndarray, str | None]) -> dict:
+def run_frame_job(task: FrameTask) -> FrameOutcome:
     """Make one frame's mask (and raw mask and overlay, if wanted), unless it is up to date.
 
     Parameters
     ----------
-    task : (FrameJob, Config, ndarray, str or None)
-        The job, the configuration, the plane palette (``(n_planes, 3)`` uint8) and the
-        fingerprint recorded when the frame's outputs were last written (None: make them in
-        any case), as one picklable argument for worker processes.
+    task : FrameTask
 
     Returns
     -------
-    dict
-        ``fingerprint``: of the frame's inputs (:func:`annotate_rgbd.execute.fingerprint`);
-        ``reused``: True when it equals the recorded one and every output exists (nothing was
-        written); otherwise ``kept`` and ``dropped``, the frame's plane records for the report.
+    FrameOutcome
 
     Raises
     ------
@@ -112,12 +150,12 @@ def run_frame_job(task: tuple[FrameJob, Config, np.ndarray, str | None]) -> dict
         The depth image is unreadable (the frame is skipped) or its size differs from the
         annotated image (fatal).
     """
-    job, config, colours, recorded = task
+    job, colours = task.job, task.colours
     depth_file = read_bytes(job.depth_path)
-    made_from = fingerprint(job, config, depth_file)
-    if made_from == recorded and all(p.is_file() for p in job.outputs):
-        return {"fingerprint": made_from, "reused": True}
-    result = segment_job(job, config, depth_file)
+    made_from = fingerprint(job, task.config, depth_file)
+    if made_from == task.recorded and all(p.is_file() for p in job.outputs):
+        return FrameOutcome(made_from)
+    result = segment_job(job, task.config, depth_file)
     if job.raw_mask_path is not None:
         write_png(job.raw_mask_path, colourize(result.drawn, colours))
     if job.overlay_path is not None:
@@ -125,10 +163,8 @@ def run_frame_job(task: tuple[FrameJob, Config, np.ndarray, str | None]) -> dict
 
         write_png(job.overlay_path, overlay_for_frame(job.rgb_path, result, colours))
     write_png(job.mask_path, colourize(result.labels, colours))
-    return {"fingerprint": made_from, "kept": result.kept, "dropped": result.dropped}
+    return FrameOutcome(made_from, MaskRecord(made_from, tuple(result.kept), tuple(result.dropped)))
 
 
 class SizeMismatch(InputError):
     """A depth image does not have the size of the annotated images: fatal for the run."""
-
-

@@ -77,8 +77,8 @@ def render_overlay(
     if rgb.shape[:2] != labels.shape:
         raise ValueError(f"RGB image is {rgb.shape[1]}x{rgb.shape[0]}, mask is {labels.shape[1]}x{labels.shape[0]}")
     lookup = _lookup(colours, max(int(drawn.max(initial=0)), int(labels.max(initial=0))))
-    kept_ids = np.array([r["plane"] for r in result.kept], dtype=np.int64)
-    dropped_ids = np.array([r["plane"] for r in result.dropped], dtype=np.int64)
+    kept_ids = np.array([r.plane for r in result.kept], dtype=np.int64)
+    dropped_ids = np.array([r.plane for r in result.dropped], dtype=np.int64)
 
     out = rgb.astype(np.float32)
     in_kept = np.isin(drawn, kept_ids)
@@ -111,9 +111,9 @@ def render_overlay(
         if plane in points:
             _text_box(out, str(plane), points[plane], scale, lookup[plane], _ink(lookup[plane]))
     for record in result.dropped:
-        plane = record["plane"]
+        plane = record.plane
         if plane in points:
-            text = f"{plane} dropped: {record.get('reason', '?')}"
+            text = f"{plane} dropped: {record.reason}"
             _text_box(out, text, points[plane], scale, np.zeros(3), (255, 255, 255), border=lookup[plane])
     return out
 

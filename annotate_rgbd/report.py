@@ -1,4 +1,4 @@
-"""The run's tables and report: ``planes.csv``, ``tracks.csv`` and ``report.json``."""
+"""The run's tables and report: ``planes.csv``, ``tracks.csv`` and the record behind ``report.json``."""
 
 from __future__ import annotations
 
@@ -10,11 +10,12 @@ import numpy as np
 from . import __version__
 from .config import Config, config_to_dict
 from .palette import colour_hex
+from .records import PartRecord, PlaneInfo, RunRecord
 from .stitch import TrackPlane, plane_origins
 from .writer import write_csv
 
-if TYPE_CHECKING:  # pipeline imports this module
-    from .pipeline import RunReport
+if TYPE_CHECKING:
+    from .plan import RunPlan
 
 
 def write_tables(out_dir: Path, tracks: list[TrackPlane], colours: np.ndarray) -> None:
@@ -42,49 +43,24 @@ def write_tables(out_dir: Path, tracks: list[TrackPlane], colours: np.ndarray) -
     )
 
 
-def report_json(report: RunReport, config: Config) -> dict:
-    """The content of ``report.json``: inputs, configuration, summary, planes, tracks, frames."""
-    plan = report.plan
+def run_record(plan: RunPlan, config: Config) -> RunRecord:
+    """The record of a run (``report.json``): inputs, configuration, planes, tracks, frames."""
     colours = plan.colours
-    written = [f for f in report.frames if f["status"] == "written"]
-    skipped: dict[str, int] = {}
-    for f in report.frames:
-        if f["status"] == "skipped":
-            skipped[f["reason"]] = skipped.get(f["reason"], 0) + 1
-    return {
-        "tool": {"name": "annotate-rgbd", "version": __version__},
-        "inputs": {
-            "sequence": str(plan.sequence.root.resolve()),
-            "parts": [
-                {
-                    "file": str(Path(p.annotation.path).resolve()),
-                    "name": p.name,
-                    "offset": p.offset,
-                    "first_rgb": p.first,
-                    "last_rgb": p.last,
-                    "placed_by": p.offset_source,
-                }
-                for p in plan.parts
-            ],
-        },
-        "config": config_to_dict(config),
-        "summary": {
-            "depth_frames": len(report.frames),
-            "masks_written": len(written),
-            "frames_skipped": skipped,
-            "frames_failed": sum(1 for f in report.frames if f["status"] == "failed"),
-            "planes": report.n_planes,
-            "planes_kept": sum(len(f["kept"]) for f in written),
-            "planes_dropped": sum(len(f["dropped"]) for f in written),
-        },
-        "planes": [
-            {"plane": plane, "colour": colour_hex(colours[plane - 1]), "label": t.label, "part": t.part, "track_id": t.track}
-            for plane, t in sorted(plane_origins(report.tracks).items())
+    return RunRecord(
+        version=__version__,
+        sequence=str(plan.sequence.root.resolve()),
+        parts=[
+            PartRecord(str(Path(p.annotation.path).resolve()), p.name, p.offset, p.first, p.last, p.offset_source)
+            for p in plan.parts
         ],
-        "tracks": [
-            {k: v for k, v in vars(t).items() if v is not None} for t in report.tracks
+        config=config_to_dict(config),
+        planes=[
+            PlaneInfo(plane, colour_hex(colours[plane - 1]), t.label, t.part, t.track)
+            for plane, t in sorted(plane_origins(plan.tracks).items())
         ],
-        "frames": report.frames,
-        "warnings": report.warnings,
-        "notes": report.notes,
-    }
+        n_planes=plan.n_planes,
+        tracks=[{k: v for k, v in vars(t).items() if v is not None} for t in plan.tracks],
+        frames=plan.frames,
+        warnings=plan.warnings,
+        notes=plan.notes,
+    )

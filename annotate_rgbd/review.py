@@ -23,7 +23,9 @@ from .config import Config, config_from_dict
 from .errors import InputError
 from .frame_job import OVERLAY_DIR, segment_job
 from .overlay import contact_sheet, overlay_for_frame
-from .pipeline import RunPlan, plan_run
+from .plan import RunPlan, plan_run
+from .records import FrameRecord, RecordError, RunRecord
+from .resume import REPORT as REPORT_NAME
 from .review_page import render_review_page
 from .segment import FrameResult
 from .sequence import read_rgb
@@ -31,7 +33,6 @@ from .writer import write_bytes_atomic, write_png
 
 log = logging.getLogger("annotate_rgbd")
 
-REPORT_NAME = "report.json"
 PAGE_NAME = "review.html"
 SHEET_NAME = "contact_sheet.png"
 #: Thumbnails on the contact sheet, evenly spread over the written frames.
@@ -61,7 +62,7 @@ class ReviewOutput:
     warnings: list[str] = field(default_factory=list)
 
 
-def read_report(out_dir: str | Path) -> dict:
+def read_report(out_dir: str | Path) -> RunRecord:
     """Read ``report.json`` of a finished run.
 
     Raises
@@ -78,20 +79,23 @@ def read_report(out_dir: str | Path) -> dict:
         raise InputError(path, f"cannot read the report: {exc}") from None
     if not isinstance(report, dict) or not {"inputs", "config", "frames", "planes"} <= report.keys():
         raise InputError(path, "not a cvat2mask report (inputs, config, frames or planes missing)")
-    return report
+    try:
+        return RunRecord.from_json(report)
+    except RecordError as exc:
+        raise InputError(path, f"not a cvat2mask report: {exc}") from None
 
 
-def replan(report: dict, out_dir: str | Path, config: Config) -> RunPlan:
+def replan(report: RunRecord, out_dir: str | Path, config: Config) -> RunPlan:
     """Rebuild the plan of a finished run from its report.
 
     Parameters
     ----------
-    report : dict
-        The content of ``report.json``.
+    report : RunRecord
+        The run's ``report.json``.
     out_dir : str or Path
         The run's output folder.
     config : Config
-        The run's configuration (``config_from_dict(report["config"])``).
+        The run's configuration (``config_from_dict(report.config)``).
 
     Returns
     -------
@@ -102,10 +106,9 @@ def replan(report: dict, out_dir: str | Path, config: Config) -> RunPlan:
     InputError
         An input is gone or unreadable, or the inputs no longer give the run's frames and planes.
     """
-    parts = report["inputs"]["parts"]
-    offsets = {p["name"]: p["offset"] for p in parts if p.get("placed_by") in OFFSET_SOURCES}
-    plan = plan_run(report["inputs"]["sequence"], [p["file"] for p in parts], out_dir, config, offsets)
-    if [f["depth"] for f in plan.frames] != [f["depth"] for f in report["frames"]] or plan.n_planes != len(report["planes"]):
+    offsets = {p.name: p.offset for p in report.parts if p.placed_by in OFFSET_SOURCES}
+    plan = plan_run(report.sequence, [p.file for p in report.parts], out_dir, config, offsets)
+    if [f.depth for f in plan.frames] != [f.depth for f in report.frames] or plan.n_planes != len(report.planes):
         raise InputError(
             Path(out_dir) / REPORT_NAME,
             "the sequence or the annotation changed since this run: its frames or planes differ; run cvat2mask again",
@@ -148,26 +151,26 @@ def review_run(
     out_dir = Path(out_dir)
     report = read_report(out_dir)
     output = ReviewOutput()
-    written = [f for f in report["frames"] if f["status"] == "written"]
+    written = [f for f in report.frames if f.written]
     if overlays and written:
-        config = config_from_dict(report["config"], origin=out_dir / REPORT_NAME)
+        config = config_from_dict(report.config, origin=out_dir / REPORT_NAME)
         plan = replan(report, out_dir, config)
         jobs = {job.mask_path.name: job for _, job in plan.jobs}
         for done, frame in enumerate(written, start=1):
             path = _overlay_path(out_dir, frame)
             job = jobs.get(path.name)
             if job is None:
-                raise InputError(out_dir / REPORT_NAME, f"{frame['depth']}: no longer gets a mask from the inputs; run cvat2mask again")
+                raise InputError(out_dir / REPORT_NAME, f"{frame.depth}: no longer gets a mask from the inputs; run cvat2mask again")
             result = segment_job(job, config)
             _check_records(frame, result, output.warnings)
-            write_png(path, overlay_for_frame(plan.sequence.root / frame["rgb"], result, plan.colours))
+            write_png(path, overlay_for_frame(plan.sequence.root / frame.rgb, result, plan.colours))
             output.overlays.append(path)
             if progress:
                 progress(done, len(written))
     available = [f for f in written if _overlay_path(out_dir, f).is_file()]
     if page:
         output.page = out_dir / PAGE_NAME
-        relative = {f["mask"]: f"{OVERLAY_DIR}/{_overlay_path(out_dir, f).name}" for f in available}
+        relative = {f.mask: f"{OVERLAY_DIR}/{_overlay_path(out_dir, f).name}" for f in available}
         html = render_review_page(report, relative, title=out_dir.resolve().name)
         write_bytes_atomic(output.page, html.encode("utf-8"))
     if sheet and written:
@@ -177,22 +180,22 @@ def review_run(
         frames = [available[i] for i in picks]
         images = [read_rgb(_overlay_path(out_dir, f)) for f in frames]
         output.sheet = out_dir / SHEET_NAME
-        write_png(output.sheet, contact_sheet(images, [Path(f["depth"]).stem for f in frames]))
+        write_png(output.sheet, contact_sheet(images, [Path(f.depth).stem for f in frames]))
     return output
 
 
-def _overlay_path(out_dir: Path, frame: dict) -> Path:
-    return out_dir / OVERLAY_DIR / Path(frame["mask"]).name
+def _overlay_path(out_dir: Path, frame: FrameRecord) -> Path:
+    return out_dir / OVERLAY_DIR / Path(frame.mask).name
 
 
-def _check_records(frame: dict, result: FrameResult, warnings: list[str]) -> None:
+def _check_records(frame: FrameRecord, result: FrameResult, warnings: list[str]) -> None:
     """Warn when a frame no longer segments as the report says (its overlay would mislead)."""
-    def summary(kept: list[dict], dropped: list[dict]) -> list[tuple]:
-        return sorted([(r["plane"], r["pixels"], r.get("inliers"), r.get("reason")) for r in kept + dropped])
+    def summary(planes) -> list[tuple]:
+        return sorted((r.plane, r.pixels, r.inliers, r.reason) for r in planes)
 
-    if summary(result.kept, result.dropped) != summary(frame.get("kept", []), frame.get("dropped", [])):
+    if summary([*result.kept, *result.dropped]) != summary([*frame.kept, *frame.dropped]):
         message = (
-            f"{frame['depth']}: segments differently from report.json (inputs or annotate-rgbd changed "
+            f"{frame.depth}: segments differently from report.json (inputs or annotate-rgbd changed "
             "since the run?); the overlay shows what a run would make now"
         )
         warnings.append(message)

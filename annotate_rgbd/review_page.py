@@ -13,16 +13,17 @@ import html
 import json
 from collections.abc import Mapping
 
+from .records import RunRecord
 from .stats import run_stats
 
 
-def page_data(report: dict, overlays: Mapping[str, str]) -> dict:
+def page_data(report: RunRecord, overlays: Mapping[str, str]) -> dict:
     """The data the page embeds: plane list, sequence totals and one entry per written frame.
 
     Parameters
     ----------
-    report : dict
-        The content of ``report.json``.
+    report : RunRecord
+        The run's ``report.json``.
     overlays : mapping of str to str
         Mask path (as in the report) -> overlay path relative to the page, for the frames that
         have an overlay.
@@ -37,32 +38,32 @@ def page_data(report: dict, overlays: Mapping[str, str]) -> dict:
         ratio]`` in plane order.
     """
     frames = []
-    for index, frame in enumerate(report["frames"]):
-        if frame["status"] != "written":
+    for index, frame in enumerate(report.frames):
+        if not frame.written:
             continue
-        rows = [[r["plane"], "kept", None, r["pixels"], r["inliers"], r["inlier_ratio"]] for r in frame.get("kept", [])]
-        rows += [[r["plane"], "dropped", r.get("reason"), r["pixels"], 0, None] for r in frame.get("dropped", [])]
+        rows = [[r.plane, "kept", None, r.pixels, r.inliers, r.inlier_ratio] for r in frame.kept]
+        rows += [[r.plane, "dropped", r.reason, r.pixels, 0, None] for r in frame.dropped]
         frames.append({
             "index": index,
-            "depth": frame["depth"],
-            "rgb": frame.get("rgb"),
-            "part": frame.get("part"),
-            "cvat_frame": frame.get("cvat_frame"),
-            "mask": frame["mask"],
-            "overlay": overlays.get(frame["mask"]),
+            "depth": frame.depth,
+            "rgb": frame.rgb,
+            "part": frame.part,
+            "cvat_frame": frame.cvat_frame,
+            "mask": frame.mask,
+            "overlay": overlays.get(frame.mask),
             "planes": sorted(rows, key=lambda row: row[0]),
         })
-    planes = [{"plane": p["plane"], "colour": p["colour"], "label": p.get("label", "")} for p in report["planes"]]
+    planes = [{"plane": p.plane, "colour": p.colour, "label": p.label} for p in report.planes]
     return {"planes": planes, "stats": run_stats(report), "frames": frames}
 
 
-def render_review_page(report: dict, overlays: Mapping[str, str], title: str = "annotate-rgbd run") -> str:
+def render_review_page(report: RunRecord, overlays: Mapping[str, str], title: str = "annotate-rgbd run") -> str:
     """The review page of a run.
 
     Parameters
     ----------
-    report : dict
-        The content of ``report.json``.
+    report : RunRecord
+        The run's ``report.json``.
     overlays : mapping of str to str
         Mask path -> overlay path relative to the page (see :func:`page_data`).
     title : str

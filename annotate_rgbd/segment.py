@@ -16,6 +16,7 @@ from .camera import depth_to_metres
 from .config import Config
 from .filters import drop_reasons, label_histogram, plane_statistics
 from .rasterize import rasterize_frame
+from .records import PlaneRecord
 from .refine import refine_planes
 
 
@@ -29,14 +30,14 @@ class FrameResult:
         The refined mask: plane ids where a pixel lies on its plane, 0 elsewhere.
     drawn : ndarray of the same type, shape (H, W)
         The labeller's shapes as rasterised, before any depth check (for review overlays).
-    kept, dropped : list of dict
-        One report record per plane drawn on the frame.
+    kept, dropped : list of PlaneRecord
+        One record per plane drawn on the frame.
     """
 
     labels: np.ndarray
     drawn: np.ndarray
-    kept: list[dict] = field(default_factory=list)
-    dropped: list[dict] = field(default_factory=list)
+    kept: list[PlaneRecord] = field(default_factory=list)
+    dropped: list[PlaneRecord] = field(default_factory=list)
 
 
 def segment_frame(depth_raw: np.ndarray, shapes: Sequence[tuple[int, Shape]], config: Config) -> FrameResult:
@@ -68,23 +69,24 @@ def segment_frame(depth_raw: np.ndarray, shapes: Sequence[tuple[int, Shape]], co
     inlier_count = label_histogram(refined, int(drawn.max(initial=0)) + 1)
     result = FrameResult(labels=refined, drawn=drawn)
     for i, plane_id in enumerate(stats.plane_ids.tolist()):
-        record = {
-            "plane": plane_id,
-            "pixels": int(stats.pixels[i]),
-            "valid_pixels": int(stats.valid_pixels[i]),
-            "mean_distance": _rounded(stats.mean_distance[i]),
-        }
+        measured = dict(
+            plane=plane_id,
+            pixels=int(stats.pixels[i]),
+            valid_pixels=int(stats.valid_pixels[i]),
+            mean_distance=_rounded(stats.mean_distance[i]),
+        )
         if reasons[i] is None:
             inliers = int(inlier_count[plane_id])
-            record.update(
+            result.kept.append(PlaneRecord(
+                **measured,
                 inliers=inliers,
                 inlier_ratio=round(inliers / max(int(stats.valid_pixels[i]), 1), 6),
-                equation=[round(float(v), 9) for v in equations[plane_id]],
-            )
-            result.kept.append(record)
+                equation=tuple(round(float(v), 9) for v in equations[plane_id]),
+            ))
         else:
-            record.update(reason=reasons[i], invalid_ratio=round(float(stats.invalid_ratio[i]), 6))
-            result.dropped.append(record)
+            result.dropped.append(PlaneRecord(
+                **measured, reason=reasons[i], invalid_ratio=round(float(stats.invalid_ratio[i]), 6)
+            ))
     return result
 
 

@@ -9,16 +9,17 @@ planes, the dropped planes by reason and the mean RANSAC inlier ratio of the kep
 from __future__ import annotations
 
 import json
-from collections import Counter
+
+from .records import RunRecord, summarize
 
 
-def run_stats(report: dict) -> dict:
+def run_stats(report: RunRecord) -> dict:
     """Summary numbers of a run.
 
     Parameters
     ----------
-    report : dict
-        The content of ``report.json``.
+    report : RunRecord
+        The run's ``report.json`` (:func:`annotate_rgbd.review.read_report`).
 
     Returns
     -------
@@ -30,23 +31,20 @@ def run_stats(report: dict) -> dict:
         records of the written frames), ``mean_inlier_ratio`` (over the kept plane records;
         ``None`` without any).
     """
-    frames = report["frames"]
-    written = [f for f in frames if f["status"] == "written"]
-    kept = [r for f in written for r in f.get("kept", [])]
-    dropped = [r for f in written for r in f.get("dropped", [])]
-    ratios = [r["inlier_ratio"] for r in kept if r.get("inlier_ratio") is not None]
+    summary = summarize(report.frames)
+    written, kept = summary.masks_written, summary.planes_kept
     return {
-        "observations": len(written),
-        "total_planes": len(kept),
-        "planes_per_observation": round(len(kept) / len(written), 3) if written else 0.0,
-        "distinct_planes": len({r["plane"] for r in kept}),
-        "planes_annotated": len(report.get("planes", [])),
-        "depth_frames": len(frames),
-        "frames_skipped": dict(sorted(Counter(f.get("reason", "unknown") for f in frames if f["status"] == "skipped").items())),
-        "frames_failed": sum(1 for f in frames if f["status"] == "failed"),
-        "planes_dropped": len(dropped),
-        "dropped_by_reason": dict(sorted(Counter(r.get("reason", "unknown") for r in dropped).items())),
-        "mean_inlier_ratio": round(sum(ratios) / len(ratios), 4) if ratios else None,
+        "observations": written,
+        "total_planes": kept,
+        "planes_per_observation": round(kept / written, 3) if written else 0.0,
+        "distinct_planes": summary.distinct_planes,
+        "planes_annotated": len(report.planes),
+        "depth_frames": summary.depth_frames,
+        "frames_skipped": dict(sorted(summary.frames_skipped.items())),
+        "frames_failed": summary.frames_failed,
+        "planes_dropped": summary.planes_dropped,
+        "dropped_by_reason": summary.dropped_by_reason,
+        "mean_inlier_ratio": summary.mean_inlier_ratio,
     }
 
 

@@ -84,7 +84,7 @@ def timed_run(
     started = time.perf_counter()
     report = run_cvat2mask(sequence_dir, [annotations], out, config, workers=workers, force=True, progress=sample)
     elapsed = time.perf_counter() - started
-    assert report.counts["made"] == report.written > 0, report.counts
+    assert report.counts.made == report.written > 0, report.counts
     return elapsed
 
 

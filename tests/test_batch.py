@@ -15,7 +15,7 @@ from typer.testing import CliRunner
 from annotate_rgbd.manifest import read_manifest
 from annotate_rgbd.cli import app
 from annotate_rgbd.errors import InputError
-from annotate_rgbd.execute import JOURNAL
+from annotate_rgbd.resume import JOURNAL
 
 from conftest import REPO_ROOT, SAMPLE_DATA
 

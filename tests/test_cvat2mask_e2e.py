@@ -14,6 +14,7 @@ from typer.testing import CliRunner
 
 from annotate_rgbd.cli import app
 from annotate_rgbd.config import load_config
+from annotate_rgbd.execute import FrameCounts
 from annotate_rgbd.pipeline import run_cvat2mask
 
 from conftest import SAMPLE_DATA
@@ -55,11 +56,11 @@ def test_masks_match_the_ground_truth(sample_run):
     gt_of_plane = {int(r["plane_id"]): gt_value_of_track[int(r["track_id"])] for r in rows}
 
     ious, wrong, checked = [], 0, 0
-    written = [f for f in report.frames if f["status"] == "written"]
+    written = [f for f in report.frames if f.written]
     assert len(written) == 19
     for frame in written:
-        ours = read_mask_ids(out / frame["mask"], colour_to_plane)
-        gt = cv2.imread(str(GROUND_TRUTH / (frame["mask"].split("/")[-1])), cv2.IMREAD_UNCHANGED).astype(np.int64)
+        ours = read_mask_ids(out / frame.mask, colour_to_plane)
+        gt = cv2.imread(str(GROUND_TRUTH / (frame.mask.split("/")[-1])), cv2.IMREAD_UNCHANGED).astype(np.int64)
         ours_as_gt = np.vectorize(lambda p: gt_of_plane.get(p, 0))(ours) if ours.any() else ours
         for value in kept_values & set(np.unique(gt).tolist()):
             a, b = ours_as_gt == value, gt == value
@@ -78,9 +79,9 @@ def test_far_and_glass_planes_are_dropped_with_their_reason(sample_run):
     rows = {int(r["track_id"]): int(r["plane_id"]) for r in planes_table(out)}
     expected_drop = {rows[p["track_id"]]: p["reason"] for p in truth["planes"] if p["expected"] == "dropped"}
     assert set(expected_drop.values()) == {"too_far", "invalid_depth"}
-    for frame in (f for f in report.frames if f["status"] == "written"):
-        dropped = {d["plane"]: d["reason"] for d in frame["dropped"]}
-        kept = {k["plane"] for k in frame["kept"]}
+    for frame in (f for f in report.frames if f.written):
+        dropped = {d.plane: d.reason for d in frame.dropped}
+        kept = {k.plane for k in frame.kept}
         for plane, reason in expected_drop.items():
             assert plane not in kept
             if plane in dropped:
@@ -94,9 +95,9 @@ def test_one_colour_per_plane_through_the_sequence(sample_run):
     assert len({r["colour"] for r in rows}) == len(rows) == len(truth["planes"])
     colour_to_plane = {(int(r["r"]) << 16) | (int(r["g"]) << 8) | int(r["b"]): int(r["plane_id"]) for r in rows}
     gt_of_plane = {int(r["plane_id"]): int(r["track_id"]) + 1 for r in rows}
-    for frame in (f for f in report.frames if f["status"] == "written"):
-        ours = read_mask_ids(out / frame["mask"], colour_to_plane)
-        gt = cv2.imread(str(GROUND_TRUTH / frame["mask"].split("/")[-1]), cv2.IMREAD_UNCHANGED)
+    for frame in (f for f in report.frames if f.written):
+        ours = read_mask_ids(out / frame.mask, colour_to_plane)
+        gt = cv2.imread(str(GROUND_TRUTH / frame.mask.split("/")[-1]), cv2.IMREAD_UNCHANGED)
         for plane in set(np.unique(ours).tolist()) - {0}:
             values, counts = np.unique(gt[ours == plane], return_counts=True)
             assert values[np.argmax(counts)] == gt_of_plane[plane]  # the same physical plane every frame
@@ -133,26 +134,26 @@ def test_rerun_redoes_only_changed_frames(tmp_path):
     shutil.copytree(SEQUENCE, seq)
     config = load_config(SAMPLE_DATA / "camera.toml")
     first = run_cvat2mask(seq, [ANNOTATIONS], tmp_path / "out", config)
-    assert first.counts == {"made": 19, "reused": 0, "failed": 0}
+    assert first.counts == FrameCounts(made=19, reused=0, failed=0)
     before = {p.name: p.read_bytes() for p in (tmp_path / "out" / "masks").iterdir()}
     again = run_cvat2mask(seq, [ANNOTATIONS], tmp_path / "out", config)
-    assert again.counts == {"made": 0, "reused": 19, "failed": 0}
+    assert again.counts == FrameCounts(made=0, reused=19, failed=0)
     # A depth image changes: that frame only is made again.
-    depth_file = next(f for f in first.frames if f["status"] == "written")["depth"]
+    depth_file = next(f for f in first.frames if f.written).depth
     depth = cv2.imread(str(seq / depth_file), cv2.IMREAD_UNCHANGED)
     depth[:20] = 0
     cv2.imwrite(str(seq / depth_file), depth)
     third = run_cvat2mask(seq, [ANNOTATIONS], tmp_path / "out", config)
-    assert third.counts == {"made": 1, "reused": 18, "failed": 0}
+    assert third.counts == FrameCounts(made=1, reused=18, failed=0)
     # A mask is deleted: that frame only is made again, with the same bytes.
     lost = tmp_path / "out" / "masks" / Path(depth_file).name
     kept_bytes = lost.read_bytes()
     lost.unlink()
     fourth = run_cvat2mask(seq, [ANNOTATIONS], tmp_path / "out", config, workers=2)
-    assert fourth.counts == {"made": 1, "reused": 18, "failed": 0}
+    assert fourth.counts == FrameCounts(made=1, reused=18, failed=0)
     assert lost.read_bytes() == kept_bytes
     forced = run_cvat2mask(seq, [ANNOTATIONS], tmp_path / "out", config, force=True)
-    assert forced.counts == {"made": 19, "reused": 0, "failed": 0}
+    assert forced.counts == FrameCounts(made=19, reused=0, failed=0)
     after = {p.name: p.read_bytes() for p in (tmp_path / "out" / "masks").iterdir()}
     assert sum(before[name] != after[name] for name in before) == 1
 

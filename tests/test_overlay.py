@@ -16,6 +16,7 @@ from annotate_rgbd.overlay import (
     render_overlay,
     stripes,
 )
+from annotate_rgbd.records import PlaneRecord
 from annotate_rgbd.palette import plane_colours
 from annotate_rgbd.segment import FrameResult
 
@@ -35,8 +36,8 @@ def frame():
     result = FrameResult(
         labels=labels,
         drawn=drawn,
-        kept=[{"plane": 1, "pixels": int((drawn == 1).sum()), "inliers": int(labels.astype(bool).sum())}],
-        dropped=[{"plane": 2, "pixels": int((drawn == 2).sum()), "reason": "too_far"}],
+        kept=[PlaneRecord(1, int((drawn == 1).sum()), int((drawn == 1).sum()), 1.0, inliers=int(labels.astype(bool).sum()))],
+        dropped=[PlaneRecord(2, int((drawn == 2).sum()), int((drawn == 2).sum()), 5.0, reason="too_far")],
     )
     rgb = np.full((H, W, 3), GREY, dtype=np.uint8)
     colours = plane_colours(2)

@@ -122,10 +122,10 @@ def gt_planes_of_colours(out: Path, report, ground_truth: Path) -> dict[int, set
     rows = read_table(out / "planes.csv")
     plane_of_colour = {(int(r["r"]) << 16) | (int(r["g"]) << 8) | int(r["b"]): int(r["plane_id"]) for r in rows}
     seen: dict[int, set[int]] = {}
-    for frame in (f for f in report.frames if f["status"] == "written"):
-        rgb = cv2.cvtColor(cv2.imread(str(out / frame["mask"])), cv2.COLOR_BGR2RGB).astype(np.int64)
+    for frame in (f for f in report.frames if f.written):
+        rgb = cv2.cvtColor(cv2.imread(str(out / frame.mask)), cv2.COLOR_BGR2RGB).astype(np.int64)
         packed = (rgb[..., 0] << 16) | (rgb[..., 1] << 8) | rgb[..., 2]
-        gt = cv2.imread(str(ground_truth / Path(frame["mask"]).name), cv2.IMREAD_UNCHANGED)
+        gt = cv2.imread(str(ground_truth / Path(frame.mask).name), cv2.IMREAD_UNCHANGED)
         for colour in set(np.unique(packed).tolist()) - {0}:
             values, counts = np.unique(gt[packed == colour], return_counts=True)
             seen.setdefault(plane_of_colour[colour], set()).add(int(values[np.argmax(counts)]))
@@ -202,7 +202,7 @@ def test_overlapping_parts_give_one_colour_per_physical_plane(room, tmp_path, sp
     assert {float(r["iou"]) for r in rows if r["how"] == "auto"} == {1.0}
     assert_one_colour_per_physical_plane(gt_planes_of_colours(tmp_path / "out", report, room.ground_truth))
     # The later part wins from its first frame on.
-    owner = {f["rgb_index"]: f["part"] for f in report.frames if f["status"] == "written"}
+    owner = {f.rgb_index: f.part for f in report.frames if f.written}
     for earlier, later in itertools.pairwise(parts):
         start = int(later.name.split("-")[0])
         assert owner[start - 1] == earlier.name and owner[start] == later.name

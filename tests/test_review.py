@@ -22,6 +22,7 @@ from annotate_rgbd.cli import app
 from annotate_rgbd.config import load_config
 from annotate_rgbd.errors import InputError
 from annotate_rgbd.pipeline import run_cvat2mask
+from annotate_rgbd.records import PlaneInfo, RunRecord
 from annotate_rgbd.review import review_run
 from annotate_rgbd.review_page import page_data, render_review_page
 from annotate_rgbd.sequence import read_rgb
@@ -85,7 +86,8 @@ def test_review_warns_when_a_frame_no_longer_matches_the_report(finished_run, tm
 
 def test_review_of_a_run_without_masks_writes_only_the_page(tmp_path):
     report = {"inputs": {"sequence": "gone", "parts": []}, "config": {}, "planes": [],
-              "frames": [{"depth": "depth/1.png", "status": "skipped", "reason": "outside_annotated_range"}]}
+              "frames": [{"depth": "depth/1.png", "depth_timestamp": 1.0, "rgb": "rgb/1.png", "rgb_index": 0,
+                          "time_offset": 0.0, "status": "skipped", "reason": "outside_annotated_range"}]}
     (tmp_path / "report.json").write_text(json.dumps(report), encoding="utf-8")
     result = review_run(tmp_path)
     assert result.overlays == [] and result.sheet is None and result.page.is_file()
@@ -110,7 +112,7 @@ def test_page_without_overlays_refers_to_none(finished_run, tmp_path):
 
 def test_page_data_follows_the_report(finished_run):
     report = _report(finished_run)
-    data = page_data(report, {})
+    data = page_data(RunRecord.from_json(report), {})
     written = [(i, f) for i, f in enumerate(report["frames"]) if f["status"] == "written"]
     assert [f["index"] for f in data["frames"]] == [i for i, _ in written]
     for entry, (_, frame) in zip(data["frames"], written):
@@ -128,10 +130,7 @@ def test_page_is_self_contained_and_references_images_by_path(finished_run):
 
 
 def test_page_data_cannot_end_the_script_block():
-    report = {
-        "planes": [{"plane": 1, "colour": "#00ff00", "label": "</script><b>x"}],
-        "frames": [],
-    }
+    report = RunRecord("0", "seq", [], {}, [PlaneInfo(1, "#00ff00", "</script><b>x", "a.xml", 0)], 1, [], [])
     page = render_review_page(report, {}, title="<run>")
     assert "</script><b>" not in page and "&lt;run&gt;" in page
     assert _embedded_data(page)["planes"][0]["label"] == "</script><b>x"

@@ -7,36 +7,44 @@ import json
 from typer.testing import CliRunner
 
 from annotate_rgbd.cli import app
+from annotate_rgbd.records import RunRecord
 from annotate_rgbd.stats import format_stats, run_stats
 
 
 def _kept(plane: int, ratio: float) -> dict:
-    return {"plane": plane, "pixels": 100, "inliers": round(100 * ratio), "inlier_ratio": ratio}
+    return {"plane": plane, "pixels": 100, "valid_pixels": 100, "mean_distance": 1.0,
+            "inliers": round(100 * ratio), "inlier_ratio": ratio, "equation": [0.0, 0.0, -1.0, 1.0]}
 
 
 def _dropped(plane: int, reason: str) -> dict:
-    return {"plane": plane, "pixels": 50, "reason": reason}
+    return {"plane": plane, "pixels": 50, "valid_pixels": 5, "mean_distance": 4.0, "reason": reason}
+
+
+def _frame(index: int, status: str, **entries) -> dict:
+    frame = {"depth": f"d{index}.png", "depth_timestamp": float(index), "rgb": f"r{index}.png", "rgb_index": index,
+             "time_offset": 0.0, "status": status}
+    if status == "written":
+        frame.update(fingerprint="0" * 64, mask=f"masks/d{index}.png")
+    return {**frame, **entries}
 
 
 REPORT = {
     "inputs": {"sequence": "seq", "parts": []},
     "config": {},
-    "planes": [{"plane": k, "colour": "#000000", "label": f"p{k}"} for k in (1, 2, 3, 4)],
+    "planes": [{"plane": k, "colour": "#000000", "label": f"p{k}", "part": "a.xml", "track_id": k} for k in (1, 2, 3, 4)],
     "frames": [
-        {"depth": "d0.png", "status": "skipped", "reason": "outside_annotated_range"},
-        {"depth": "d1.png", "status": "written", "mask": "masks/d1.png",
-         "kept": [_kept(1, 0.9), _kept(2, 0.8)], "dropped": [_dropped(3, "too_far")]},
-        {"depth": "d2.png", "status": "written", "mask": "masks/d2.png",
-         "kept": [_kept(1, 1.0)], "dropped": [_dropped(3, "too_far"), _dropped(2, "invalid_depth")]},
-        {"depth": "d3.png", "status": "written", "mask": "masks/d3.png", "kept": [], "dropped": []},
-        {"depth": "d4.png", "status": "skipped", "reason": "no_rgb_frame_within_max_time_diff"},
-        {"depth": "d5.png", "status": "skipped", "reason": "outside_annotated_range"},
+        _frame(0, "skipped", reason="outside_annotated_range"),
+        _frame(1, "written", kept=[_kept(1, 0.9), _kept(2, 0.8)], dropped=[_dropped(3, "too_far")]),
+        _frame(2, "written", kept=[_kept(1, 1.0)], dropped=[_dropped(3, "too_far"), _dropped(2, "invalid_depth")]),
+        _frame(3, "written", kept=[], dropped=[]),
+        _frame(4, "skipped", reason="no_rgb_frame_within_max_time_diff"),
+        _frame(5, "skipped", reason="outside_annotated_range"),
     ],
 }
 
 
 def test_run_stats_counts_observations_planes_and_drops():
-    stats = run_stats(REPORT)
+    stats = run_stats(RunRecord.from_json(REPORT))
     assert stats["observations"] == 3
     assert stats["total_planes"] == 3
     assert stats["planes_per_observation"] == 1.0
@@ -50,7 +58,7 @@ def test_run_stats_counts_observations_planes_and_drops():
 
 
 def test_run_stats_of_a_run_without_masks():
-    stats = run_stats({"planes": [], "frames": [REPORT["frames"][0]]})
+    stats = run_stats(RunRecord.from_json({**REPORT, "planes": [], "frames": [REPORT["frames"][0]]}))
     assert stats["observations"] == 0 and stats["planes_per_observation"] == 0.0
     assert stats["mean_inlier_ratio"] is None
     last = format_stats(stats).splitlines()[-1]
@@ -58,7 +66,7 @@ def test_run_stats_of_a_run_without_masks():
 
 
 def test_format_stats_is_an_aligned_table():
-    lines = format_stats(run_stats(REPORT)).splitlines()
+    lines = format_stats(run_stats(RunRecord.from_json(REPORT))).splitlines()
     names = [line.rsplit("  ", 1)[0] for line in lines]
     assert len({len(name) for name in names}) == 1  # the values start in one column
     table = {name.strip(): line[len(name) + 2 :] for name, line in zip(names, lines)}
@@ -78,7 +86,7 @@ def test_stats_command_prints_table_and_json(tmp_path):
     assert table.output.startswith("observations (masks)")
     as_json = runner.invoke(app, ["stats", str(tmp_path), "--json"])
     assert as_json.exit_code == 0, as_json.output
-    assert json.loads(as_json.output) == run_stats(REPORT)
+    assert json.loads(as_json.output) == run_stats(RunRecord.from_json(REPORT))
 
 
 def test_stats_command_on_a_folder_without_a_run(tmp_path):

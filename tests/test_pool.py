@@ -1,4 +1,4 @@
-"""Running jobs in this process and in helper processes (annotate_rgbd.execute.run_jobs)."""
+"""Running jobs in this process and in helper processes (annotate_rgbd.pool.run_jobs)."""
 
 from __future__ import annotations
 
@@ -14,7 +14,16 @@ import cv2
 import pytest
 
 from annotate_rgbd.errors import InputError
-from annotate_rgbd.execute import helper_context, run_jobs, start_helpers
+from annotate_rgbd.pool import JobOutcome, helper_context, run_jobs, start_helpers
+
+
+def _pairs(outcomes) -> list[tuple[int, object]]:
+    """(index, value or error) of each JobOutcome, checking that exactly one of them is set."""
+    pairs = []
+    for outcome in outcomes:
+        assert isinstance(outcome, JobOutcome) and (outcome.value is None) != (outcome.error is None)
+        pairs.append((outcome.index, outcome.error if outcome.error is not None else outcome.value))
+    return pairs
 
 
 def square(job: tuple[int, int, float, float]) -> dict:
@@ -44,7 +53,7 @@ def test_helpers_are_forked_from_a_server_where_the_platform_allows():
 def test_every_job_runs_once_in_this_process_and_the_helper(helpers):
     threads = cv2.getNumThreads()
     jobs = [(value, os.getpid(), 0.02, 0.02) for value in range(60)]
-    results = list(run_jobs(jobs, square, helpers))
+    results = list(_pairs(run_jobs(jobs, square, helpers)))
     assert sorted(index for index, _ in results) == list(range(60))
     assert all(result["square"] == jobs[index][0] ** 2 for index, result in results)
     pids = {result["pid"] for _, result in results}
@@ -58,7 +67,7 @@ def test_queued_jobs_come_back_when_this_process_runs_out_of_work(helpers):
     # The helper is slow: instead of waiting for it to get through its queue, this process
     # takes back every job the helper has not started.
     jobs = [(value, os.getpid(), 0.01, 1.0) for value in range(12)]
-    results = list(run_jobs(jobs, square, helpers))
+    results = list(_pairs(run_jobs(jobs, square, helpers)))
     assert sorted(index for index, _ in results) == list(range(12))
     done_by_helper = sum(result["pid"] != os.getpid() for _, result in results)
     assert done_by_helper <= 3  # the job it was running and the one already passed to it
@@ -70,7 +79,7 @@ def test_helpers_leave_ctrl_c_to_the_main_process(helpers):
         os.kill(pid, signal.SIGINT)
     time.sleep(0.3)
     jobs = [(value, os.getpid(), 0.02, 0.02) for value in range(30)]
-    results = list(run_jobs(jobs, square, helpers))
+    results = list(_pairs(run_jobs(jobs, square, helpers)))
     assert sorted(index for index, _ in results) == list(range(30))
     assert {result["pid"] for _, result in results} - {os.getpid()} <= set(helpers._processes)
     assert len({result["pid"] for _, result in results}) == 2
@@ -78,14 +87,14 @@ def test_helpers_leave_ctrl_c_to_the_main_process(helpers):
 
 def test_input_errors_come_back_as_results(helpers):
     jobs = [(value, os.getpid(), 0.0, 0.0) for value in (-1, 2, -3, 4, 5, 6)]
-    results = dict(run_jobs(jobs, square, helpers))
+    results = dict(_pairs(run_jobs(jobs, square, helpers)))
     assert isinstance(results[0], InputError) and "job-1.png" in str(results[0])
     assert isinstance(results[2], InputError)
     assert results[1]["square"] == 4
 
 
 def test_without_helpers_this_process_does_everything():
-    results = list(run_jobs([(3, os.getpid(), 0.0, 0.0), (4, os.getpid(), 0.0, 0.0)], square, None))
+    results = list(_pairs(run_jobs([(3, os.getpid(), 0.0, 0.0), (4, os.getpid(), 0.0, 0.0)], square, None)))
     assert [(index, result["square"]) for index, result in results] == [(0, 9), (1, 16)]
     assert start_helpers(1) is None
 
@@ -96,7 +105,7 @@ def test_when_a_helper_dies_this_process_does_the_rest(caplog):
     try:
         jobs = [(value, os.getpid(), 0.01, -1) for value in range(40)]
         with caplog.at_level(logging.WARNING, logger="annotate_rgbd"):
-            results = list(run_jobs(jobs, square, pool))
+            results = list(_pairs(run_jobs(jobs, square, pool)))
     finally:
         pool.shutdown()
     assert sorted(index for index, _ in results) == list(range(40))
@@ -111,7 +120,7 @@ def test_helpers_exit_when_the_main_process_is_killed(tmp_path):
     script.write_text(textwrap.dedent("""
         import time
         from multiprocessing import forkserver
-        from annotate_rgbd.execute import start_helpers
+        from annotate_rgbd.pool import start_helpers
 
         if __name__ == "__main__":
             pool = start_helpers(3)

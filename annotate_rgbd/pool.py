@@ -1,0 +1,304 @@
+"""Helper processes: a pool of worker processes beside this one, and the loop that shares jobs.
+
+Generic machinery, with no knowledge of frames or masks: what helpers import before their first
+job is an argument (``preload``), jobs are picklable arguments of a module-level function, and
+each job's outcome comes back as a :class:`JobOutcome`. Used by
+:mod:`annotate_rgbd.execute` for frame jobs.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import importlib
+import logging
+import multiprocessing
+import os
+import platform
+import signal
+import threading
+from collections import deque
+from concurrent.futures import FIRST_COMPLETED, BrokenExecutor, ProcessPoolExecutor, wait
+from contextlib import contextmanager
+from dataclasses import dataclass
+from typing import Any, Callable, Iterator, Sequence
+
+from .errors import InputError
+
+log = logging.getLogger("annotate_rgbd")
+
+#: Jobs handed to each helper ahead of time (the ones it has not started go back to this
+#: process when nothing else is left).
+QUEUED_PER_HELPER = 4
+
+
+def default_workers() -> int:
+    """Number of worker processes by default: every core this process may use."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # pragma: no cover - not on Linux
+        return max(1, os.cpu_count() or 1)
+
+
+@dataclass(frozen=True)
+class JobOutcome:
+    """How one job ended: its ``value``, or the input ``error`` it raised.
+
+    Parameters
+    ----------
+    index : int
+        The job's position in the list given to :func:`run_jobs`.
+    value : object
+        What the worker function returned (None when it raised).
+    error : InputError or None
+        The problem with the job's input that the worker raised.
+    """
+
+    index: int
+    value: Any = None
+    error: InputError | None = None
+
+
+#: glibc's ``mallopt`` parameters (malloc.h) and the values :func:`reuse_freed_memory` sets.
+_M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3
+_MMAP_THRESHOLD = 32 * 2**20  # glibc's largest allowed value on 64-bit systems
+_TRIM_THRESHOLD = 128 * 2**20
+
+
+def reuse_freed_memory() -> bool:
+    """Let this process keep freed image-sized buffers for the next frame (glibc only).
+
+    Every frame allocates and frees the same few dozen image-sized arrays. By default glibc
+    gives large freed blocks back to the system, and the next frame then pays a page fault for
+    every 4 KiB page again: on a 2-core virtual machine a frame at 640x480 took 41 ms instead
+    of 31 ms. With higher mmap and trim thresholds the blocks stay in the heap and are reused;
+    the process keeps about one frame's working set (tens of MiB), whatever the sequence length.
+    The command line and the helper processes call this; it changes this whole process.
+
+    Returns
+    -------
+    bool
+        Whether the settings were applied (False where the C library is not glibc).
+    """
+    if platform.libc_ver()[0] != "glibc":
+        return False  # pragma: no cover - musl, macOS, Windows
+    libc = ctypes.CDLL(None)
+    return bool(libc.mallopt(_M_MMAP_THRESHOLD, _MMAP_THRESHOLD) and libc.mallopt(_M_TRIM_THRESHOLD, _TRIM_THRESHOLD))
+
+
+def helper_context(preload: Sequence[str] = ()) -> multiprocessing.context.BaseContext:
+    """How helper processes are started.
+
+    "forkserver" where the platform has it: a server process imports the ``preload`` modules
+    once and every helper is forked from it, so a helper is ready in milliseconds instead of the
+    ~2 s a new interpreter needs to import Open3D ("spawn"), and it inherits nothing of this
+    process's thread pools (forking a process that has run Open3D's OpenMP code is not safe).
+
+    Parameters
+    ----------
+    preload : sequence of str
+        Modules the server imports (the preload list is process-wide: the last call sets it).
+    """
+    if "forkserver" in multiprocessing.get_all_start_methods():
+        context = multiprocessing.get_context("forkserver")
+        context.set_forkserver_preload(list(preload))
+        return context
+    return multiprocessing.get_context("spawn")  # pragma: no cover - not on Linux
+
+
+def prepare_helpers(workers: int, preload: Sequence[str] = ()) -> None:
+    """Start, in the background, the server that helper processes are forked from.
+
+    Call it as early as possible (the command line calls it before importing the pipeline):
+    the server's imports then overlap this process's own, and :func:`start_helpers` finds it
+    ready. Does nothing when ``workers`` <= 1 or where helpers are spawned.
+    """
+    if workers > 1 and helper_context(preload).get_start_method() == "forkserver":
+        from multiprocessing import forkserver
+
+        forkserver.ensure_running()
+
+
+class HelperPool(ProcessPoolExecutor):
+    """A pool of ``size`` helper processes, started by :func:`helper_context`.
+
+    The processes are started in a background thread (while the helper server is still
+    importing, starting one waits for it); ``ready`` is set once they are running. Each runs
+    :func:`_start_helper` first, which imports the ``preload`` modules (already imported where
+    the helper was forked from a server that preloaded them).
+    """
+
+    def __init__(self, size: int, preload: Sequence[str] = ()):
+        super().__init__(
+            max_workers=size, mp_context=helper_context(preload), initializer=_start_helper, initargs=(tuple(preload),)
+        )
+        self.size = size
+        self.ready = threading.Event()
+        threading.Thread(target=self._start, name="annotate-rgbd-helpers", daemon=True).start()
+
+    def _start(self) -> None:
+        try:
+            for _ in range(self.size):  # the pool starts one process per task it is given
+                self.submit(_no_op)
+        except (BrokenExecutor, OSError) as exc:  # e.g. out of processes
+            log.warning("helper processes could not start (%s); working in one process", exc)
+            return
+        except RuntimeError:  # shut down before the helpers were up: nothing to start
+            return
+        self.ready.set()
+
+
+def start_helpers(workers: int, preload: Sequence[str] = ()) -> HelperPool | None:
+    """Start the ``workers - 1`` helper processes, in the background.
+
+    Started before the inputs are read and planned, the helpers get ready meanwhile (see
+    :func:`prepare_helpers` to start their server earlier still). Shut the pool down when done
+    (``pool.shutdown()``, or use it in a ``with`` block).
+
+    Parameters
+    ----------
+    workers : int
+        Processes in all, this one included.
+    preload : sequence of str
+        Modules every helper imports before its first job (those the jobs' function needs).
+
+    Returns
+    -------
+    HelperPool or None
+        None when ``workers`` <= 1.
+    """
+    if workers <= 1:
+        return None
+    prepare_helpers(workers, preload)
+    return HelperPool(workers - 1, preload)
+
+
+def run_jobs(
+    jobs: Sequence,
+    worker: Callable,
+    helpers: HelperPool | None,
+) -> Iterator[JobOutcome]:
+    """Run ``worker(job)`` for every job, in this process and in the helper processes.
+
+    This process works too: it takes jobs itself until the helpers are ready and whenever
+    they have enough queued, and at the end it takes back the jobs no helper has started. If a
+    helper dies, this process does its jobs and all that remain.
+
+    Parameters
+    ----------
+    jobs : sequence
+        Picklable arguments, one per task.
+    worker : callable
+        A module-level function (so that it can be sent to other processes); it returns a
+        picklable value, or raises :class:`InputError` for a problem with that job's input.
+    helpers : HelperPool or None
+        From :func:`start_helpers`; None: only this process works.
+
+    Yields
+    ------
+    JobOutcome
+        One per job, in completion order.
+    """
+    pending = deque(enumerate(jobs))
+    if helpers is None or len(jobs) <= 1:
+        for index, job in pending:
+            yield _call(worker, index, job)
+        return
+    try:
+        with _one_thread_each():
+            yield from _share(pending, worker, helpers)
+    except BaseException:
+        helpers.shutdown(wait=False, cancel_futures=True)
+        raise
+
+
+def _share(pending: deque, worker: Callable, helpers: HelperPool) -> Iterator[JobOutcome]:
+    """The loop of :func:`run_jobs` with helpers: ``pending`` holds ``(index, job)`` pairs."""
+    # Enough queued that a helper never waits for this process to finish its own job.
+    queue_length = QUEUED_PER_HELPER * helpers.size
+    in_flight: dict = {}
+    helpers_alive = True
+    while pending or in_flight:
+        while helpers_alive and pending and len(in_flight) < queue_length and helpers.ready.is_set():
+            index, job = pending.popleft()
+            try:
+                in_flight[helpers.submit(_call, worker, index, job)] = (index, job)
+            except BrokenExecutor:
+                pending.appendleft((index, job))
+                helpers_alive = False
+        for future in [f for f in in_flight if f.done()]:
+            index, job = in_flight.pop(future)
+            try:
+                result = future.result()
+            except BrokenExecutor as exc:
+                # A helper died (killed, out of memory): its jobs and the rest are done here
+                # (a job's outputs are written atomically, so doing it again is safe).
+                if helpers_alive:
+                    log.warning("a helper process stopped (%s); the remaining frames are made in this process", exc)
+                helpers_alive = False
+                pending.appendleft((index, job))
+                continue
+            yield result
+        if pending:
+            index, job = pending.popleft()
+            yield _call(worker, index, job)
+            continue
+        # Nothing left to hand out: take back the queued jobs no helper has started and do them
+        # here, rather than wait for the helpers to get through their queues.
+        for future in reversed(list(in_flight)):
+            if future.cancel():
+                index, job = in_flight.pop(future)
+                yield _call(worker, index, job)
+                break
+        else:
+            if in_flight:
+                wait(in_flight, return_when=FIRST_COMPLETED)
+
+
+@contextmanager
+def _one_thread_each() -> Iterator[None]:
+    """OpenCV single-threaded in this process while helpers work beside it: its thread pool
+    would compete with them for the cores (2 workers on 2 cores: 7 % slower)."""
+    import cv2  # loaded already by the frame jobs; this module stays light for the CLI's start
+
+    threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    try:
+        yield
+    finally:
+        cv2.setNumThreads(threads)
+
+
+def _start_helper(preload: tuple[str, ...]) -> None:
+    """First thing in every helper process: import what the jobs need (nothing to do where the
+    helper was forked from a server that imported it), reuse freed buffers, run OpenCV in one
+    thread (see :func:`_one_thread_each`), leave Ctrl-C to the main process, and exit when the
+    main process dies (killed with SIGKILL, it cannot tell its helpers to stop; they would wait
+    for work forever and keep their server alive)."""
+    for module in preload:
+        importlib.import_module(module)
+    reuse_freed_memory()
+    import cv2  # imported by the jobs in any case
+
+    cv2.setNumThreads(1)  # one of several processes sharing the cores
+    # Ctrl-C reaches the whole process group: the main process stops the helpers (after their
+    # current frame), so they do not print tracebacks of their own.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    parent = multiprocessing.parent_process()
+    if parent is not None:
+        threading.Thread(target=_exit_after, args=(parent,), name="annotate-rgbd-watch", daemon=True).start()
+
+
+def _exit_after(parent: multiprocessing.process.BaseProcess) -> None:
+    parent.join()
+    os._exit(1)
+
+
+def _no_op() -> None:
+    """A task that only makes the pool start a process."""
+
+
+def _call(worker: Callable, index: int, job) -> JobOutcome:
+    try:
+        return JobOutcome(index, value=worker(job))
+    except InputError as exc:
+        return JobOutcome(index, error=exc)
