@@ -152,7 +152,7 @@ def run_frame_job(task: FrameTask) -> FrameOutcome:
     """
     job, colours = task.job, task.colours
     depth_file = read_bytes(job.depth_path)
-    made_from = fingerprint(job, task.config, depth_file)
+    made_from = fingerprint(job.shapes, job.image_size, task.config, depth_file)
     if made_from == task.recorded and all(p.is_file() for p in job.outputs):
         return FrameOutcome(made_from)
     result = segment_job(job, task.config, depth_file)

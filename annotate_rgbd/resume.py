@@ -20,29 +20,32 @@ import hashlib
 import json
 from functools import lru_cache
 from pathlib import Path
-from typing import TYPE_CHECKING, TextIO
+from typing import Sequence, TextIO
 
 import numpy as np
 
 from . import __version__
+from .annotation import Shape
 from .config import Config, config_to_dict
 from .errors import OutputError
 from .records import WRITTEN, MaskRecord, RecordError
-
-if TYPE_CHECKING:  # the frame job imports this module
-    from .frame_job import FrameJob
 
 #: The journal of finished frames, in the output folder.
 JOURNAL = ".annotate-rgbd-journal.jsonl"
 REPORT = "report.json"
 
 
-def fingerprint(job: FrameJob, config: Config, depth: bytes | np.ndarray) -> str:
+def fingerprint(
+    shapes: Sequence[tuple[int, Shape]], image_size: tuple[int, int] | None, config: Config, depth: bytes | np.ndarray
+) -> str:
     """Hash of everything one mask depends on.
 
     Parameters
     ----------
-    job : FrameJob
+    shapes : sequence of (int, Shape)
+        The frame's ``(plane id, shape)`` pairs, in drawing order.
+    image_size : (int, int) or None
+        (width, height) of the annotated image, where the export states it.
     config : Config
     depth : bytes or ndarray of uint8
         The bytes of the job's depth image file.
@@ -54,8 +57,8 @@ def fingerprint(job: FrameJob, config: Config, depth: bytes | np.ndarray) -> str
     """
     digest = hashlib.blake2b(_mask_settings(config), digest_size=32)
     digest.update(depth)
-    digest.update(json.dumps(job.image_size).encode())
-    for plane_id, shape in job.shapes:
+    digest.update(json.dumps(image_size).encode())
+    for plane_id, shape in shapes:
         digest.update(f"{plane_id}:{shape.kind}:{shape.z_order}:".encode())
         digest.update(np.ascontiguousarray(shape.points, dtype=np.float64).tobytes())
         if shape.bitmap is not None:
