@@ -74,18 +74,23 @@ def run_batch(
             progress = progress_for(spec.name) if progress_for else None
             runs.append((outcome, SceneRun(spec.name, plan, spec.out, config, progress)))
         execute_scenes([run for _, run in runs], helpers, force=force)
+        if helpers is not None:
+            helpers.shutdown(cancel_futures=True)
+            helpers = None
+        for outcome, run in runs:
+            if run.error is not None:
+                outcome.error = str(run.error)
+                continue
+            try:
+                finish_scene(run)
+                outcome.run = run
+            except InputError as exc:
+                outcome.error = str(exc)
     finally:
         if helpers is not None:
             helpers.shutdown(cancel_futures=True)
-    for outcome, run in runs:
-        if run.error is not None:
-            outcome.error = str(run.error)
-            continue
-        try:
-            finish_scene(run)
-            outcome.run = run
-        except InputError as exc:
-            outcome.error = str(exc)
+        for _, run in runs:
+            run.release()
     return outcomes
 
 

@@ -12,9 +12,12 @@ from typing import TYPE_CHECKING, Callable, Sequence
 
 from .config import Config
 from .errors import InputError, OutputError
-from .pool import HelperPool, default_workers, prepare_helpers, reuse_freed_memory, run_jobs, start_helpers
-from .records import FAILED, UNREADABLE_DEPTH, FrameRecord, MaskRecord
-from .resume import Journal, previous_results
+from .outdir import OutputLock, check_output_names
+from .pool import (
+    STALL_TIMEOUT, HelperPool, JobTimeout, default_workers, prepare_helpers, reuse_freed_memory, run_jobs, start_helpers,
+)
+from .records import FAILED, TIMED_OUT, UNREADABLE_DEPTH, FrameRecord, MaskRecord
+from .resume import Journal, Previous, previous_results
 
 if TYPE_CHECKING:  # the plan's modules import Open3D, which this module leaves to the helpers' server
     from .plan import RunPlan
@@ -75,6 +78,8 @@ class SceneRun:
         Filled in.
     error : InputError, optional
         Set when a fatal problem stopped the scene (its other frames are then not made).
+    previous : Previous
+        What earlier runs in ``out_dir`` recorded (read when the scene starts).
     """
 
     name: str
@@ -84,6 +89,32 @@ class SceneRun:
     progress: Callable[[int, int], None] | None = None
     counts: FrameCounts = field(default_factory=FrameCounts)
     error: InputError | None = None
+    previous: Previous = field(default_factory=Previous)
+    _lock: OutputLock | None = field(default=None, repr=False)
+
+    def open(self, force: bool) -> None:
+        """Take the output folder for this run: create it, check it holds no links where the
+        run writes, lock it, and read what earlier runs recorded there (unless ``force``).
+
+        Raises
+        ------
+        OutputError
+        """
+        from .writer import prepare_output  # OpenCV: not for the command line's start
+
+        prepare_output(self.out_dir)
+        check_output_names(self.out_dir)
+        lock = OutputLock(self.out_dir)
+        lock.acquire()
+        self._lock = lock
+        recorded = previous_results(self.out_dir)
+        self.previous = Previous(files=recorded.files) if force else recorded
+
+    def release(self) -> None:
+        """Release the output folder (idempotent)."""
+        if self._lock is not None:
+            self._lock.release()
+            self._lock = None
 
     @property
     def frames(self) -> list[FrameRecord]:
@@ -120,7 +151,9 @@ class SceneRun:
             self.progress(self.counts.done, len(self.plan.jobs))
 
 
-def execute_scenes(scenes: Sequence[SceneRun], helpers: HelperPool | None = None, force: bool = False) -> None:
+def execute_scenes(
+    scenes: Sequence[SceneRun], helpers: HelperPool | None = None, force: bool = False, job_timeout: float = STALL_TIMEOUT
+) -> None:
     """Make the masks of several scenes with one pool of workers, reusing unchanged masks.
 
     Fills in every frame's record. Each finished frame is appended to its scene's journal
@@ -134,29 +167,36 @@ def execute_scenes(scenes: Sequence[SceneRun], helpers: HelperPool | None = None
         Helper processes (:func:`start_frame_helpers`) working beside this one.
     force : bool
         Redo every frame, even those unchanged since an earlier run.
+    job_timeout : float
+        Seconds without any frame finished by a helper after which the helpers are taken to hang
+        and are replaced (:func:`annotate_rgbd.pool.run_jobs`); a frame that hangs twice fails.
     """
     # Not at the top: Open3D and OpenCV would slow the command line's start (see prepare_process).
     from .frame_job import FrameTask, SizeMismatch, run_frame_job
-    from .writer import prepare_output
 
     tasks: list[FrameTask] = []
     owners: list[tuple[SceneRun, int, MaskRecord | None]] = []
     for scene in scenes:
         try:
-            prepare_output(scene.out_dir)
+            scene.open(force)
         except OutputError as exc:
             scene.error = exc  # this scene only: the others may write elsewhere
             continue
-        previous = {} if force else previous_results(scene.out_dir)
         for index, job in scene.plan.jobs:
-            recorded = previous.get(job.mask_path.name)
-            tasks.append(FrameTask(job, scene.config, scene.plan.colours, recorded.fingerprint if recorded else None))
+            recorded = scene.previous.masks.get(job.mask_path.name)
+            tasks.append(FrameTask(job, scene.config, scene.plan.colours, recorded))
             owners.append((scene, index, recorded))
     for scene in scenes:
         scene._step()
-    journals = {id(scene): Journal(scene.out_dir) for scene in scenes if scene.error is None}
+    journals = {}
+    for scene in scenes:
+        if scene.error is None:
+            try:
+                journals[id(scene)] = Journal(scene.out_dir)
+            except OutputError as exc:
+                scene.error = exc
     try:
-        for outcome in run_jobs(tasks, run_frame_job, helpers):
+        for outcome in run_jobs(tasks, run_frame_job, helpers, job_timeout):
             scene, index, recorded = owners[outcome.index]
             if scene.error is not None:
                 continue
@@ -164,11 +204,14 @@ def execute_scenes(scenes: Sequence[SceneRun], helpers: HelperPool | None = None
             mask = f"masks/{job.mask_path.name}"
             if isinstance(outcome.error, (SizeMismatch, OutputError)):
                 scene.error = outcome.error
+            elif isinstance(outcome.error, JobTimeout):
+                frame.fail(TIMED_OUT, f"{job.depth_path}: {outcome.error}")
+                scene.counts.failed += 1
             elif outcome.error is not None:
                 frame.fail(UNREADABLE_DEPTH, str(outcome.error))
                 scene.counts.failed += 1
             elif outcome.value.reused:
-                frame.write(recorded, mask)
+                frame.write(recorded.only(job.output_names), mask)
                 scene.counts.reused += 1
             else:
                 frame.write(outcome.value.made, mask)

@@ -14,6 +14,7 @@ import numpy as np
 from .annotation import Shape
 from .config import Config
 from .errors import InputError
+from .outdir import data_digest, file_digest
 from .palette import colourize
 from .records import MaskRecord
 from .resume import fingerprint
@@ -63,6 +64,27 @@ class FrameJob:
         """The files this job writes."""
         return [p for p in (self.mask_path, self.raw_mask_path, self.overlay_path) if p is not None]
 
+    @property
+    def output_names(self) -> set[str]:
+        """The files this job writes, relative to the output folder (``masks/<name>``, ...)."""
+        return {relative_output(p) for p in self.outputs}
+
+
+def relative_output(path: Path) -> str:
+    """A per-frame output's path relative to the output folder: ``<folder>/<name>``."""
+    return f"{path.parent.name}/{path.name}"
+
+
+def up_to_date(job: FrameJob, made_from: str, recorded: MaskRecord | None) -> bool:
+    """Whether the job's outputs are those recorded for the same inputs: the fingerprint
+    matches and every output file still has the recorded bytes (a file rewritten since, by an
+    interrupted run with other settings or by hand, is made anew)."""
+    if recorded is None or recorded.fingerprint != made_from:
+        return False
+    digests = dict(recorded.outputs)
+    return all(digests.get(relative_output(p)) is not None and file_digest(p) == digests[relative_output(p)]
+               for p in job.outputs)
+
 
 @dataclass(frozen=True)
 class FrameTask:
@@ -74,15 +96,15 @@ class FrameTask:
     config : Config
     colours : ndarray of uint8, shape (n_planes, 3)
         The plane palette.
-    recorded : str or None
-        The fingerprint recorded when the frame's outputs were last written (None: make them
-        in any case).
+    recorded : MaskRecord or None
+        What was recorded when the frame's outputs were last written (None: make them in any
+        case).
     """
 
     job: FrameJob
     config: Config
     colours: np.ndarray
-    recorded: str | None = None
+    recorded: MaskRecord | None = None
 
 
 @dataclass(frozen=True)
@@ -153,17 +175,20 @@ def run_frame_job(task: FrameTask) -> FrameOutcome:
     job, colours = task.job, task.colours
     depth_file = read_bytes(job.depth_path)
     made_from = fingerprint(job.shapes, job.image_size, task.config, depth_file)
-    if made_from == task.recorded and all(p.is_file() for p in job.outputs):
+    if up_to_date(job, made_from, task.recorded):
         return FrameOutcome(made_from)
     result = segment_job(job, task.config, depth_file)
+    written = {}
     if job.raw_mask_path is not None:
-        write_png(job.raw_mask_path, colourize(result.drawn, colours))
+        written[job.raw_mask_path] = write_png(job.raw_mask_path, colourize(result.drawn, colours))
     if job.overlay_path is not None:
         from .overlay import overlay_for_frame  # only when overlays are wanted (SciPy is slow to import)
 
-        write_png(job.overlay_path, overlay_for_frame(job.rgb_path, result, colours))
-    write_png(job.mask_path, colourize(result.labels, colours))
-    return FrameOutcome(made_from, MaskRecord(made_from, tuple(result.kept), tuple(result.dropped)))
+        written[job.overlay_path] = write_png(job.overlay_path, overlay_for_frame(job.rgb_path, result, colours))
+    # The mask last: a frame whose mask exists has all its outputs.
+    written[job.mask_path] = write_png(job.mask_path, colourize(result.labels, colours))
+    outputs = tuple(sorted((relative_output(p), data_digest(data)) for p, data in written.items()))
+    return FrameOutcome(made_from, MaskRecord(made_from, tuple(result.kept), tuple(result.dropped), outputs))
 
 
 class SizeMismatch(InputError):

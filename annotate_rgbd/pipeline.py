@@ -8,16 +8,19 @@ tables, report, stale files removed).
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 from typing import Callable, Mapping, Sequence as SequenceType
 
 from .config import Config
 from .execute import SceneRun, execute_scenes, start_frame_helpers
-from .frame_job import OVERLAY_DIR
-from .plan import RunPlan, plan_run
+from .outdir import remove_review_files, remove_stale_files
+from .plan import plan_run
 from .report import run_record, write_tables
 from .resume import REPORT, remove_journal
 from .writer import write_json
+
+log = logging.getLogger("annotate_rgbd")
 
 
 def run_cvat2mask(
@@ -72,42 +75,45 @@ def run_cvat2mask(
         placed, sizes that do not match): nothing sensible can be produced.
     """
     helpers = start_frame_helpers(workers)
+    scene = None
     try:
         plan = plan_run(sequence_dir, annotation_paths, out_dir, config, offsets, raw_masks, overlays)
         scene = SceneRun(Path(sequence_dir).name, plan, Path(out_dir), config, progress)
         execute_scenes([scene], helpers, force=force)
+        if helpers is not None:
+            helpers.shutdown(cancel_futures=True)
+            helpers = None
+        if scene.error is not None:
+            raise scene.error
+        finish_scene(scene)
     finally:
         if helpers is not None:
             helpers.shutdown(cancel_futures=True)
-    if scene.error is not None:
-        raise scene.error
-    finish_scene(scene)
+        if scene is not None:
+            scene.release()
     return scene
 
 
 def finish_scene(scene: SceneRun) -> None:
-    """Write a scene's tables and report, remove stale outputs and the journal."""
+    """Remove stale outputs, write a scene's tables and report, then remove the journal."""
     plan = scene.plan
+    remove_stale_outputs(scene)
     write_tables(scene.out_dir, plan.tracks, plan.colours)
     write_json(scene.out_dir / REPORT, run_record(plan, scene.config).to_json())
-    remove_stale_outputs(scene.out_dir, plan)
     remove_journal(scene.out_dir)
 
 
-def remove_stale_outputs(out_dir: Path, plan: RunPlan) -> None:
-    """Delete what this run did not write: masks of frames now skipped or failed, raw masks and
-    overlays that were not asked for, a review page and contact sheet of an earlier run, and
-    temporary files."""
-    written = {Path(f.mask).name for f in plan.frames if f.written}
-    raw_written = written if any(job.raw_mask_path for _, job in plan.jobs) else set()
-    overlays_written = written if any(job.overlay_path for _, job in plan.jobs) else set()
-    for folder, keep in (("masks", written), ("masks_raw", raw_written), (OVERLAY_DIR, overlays_written)):
-        for path in (out_dir / folder).glob("*"):
-            temporary = path.name.startswith(".") and path.name.endswith(".tmp")
-            if temporary or (path.suffix == ".png" and path.name not in keep):
-                path.unlink(missing_ok=True)
-        if not keep and (out_dir / folder).is_dir() and not any((out_dir / folder).iterdir()):
-            (out_dir / folder).rmdir()
-    # They show the masks of an earlier run (cvat2mask --overlays and review write them anew).
-    for name in ("review.html", "contact_sheet.png"):
-        (out_dir / name).unlink(missing_ok=True)
+def remove_stale_outputs(scene: SceneRun) -> None:
+    """Delete the files an earlier run wrote into the scene's folder that this run did not:
+    masks of frames now skipped or failed, raw masks and overlays not asked for, the review
+    page and contact sheet of an earlier run (they show its masks), and temporary files. Files
+    annotate-rgbd did not write are left alone, with a warning."""
+    keep = {path for f in scene.frames if f.written for path, _ in f.result.outputs}
+    keep |= {f.mask for f in scene.frames if f.written}  # records of earlier versions list no outputs
+    cleanup = remove_stale_files(scene.out_dir, scene.previous.files, keep)
+    cleanup.foreign += remove_review_files(scene.out_dir)
+    for line in cleanup.removals():
+        log.info(line)
+    for line in cleanup.warnings():
+        scene.plan.warnings.append(line)
+        log.warning(line)

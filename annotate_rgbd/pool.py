@@ -16,8 +16,9 @@ import os
 import platform
 import signal
 import threading
+import time
 from collections import deque
-from concurrent.futures import FIRST_COMPLETED, BrokenExecutor, ProcessPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, BrokenExecutor, Future, ProcessPoolExecutor, wait
 from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any, Callable, Iterator, Sequence
@@ -29,6 +30,13 @@ log = logging.getLogger("annotate_rgbd")
 #: Jobs handed to each helper ahead of time (the ones it has not started go back to this
 #: process when nothing else is left).
 QUEUED_PER_HELPER = 4
+#: Seconds without any finished helper job, while this process waits for them, after which the
+#: helpers are taken to hang (a frame takes tens of milliseconds; the slowest seen, a
+#: 2000x1500 frame with hundreds of planes, a few seconds).
+STALL_TIMEOUT = 60.0
+#: Times the helpers are restarted in one call of :func:`run_jobs` before this process does
+#: the remaining jobs alone.
+MAX_RESTARTS = 3
 
 
 def default_workers() -> int:
@@ -118,8 +126,9 @@ def prepare_helpers(workers: int, preload: Sequence[str] = ()) -> None:
         forkserver.ensure_running()
 
 
-class HelperPool(ProcessPoolExecutor):
-    """A pool of ``size`` helper processes, started by :func:`helper_context`.
+class HelperPool:
+    """A pool of ``size`` helper processes, started by :func:`helper_context`, that can be
+    restarted when a helper dies or hangs.
 
     The processes are started in a background thread (while the helper server is still
     importing, starting one waits for it); ``ready`` is set once they are running. Each runs
@@ -128,23 +137,60 @@ class HelperPool(ProcessPoolExecutor):
     """
 
     def __init__(self, size: int, preload: Sequence[str] = ()):
-        super().__init__(
-            max_workers=size, mp_context=helper_context(preload), initializer=_start_helper, initargs=(tuple(preload),)
-        )
         self.size = size
+        self.preload = tuple(preload)
         self.ready = threading.Event()
-        threading.Thread(target=self._start, name="annotate-rgbd-helpers", daemon=True).start()
+        self._executor = self._start_executor()
 
-    def _start(self) -> None:
+    def _start_executor(self) -> ProcessPoolExecutor:
+        executor = ProcessPoolExecutor(
+            max_workers=self.size, mp_context=helper_context(self.preload), initializer=_start_helper,
+            initargs=(self.preload,),
+        )
+        self.ready.clear()
+        threading.Thread(target=self._start, args=(executor,), name="annotate-rgbd-helpers", daemon=True).start()
+        return executor
+
+    def _start(self, executor: ProcessPoolExecutor) -> None:
         try:
             for _ in range(self.size):  # the pool starts one process per task it is given
-                self.submit(_no_op)
+                executor.submit(_no_op)
         except (BrokenExecutor, OSError) as exc:  # e.g. out of processes
             log.warning("helper processes could not start (%s); working in one process", exc)
             return
         except RuntimeError:  # shut down before the helpers were up: nothing to start
             return
         self.ready.set()
+
+    @property
+    def processes(self) -> dict[int, multiprocessing.process.BaseProcess]:
+        """The running helper processes by process id."""
+        return dict(self._executor._processes or {})
+
+    def submit(self, fn: Callable, *args) -> Future:
+        """Run ``fn(*args)`` in a helper (see :meth:`concurrent.futures.Executor.submit`)."""
+        return self._executor.submit(fn, *args)
+
+    def restart(self) -> None:
+        """Kill the helpers (their unfinished jobs are lost) and start new ones."""
+        for process in self.processes.values():
+            process.kill()
+        self._executor.shutdown(wait=False, cancel_futures=True)
+        self._executor = self._start_executor()
+
+    def shutdown(self, wait: bool = True, cancel_futures: bool = False) -> None:
+        """Stop the helpers once their current jobs are done (see ``Executor.shutdown``)."""
+        self._executor.shutdown(wait=wait, cancel_futures=cancel_futures)
+
+    def __enter__(self) -> HelperPool:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.shutdown()
+
+
+class JobTimeout(InputError):
+    """A job that hung its helper twice: given up (the job's input is the likely cause)."""
 
 
 def start_helpers(workers: int, preload: Sequence[str] = ()) -> HelperPool | None:
@@ -176,12 +222,17 @@ def run_jobs(
     jobs: Sequence,
     worker: Callable,
     helpers: HelperPool | None,
+    stall_timeout: float = STALL_TIMEOUT,
 ) -> Iterator[JobOutcome]:
     """Run ``worker(job)`` for every job, in this process and in the helper processes.
 
     This process works too: it takes jobs itself until the helpers are ready and whenever
-    they have enough queued, and at the end it takes back the jobs no helper has started. If a
-    helper dies, this process does its jobs and all that remain.
+    they have enough queued, and at the end it takes back the jobs no helper has started.
+    If a helper dies (killed, out of memory) or no helper finishes a job for ``stall_timeout``
+    seconds while this process has nothing else to do (a helper stopped or hung), the helpers
+    are restarted (at most :data:`MAX_RESTARTS` times, then this process does the rest) and
+    their unfinished jobs are done again, with a warning; a job that was running during two
+    such stalls is given up (:class:`JobTimeout`).
 
     Parameters
     ----------
@@ -192,6 +243,8 @@ def run_jobs(
         picklable value, or raises :class:`InputError` for a problem with that job's input.
     helpers : HelperPool or None
         From :func:`start_helpers`; None: only this process works.
+    stall_timeout : float
+        Seconds without any finished helper job after which the helpers are taken to hang.
 
     Yields
     ------
@@ -205,18 +258,47 @@ def run_jobs(
         return
     try:
         with _one_thread_each():
-            yield from _share(pending, worker, helpers)
+            yield from _share(pending, worker, helpers, stall_timeout)
     except BaseException:
         helpers.shutdown(wait=False, cancel_futures=True)
         raise
 
 
-def _share(pending: deque, worker: Callable, helpers: HelperPool) -> Iterator[JobOutcome]:
+def _share(pending: deque, worker: Callable, helpers: HelperPool, stall_timeout: float) -> Iterator[JobOutcome]:
     """The loop of :func:`run_jobs` with helpers: ``pending`` holds ``(index, job)`` pairs."""
     # Enough queued that a helper never waits for this process to finish its own job.
     queue_length = QUEUED_PER_HELPER * helpers.size
-    in_flight: dict = {}
+    in_flight: dict[Future, tuple[int, object]] = {}
+    stalls: dict[int, int] = {}  # job index -> stalls it was running in
+    restarts = 0
     helpers_alive = True
+    last_progress = time.monotonic()
+
+    def take_back(problem: str) -> Iterator[JobOutcome]:
+        """Restart the helpers (or give them up) and queue their unfinished jobs again."""
+        nonlocal restarts, helpers_alive, last_progress
+        given_up = []
+        for future, (index, job) in list(in_flight.items()):
+            if problem == "hung" and future.running():
+                stalls[index] = stalls.get(index, 0) + 1
+                if stalls[index] >= 2:
+                    given_up.append(index)
+                    continue
+            pending.appendleft((index, job))
+        in_flight.clear()
+        if restarts < MAX_RESTARTS:
+            restarts += 1
+            what = "the helpers were restarted"
+            helpers.restart()
+        else:
+            what = "the remaining jobs are done in this process"
+            helpers_alive = False
+        log.warning("a helper process %s; its unfinished jobs are done again and %s", problem, what)
+        last_progress = time.monotonic()
+        for index in given_up:
+            message = f"hung a helper process twice ({stall_timeout:g} s without progress); given up"
+            yield JobOutcome(index, error=JobTimeout(None, message))
+
     while pending or in_flight:
         while helpers_alive and pending and len(in_flight) < queue_length and helpers.ready.is_set():
             index, job = pending.popleft()
@@ -224,20 +306,23 @@ def _share(pending: deque, worker: Callable, helpers: HelperPool) -> Iterator[Jo
                 in_flight[helpers.submit(_call, worker, index, job)] = (index, job)
             except BrokenExecutor:
                 pending.appendleft((index, job))
-                helpers_alive = False
-        for future in [f for f in in_flight if f.done()]:
-            index, job = in_flight.pop(future)
+                yield from take_back("stopped")
+                break
+        broken = False
+        for future in [f for f in in_flight if f.done() and not f.cancelled()]:
             try:
                 result = future.result()
-            except BrokenExecutor as exc:
-                # A helper died (killed, out of memory): its jobs and the rest are done here
+            except BrokenExecutor:
+                # A helper died (killed, out of memory): every job of the pool is lost
                 # (a job's outputs are written atomically, so doing it again is safe).
-                if helpers_alive:
-                    log.warning("a helper process stopped (%s); the remaining frames are made in this process", exc)
-                helpers_alive = False
-                pending.appendleft((index, job))
-                continue
+                broken = True
+                break
+            in_flight.pop(future)
+            last_progress = time.monotonic()
             yield result
+        if broken:
+            yield from take_back("stopped")
+            continue
         if pending:
             index, job = pending.popleft()
             yield _call(worker, index, job)
@@ -251,7 +336,9 @@ def _share(pending: deque, worker: Callable, helpers: HelperPool) -> Iterator[Jo
                 break
         else:
             if in_flight:
-                wait(in_flight, return_when=FIRST_COMPLETED)
+                done, _ = wait(in_flight, timeout=min(1.0, stall_timeout), return_when=FIRST_COMPLETED)
+                if not done and time.monotonic() - last_progress > stall_timeout:
+                    yield from take_back(f"made no progress for {stall_timeout:g} s (stopped or hung)")
 
 
 @contextmanager

@@ -24,6 +24,7 @@ OUTSIDE_ANNOTATION = "outside_annotated_range"
 NO_RGB_FRAME = "no_rgb_frame_within_max_time_diff"
 RGB_NOT_ANNOTATED = "rgb_frame_not_in_annotation"
 UNREADABLE_DEPTH = "unreadable_depth"
+TIMED_OUT = "timed_out"
 
 
 class RecordError(ValueError):
@@ -112,16 +113,33 @@ class PlaneRecord:
 
 @dataclass(frozen=True)
 class MaskRecord:
-    """One mask: the fingerprint of what it was made from and its plane records; what a frame
-    job gives back, the journal holds and the report keeps."""
+    """One mask: the fingerprint of what it was made from, its plane records and the files
+    written for it; what a frame job gives back, the journal holds and the report keeps.
+
+    Parameters
+    ----------
+    fingerprint : str
+        Of the frame's inputs (:func:`annotate_rgbd.resume.fingerprint`).
+    kept, dropped : tuple of PlaneRecord
+    outputs : tuple of (str, str)
+        ``(path relative to the output folder, digest of its bytes)`` of every file written for
+        the frame (mask, raw mask, overlay), sorted by path; a re-run reuses them only when
+        their bytes still have these digests.
+    """
 
     fingerprint: str
     kept: tuple[PlaneRecord, ...]
     dropped: tuple[PlaneRecord, ...]
+    outputs: tuple[tuple[str, str], ...] = ()
+
+    def only(self, paths: set[str]) -> MaskRecord:
+        """The same record with only the outputs among ``paths``."""
+        return MaskRecord(self.fingerprint, self.kept, self.dropped, tuple(o for o in self.outputs if o[0] in paths))
 
     def to_json(self) -> dict[str, Any]:
-        """``{"kept": [...], "dropped": [...]}`` as in the report and the journal."""
-        return {"kept": [r.to_json() for r in self.kept], "dropped": [r.to_json() for r in self.dropped]}
+        """``{"kept": [...], "dropped": [...], "outputs": {...}}`` as in the report and the journal."""
+        return {"kept": [r.to_json() for r in self.kept], "dropped": [r.to_json() for r in self.dropped],
+                "outputs": dict(self.outputs)}
 
     @classmethod
     def from_json(cls, fingerprint: Any, entry: Any) -> MaskRecord:
@@ -138,7 +156,10 @@ class MaskRecord:
         planes = [[PlaneRecord.from_json(r) for r in _list(entry, key)] for key in ("kept", "dropped")]
         if not all(r.kept for r in planes[0]) or any(r.kept for r in planes[1]):
             raise RecordError("a kept plane has a drop reason, or a dropped plane has none")
-        return cls(fingerprint, tuple(planes[0]), tuple(planes[1]))
+        outputs = _mapping(entry.get("outputs", {}), "outputs")  # absent in reports of earlier versions
+        if not all(isinstance(k, str) and isinstance(v, str) for k, v in outputs.items()):
+            raise RecordError("outputs is not an object of strings")
+        return cls(fingerprint, tuple(planes[0]), tuple(planes[1]), tuple(sorted(outputs.items())))
 
 
 @dataclass

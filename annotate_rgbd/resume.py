@@ -18,9 +18,12 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
+import stat
+from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
-from typing import Sequence, TextIO
+from typing import IO, Iterator, Sequence
 
 import numpy as np
 
@@ -33,6 +36,12 @@ from .records import WRITTEN, MaskRecord, RecordError
 #: The journal of finished frames, in the output folder.
 JOURNAL = ".annotate-rgbd-journal.jsonl"
 REPORT = "report.json"
+#: Reading bounds: a journal line longer than this is not a record (a frame with thousands of
+#: planes has lines of a few hundred KiB) ...
+MAX_JOURNAL_LINE = 4 << 20
+#: ... and neither the journal nor the report is read past this size (a run of 100,000 frames
+#: with 20 planes each journals about 300 MiB); what lies beyond is made anew.
+MAX_RECORDS_BYTES = 1 << 30
 
 
 def fingerprint(
@@ -75,36 +84,92 @@ def _mask_settings(config: Config) -> bytes:
     return json.dumps([__version__, settings["camera"], settings["filter"], settings["ransac"]]).encode()
 
 
-def previous_results(out_dir: Path) -> dict[str, MaskRecord]:
-    """Finished frames of earlier runs in ``out_dir``: mask name -> its recorded result.
+@dataclass
+class Previous:
+    """What earlier runs in an output folder recorded.
 
-    Read from ``report.json`` and from the journal of an interrupted run (the journal is newer);
-    a torn last journal line (the run was killed while writing it) is ignored, and so is
-    anything else that does not have the records' layout (the frame is then made anew).
+    Parameters
+    ----------
+    masks : dict of str to MaskRecord
+        Mask file name -> the latest record of it.
+    files : set of str
+        Every per-frame file (``masks/<name>``, ...) any of the records says annotate-rgbd
+        wrote: the only files a run may remove.
     """
-    found: dict[str, MaskRecord] = {}
+
+    masks: dict[str, MaskRecord] = field(default_factory=dict)
+    files: set[str] = field(default_factory=set)
+
+    def add(self, mask_name: str, record: MaskRecord) -> None:
+        self.masks[mask_name] = record
+        self.files.add(f"masks/{mask_name}")
+        self.files.update(path for path, _ in record.outputs)
+
+
+def previous_results(out_dir: Path) -> Previous:
+    """Finished frames of earlier runs in ``out_dir``.
+
+    Read from ``report.json`` and from the journal of an interrupted run (the journal is newer),
+    within bounds (:data:`MAX_JOURNAL_LINE`, :data:`MAX_RECORDS_BYTES`); a torn last journal
+    line (the run was killed while writing it) is ignored, and so is anything else that does not
+    have the records' layout: such a frame is made anew.
+    """
+    previous = Previous()
     try:
-        report = json.loads((out_dir / REPORT).read_text(encoding="utf-8"))
+        report = json.loads(_read_bounded(out_dir / REPORT))
         frames = report.get("frames", []) if isinstance(report, dict) else []
-    except (OSError, ValueError):
+    except (OSError, ValueError, RecursionError):
         frames = []
     for entry in frames if isinstance(frames, list) else []:
         try:
             if entry.get("status") == WRITTEN and "fingerprint" in entry:
-                found[Path(entry["mask"]).name] = MaskRecord.from_json(entry["fingerprint"], entry)
+                previous.add(Path(entry["mask"]).name, MaskRecord.from_json(entry["fingerprint"], entry))
         except (RecordError, AttributeError, TypeError):
             continue
-    try:
-        lines = (out_dir / JOURNAL).read_text(encoding="utf-8").splitlines()
-    except (OSError, UnicodeDecodeError):
-        lines = []
-    for line in lines:
+    for line in _journal_lines(out_dir / JOURNAL):
         try:
             record = json.loads(line)
-            found[str(record["mask"])] = MaskRecord.from_json(record["fingerprint"], record["result"])
-        except (ValueError, KeyError, TypeError, RecordError):
+            previous.add(Path(str(record["mask"])).name, MaskRecord.from_json(record["fingerprint"], record["result"]))
+        except (ValueError, KeyError, TypeError, RecursionError, RecordError):
             continue
-    return found
+    return previous
+
+
+def _open_regular(path: Path) -> IO[bytes]:
+    """Open a regular file for reading, never through a link, never blocking on a FIFO."""
+    fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK)
+    handle = os.fdopen(fd, "rb")
+    if not stat.S_ISREG(os.fstat(fd).st_mode):
+        handle.close()
+        raise OSError(f"{path}: not a regular file")
+    return handle
+
+
+def _read_bounded(path: Path) -> bytes:
+    with _open_regular(path) as handle:
+        data = handle.read(MAX_RECORDS_BYTES + 1)
+    if len(data) > MAX_RECORDS_BYTES:
+        raise ValueError(f"{path}: larger than {MAX_RECORDS_BYTES} bytes")
+    return data
+
+
+def _journal_lines(path: Path) -> Iterator[bytes]:
+    """The journal's lines, skipping over-long ones, up to :data:`MAX_RECORDS_BYTES`."""
+    try:
+        handle = _open_regular(path)
+    except OSError:
+        return
+    with handle:
+        total, skipping = 0, False
+        while total < MAX_RECORDS_BYTES:
+            line = handle.readline(MAX_JOURNAL_LINE + 1)
+            if not line:
+                return
+            total += len(line)
+            complete = line.endswith(b"\n")
+            if not skipping and complete and len(line) <= MAX_JOURNAL_LINE:
+                yield line
+            skipping = not complete  # the rest of an over-long line follows
 
 
 class Journal:
@@ -118,7 +183,11 @@ class Journal:
 
     def __init__(self, out_dir: Path):
         self.path = out_dir / JOURNAL
-        self._file: TextIO | None = open(self.path, "a", encoding="utf-8")
+        try:  # never through a link: it could append to any file the user can write
+            fd = os.open(self.path, os.O_WRONLY | os.O_APPEND | os.O_CREAT | os.O_NOFOLLOW, 0o666)
+        except OSError as exc:
+            raise OutputError(self.path, f"cannot write output: {exc.strerror or exc}") from None
+        self._file: IO[str] | None = os.fdopen(fd, "a", encoding="utf-8")
 
     def record(self, mask_name: str, result: MaskRecord) -> None:
         """Append one finished frame, flushed at once (an interrupted run keeps it).

@@ -22,6 +22,7 @@ import numpy as np
 from .config import Config, config_from_dict
 from .errors import InputError
 from .frame_job import OVERLAY_DIR, segment_job
+from .outdir import REVIEW_RECORD, check_output_names, file_digest, read_review_record
 from .overlay import contact_sheet, overlay_for_frame
 from .plan import RunPlan, plan_run
 from .records import FrameRecord, RecordError, RunRecord
@@ -150,6 +151,7 @@ def review_run(
     """
     out_dir = Path(out_dir)
     report = read_report(out_dir)
+    check_output_names(out_dir)
     output = ReviewOutput()
     written = [f for f in report.frames if f.written]
     if overlays and written:
@@ -181,6 +183,10 @@ def review_run(
         images = [read_rgb(_overlay_path(out_dir, f)) for f in frames]
         output.sheet = out_dir / SHEET_NAME
         write_png(output.sheet, contact_sheet(images, [Path(f.depth).stem for f in frames]))
+    # So that a later cvat2mask run removes these files, and only these (annotate_rgbd.outdir).
+    written_files = {p.name: file_digest(p) for p in (output.page, output.sheet) if p is not None}
+    record = {**read_review_record(out_dir), **written_files}
+    write_bytes_atomic(out_dir / REVIEW_RECORD, json.dumps(record, indent=1).encode("utf-8"))
     return output
 
 

@@ -76,14 +76,17 @@ def write_bytes_atomic(path: Path, data: bytes) -> None:
                 pass
 
 
-def write_png(path: Path, image: np.ndarray) -> None:
-    """Write an image as PNG atomically (``(H, W, 3)`` arrays are taken as RGB)."""
+def write_png(path: Path, image: np.ndarray) -> bytes:
+    """Write an image as PNG atomically (``(H, W, 3)`` arrays are taken as RGB); returns the
+    bytes written."""
     if image.ndim == 3:
         image = cv2.cvtColor(image, cv2.COLOR_RGB2BGR)
     ok, encoded = cv2.imencode(".png", image)
     if not ok:  # pragma: no cover - cv2 encodes any uint8/uint16 array
         raise InputError(path, "PNG encoding failed")
-    write_bytes_atomic(path, encoded.tobytes())
+    data = encoded.tobytes()
+    write_bytes_atomic(path, data)
+    return data
 
 
 def write_json(path: Path, data: Any) -> None:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import json
+import logging
 import shutil
 from pathlib import Path
 
@@ -175,14 +176,18 @@ def test_errors_raised_in_worker_processes_stay_one_line(tmp_path):
     assert "Traceback" not in result.output
 
 
-def test_a_rerun_removes_outputs_it_did_not_make(tmp_path):
+def test_a_rerun_removes_outputs_it_did_not_make_and_leaves_the_users_files(tmp_path, caplog):
     config = load_config(SAMPLE_DATA / "camera.toml")
     run_cvat2mask(SEQUENCE, [ANNOTATIONS], tmp_path, config, raw_masks=True)
-    (tmp_path / "review.html").write_text("an earlier review")
-    (tmp_path / "masks" / "old_frame.png").write_bytes(b"stale")
-    run_cvat2mask(SEQUENCE, [ANNOTATIONS], tmp_path, config)
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["masks", "planes.csv", "report.json", "tracks.csv"]
-    assert len(list((tmp_path / "masks").iterdir())) == 19
+    (tmp_path / "review.html").write_text("the user's own page")
+    (tmp_path / "masks" / "old_frame.png").write_bytes(b"the user's own file")
+    with caplog.at_level(logging.INFO, logger="annotate_rgbd"):
+        report = run_cvat2mask(SEQUENCE, [ANNOTATIONS], tmp_path, config)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["masks", "planes.csv", "report.json", "review.html", "tracks.csv"]
+    assert len(list((tmp_path / "masks").iterdir())) == 20 and (tmp_path / "masks" / "old_frame.png").is_file()
+    assert "removed 19 raw masks no longer asked for (masks_raw/)" in caplog.text
+    assert ("left alone 2 file(s) in the output folder that annotate-rgbd did not write: masks/old_frame.png, "
+            "review.html") in report.warnings
 
 
 def test_an_unknown_label_is_a_warning(tmp_path):

@@ -75,13 +75,13 @@ def test_queued_jobs_come_back_when_this_process_runs_out_of_work(helpers):
 
 def test_helpers_leave_ctrl_c_to_the_main_process(helpers):
     # Ctrl-C signals the whole process group; only the main process acts on it.
-    for pid in helpers._processes:
+    for pid in helpers.processes:
         os.kill(pid, signal.SIGINT)
     time.sleep(0.3)
     jobs = [(value, os.getpid(), 0.02, 0.02) for value in range(30)]
     results = list(_pairs(run_jobs(jobs, square, helpers)))
     assert sorted(index for index, _ in results) == list(range(30))
-    assert {result["pid"] for _, result in results} - {os.getpid()} <= set(helpers._processes)
+    assert {result["pid"] for _, result in results} - {os.getpid()} <= set(helpers.processes)
     assert len({result["pid"] for _, result in results}) == 2
 
 
@@ -125,7 +125,7 @@ def test_helpers_exit_when_the_main_process_is_killed(tmp_path):
         if __name__ == "__main__":
             pool = start_helpers(3)
             assert pool.ready.wait(timeout=120)
-            pids = [*pool._processes, forkserver._forkserver._forkserver_pid]
+            pids = [*pool.processes, forkserver._forkserver._forkserver_pid]
             print(*pids, flush=True)
             time.sleep(600)
     """))
