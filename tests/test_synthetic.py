@@ -11,8 +11,10 @@ import numpy as np
 import pytest
 from skimage.measure import points_in_poly
 
-from annotate_rgbd.camera import Camera
-from annotate_rgbd.config import load_config
+from annotate_rgbd.camera import Camera, depth_to_metres
+from annotate_rgbd.config import FilterConfig, load_config
+from annotate_rgbd.filters import drop_reasons, plane_statistics
+from annotate_rgbd.rasterize import rasterize_frame
 from annotate_rgbd.synthetic import (
     MAX_DEPTH,
     kinect_noise_sigma,
@@ -165,6 +167,39 @@ def test_planes_json_agrees_with_the_ground_truth_images(sequence):
         glass.append(depth[gt == planes["window"]["gt_value"]])
     assert np.concatenate(far).mean() / CAMERA.depth_scale > 3.5
     assert planes["window"]["invalid_ratio"] > 0.8
+
+
+def test_planes_json_statistics_are_those_of_the_ground_truth_images(sequence):
+    """mean_depth_m is the z depth pooled over every depth frame (the one without RGB too)."""
+    out, _ = sequence
+    info = json.loads((out / "ground_truth" / "planes.json").read_text())
+    images = [(cv2.imread(str(out / "ground_truth" / r["ground_truth"]), cv2.IMREAD_UNCHANGED),
+               cv2.imread(str(out / r["depth"]), cv2.IMREAD_UNCHANGED)) for r in info["frames"]]
+    assert any(r["rgb"] is None for r in info["frames"])
+    for plane in info["planes"]:
+        depth = np.concatenate([d[gt == plane["gt_value"]] for gt, d in images]) / CAMERA.depth_scale
+        assert plane["mean_depth_m"] == pytest.approx(depth.mean(), abs=6e-5)
+        # The ground truth holds the plane's visible pixels that have depth.
+        assert depth.size == pytest.approx(plane["visible_pixels"] * (1 - plane["invalid_ratio"]), abs=1e-4 * plane["visible_pixels"] + 1)
+
+
+def test_expected_fate_is_what_the_per_frame_filter_rules_give(sequence):
+    """The whole-sequence oracle and filters.py differ in method (see synthetic/ground_truth.py)
+    but must agree on the room: every plane gets its expected fate in every annotated frame."""
+    out, annotation = sequence
+    info = json.loads((out / "ground_truth" / "planes.json").read_text())
+    expected = {p["track_id"] + 1: p["reason"] for p in info["planes"]}
+    depth_of_frame = {r["annotation_frame"]: out / r["depth"] for r in info["frames"] if r["rgb"]}
+    decisions = 0
+    for frame in annotation.frames:
+        shapes = [(t.track_id + 1, t.shapes[frame]) for t in annotation.tracks if frame in t.shapes]
+        drawn = rasterize_frame(shapes, HEIGHT, WIDTH)
+        depth = depth_to_metres(cv2.imread(str(depth_of_frame[frame]), cv2.IMREAD_UNCHANGED), CAMERA.depth_scale)
+        stats = plane_statistics(drawn, depth, CAMERA)
+        for plane, reason in zip(stats.plane_ids, drop_reasons(stats, FilterConfig())):
+            assert reason == expected[plane], f"frame {frame}, track {plane - 1}"
+            decisions += 1
+    assert decisions == sum(len(t.shapes) for t in annotation.tracks)
 
 
 def test_annotation_shapes_follow_the_rgb_frames(sequence):
