@@ -24,7 +24,7 @@ import re
 import stat
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterable
+from typing import IO, Iterable
 
 from .errors import OutputError
 
@@ -52,19 +52,44 @@ def file_digest(path: Path) -> str | None:
     What a run records for each file it writes, and checks before it reuses one.
     """
     try:
-        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK)
-    except OSError:
-        return None
-    try:
         digest = hashlib.blake2b(digest_size=16)
-        with os.fdopen(fd, "rb") as handle:
-            if not stat.S_ISREG(os.fstat(handle.fileno()).st_mode):
-                return None
+        with open_regular(path) as handle:
             for chunk in iter(lambda: handle.read(1 << 20), b""):
                 digest.update(chunk)
         return digest.hexdigest()
     except OSError:
         return None
+
+
+def open_regular(path: Path) -> IO[bytes]:
+    """Open a regular file for reading: never through a symbolic link, never blocking on a FIFO.
+
+    Raises
+    ------
+    OSError
+        Missing, a link, or not a regular file.
+    """
+    fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK)
+    handle = os.fdopen(fd, "rb")
+    if not stat.S_ISREG(os.fstat(fd).st_mode):
+        handle.close()
+        raise OSError(errno.EINVAL, "not a regular file", str(path))
+    return handle
+
+
+def read_bounded(path: Path, max_bytes: int) -> bytes:
+    """Read a regular file (:func:`open_regular`) of at most ``max_bytes``.
+
+    Raises
+    ------
+    OSError
+        As :func:`open_regular`, or the file is larger.
+    """
+    with open_regular(path) as handle:
+        data = handle.read(max_bytes + 1)
+    if len(data) > max_bytes:
+        raise OSError(errno.EFBIG, f"larger than {max_bytes} bytes", str(path))
+    return data
 
 
 def data_digest(data: bytes) -> str:
@@ -132,9 +157,7 @@ class OutputLock:
 
 def _owner(folder: Path) -> str | None:
     try:
-        fd = os.open(folder / OWNER, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK)
-        with os.fdopen(fd, "rb") as handle:
-            text = handle.read(32).decode("ascii", "replace").strip()
+        text = read_bounded(folder / OWNER, 32).decode("ascii", "replace").strip()
     except OSError:
         return None
     return text if text.isdigit() else None
@@ -234,9 +257,7 @@ def remove_stale_files(folder: Path, ours: set[str], keep: set[str]) -> Cleanup:
 def read_review_record(folder: Path) -> dict[str, str]:
     """What ``review`` recorded it wrote into ``folder``: file name -> digest (empty when none)."""
     try:
-        fd = os.open(folder / REVIEW_RECORD, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK)
-        with os.fdopen(fd, "rb") as handle:
-            record = json.loads(handle.read(1 << 16))
+        record = json.loads(read_bounded(folder / REVIEW_RECORD, 1 << 16))
     except (OSError, ValueError, RecursionError):
         return {}
     if not isinstance(record, dict):

@@ -274,12 +274,14 @@ def _share(pending: deque, worker: Callable, helpers: HelperPool, stall_timeout:
     helpers_alive = True
     last_progress = time.monotonic()
 
-    def take_back(problem: str) -> Iterator[JobOutcome]:
-        """Restart the helpers (or give them up) and queue their unfinished jobs again."""
+    def take_back(problem: str, hung: bool) -> Iterator[JobOutcome]:
+        """Restart the helpers (or give them up) and queue their unfinished jobs again; after a
+        hang (``hung``), count the stalls of the jobs that were running and give up on those
+        that hung twice."""
         nonlocal restarts, helpers_alive, last_progress
         given_up = []
         for future, (index, job) in list(in_flight.items()):
-            if problem == "hung" and future.running():
+            if hung and future.running():
                 stalls[index] = stalls.get(index, 0) + 1
                 if stalls[index] >= 2:
                     given_up.append(index)
@@ -306,7 +308,7 @@ def _share(pending: deque, worker: Callable, helpers: HelperPool, stall_timeout:
                 in_flight[helpers.submit(_call, worker, index, job)] = (index, job)
             except BrokenExecutor:
                 pending.appendleft((index, job))
-                yield from take_back("stopped")
+                yield from take_back("stopped", hung=False)
                 break
         broken = False
         for future in [f for f in in_flight if f.done() and not f.cancelled()]:
@@ -321,7 +323,7 @@ def _share(pending: deque, worker: Callable, helpers: HelperPool, stall_timeout:
             last_progress = time.monotonic()
             yield result
         if broken:
-            yield from take_back("stopped")
+            yield from take_back("stopped", hung=False)
             continue
         if pending:
             index, job = pending.popleft()
@@ -338,7 +340,7 @@ def _share(pending: deque, worker: Callable, helpers: HelperPool, stall_timeout:
             if in_flight:
                 done, _ = wait(in_flight, timeout=min(1.0, stall_timeout), return_when=FIRST_COMPLETED)
                 if not done and time.monotonic() - last_progress > stall_timeout:
-                    yield from take_back(f"made no progress for {stall_timeout:g} s (stopped or hung)")
+                    yield from take_back(f"made no progress for {stall_timeout:g} s (stopped or hung)", hung=True)
 
 
 @contextmanager

@@ -19,7 +19,6 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import stat
 from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
@@ -31,6 +30,7 @@ from . import __version__
 from .annotation import Shape
 from .config import Config, config_to_dict
 from .errors import OutputError
+from .outdir import open_regular, read_bounded
 from .records import WRITTEN, MaskRecord, RecordError
 
 #: The journal of finished frames, in the output folder.
@@ -116,7 +116,7 @@ def previous_results(out_dir: Path) -> Previous:
     """
     previous = Previous()
     try:
-        report = json.loads(_read_bounded(out_dir / REPORT))
+        report = json.loads(read_bounded(out_dir / REPORT, MAX_RECORDS_BYTES))
         frames = report.get("frames", []) if isinstance(report, dict) else []
     except (OSError, ValueError, RecursionError):
         frames = []
@@ -129,34 +129,22 @@ def previous_results(out_dir: Path) -> Previous:
     for line in _journal_lines(out_dir / JOURNAL):
         try:
             record = json.loads(line)
-            previous.add(Path(str(record["mask"])).name, MaskRecord.from_json(record["fingerprint"], record["result"]))
-        except (ValueError, KeyError, TypeError, RecursionError, RecordError):
+        except (ValueError, RecursionError):
             continue
+        mask = record.get("mask") if isinstance(record, dict) else None
+        if not isinstance(mask, str):
+            continue
+        try:
+            previous.add(Path(mask).name, MaskRecord.from_json(record.get("fingerprint"), record.get("result")))
+        except RecordError:
+            previous.masks.pop(Path(mask).name, None)  # a newer record that makes no sense: redo the frame
     return previous
-
-
-def _open_regular(path: Path) -> IO[bytes]:
-    """Open a regular file for reading, never through a link, never blocking on a FIFO."""
-    fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK)
-    handle = os.fdopen(fd, "rb")
-    if not stat.S_ISREG(os.fstat(fd).st_mode):
-        handle.close()
-        raise OSError(f"{path}: not a regular file")
-    return handle
-
-
-def _read_bounded(path: Path) -> bytes:
-    with _open_regular(path) as handle:
-        data = handle.read(MAX_RECORDS_BYTES + 1)
-    if len(data) > MAX_RECORDS_BYTES:
-        raise ValueError(f"{path}: larger than {MAX_RECORDS_BYTES} bytes")
-    return data
 
 
 def _journal_lines(path: Path) -> Iterator[bytes]:
     """The journal's lines, skipping over-long ones, up to :data:`MAX_RECORDS_BYTES`."""
     try:
-        handle = _open_regular(path)
+        handle = open_regular(path)
     except OSError:
         return
     with handle:

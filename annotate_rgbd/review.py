@@ -22,11 +22,11 @@ import numpy as np
 from .config import Config, config_from_dict
 from .errors import InputError
 from .frame_job import OVERLAY_DIR, segment_job
-from .outdir import REVIEW_RECORD, check_output_names, file_digest, read_review_record
+from .outdir import REVIEW_RECORD, check_output_names, file_digest, read_bounded, read_review_record
 from .overlay import contact_sheet, overlay_for_frame
 from .plan import RunPlan, plan_run
 from .records import FrameRecord, RecordError, RunRecord
-from .resume import REPORT as REPORT_NAME
+from .resume import MAX_RECORDS_BYTES, REPORT as REPORT_NAME
 from .review_page import render_review_page
 from .segment import FrameResult
 from .sequence import read_rgb
@@ -73,11 +73,13 @@ def read_report(out_dir: str | Path) -> RunRecord:
     """
     path = Path(out_dir) / REPORT_NAME
     try:
-        report = json.loads(path.read_text(encoding="utf-8"))
+        report = json.loads(read_bounded(path, MAX_RECORDS_BYTES).decode("utf-8"))
     except FileNotFoundError:
         raise InputError(path, "no report: not the output folder of a finished cvat2mask run") from None
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InputError(path, f"cannot read the report: {exc}") from None
+        raise InputError(path, f"cannot read the report: {exc.strerror if isinstance(exc, OSError) else exc}") from None
+    except RecursionError:
+        raise InputError(path, "cannot read the report: nested too deeply") from None
     if not isinstance(report, dict) or not {"inputs", "config", "frames", "planes"} <= report.keys():
         raise InputError(path, "not a cvat2mask report (inputs, config, frames or planes missing)")
     try:

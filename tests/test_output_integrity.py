@@ -1,0 +1,355 @@
+"""Output integrity: no stale mask kept, nothing touched outside --out, no endless wait.
+
+Kill and lock tests use real processes and are bounded in time.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import multiprocessing
+import os
+import random
+import shutil
+import signal
+import subprocess
+import sys
+import textwrap
+import threading
+import time
+from concurrent.futures import Future
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from annotate_rgbd.cli import app
+from annotate_rgbd.config import load_config
+from annotate_rgbd.errors import OutputError
+from annotate_rgbd.outdir import OWNER, OutputLock
+from annotate_rgbd.pipeline import run_cvat2mask
+from annotate_rgbd.pool import JobOutcome, JobTimeout, run_jobs, start_helpers
+from annotate_rgbd.resume import JOURNAL, MAX_RECORDS_BYTES, previous_results
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+SAMPLE = REPO_ROOT / "sample_data"
+SEQUENCE, ANNOTATIONS, CAMERA = SAMPLE / "sequence", SAMPLE / "annotations.xml", SAMPLE / "camera.toml"
+CLI = [sys.executable, "-m", "annotate_rgbd"]
+
+
+def _masks(folder: Path) -> dict[str, bytes]:
+    return {p.name: p.read_bytes() for p in sorted((folder / "masks").iterdir())}
+
+
+@pytest.fixture(scope="module")
+def clean_run(tmp_path_factory) -> Path:
+    """One uninterrupted run with the sample's settings."""
+    out = tmp_path_factory.mktemp("clean") / "out"
+    run_cvat2mask(SEQUENCE, [ANNOTATIONS], out, load_config(CAMERA))
+    return out
+
+
+@pytest.fixture(scope="module")
+def tight_run(tmp_path_factory) -> Path:
+    """The same frames with a much tighter inlier band: other masks."""
+    out = tmp_path_factory.mktemp("tight") / "out"
+    run_cvat2mask(SEQUENCE, [ANNOTATIONS], out, load_config(CAMERA, {"ransac.distance_threshold": 0.005}))
+    return out
+
+
+# --- 1. A re-run never keeps a mask that differs from its record ---------------------------
+
+
+def test_a_mask_rewritten_after_its_record_is_made_again(clean_run, tight_run, tmp_path):
+    # What an interrupted run with other settings leaves: a helper wrote the mask, the main
+    # process was killed before it journalled it, so the record still holds the old fingerprint.
+    out = tmp_path / "out"
+    shutil.copytree(clean_run, out)
+    name = sorted(_masks(out))[4]
+    assert _masks(tight_run)[name] != _masks(clean_run)[name]
+    shutil.copy(tight_run / "masks" / name, out / "masks" / name)
+    report = run_cvat2mask(SEQUENCE, [ANNOTATIONS], out, load_config(CAMERA))
+    assert (report.counts.made, report.counts.reused) == (1, 18)
+    assert _masks(out) == _masks(clean_run)
+
+
+def test_report_records_the_digest_of_every_output(clean_run):
+    import hashlib
+
+    report = json.loads((clean_run / "report.json").read_text())
+    for frame in (f for f in report["frames"] if f["status"] == "written"):
+        assert list(frame["outputs"]) == [frame["mask"]]
+        data = (clean_run / frame["mask"]).read_bytes()
+        assert frame["outputs"][frame["mask"]] == hashlib.blake2b(data, digest_size=16).hexdigest()
+
+
+@pytest.mark.parametrize("journalled, delay", [(2, 0.015), (5, 0.03), (8, 0.045), (11, 0.02)])
+def test_cli_run_killed_with_other_settings_then_rerun_equals_a_clean_run(clean_run, tmp_path, journalled, delay):
+    # The reproduction of the issue: helpers finish masks the main process has not journalled
+    # yet when the run is killed; the re-run must not take them for the earlier run's masks.
+    out = tmp_path / "out"
+    args = [str(SEQUENCE), str(ANNOTATIONS), "--config", str(CAMERA), "--out", str(out)]
+    subprocess.run([*CLI, "cvat2mask", *args, "-j", "2"], check=True, capture_output=True)
+    process = subprocess.Popen([*CLI, "cvat2mask", *args, "--distance-threshold", "0.005", "-j", "2", "--force"],
+                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    journal, deadline = out / JOURNAL, time.monotonic() + 120
+    while time.monotonic() < deadline and process.poll() is None:
+        if journal.is_file() and journal.read_text().count("\n") >= journalled:
+            break
+        time.sleep(0.002)
+    time.sleep(delay)  # not just after a journal line: helpers' finished masks wait to be journalled
+    assert process.poll() is None, "the run finished before it could be killed"
+    os.killpg(process.pid, signal.SIGKILL)
+    process.wait()
+    rerun = subprocess.run([*CLI, "cvat2mask", *args, "-j", "2"], capture_output=True, text=True)
+    assert rerun.returncode == 0, rerun.stderr
+    assert _masks(out) == _masks(clean_run)
+
+
+def _interrupted_run(out: str, overrides: dict, raw_masks: bool, overlays: bool) -> None:
+    run_cvat2mask(SEQUENCE, [ANNOTATIONS], out, load_config(CAMERA, overrides), raw_masks=raw_masks, overlays=overlays)
+
+
+def test_stress_random_interruptions_with_changing_settings_never_leave_a_wrong_mask(clean_run, tmp_path):
+    """Rounds of: start a run with other settings, SIGKILL it at a random point, re-run with
+    the clean settings, compare every mask with the clean run's. About a minute at most."""
+    rng = random.Random(20261123)
+    context = multiprocessing.get_context("forkserver")  # preloaded: a run starts in milliseconds
+    out = tmp_path / "out"
+    settings = [{"ransac.distance_threshold": 0.005}, {"ransac.distance_threshold": 0.01},
+                {"filter.max_mean_distance": 2.0}, {}]
+    rounds, started = 0, time.monotonic()
+    while rounds < 30 and time.monotonic() - started < 90:
+        overrides = rng.choice(settings)
+        process = context.Process(target=_interrupted_run,
+                                  args=(str(out), overrides, rng.random() < 0.3, rng.random() < 0.2))
+        process.start()
+        time.sleep(rng.uniform(0.0, 0.6))
+        process.kill()
+        process.join()
+        report = run_cvat2mask(SEQUENCE, [ANNOTATIONS], out, load_config(CAMERA))
+        assert _masks(out) == _masks(clean_run), f"round {rounds}: {overrides}, counts {report.counts}"
+        assert not (out / "masks_raw").exists() and not (out / "overlays").exists()
+        rounds += 1
+    assert rounds >= 12
+
+
+# --- Lock: one run at a time in a folder ------------------------------------------------------
+
+
+def test_a_second_run_into_a_locked_folder_stops_with_one_line(tmp_path):
+    out = tmp_path / "out"
+    out.mkdir()
+    holder = subprocess.Popen(
+        [sys.executable, "-c", textwrap.dedent(f"""
+            import sys, time
+            from annotate_rgbd.outdir import OutputLock
+            lock = OutputLock({str(out)!r}); lock.acquire(); print("locked", flush=True); time.sleep(60)
+        """)],
+        stdout=subprocess.PIPE, text=True,
+    )
+    try:
+        assert holder.stdout.readline().strip() == "locked"
+        result = subprocess.run([*CLI, "cvat2mask", str(SEQUENCE), str(ANNOTATIONS), "--config", str(CAMERA),
+                                 "--out", str(out)], capture_output=True, text=True, timeout=120)
+    finally:
+        holder.kill()
+        holder.wait()
+    assert result.returncode == 1
+    lines = result.stderr.strip().splitlines()
+    assert lines[-1] == (f"error: {out}: another annotate-rgbd run (process {holder.pid}) is writing to this folder; "
+                         "wait for it to end or choose another --out")
+    assert "Traceback" not in result.stderr and not (out / "masks").exists()
+
+
+def test_the_lock_dies_with_its_process_and_the_owner_file_goes(tmp_path):
+    lock = OutputLock(tmp_path)
+    lock.acquire()
+    assert (tmp_path / OWNER).read_text().strip() == str(os.getpid())
+    with pytest.raises(OutputError, match=f"process {os.getpid()}"):
+        OutputLock(tmp_path).acquire()
+    lock.release()
+    assert not (tmp_path / OWNER).exists()
+    with OutputLock(tmp_path):  # free again
+        pass
+
+
+# --- 2. Never through a link, only our own files removed ------------------------------------
+
+
+@pytest.mark.parametrize("name", ["masks", JOURNAL, "report.json", "overlays"])
+def test_links_in_the_output_folder_are_refused(tmp_path, name):
+    out, victim = tmp_path / "out", tmp_path / "victim"
+    out.mkdir()
+    victim.mkdir()
+    (victim / "precious.png").write_bytes(b"mine")
+    target = victim if name in ("masks", "overlays") else victim / "precious.png"
+    (out / name).symlink_to(target)
+    result = CliRunner().invoke(app, ["cvat2mask", str(SEQUENCE), str(ANNOTATIONS), "--config", str(CAMERA),
+                                      "--out", str(out), "--overlays"])
+    assert result.exit_code == 1
+    assert result.output.strip().splitlines()[-1] == (
+        f"error: {out / name}: is a symbolic link: annotate-rgbd never writes or deletes through links in its "
+        "output folder; remove it"
+    )
+    assert [p.name for p in victim.iterdir()] == ["precious.png"] and (victim / "precious.png").read_bytes() == b"mine"
+
+
+def test_the_users_own_files_are_left_alone_with_a_warning(clean_run, tmp_path):
+    out = tmp_path / "out"
+    shutil.copytree(clean_run, out)
+    (out / "masks" / "holiday.png").write_bytes(b"a photo")
+    (out / "overlays").mkdir()
+    (out / "overlays" / "sketch.png").write_bytes(b"a sketch")
+    (out / "review.html").write_text("my notes")
+    result = CliRunner().invoke(app, ["cvat2mask", str(SEQUENCE), str(ANNOTATIONS), "--config", str(CAMERA),
+                                      "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    assert (out / "masks" / "holiday.png").read_bytes() == b"a photo"
+    assert (out / "overlays" / "sketch.png").read_bytes() == b"a sketch"
+    assert (out / "review.html").read_text() == "my notes"
+    assert ("left alone 3 file(s) in the output folder that annotate-rgbd did not write: masks/holiday.png, "
+            "overlays/sketch.png, review.html") in result.output
+
+
+def test_removed_files_are_those_of_earlier_runs_and_are_named(tmp_path, caplog):
+    out = tmp_path / "out"
+    runner = CliRunner()
+    base = ["cvat2mask", str(SEQUENCE), str(ANNOTATIONS), "--config", str(CAMERA), "--out", str(out)]
+    assert runner.invoke(app, [*base, "--overlays", "--raw-masks"]).exit_code == 0
+    assert (out / "review.html").is_file() and (out / "contact_sheet.png").is_file()
+    result = runner.invoke(app, [*base, "--max-time-diff", "0.008"])  # 9 frames lose their mask
+    assert result.exit_code == 0, result.output
+    written = len(list((out / "masks").iterdir()))
+    assert written < 19
+    assert f"removed {19 - written} masks of frames that no longer get one (masks/)" in result.output
+    assert "removed 19 raw masks no longer asked for (masks_raw/)" in result.output
+    assert "removed 19 overlays no longer asked for (overlays/)" in result.output
+    assert sorted(p.name for p in out.iterdir()) == ["masks", "planes.csv", "report.json", "tracks.csv"]
+
+
+# --- 3. No endless wait on a stopped or killed helper --------------------------------------
+
+
+def _slow_square(job: tuple[int, float]) -> int:
+    time.sleep(job[1])
+    return job[0] ** 2
+
+
+def _pairs(outcomes) -> dict[int, object]:
+    found = {}
+    for outcome in outcomes:
+        assert isinstance(outcome, JobOutcome) and outcome.index not in found
+        found[outcome.index] = outcome.error if outcome.error is not None else outcome.value
+    return found
+
+
+def _stop_one_helper_soon(pool, sig: int) -> None:
+    def stop() -> None:
+        time.sleep(0.3)
+        os.kill(next(iter(pool.processes)), sig)
+
+    threading.Thread(target=stop, daemon=True).start()
+
+
+@pytest.mark.parametrize("sig, message", [(signal.SIGSTOP, "made no progress for 2 s (stopped or hung)"),
+                                          (signal.SIGKILL, "a helper process stopped")])
+def test_a_stopped_or_killed_helper_is_replaced_with_a_warning(sig, message, caplog):
+    pool = start_helpers(3)
+    assert pool.ready.wait(timeout=120)
+    stopped = next(iter(pool.processes))
+    try:
+        _stop_one_helper_soon(pool, sig)
+        jobs = [(value, 0.05) for value in range(60)]
+        started = time.monotonic()
+        with caplog.at_level(logging.WARNING, logger="annotate_rgbd"):
+            results = _pairs(run_jobs(jobs, _slow_square, pool, stall_timeout=2.0))
+        assert time.monotonic() - started < 60
+    finally:
+        pool.shutdown(wait=False, cancel_futures=True)
+        try:
+            os.kill(stopped, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+    assert results == {index: value ** 2 for index, (value, _) in enumerate(jobs)}
+    assert message in caplog.text and "restarted" in caplog.text
+
+
+class _HangingPool:
+    """A stand-in for HelperPool whose helpers take jobs and never finish them."""
+
+    size = 1
+
+    def __init__(self):
+        self.ready = threading.Event()
+        self.ready.set()
+        self.restarts = 0
+
+    def submit(self, fn, *args):
+        future = Future()
+        future.set_running_or_notify_cancel()  # taken by a helper, never finished
+        return future
+
+    def restart(self):
+        self.restarts += 1
+
+    def shutdown(self, wait=True, cancel_futures=False):
+        pass
+
+
+def test_jobs_that_hang_in_helpers_twice_are_given_up_and_the_rest_done_here(caplog):
+    pool = _HangingPool()
+    jobs = [(value, 0.0) for value in range(8)]
+    with caplog.at_level(logging.WARNING, logger="annotate_rgbd"):
+        results = _pairs(run_jobs(jobs, _slow_square, pool, stall_timeout=0.2))
+    # The first 4 jobs went to the helper (its queue), hung there twice and were given up.
+    assert all(isinstance(results[i], JobTimeout) for i in range(4))
+    assert str(results[0]) == "hung a helper process twice (0.2 s without progress); given up"
+    assert {i: results[i] for i in range(4, 8)} == {i: i * i for i in range(4, 8)}
+    assert pool.restarts == 2 and caplog.text.count("made no progress for 0.2 s (stopped or hung)") == 2
+
+
+# --- 4. Journal robustness -------------------------------------------------------------------
+
+
+def test_a_wrong_typed_journal_line_only_redoes_its_frame(clean_run, tmp_path):
+    out = tmp_path / "out"
+    shutil.copytree(clean_run, out)
+    report = json.loads((out / "report.json").read_text())
+    frame = next(f for f in report["frames"] if f["status"] == "written")
+    name = Path(frame["mask"]).name
+    bad = {"mask": name, "fingerprint": frame["fingerprint"], "result": {"kept": 7, "dropped": "x"}}
+    (out / JOURNAL).write_text(json.dumps(bad) + "\n" + "not json\n" + json.dumps({"mask": []}) + "\n")
+    rerun = run_cvat2mask(SEQUENCE, [ANNOTATIONS], out, load_config(CAMERA))
+    assert (rerun.counts.made, rerun.counts.reused) == (1, 18)
+    assert _masks(out) == _masks(clean_run)
+
+
+def test_a_huge_sparse_journal_is_read_bounded(clean_run, tmp_path):
+    out = tmp_path / "out"
+    shutil.copytree(clean_run, out)
+    with open(out / JOURNAL, "wb") as journal:
+        journal.truncate(3 * MAX_RECORDS_BYTES)  # 3 GiB of NUL bytes, no disk used
+    started = time.monotonic()
+    previous = previous_results(out)
+    assert time.monotonic() - started < 30
+    assert len(previous.masks) == 19  # from report.json; the journal held nothing usable
+
+
+# --- 5. review and stats on a malformed report -------------------------------------------------
+
+
+@pytest.mark.parametrize("content, problem", [
+    ('{"inputs": {}, "config": {}, "frames": "x", "planes": []}', "frames is not a list"),
+    ('{"inputs": {"sequence": "s", "parts": []}, "config": {}, "planes": [], "frames": [{"status": "written"}]}',
+     "frames[0]: "),
+    ("[" * 100_000 + "]" * 100_000, "cannot read the report"),
+    ('{"inputs": 1, "config": {}, "frames": [], "planes": []}', "inputs is not an object"),
+])
+@pytest.mark.parametrize("command", ["review", "stats"])
+def test_review_and_stats_on_a_malformed_report_give_one_line(tmp_path, content, problem, command):
+    (tmp_path / "report.json").write_text(content)
+    result = CliRunner().invoke(app, [command, str(tmp_path)])
+    assert result.exit_code == 1
+    lines = result.output.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"error: {tmp_path / 'report.json'}: ") and problem in lines[0]
