@@ -18,10 +18,17 @@ that is not listed is an error, so a typo never goes unnoticed::
     max_mean_distance = 3.5
     min_valid_pixels = 50
     [ransac]
-    distance_threshold = 0.02
+    distance_threshold = 0.0   # > 0: a fixed inlier band instead of [noise]
     num_iterations = 1000
     seed = 0
     max_points = 1000
+    [noise]             # the inlier band: clip(k sigma(z), floor, cap) (annotate_rgbd.noise)
+    model = "kinect_v1" # or icl_nuim, realsense_d435, quadratic (a, b, c), constant (sigma)
+    k = 3.0
+    floor = 0.002
+    cap = 0.1
+    [refine]
+    grow_pixels = 3
     [stitch]            # several annotation parts of one sequence
     min_iou = 0.5
     [[parts]]           # where a part starts in the RGB list (repeat per part)
@@ -46,6 +53,7 @@ from typing import Any, Mapping
 
 from .camera import Camera
 from .errors import InputError
+from .noise import NoiseSettings, noise_settings_from_mapping
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -109,8 +117,11 @@ class RansacConfig:
     Parameters
     ----------
     distance_threshold : float
-        Largest point-to-plane distance of an inlier, in metres (EVOPS: 0.02 m for TUM
-        long_office; 0.005 m for ICL-NUIM, 0.01 m fr1_desk, 0.03 m fr2_pioneer_slam).
+        A fixed inlier band: the largest point-to-plane distance of an inlier, in metres, at
+        every depth (EVOPS set it by hand per sequence: 0.02 m for TUM long_office; 0.005 m for
+        ICL-NUIM, 0.01 m fr1_desk, 0.03 m fr2_pioneer_slam). 0 (the default): the band follows
+        the sensor's noise, ``[noise]`` (:class:`annotate_rgbd.noise.NoiseSettings`). A value
+        > 0 replaces the noise model, whatever ``[noise]`` says.
     num_iterations : int
         RANSAC iterations (Open3D stops earlier once the inlier set is certain).
     seed : int
@@ -123,10 +134,26 @@ class RansacConfig:
         mask pixels against a search among all points, at a third of the time. 0: every point.
     """
 
-    distance_threshold: float = 0.02
+    distance_threshold: float = 0.0
     num_iterations: int = 1000
     seed: int = 0
     max_points: int = 1000
+
+
+@dataclass(frozen=True)
+class RefineConfig:
+    """What refinement does besides the inlier test.
+
+    Parameters
+    ----------
+    grow_pixels : int
+        Grow each kept plane by up to this many pixels beyond its drawn shape, into pixels
+        whose depth lies on the plane and that no other plane's shape or inliers claim
+        (:func:`annotate_rgbd.grow.grow_planes`): a labeller's outline is a pixel or two off the
+        real edge (this project's measurement on rendered scenes: +-2 px). 0: no growing.
+    """
+
+    grow_pixels: int = 3
 
 
 @dataclass(frozen=True)
@@ -203,9 +230,18 @@ class Config:
     annotation: AnnotationConfig = field(default_factory=AnnotationConfig)
     filter: FilterConfig = field(default_factory=FilterConfig)
     ransac: RansacConfig = field(default_factory=RansacConfig)
+    noise: NoiseSettings = field(default_factory=NoiseSettings)
+    refine: RefineConfig = field(default_factory=RefineConfig)
     stitch: StitchConfig = field(default_factory=StitchConfig)
     parts: tuple[PartConfig, ...] = ()
     matches: tuple[MatchConfig, ...] = ()
+
+    def inlier_band(self) -> NoiseSettings:
+        """The inlier band refinement uses: a fixed ``ransac.distance_threshold`` when one is
+        set, else the ``[noise]`` model's."""
+        if self.ransac.distance_threshold > 0:
+            return NoiseSettings.fixed(self.ransac.distance_threshold)
+        return self.noise
 
 
 def preset_names() -> list[str]:
@@ -222,13 +258,16 @@ def config_to_dict(config: Config) -> dict[str, Any]:
     """The configuration as nested plain values (for reports: tuples become lists)."""
 
     def plain(value: Any) -> Any:
+        if isinstance(value, NoiseSettings):
+            return value.to_mapping()
         if isinstance(value, (tuple, list)):
             return [plain(v) for v in value]
         if isinstance(value, dict):
             return {k: plain(v) for k, v in value.items() if v is not None}
         return value
 
-    return {f.name: plain(dataclasses.asdict(config)[f.name]) for f in dataclasses.fields(config)}
+    return {f.name: plain(getattr(config, f.name) if f.name == "noise" else dataclasses.asdict(config)[f.name])
+            for f in dataclasses.fields(config)}
 
 
 def load_config(source: str | Path | None = None, overrides: Mapping[str, Any] | None = None) -> Config:
@@ -295,6 +334,12 @@ def _build(values: Mapping[str, Any], origin: str | Path | None) -> Config:
     for name, table in values.items():
         if name in LIST_SECTIONS:
             built[name] = _build_list(name, LIST_SECTIONS[name], table, origin)
+            continue
+        if name == "noise" and isinstance(table, Mapping):
+            try:
+                built[name] = noise_settings_from_mapping(table)
+            except ValueError as exc:
+                raise InputError(origin, str(exc)) from None
             continue
         if name not in sections:
             raise InputError(origin, f"unknown section [{name}] (known: {', '.join(sections)})")
@@ -378,7 +423,8 @@ def _check_ranges(config: Config, origin: str | Path | None) -> None:
         ("filter.max_invalid_ratio", 0 <= config.filter.max_invalid_ratio <= 1, "must be in [0, 1]"),
         ("filter.max_mean_distance", config.filter.max_mean_distance > 0, "must be > 0"),
         ("filter.min_valid_pixels", config.filter.min_valid_pixels >= 3, "must be >= 3"),
-        ("ransac.distance_threshold", config.ransac.distance_threshold > 0, "must be > 0"),
+        ("ransac.distance_threshold", config.ransac.distance_threshold >= 0, "must be >= 0 (0: the [noise] band)"),
+        ("refine.grow_pixels", 0 <= config.refine.grow_pixels <= 50, "must be in [0, 50]"),
         ("ransac.num_iterations", config.ransac.num_iterations >= 1, "must be >= 1"),
         ("ransac.seed", config.ransac.seed >= 0, "must be >= 0"),
         ("ransac.max_points", config.ransac.max_points == 0 or config.ransac.max_points >= 3, "must be 0 or >= 3"),

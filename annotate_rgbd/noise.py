@@ -219,6 +219,22 @@ class NoiseSettings:
         """:func:`inlier_band` at depths ``z`` with these settings."""
         return inlier_band(z, self.model, self.k, self.floor, self.cap)
 
+    def to_mapping(self) -> dict[str, Any]:
+        """The settings as a ``[noise]`` section: the inverse of :func:`noise_settings_from_mapping`."""
+        names = [name for name, model in SENSOR_MODELS.items() if model == self.model]
+        if names:
+            values: dict[str, Any] = {"model": names[0]}
+        elif isinstance(self.model, ConstantNoise):
+            values = {"model": "constant", "sigma": self.model.value}
+        else:
+            values = {"model": "quadratic", "a": self.model.a, "b": self.model.b, "c": self.model.c}
+        return {**values, "k": self.k, "floor": self.floor, "cap": self.cap}
+
+    @classmethod
+    def fixed(cls, threshold: float) -> NoiseSettings:
+        """A band of the same width at every depth (a ``distance_threshold``)."""
+        return cls(ConstantNoise(threshold / DEFAULT_K), DEFAULT_K, threshold, threshold)
+
 
 #: Keys a ``[noise]`` mapping may hold, by model kind.
 _MODEL_KEYS = {"quadratic": ("a", "b", "c"), "constant": ("sigma",)}

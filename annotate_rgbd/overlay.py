@@ -7,6 +7,8 @@
   of its colour;
 * **removed pixels** - inside a kept plane's polygon but not in its mask (RANSAC outliers or no
   valid depth): the image darkened, with diagonal stripes in the plane's colour;
+* **grown pixels** - outside every drawn shape but added to a plane by edge growing (its depth
+  lies on the plane): the plane's colour, nearly opaque, just outside the polygon's outline;
 * **dropped plane** - the polygon outlined with a dashed line (plane colour and black), not
   tinted, with ``<id> dropped: <reason>`` in a black box.
 
@@ -29,6 +31,8 @@ from .sequence import read_rgb
 
 #: Weight of the plane colour in the tint of a kept plane.
 TINT_ALPHA = 0.45
+#: Weight of the plane colour on grown pixels: they stand out against the tint.
+GROWN_ALPHA = 0.85
 #: Removed pixels are darkened to this share of their brightness (under the stripes).
 REMOVED_DARKEN = 0.45
 #: Period and width, in pixels, of the diagonal stripes on removed pixels.
@@ -90,6 +94,8 @@ def render_overlay(
 
     on_plane = labels > 0
     out[on_plane] = (1 - alpha) * out[on_plane] + alpha * lookup[labels[on_plane]]
+    grown = on_plane & (drawn == 0)  # only edge growing puts a plane outside every drawn shape
+    out[grown] = (1 - GROWN_ALPHA) * rgb[grown] + GROWN_ALPHA * lookup[labels[grown]]
     # The outline is the labeller's polygon, not the refined mask: the mask's holes are speckle.
     kept_region = np.where(in_kept, drawn, 0)
     edge = inner_boundary(kept_region, 1)

@@ -175,7 +175,9 @@ class HelperPool:
         """Kill the helpers (their unfinished jobs are lost) and start new ones."""
         for process in self.processes.values():
             process.kill()
-        self._executor.shutdown(wait=False, cancel_futures=True)
+        # Not cancel_futures: the pool's own thread fails the lost jobs' futures as it finds the
+        # helpers dead, and one it finds cancelled makes that thread raise (Python 3.11).
+        self._executor.shutdown(wait=False)
         self._executor = self._start_executor()
 
     def shutdown(self, wait: bool = True, cancel_futures: bool = False) -> None:

@@ -51,6 +51,17 @@ class PlaneRecord:
         Kept planes: ``inliers / valid_pixels``.
     equation : tuple of 4 float, optional
         Kept planes: ``(a, b, c, d)`` with ``a x + b y + c z + d = 0`` in the camera frame (m).
+    band : float, optional
+        Kept planes: the inlier band (m) at the median depth of the plane's inliers.
+    rms_sigma : float, optional
+        Kept planes: RMS distance of the fit's inliers to the plane in units of the sensor noise
+        at their depth (about 1 when the noise model fits).
+    fit_points, fit_inliers_ransac, fit_inliers_refit : int, optional
+        Kept planes: the grid points the plane was fitted to, and how many of them lie within
+        the band of RANSAC's plane and of the plane re-fitted to its inliers.
+    grown : int, optional
+        Kept planes: pixels outside the drawn shape added by edge growing (the mask holds
+        ``inliers + grown`` pixels of the plane).
     reason : str, optional
         Dropped planes: why (``invalid_depth``, ``too_few_points``, ``too_far``); None: kept.
     invalid_ratio : float, optional
@@ -64,6 +75,12 @@ class PlaneRecord:
     inliers: int | None = None
     inlier_ratio: float | None = None
     equation: tuple[float, ...] | None = None
+    band: float | None = None
+    rms_sigma: float | None = None
+    fit_points: int | None = None
+    fit_inliers_ransac: int | None = None
+    fit_inliers_refit: int | None = None
+    grown: int | None = None
     reason: str | None = None
     invalid_ratio: float | None = None
 
@@ -82,7 +99,10 @@ class PlaneRecord:
         }
         if self.kept:
             entry.update(inliers=self.inliers, inlier_ratio=self.inlier_ratio,
-                         equation=None if self.equation is None else list(self.equation))
+                         equation=None if self.equation is None else list(self.equation),
+                         band=self.band, rms_sigma=self.rms_sigma, fit_points=self.fit_points,
+                         fit_inliers_ransac=self.fit_inliers_ransac, fit_inliers_refit=self.fit_inliers_refit,
+                         grown=self.grown)
         else:
             entry.update(reason=self.reason, invalid_ratio=self.invalid_ratio)
         return entry
@@ -106,6 +126,12 @@ class PlaneRecord:
             inliers=_int(entry, "inliers") if "inliers" in entry else None,
             inlier_ratio=_number(entry, "inlier_ratio", optional=True),
             equation=None if equation is None else tuple(_numbers(equation, "equation", 4)),
+            band=_number(entry, "band", optional=True),
+            rms_sigma=_number(entry, "rms_sigma", optional=True),
+            fit_points=_optional_int(entry, "fit_points"),
+            fit_inliers_ransac=_optional_int(entry, "fit_inliers_ransac"),
+            fit_inliers_refit=_optional_int(entry, "fit_inliers_refit"),
+            grown=_optional_int(entry, "grown"),
             reason=_text(entry, "reason", optional=True),
             invalid_ratio=_number(entry, "invalid_ratio", optional=True),
         )
@@ -505,6 +531,10 @@ def _int(entry: dict, key: str) -> int:
     if isinstance(value, bool) or not isinstance(value, int):
         raise RecordError(f"{key} is not an integer")
     return value
+
+
+def _optional_int(entry: dict, key: str) -> int | None:
+    return None if entry.get(key) is None else _int(entry, key)
 
 
 def _number(entry: dict, key: str, optional: bool = False) -> float | None:

@@ -10,6 +10,11 @@ import open3d as o3d
 
 from .camera import Camera, backproject
 from .config import RansacConfig
+from .noise import ConstantNoise, NoiseSettings
+from .planefit import refit_plane
+
+#: Least-squares re-fits of a RANSAC plane to its inliers (the second settles the inlier set).
+REFITS = 2
 
 
 @dataclass(frozen=True)
@@ -22,28 +27,45 @@ class PlaneFit:
         ``(a, b, c, d)`` with ``a x + b y + c z + d = 0`` in the camera frame (metres), unit
         normal, oriented towards the camera (``d > 0``).
     inliers : ndarray of bool, shape (N,)
-        For each input point, whether it lies within the distance threshold.
+        For each input point, whether it lies within the inlier band of the plane at its depth.
+    band : float
+        The inlier band (m) at the median depth of the inliers: the distance RANSAC used.
+    rms_sigma : float
+        Root mean square distance of the inliers to the plane, in units of the noise the band
+        stands for (``band / k``); about 1 when the noise model fits the sensor. NaN without
+        inliers.
+    inliers_ransac, inliers_refit : int
+        Inliers among the input points of RANSAC's plane and of the re-fitted plane.
     """
 
     equation: np.ndarray
     inliers: np.ndarray
+    band: float = float("nan")
+    rms_sigma: float = float("nan")
+    inliers_ransac: int = 0
+    inliers_refit: int = 0
 
 
-def fit_plane(points: np.ndarray, config: RansacConfig) -> PlaneFit:
-    """Fit a plane to 3-D points with Open3D's RANSAC.
+def fit_plane(points: np.ndarray, config: RansacConfig, noise: NoiseSettings) -> PlaneFit:
+    """Find a plane among 3-D points with Open3D's RANSAC, then re-fit it to its inliers.
 
     RANSAC searches for the plane among at most ``config.max_points`` of the points, taken
     evenly through the input (for a plane's pixels in row-major order: a regular grid over the
-    plane); whether a point is an inlier is then decided for every point, with the same rule as
-    Open3D (distance to the plane below the threshold). Open3D runs single-threaded with its
-    generator seeded before every call: its multi-threaded RANSAC gives different planes from
-    run to run, and frames are parallelised across processes instead.
+    plane), with the inlier band of the noise model at the points' median depth as its one
+    distance threshold. A 3-point RANSAC plane is noisier than the data, so the plane is then
+    re-fitted by least squares to its inliers, each weighted by ``1 / sigma(z)^2``
+    (:func:`annotate_rgbd.planefit.refit_plane`: every point tested against the band at its own
+    depth). Open3D runs single-threaded with its generator seeded before every call: its
+    multi-threaded RANSAC gives different planes from run to run, and frames are parallelised
+    across processes instead.
 
     Parameters
     ----------
     points : ndarray of float64, shape (N, 3)
         N >= 3 points in metres.
     config : RansacConfig
+    noise : NoiseSettings
+        The inlier band (:meth:`annotate_rgbd.config.Config.noise_settings`).
 
     Returns
     -------
@@ -53,22 +75,25 @@ def fit_plane(points: np.ndarray, config: RansacConfig) -> PlaneFit:
     sample = points
     if config.max_points and len(points) > config.max_points:
         sample = points[:: -(-len(points) // config.max_points)]
+    threshold = float(noise.band(np.median(sample[:, 2])))
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(sample))
     threads = o3d.utility.get_max_threads()
     o3d.utility.set_max_threads(1)
     try:
         o3d.utility.random.seed(config.seed)
-        model, _ = cloud.segment_plane(
-            distance_threshold=config.distance_threshold, ransac_n=3, num_iterations=config.num_iterations
-        )
+        model, _ = cloud.segment_plane(distance_threshold=threshold, ransac_n=3, num_iterations=config.num_iterations)
     finally:
         o3d.utility.set_max_threads(threads)
     equation = np.asarray(model, dtype=np.float64)
     equation = equation / np.linalg.norm(equation[:3])
     if equation[3] < 0:
         equation = -equation
-    inliers = np.abs(points @ equation[:3] + equation[3]) < config.distance_threshold
-    return PlaneFit(equation=equation, inliers=inliers)
+    refit = refit_plane(points, equation, noise.model, noise.k, noise.floor, noise.cap, iterations=REFITS, fit_points=0)
+    equation = refit.equation / np.linalg.norm(refit.equation[:3])
+    if equation[3] < 0:
+        equation = -equation
+    return PlaneFit(equation, refit.inliers, refit.band_at_median, refit.rms_sigma, refit.inliers_before,
+                    refit.inliers_after)
 
 
 def refine_planes(
@@ -77,13 +102,15 @@ def refine_planes(
     plane_ids: np.ndarray,
     camera: Camera,
     config: RansacConfig,
+    noise: NoiseSettings,
     valid_pixels: np.ndarray | None = None,
-) -> tuple[np.ndarray, dict[int, np.ndarray]]:
-    """Keep, for each plane, only its pixels with valid depth that lie on the plane RANSAC finds.
+) -> tuple[np.ndarray, dict[int, PlaneFit]]:
+    """Keep, for each plane, only its pixels with valid depth that lie on its fitted plane.
 
-    Each plane is fitted to its valid pixels on a regular grid (every pixel, or every s-th row
-    and column so that at most ``config.max_points`` remain); whether a pixel is an inlier is
-    then decided for every pixel of every plane at once, with the distance to its own plane.
+    Each plane is fitted (:func:`fit_plane`) to its valid pixels on a regular grid (every
+    pixel, or every s-th row and column so that at most ``config.max_points`` remain); whether
+    a pixel is an inlier is then decided for every pixel of every plane at once: its distance
+    to its own plane within the band ``noise.band(z)`` at its own depth.
 
     Parameters
     ----------
@@ -95,6 +122,8 @@ def refine_planes(
         The planes to refine; every other label becomes 0.
     camera : Camera
     config : RansacConfig
+    noise : NoiseSettings
+        The inlier band.
     valid_pixels : ndarray of int, optional
         Number of valid-depth pixels of each plane of ``plane_ids`` (as counted by
         :func:`annotate_rgbd.filters.plane_statistics`); counted here when not given.
@@ -103,8 +132,8 @@ def refine_planes(
     -------
     refined : ndarray, shape (H, W), of the type of ``labels``
         Plane ids on inlier pixels, 0 everywhere else (off-plane and invalid-depth pixels too).
-    equations : dict of int to ndarray
-        The plane of each refined plane id, as in :class:`PlaneFit`.
+    fits : dict of int to PlaneFit
+        The fit of each refined plane id (its ``inliers`` are those of the grid points).
     """
     valid = np.isfinite(depth_m)
     on_valid = np.where(valid, labels, 0)  # plane ids where the depth is valid
@@ -113,7 +142,7 @@ def refine_planes(
     if valid_pixels is None:
         valid_pixels = np.bincount(on_valid.ravel(), minlength=n_labels)[plane_ids]
     table = np.zeros((n_labels, 4), dtype=np.float32)  # (a, b, c, d) per label; 0 = no plane
-    equations = {}
+    fits = {}
     for plane_id, count in zip(plane_ids.tolist(), np.asarray(valid_pixels).tolist()):
         step = 1
         if config.max_points:
@@ -125,21 +154,37 @@ def refine_planes(
         if rows.size < 3:
             continue
         rows, cols = rows * step, cols * step
-        fit = fit_plane(backproject(cols, rows, depth_m[rows, cols], camera), config)
-        equations[plane_id] = fit.equation
+        fit = fit_plane(backproject(cols, rows, depth_m[rows, cols], camera), config, noise)
+        fits[plane_id] = fit
         table[plane_id] = fit.equation
     # Distance of every pixel to its own label's plane: |z (a x_n + b y_n + c) + d| with
     # x_n = (col - cx) / fx, y_n = (row - cy) / fy the pixel's ray at z = 1.
-    # float32 is ample here: depth has 0.2 mm steps, and the threshold is millimetres or more.
+    # float32 is ample here: depth has 0.2 mm steps, and the band is millimetres or more.
     a, b, c, d = (_lookup(table[:, k], on_valid) for k in range(4))
     x_n = ((np.arange(labels.shape[1], dtype=np.float32) - np.float32(camera.cx)) / np.float32(camera.fx))[None, :]
     y_n = ((np.arange(labels.shape[0], dtype=np.float32) - np.float32(camera.cy)) / np.float32(camera.fy))[:, None]
     with np.errstate(invalid="ignore"):
         distance = np.abs(depth_m * (a * x_n + b * y_n + c) + d)
-    fitted = np.zeros(n_labels, dtype=np.float32)
-    fitted[list(equations)] = 1
-    on_plane = (distance < config.distance_threshold) & (_lookup(fitted, on_valid) > 0)
-    return np.where(on_plane, labels, 0).astype(labels.dtype), equations
+        fitted = np.zeros(n_labels, dtype=np.float32)
+        fitted[list(fits)] = 1
+        on_plane = (distance < band_image(depth_m, noise)) & (_lookup(fitted, on_valid) > 0)
+    return np.where(on_plane, labels, 0).astype(labels.dtype), fits
+
+
+def band_image(depth_m: np.ndarray, noise: NoiseSettings) -> np.ndarray | float:
+    """The inlier band at every pixel's depth (float32; NaN where the depth is), or one number
+    when the band does not depend on depth (a fixed ``distance_threshold``)."""
+    if noise.floor >= noise.cap:
+        return float(noise.floor)
+    model = noise.model
+    if isinstance(model, ConstantNoise):
+        return float(np.clip(noise.k * model.value, noise.floor, noise.cap))
+    # k (a + b (z - c)^2), clipped: a few passes of float32 arithmetic over the image.
+    z = depth_m - np.float32(model.c)
+    band = z * z
+    band *= np.float32(noise.k * model.b)
+    band += np.float32(noise.k * model.a)
+    return np.clip(band, np.float32(noise.floor), np.float32(noise.cap), out=band)
 
 
 def _lookup(table: np.ndarray, labels: np.ndarray) -> np.ndarray:

@@ -81,7 +81,7 @@ def _mask_settings(config: Config) -> bytes:
     """The tool version and the settings that change a mask (not stitching or part placement,
     whose effect is in the shapes' plane ids)."""
     settings = config_to_dict(config)
-    return json.dumps([__version__, settings["camera"], settings["filter"], settings["ransac"]]).encode()
+    return json.dumps([__version__, *(settings[key] for key in ("camera", "filter", "ransac", "noise", "refine"))]).encode()
 
 
 @dataclass

@@ -15,6 +15,7 @@ from .annotation import Shape
 from .camera import depth_to_metres
 from .config import Config
 from .filters import drop_reasons, label_histogram, plane_statistics
+from .grow import grow_planes
 from .rasterize import rasterize_frame
 from .records import PlaneRecord
 from .refine import refine_planes
@@ -27,7 +28,8 @@ class FrameResult:
     Parameters
     ----------
     labels : ndarray of uint8, uint16 or int32, shape (H, W)
-        The refined mask: plane ids where a pixel lies on its plane, 0 elsewhere.
+        The mask: plane ids where a pixel lies on its plane (grown edges, outside every drawn
+        shape, included), 0 elsewhere.
     drawn : ndarray of the same type, shape (H, W)
         The labeller's shapes as rasterised, before any depth check (for review overlays).
     kept, dropped : list of PlaneRecord
@@ -63,11 +65,15 @@ def segment_frame(depth_raw: np.ndarray, shapes: Sequence[tuple[int, Shape]], co
     stats = plane_statistics(drawn, depth_m, config.camera)
     reasons = drop_reasons(stats, config.filter)
     kept = np.array([r is None for r in reasons], dtype=bool)
-    refined, equations = refine_planes(
-        drawn, depth_m, stats.plane_ids[kept], config.camera, config.ransac, stats.valid_pixels[kept]
+    band = config.inlier_band()
+    refined, fits = refine_planes(
+        drawn, depth_m, stats.plane_ids[kept], config.camera, config.ransac, band, stats.valid_pixels[kept]
     )
     inlier_count = label_histogram(refined, int(drawn.max(initial=0)) + 1)
-    result = FrameResult(labels=refined, drawn=drawn)
+    equations = {plane_id: fit.equation for plane_id, fit in fits.items()}
+    labels, grown = grow_planes(refined, drawn, depth_m, equations, config.camera, band.model, band.k, band.floor,
+                                band.cap, config.refine.grow_pixels)
+    result = FrameResult(labels=labels, drawn=drawn)
     for i, plane_id in enumerate(stats.plane_ids.tolist()):
         measured = dict(
             plane=plane_id,
@@ -76,12 +82,18 @@ def segment_frame(depth_raw: np.ndarray, shapes: Sequence[tuple[int, Shape]], co
             mean_distance=_rounded(stats.mean_distance[i]),
         )
         if reasons[i] is None:
-            inliers = int(inlier_count[plane_id])
+            inliers, fit = int(inlier_count[plane_id]), fits[plane_id]
             result.kept.append(PlaneRecord(
                 **measured,
                 inliers=inliers,
                 inlier_ratio=round(inliers / max(int(stats.valid_pixels[i]), 1), 6),
-                equation=tuple(round(float(v), 9) for v in equations[plane_id]),
+                equation=tuple(round(float(v), 9) for v in fit.equation),
+                band=_rounded(fit.band),
+                rms_sigma=None if not np.isfinite(fit.rms_sigma) else round(fit.rms_sigma, 4),
+                fit_points=len(fit.inliers),
+                fit_inliers_ransac=fit.inliers_ransac,
+                fit_inliers_refit=fit.inliers_refit,
+                grown=grown.get(plane_id, 0),
             ))
         else:
             result.dropped.append(PlaneRecord(

@@ -1,6 +1,8 @@
+import numpy as np
 import pytest
 
-from annotate_rgbd.config import Config, config_to_dict, load_config, preset_names
+from annotate_rgbd.noise import SENSOR_MODELS, NoiseSettings, QuadraticNoise
+from annotate_rgbd.config import Config, config_from_dict, config_to_dict, load_config, preset_names
 from annotate_rgbd.errors import InputError
 
 ISSUE_EXAMPLE = """
@@ -23,7 +25,9 @@ def test_defaults_are_the_papers():
     assert config == Config()
     assert config.filter.max_invalid_ratio == 0.8
     assert config.filter.max_mean_distance == 3.5
-    assert config.ransac.distance_threshold == 0.02
+    assert config.ransac.distance_threshold == 0.0  # no fixed band: the sensor's noise decides
+    assert config.inlier_band() == NoiseSettings(SENSOR_MODELS["kinect_v1"], 3.0, 0.002, 0.1)
+    assert SENSOR_MODELS["kinect_v1"] == QuadraticNoise(0.0012, 0.0019, 0.4)  # Nguyen et al. 2012
     assert config.sequence.max_time_diff == 0.02
 
 
@@ -44,25 +48,37 @@ def test_overrides_beat_the_file(tmp_path):
     assert config.camera.fx == 517.3
 
 
+#: preset -> (noise model, max_invalid_ratio, fy, depth_scale); the EVOPS scenes' fixed bands
+#: (0.005 m ICL-NUIM, 0.01 fr1_desk, 0.03 fr2_pioneer_slam, 0.02 fr3) are in their comments.
 EXPECTED_PRESETS = {
-    "living_room": (0.005, 0.8, -480.0),
-    "office_room": (0.005, 0.8, -480.0),
-    "fr1_desk": (0.01, 0.8, 516.469215),
-    "fr2_pioneer_slam": (0.03, 0.75, 521.007327),
-    "fr3_cabinet": (0.02, 0.8, 539.2),
-    "fr3_long_office_household_validation": (0.02, 0.8, 539.2),
+    "living_room": ("icl_nuim", 0.8, -480.0, 5000.0),
+    "office_room": ("icl_nuim", 0.8, -480.0, 5000.0),
+    "fr1_desk": ("kinect_v1", 0.8, 516.469215, 5000.0),
+    "fr2_pioneer_slam": ("kinect_v1", 0.75, 521.007327, 5000.0),
+    "fr3_cabinet": ("kinect_v1", 0.8, 539.2, 5000.0),
+    "fr3_long_office_household_validation": ("kinect_v1", 0.8, 539.2, 5000.0),
+    "realsense_d435": ("realsense_d435", 0.8, 615.0, 1000.0),
 }
 
 
-def test_every_evops_scene_has_a_preset_with_its_thresholds():
+def test_every_preset_has_its_sensor_noise_model_and_thresholds():
     assert set(preset_names()) == set(EXPECTED_PRESETS)
-    for name, (threshold, invalid, fy) in EXPECTED_PRESETS.items():
+    for name, (model, invalid, fy, depth_scale) in EXPECTED_PRESETS.items():
         config = load_config(name)
-        assert config.ransac.distance_threshold == threshold, name
+        assert config.ransac.distance_threshold == 0.0, name  # no fixed band: the noise model's
+        assert config.inlier_band().model == SENSOR_MODELS[model], name
         assert config.filter.max_invalid_ratio == invalid, name
         assert config.filter.max_mean_distance == 3.5, name
         assert config.camera.fy == fy, name
-        assert config.camera.depth_scale == 5000.0, name
+        assert config.camera.depth_scale == depth_scale, name
+
+
+def test_a_fixed_distance_threshold_replaces_the_noise_model():
+    config = load_config("fr1_desk", {"ransac.distance_threshold": 0.01})
+    band = config.inlier_band()
+    np.testing.assert_array_equal(band.band(np.array([0.5, 1.0, 3.0, 6.0])), [0.01] * 4)
+    # The noise section round-trips through the report's configuration.
+    assert config_from_dict(config_to_dict(load_config("living_room"))) == load_config("living_room")
 
 
 @pytest.mark.parametrize(
@@ -71,7 +87,10 @@ def test_every_evops_scene_has_a_preset_with_its_thresholds():
         ("[ransac]\ndistance_treshold = 0.1\n", "unknown key 'ransac.distance_treshold'"),
         ("[filters]\nmax_mean_distance = 3\n", "unknown section [filters]"),
         ("[ransac]\ndistance_threshold = 'big'\n", "'ransac.distance_threshold' must be a number"),
-        ("[ransac]\ndistance_threshold = -1.0\n", "'ransac.distance_threshold' must be > 0"),
+        ("[ransac]\ndistance_threshold = -1.0\n", "'ransac.distance_threshold' must be >= 0 (0: the [noise] band)"),
+        ("[noise]\nmodel = 'kinect_v2'\n", "'noise.model' must be one of constant, quadratic, icl_nuim, kinect_v1"),
+        ("[noise]\nmodel = 'kinect_v1'\nb = 0.1\n", "'noise.b' is not a parameter of model 'kinect_v1'"),
+        ("[refine]\ngrow_pixels = -1\n", "'refine.grow_pixels' must be in [0, 50]"),
         ("[camera]\nfy = 0\n", "'camera.fy' must not be 0"),
         ("[filter]\nmin_valid_pixels = 2.5\n", "'filter.min_valid_pixels' must be an integer"),
         ("[filter\n", "invalid TOML"),

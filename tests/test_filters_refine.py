@@ -4,7 +4,12 @@ import pytest
 from annotate_rgbd.camera import Camera
 from annotate_rgbd.config import FilterConfig, RansacConfig
 from annotate_rgbd.filters import INVALID_DEPTH, TOO_FAR, TOO_FEW_POINTS, drop_reasons, label_histogram, plane_statistics
-from annotate_rgbd.refine import fit_plane, refine_planes
+from annotate_rgbd.noise import SENSOR_MODELS, NoiseSettings, inlier_band
+from annotate_rgbd.refine import band_image, fit_plane, refine_planes
+
+#: A fixed 2 cm band, as ``ransac.distance_threshold = 0.02`` gives.
+FIXED = NoiseSettings.fixed(0.02)
+KINECT = NoiseSettings(SENSOR_MODELS["kinect_v1"])
 
 CAMERA = Camera(fx=100.0, fy=100.0, cx=19.5, cy=14.5, depth_scale=5000.0)
 
@@ -61,12 +66,12 @@ def test_fit_plane_recovers_the_plane_and_is_deterministic():
     points = np.c_[xy, 2.0 + 0.1 * xy[:, 0] + rng.normal(0, 0.003, 2000)]
     points[:300, 2] -= rng.uniform(0.1, 0.5, 300)  # clutter in front
     config = RansacConfig(distance_threshold=0.02)
-    fit = fit_plane(points, config)
+    fit = fit_plane(points, config, FIXED)
     normal = np.array([-0.1, 0, 1]) / np.linalg.norm([-0.1, 0, 1])
     assert abs(abs(fit.equation[:3] @ normal) - 1) < 1e-3
     assert fit.equation[3] > 0
     assert fit.inliers[300:].mean() > 0.99 and fit.inliers[:300].mean() < 0.1
-    again = fit_plane(points, config)
+    again = fit_plane(points, config, FIXED)
     np.testing.assert_array_equal(fit.inliers, again.inliers)
     np.testing.assert_array_equal(fit.equation, again.equation)
 
@@ -78,13 +83,13 @@ def test_refine_removes_clutter_and_invalid_pixels_and_keeps_only_given_planes()
     labels = np.zeros((30, 40), np.int32)
     labels[:, :20] = 3
     labels[:, 20:] = 5
-    refined, equations = refine_planes(labels, depth, np.array([3]), CAMERA, RansacConfig())
-    assert set(equations) == {3}
+    refined, fits = refine_planes(labels, depth, np.array([3]), CAMERA, RansacConfig(), FIXED)
+    assert set(fits) == {3}
     expected = np.where(labels == 3, 3, 0)
     expected[5:10, 5:10] = 0
     expected[0, 0] = 0
     np.testing.assert_array_equal(refined, expected)
-    np.testing.assert_allclose(equations[3], [0, 0, -1, 2], atol=1e-6)
+    np.testing.assert_allclose(fits[3].equation, [0, 0, -1, 2], atol=1e-6)
 
 
 def test_ransac_on_a_subsample_finds_the_same_plane_and_tests_every_point():
@@ -92,8 +97,8 @@ def test_ransac_on_a_subsample_finds_the_same_plane_and_tests_every_point():
     xy = rng.uniform(-1, 1, (20000, 2))
     points = np.c_[xy, 1.5 + 0.2 * xy[:, 1] + rng.normal(0, 0.003, 20000)]
     points[::7, 2] -= 0.3  # clutter spread through the points
-    full = fit_plane(points, RansacConfig(max_points=0))
-    sampled = fit_plane(points, RansacConfig(max_points=1000))
+    full = fit_plane(points, RansacConfig(max_points=0), FIXED)
+    sampled = fit_plane(points, RansacConfig(max_points=1000), FIXED)
     assert sampled.inliers.shape == (20000,)
     assert np.mean(full.inliers != sampled.inliers) < 0.002
     assert not sampled.inliers[::7].any()
@@ -104,8 +109,8 @@ def test_refine_samples_large_planes_on_a_grid_and_tests_every_pixel():
     depth = plane_depth((160, 200), camera, [0.2, -0.1, 1], -2.5)
     depth[40:60, 50:90] -= 0.2  # clutter
     labels = np.ones((160, 200), np.int32)
-    everything = refine_planes(labels, depth, np.array([1]), camera, RansacConfig(max_points=0))
-    sampled = refine_planes(labels, depth, np.array([1]), camera, RansacConfig(max_points=500))
+    everything = refine_planes(labels, depth, np.array([1]), camera, RansacConfig(max_points=0), FIXED)
+    sampled = refine_planes(labels, depth, np.array([1]), camera, RansacConfig(max_points=500), FIXED)
     np.testing.assert_array_equal(sampled[0], everything[0])
     assert (sampled[0][40:60, 50:90] == 0).all() and sampled[0].sum() == 160 * 200 - 20 * 40
 
@@ -119,7 +124,64 @@ def test_label_histogram_and_refine_agree_for_every_label_type():
         np.testing.assert_array_equal(label_histogram(labels8, 5), np.bincount(labels8.ravel(), minlength=5))
     depth = plane_depth((30, 40), CAMERA, [0.1, 0, 1], -2.0)
     depth[5:9, 5:9] -= 0.3
-    refined8, eq8 = refine_planes(labels8, depth, np.array([1, 2, 3, 4]), CAMERA, RansacConfig())
-    refined16, eq16 = refine_planes(labels8.astype(np.uint16) * 100, depth, np.array([100, 200, 300, 400]), CAMERA, RansacConfig())
+    refined8, eq8 = refine_planes(labels8, depth, np.array([1, 2, 3, 4]), CAMERA, RansacConfig(), FIXED)
+    refined16, eq16 = refine_planes(labels8.astype(np.uint16) * 100, depth, np.array([100, 200, 300, 400]), CAMERA,
+                                    RansacConfig(), FIXED)
     assert refined8.dtype == np.uint8 and refined16.dtype == np.uint16
     np.testing.assert_array_equal(refined8.astype(np.uint16) * 100, refined16)
+
+
+def test_band_image_is_the_noise_band_at_every_pixels_depth():
+    rng = np.random.default_rng(8)
+    depth = rng.uniform(0.5, 6.0, (20, 30)).astype(np.float32)
+    depth[3, 4] = np.nan
+    band = band_image(depth, KINECT)
+    expected = np.clip(3 * (0.0012 + 0.0019 * (depth.astype(np.float64) - 0.4) ** 2), 0.002, 0.1)
+    np.testing.assert_allclose(band, expected, rtol=1e-5)
+    assert np.isnan(band[3, 4])
+    assert band_image(depth, FIXED) == 0.02  # one number: no per-pixel work for a fixed band
+
+
+def _noisy_plane(z0: float, thickness: float, rng) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A fronto-parallel plane at ``z0`` with Kinect noise, and a slab ``thickness`` in front of
+    it over a quarter of the image (a book lying on a table, seen from above)."""
+    shape = (60, 80)
+    depth = np.full(shape, z0, np.float64)
+    clutter = np.zeros(shape, bool)
+    clutter[10:30, 10:40] = True
+    depth[clutter] -= thickness
+    depth += rng.standard_normal(shape) * (0.0012 + 0.0019 * (depth - 0.4) ** 2)
+    return depth.astype(np.float32), np.ones(shape, np.int32), clutter
+
+
+def test_noise_aware_band_drops_clutter_near_by_and_keeps_the_plane_far_away():
+    rng = np.random.default_rng(4)
+    # Near: a 1.5 cm slab on a plane at 0.8 m (sigma 1.5 mm): a fixed 2 cm band keeps the slab.
+    depth, labels, clutter = _noisy_plane(0.8, 0.015, rng)
+    fixed, _ = refine_planes(labels, depth, np.array([1]), CAMERA, RansacConfig(), FIXED)
+    aware, fits = refine_planes(labels, depth, np.array([1]), CAMERA, RansacConfig(), KINECT)
+    assert fixed[clutter].mean() > 0.95 and aware[clutter].mean() < 0.01
+    assert aware[~clutter].mean() > 0.99
+    assert fits[1].band == pytest.approx(float(inlier_band(0.8, KINECT.model)), rel=0.02)
+    # Far: a plane at 2.9 m (sigma 1.3 cm): a fixed 2 cm band loses an eighth of it.
+    depth, labels, _ = _noisy_plane(2.9, 0.0, rng)
+    fixed, _ = refine_planes(labels, depth, np.array([1]), CAMERA, RansacConfig(), FIXED)
+    aware, fits = refine_planes(labels, depth, np.array([1]), CAMERA, RansacConfig(), KINECT)
+    assert fixed.mean() < 0.9 and aware.mean() > 0.99
+
+
+def test_refit_plane_is_fitted_to_the_inliers_and_reports_its_residual_in_sigma_units():
+    rng = np.random.default_rng(6)
+    depth, labels, clutter = _noisy_plane(2.0, 0.3, rng)
+    x = (np.arange(80) - CAMERA.cx) / CAMERA.fx
+    y = (np.arange(60) - CAMERA.cy) / CAMERA.fy
+    points = np.stack([x[None, :] * depth, y[:, None] * depth, depth], axis=-1)[~clutter].astype(np.float64)
+    fit = fit_plane(points, RansacConfig(), KINECT)
+    # Independent: least squares z = const on the true plane's points.
+    sigma = 0.0012 + 0.0019 * (2.0 - 0.4) ** 2
+    np.testing.assert_allclose(fit.equation[:3], [0, 0, -1], atol=3 * sigma / 2.0)
+    assert fit.equation[3] == pytest.approx(np.mean(points[:, 2]), abs=0.001)
+    residual = np.abs(points @ fit.equation[:3] + fit.equation[3])[fit.inliers] / sigma
+    assert fit.rms_sigma == pytest.approx(np.sqrt(np.mean(residual**2)), rel=0.01)
+    assert 0.85 < fit.rms_sigma < 1.1  # the model is the noise the points were drawn with
+    assert fit.inliers_refit == fit.inliers.sum() >= fit.inliers_ransac > 0.95 * len(points)

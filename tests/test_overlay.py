@@ -160,3 +160,17 @@ def test_contact_sheet_captions_add_a_line_below_each_thumbnail():
         contact_sheet(images, ["only one"])
     with pytest.raises(ValueError):
         contact_sheet([])
+
+
+def test_grown_pixels_are_nearly_opaque_in_the_plane_colour(frame):
+    rgb, result, colours, _, plain = frame
+    labels = result.labels.copy()
+    labels[10:70, 100:103] = 1  # three columns grown just outside the polygon's right edge
+    grown = FrameResult(labels=labels, drawn=result.drawn, kept=result.kept, dropped=result.dropped)
+    out = render_overlay(rgb, grown, colours)
+    rows = slice(15, 30)  # clear of the id box
+    expected = np.round(0.15 * GREY + 0.85 * colours[0].astype(float))
+    assert (out[rows, 100:103] == expected).all()
+    # The tint inside the polygon is lighter: grown pixels stand out from it.
+    assert np.abs(out[rows, 60].astype(int) - colours[0]).sum() > np.abs(out[rows, 101].astype(int) - colours[0]).sum()
+    assert (plain[rows, 100:103] == GREY).all()
