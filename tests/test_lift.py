@@ -178,8 +178,8 @@ def test_clip_wholly_in_front_or_behind():
     np.testing.assert_array_equal(clip_near(triangle, 0.05), triangle)
     assert clip_near(triangle - [0, 0, 3.01], 0.05).shape == (0, 3)
     assert project_polygon(triangle - [0, 0, 3.01], TUM, np.eye(3), np.zeros(3)).shape == (0, 2)
-    touching = clip_near(triangle - [0, 0, 0.95], 0.05)  # one vertex exactly on the plane
-    np.testing.assert_array_equal(touching, triangle - [0, 0, 0.95])
+    touching = triangle - [0, 0, 0.75]  # one vertex exactly on the plane z = 0.25 (dyadic)
+    np.testing.assert_array_equal(clip_near(touching, 0.25), touching)
 
 
 @pytest.mark.parametrize("seed", range(4))
