@@ -124,7 +124,8 @@ def read_trajectory(path: str | Path) -> Trajectory:
     if data.count(b"\n") + (not data.endswith(b"\n")) > MAX_LINES:
         raise InputError(path, f"more than {MAX_LINES:,} lines: too large for a trajectory file")
     try:
-        text = data.decode("utf-8")
+        # One line break for both readers: "\n", "\r\n" or a lone "\r".
+        text = data.decode("utf-8").replace("\r\n", "\n").replace("\r", "\n")
     except UnicodeDecodeError as error:
         line = data[: error.start].count(b"\n") + 1
         raise InputError(path, f"line {line}: not UTF-8 text") from None
@@ -134,7 +135,7 @@ def read_trajectory(path: str | Path) -> Trajectory:
 
     def line_of(row: int) -> int:
         # Line numbers are only worked out when a problem must be reported.
-        numbers = line_numbers if line_numbers is not None else _parse_lines(path, text)[1]
+        numbers = line_numbers if line_numbers is not None else _data_line_numbers(text)
         return int(numbers[row])
 
     finite = np.isfinite(values)
@@ -156,8 +157,8 @@ def read_trajectory(path: str | Path) -> Trajectory:
         row = int(np.argmax(unordered)) + 1
         raise InputError(
             path,
-            f"line {line_of(row)}: timestamp {float(timestamps[row])!r} is not after {float(timestamps[row - 1])!r} "
-            f"on line {line_of(row - 1)}; timestamps must be strictly increasing",
+            f"line {line_of(row)}: timestamp {float(timestamps[row])!r} is not after "
+            f"{float(timestamps[row - 1])!r} on line {line_of(row - 1)}; timestamps must be strictly increasing",
         )
     arrays = (
         np.ascontiguousarray(timestamps),
@@ -180,7 +181,9 @@ def _read_bytes(path: Path) -> bytes:
     except OSError as error:
         raise InputError(path, f"cannot read the trajectory file ({error.strerror or error})") from None
     if size > MAX_BYTES:
-        raise InputError(path, f"{size / 2**30:.1f} GiB: larger than the {MAX_BYTES / 2**30:g} GiB a trajectory may have")
+        raise InputError(
+            path, f"{size / 2**30:.1f} GiB: larger than the {MAX_BYTES / 2**30:g} GiB a trajectory may have"
+        )
     return data
 
 
@@ -210,7 +213,7 @@ def _parse_lines(path: Path, text: str) -> tuple[np.ndarray, np.ndarray]:
         At the first line with the wrong number of fields or a field that is not a number.
     """
     rows, numbers = [], []
-    for number, line in enumerate(text.splitlines(), start=1):
+    for number, line in enumerate(text.split("\n"), start=1):
         fields = line.split("#", 1)[0].split()
         if not fields:
             continue
@@ -223,9 +226,17 @@ def _parse_lines(path: Path, text: str) -> tuple[np.ndarray, np.ndarray]:
             rows.append([float(field) for field in fields])
         except ValueError:
             col = next(k for k, field in enumerate(fields) if not _is_number(field))
-            raise InputError(path, f"line {number}: {FIELDS[col]} {fields[col][:40]!r} is not a number") from None
+            raise InputError(
+                path, f"line {number}: {FIELDS[col]} {fields[col][:40]!r} is not a number"
+            ) from None
         numbers.append(number)
     return np.array(rows, dtype=np.float64).reshape(-1, len(FIELDS)), np.array(numbers, dtype=np.int64)
+
+
+def _data_line_numbers(text: str) -> np.ndarray:
+    """Line numbers (from 1) of the lines holding data, as both readers see them."""
+    lines = text.split("\n")
+    return np.array([k for k, line in enumerate(lines, start=1) if line.split("#", 1)[0].strip()], dtype=np.int64)
 
 
 def _is_number(field: str) -> bool:
