@@ -120,12 +120,12 @@ def read_trajectory(path: str | Path) -> Trajectory:
         not strictly increasing, no poses at all.
     """
     path = Path(path)
-    data = _read_bytes(path)
+    # One line break for both readers below: "\n", "\r\n" or a lone "\r".
+    data = _read_bytes(path).replace(b"\r\n", b"\n").replace(b"\r", b"\n")
     if data.count(b"\n") + (not data.endswith(b"\n")) > MAX_LINES:
         raise InputError(path, f"more than {MAX_LINES:,} lines: too large for a trajectory file")
     try:
-        # One line break for both readers: "\n", "\r\n" or a lone "\r".
-        text = data.decode("utf-8").replace("\r\n", "\n").replace("\r", "\n")
+        text = data.decode("utf-8")
     except UnicodeDecodeError as error:
         line = data[: error.start].count(b"\n") + 1
         raise InputError(path, f"line {line}: not UTF-8 text") from None

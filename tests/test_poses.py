@@ -145,8 +145,8 @@ def test_no_poses(tmp_path, text):
 
 
 def test_not_utf8_names_the_line(tmp_path):
-    path = write(tmp_path, GOOD.encode() + b"2 0 0 0 \xff 0 0 1\n")
-    with pytest.raises(InputError, match=r"line 2: not UTF-8"):
+    path = write(tmp_path, GOOD.encode() + b"\r\n\r2 0 0 0 \xff 0 0 1\n")
+    with pytest.raises(InputError, match=r"line 4: not UTF-8"):
         read_trajectory(path)
 
 
@@ -159,7 +159,7 @@ def test_unreadable(tmp_path, make):
 
 
 def test_too_many_lines_or_bytes_are_refused(tmp_path, monkeypatch):
-    path = write(tmp_path, GOOD + "\n\n# comment")  # four lines, the last without "\n"
+    path = write(tmp_path, GOOD + "\r\n\r# comment")  # four lines, the last without a break
     monkeypatch.setattr(poses, "MAX_LINES", 4)
     assert len(read_trajectory(path)) == 1
     monkeypatch.setattr(poses, "MAX_LINES", 3)
