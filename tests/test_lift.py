@@ -19,7 +19,7 @@ from annotate_rgbd.lift import (
     project_polygon,
 )
 from annotate_rgbd.rasterize import polygon_window
-from annotate_rgbd.synthetic import Plane, look_at, render
+from annotate_rgbd.synthetic import Plane, Scene, look_at, render
 
 TUM = Camera(fx=517.306408, fy=516.469215, cx=318.643040, cy=255.313989, depth_scale=5000)
 ICL = Camera(fx=481.20, fy=-480.00, cx=319.5, cy=239.5, depth_scale=5000)  # y up: fy < 0
@@ -101,6 +101,10 @@ VIEW_A = look_at((-0.4, 0.6, 1.4), (0.0, 2.0, 1.2))
 VIEW_B = look_at((0.7, 0.2, 1.0), (0.1, 2.0, 1.3))
 
 
+def render_panel(view, camera):
+    return render(Scene(planes=(PANEL,)), view, camera, WIDTH, HEIGHT)
+
+
 def plane_from_depth(depth: np.ndarray, mask: np.ndarray, camera: Camera) -> np.ndarray:
     """Least-squares plane through the rendered pixels, back-projected by hand."""
     rows, cols = np.nonzero(mask)
@@ -132,12 +136,6 @@ def test_propagated_polygon_matches_the_rendered_plane(camera):
     seen = render_panel(VIEW_B, camera).object_index == 0
     assert seen.sum() > 20000
     assert (filled != seen).sum() <= 10  # a pixel centre within float32 rounding of an edge may flip
-
-
-def render_panel(view, camera):
-    from annotate_rgbd.synthetic import Scene
-
-    return render(Scene(planes=(PANEL,)), view, camera, WIDTH, HEIGHT)
 
 
 def test_exact_plane_propagates_exactly():
