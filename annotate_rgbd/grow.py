@@ -12,11 +12,9 @@ from typing import Mapping
 
 import cv2
 import numpy as np
-from scipy import ndimage
 
 from .camera import Camera, backproject
 from .noise import NoiseModel, inlier_band
-from .planefit import point_plane_distance
 
 
 def grow_planes(
@@ -43,7 +41,10 @@ def grow_planes(
       ``z`` being the pixel's own depth.
 
     A pixel that several planes may take goes to the plane it is nearest to in 3-D, a tie to
-    the lowest plane id, so the result does not depend on the order of ``equations``. Growth is
+    the lowest plane id, so the result does not depend on the order of ``equations``. The
+    candidates of a pixel are the lowest and the highest id among the planes whose shapes lie
+    within ``grow_pixels`` of it (where three or more shapes meet, the others are not
+    considered): two image-wide dilations find them, whatever the number of planes. Growth is
     not required to be connected: within a band of a few pixels, a pixel on the plane's surface
     is part of it even behind a one-pixel gap (an invalid-depth speck, a thin cable).
 
@@ -79,47 +80,44 @@ def grow_planes(
     if grow_pixels == 0 or not grown:
         return labels, grown
     drawn = np.asarray(drawn)
-    height, width = drawn.shape
     g = int(grow_pixels)
     offsets = np.arange(-g, g + 1)
     disk = (offsets[:, None] ** 2 + offsets[None, :] ** 2 <= g * g).astype(np.uint8)
-    boxes = ndimage.find_objects(drawn, max_label=max(grown))  # bounding box per plane id
-    found_rows, found_cols, found_dist, found_ids = [], [], [], []
-    for plane_id in sorted(grown):
-        if not 0 < plane_id <= len(boxes) or boxes[plane_id - 1] is None:
-            continue  # nothing drawn for this plane
-        rows_box, cols_box = boxes[plane_id - 1]
-        r0, r1 = max(rows_box.start - g, 0), min(rows_box.stop + g, height)
-        c0, c1 = max(cols_box.start - g, 0), min(cols_box.stop + g, width)
-        drawn_w = drawn[r0:r1, c0:c1]
-        near = cv2.dilate((drawn_w == plane_id).astype(np.uint8), disk, borderValue=0)
-        free = (near > 0) & (drawn_w == 0) & (refined[r0:r1, c0:c1] == 0)
-        rows, cols = np.nonzero(free)
-        if rows.size == 0:
-            continue
-        rows, cols = rows + r0, cols + c0
-        z = depth_m[rows, cols].astype(np.float64)
-        valid = np.isfinite(z) & (z > 0)
-        rows, cols, z = rows[valid], cols[valid], z[valid]
-        points = backproject(cols, rows, z, camera)
-        distance = point_plane_distance(points, np.asarray(equations[plane_id], dtype=np.float64))
-        on_plane = distance <= inlier_band(z, model, k, floor, cap)
-        found_rows.append(rows[on_plane])
-        found_cols.append(cols[on_plane])
-        found_dist.append(distance[on_plane])
-        found_ids.append(np.full(np.count_nonzero(on_plane), plane_id, dtype=np.int64))
-    if not found_rows:
+    # Two candidate planes per pixel, from two dilations of the growing planes' shapes over the
+    # whole image: the highest and the lowest id within g pixels (a pixel within g pixels of
+    # three or more growing planes at once, where three shapes meet, considers those two).
+    top = max(grown)
+    growing = np.zeros(max(top, int(drawn.max(initial=0))) + 1, dtype=bool)
+    growing[list(grown)] = True
+    work = np.float32 if top >= 2**16 else (np.uint16 if top >= 2**8 else np.uint8)  # types cv2.dilate takes
+    shapes = np.where(growing[drawn], drawn, 0).astype(work)
+    highest = cv2.dilate(shapes, disk, borderValue=0)
+    ceiling = work(top + 1)
+    lowest = cv2.dilate(np.where(shapes > 0, ceiling - shapes, 0).astype(work), disk, borderValue=0)
+    free = (highest > 0) & (drawn == 0) & (refined == 0)
+    rows, cols = np.nonzero(free)
+    z = depth_m[rows, cols].astype(np.float64)
+    valid = np.isfinite(z) & (z > 0)
+    rows, cols, z = rows[valid], cols[valid], z[valid]
+    if rows.size == 0:
         return labels, grown
-    rows, cols = np.concatenate(found_rows), np.concatenate(found_cols)
-    distance, ids = np.concatenate(found_dist), np.concatenate(found_ids)
-    # One winner per pixel: sort by pixel, then distance, then plane id; keep each pixel's first.
-    pixel = rows * width + cols
-    order = np.lexsort((ids, distance, pixel))
-    first = np.ones(order.size, dtype=bool)
-    first[1:] = pixel[order][1:] != pixel[order][:-1]
-    winners = order[first]
-    labels[rows[winners], cols[winners]] = ids[winners]
-    counts = np.bincount(ids[winners])
+    points = backproject(cols, rows, z, camera)
+    band = inlier_band(z, model, k, floor, cap)
+    table = np.zeros((top + 1, 4))
+    for plane_id, equation in equations.items():
+        table[int(plane_id)] = equation
+    best_id = np.zeros(rows.size, dtype=np.int64)
+    best_distance = np.full(rows.size, np.inf)
+    # Lowest id first, so that an equal distance keeps the lower id.
+    for candidates in (top + 1 - lowest[rows, cols].astype(np.int64), highest[rows, cols].astype(np.int64)):
+        candidates = np.where(candidates > top, 0, candidates)
+        plane = table[candidates]
+        distance = np.abs(np.einsum("ij,ij->i", points, plane[:, :3]) + plane[:, 3])
+        better = (candidates > 0) & (distance <= band) & (distance < best_distance)
+        best_id[better], best_distance[better] = candidates[better], distance[better]
+    taken = best_id > 0
+    labels[rows[taken], cols[taken]] = best_id[taken]
+    counts = np.bincount(best_id[taken], minlength=top + 1)
     for plane_id in grown:
-        grown[plane_id] = int(counts[plane_id]) if plane_id < counts.size else 0
+        grown[plane_id] = int(counts[plane_id])
     return labels, grown

@@ -1,0 +1,94 @@
+"""Speed of ``cvat2mask`` at this revision against an earlier one, measured in the same run.
+
+Run from the repository root (the package must be installed)::
+
+    python benchmarks/compare_revisions.py --against HEAD~3 [--frames 150] [--rounds 4] [--workers 1]
+
+It renders the benchmark sequence of ``bench_cvat2mask.py`` once, unpacks the earlier revision's
+package into a temporary folder (``git archive``), and then times ``run_cvat2mask`` with the
+default configuration of each revision (its own defaults: that is what a user gets), every frame
+made (``force``), in fresh processes that take turns for ``--rounds`` rounds; each revision keeps
+its best round, since a shared machine's speed drifts within minutes. It prints both and their
+ratio.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+
+#: Runs in a fresh interpreter with one revision's package first on the path.
+TIMED_RUN = """
+import json, sys, time
+from pathlib import Path
+from annotate_rgbd.camera import Camera
+from annotate_rgbd.config import Config
+from annotate_rgbd.execute import prepare_process
+from annotate_rgbd.pipeline import run_cvat2mask
+
+sequence, annotations, out, camera, workers = sys.argv[1:6]
+workers = int(workers)
+prepare_process(workers)
+config = Config(camera=Camera(**json.loads(camera)))
+started = time.perf_counter()
+run = run_cvat2mask(sequence, [annotations], out, config, workers=workers, force=True)
+print(time.perf_counter() - started, run.written)
+"""
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--against", required=True, help="the earlier revision (any git revision name)")
+    parser.add_argument("--frames", type=int, default=150)
+    parser.add_argument("--rounds", type=int, default=4)
+    parser.add_argument("--workers", type=int, default=1)
+    parser.add_argument("--workdir", type=Path, default=Path(tempfile.gettempdir()) / "annotate-rgbd-bench")
+    args = parser.parse_args()
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    from bench_cvat2mask import make_benchmark_sequence
+
+    sequence, annotations, camera = make_benchmark_sequence(args.workdir, args.frames, 640, 480)
+    camera_json = json.dumps({k: getattr(camera, k) for k in ("fx", "fy", "cx", "cy", "depth_scale")})
+    with tempfile.TemporaryDirectory() as tmp:
+        earlier = Path(tmp) / "earlier"
+        earlier.mkdir()
+        archive = subprocess.run(["git", "-C", str(ROOT), "archive", args.against, "annotate_rgbd", "configs"],
+                                 check=True, capture_output=True).stdout
+        subprocess.run(["tar", "-x", "-C", str(earlier)], input=archive, check=True)
+        configs = earlier / "annotate_rgbd" / "configs"  # the presets ship inside the package
+        if not configs.exists():
+            (earlier / "configs").rename(configs)
+        revisions = {args.against: earlier, "this revision": ROOT}
+        best = {name: float("inf") for name in revisions}
+        for round_ in range(1, args.rounds + 1):
+            line = []
+            for name, tree in revisions.items():
+                out = Path(tmp) / f"out-{len(line)}"
+                done = subprocess.run(
+                    [sys.executable, "-c", TIMED_RUN, str(sequence), str(annotations), str(out), camera_json,
+                     str(args.workers)],
+                    capture_output=True, text=True, env={"PYTHONPATH": str(tree), "PATH": "/usr/bin:/bin"},
+                )
+                if done.returncode != 0:
+                    print(done.stderr, file=sys.stderr)
+                    return 1
+                seconds = float(done.stdout.split()[0])
+                best[name] = min(best[name], seconds)
+                line.append(f"{name}: {1000 * seconds / args.frames:.1f} ms/frame")
+            print(f"round {round_}: " + ", ".join(line))
+    old, new = best[args.against], best["this revision"]
+    print(f"{args.frames} frames at 640x480, {args.workers} worker(s), best of {args.rounds} rounds, default configuration")
+    print(f"{args.against:>14}: {1000 * old / args.frames:6.1f} ms/frame")
+    print(f"{'this revision':>14}: {1000 * new / args.frames:6.1f} ms/frame")
+    print(f"this revision / {args.against}: {new / old:.3f}x")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
