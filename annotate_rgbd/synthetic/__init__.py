@@ -1,7 +1,7 @@
 """Synthetic RGB-D room scenes with exact plane ground truth, for tests, benchmarks and samples.
 
 A scene is a set of planar rectangles (walls, floor, a table top, cabinet faces, ...) and
-non-planar clutter (spheres, cylinders). Every frame is ray-cast analytically with numpy, all
+clutter (spheres, cylinders, oriented boxes). Every frame is ray-cast analytically with numpy, all
 pixels at once, from a pose on a smooth camera trajectory. The depth gets Kinect-like noise and
 holes, the RGB image flat-shaded colours with a mild texture, and every plane the polygon a
 labeller would draw: its outline projected into the image, running straight over clutter and
@@ -18,6 +18,8 @@ Modules
 -------
 scene
     Scene description (planes, clutter, poses), the default room and its camera path.
+contact
+    The room with clutter in contact with its planes and a walk from 3 m to 0.8 m.
 raycast
     Ray casting of one noise-free frame: z depth, visible object, shaded RGB.
 sensor
@@ -25,18 +27,20 @@ sensor
 polygons
     The polygon a labeller draws for a plane.
 frame
-    One frame as sensor and labeller produce it (:func:`render_frame`).
+    One frame as sensor and labeller produce it (:func:`render_frame`), optionally with the
+    labeller's polygon error.
 ground_truth
     Per-plane statistics and expected fate in ``planes.json`` (an oracle for the tests).
 sequence
     :func:`make_sequence`: a whole sequence on disk in TUM layout, with ground truth.
 """
 
-from .frame import Frame, render_frame
+from .contact import contact_scene, contact_trajectory
+from .frame import Frame, jitter_polygons, render_frame
 from .ground_truth import MAX_INVALID_RATIO, MAX_MEAN_DISTANCE
 from .polygons import plane_polygon
 from .raycast import Render, render
-from .scene import NEAR, Clutter, Cylinder, Plane, Pose, Scene, Sphere, look_at, room_scene, room_trajectory
+from .scene import NEAR, Box, Clutter, Cylinder, Plane, Pose, Scene, Sphere, look_at, room_scene, room_trajectory
 from .sensor import MAX_DEPTH, MIN_DEPTH, kinect_noise_sigma, sensor_depth
 from .sequence import make_sequence
 
@@ -46,6 +50,7 @@ __all__ = [
     "MAX_MEAN_DISTANCE",
     "MIN_DEPTH",
     "NEAR",
+    "Box",
     "Clutter",
     "Cylinder",
     "Frame",
@@ -54,7 +59,10 @@ __all__ = [
     "Render",
     "Scene",
     "Sphere",
+    "contact_scene",
+    "contact_trajectory",
     "kinect_noise_sigma",
+    "jitter_polygons",
     "look_at",
     "make_sequence",
     "plane_polygon",

@@ -48,6 +48,7 @@ def render_frame(
     rng: np.random.Generator,
     *,
     min_plane_fraction: float = 0.002,
+    polygon_jitter_px: float = 0.0,
 ) -> Frame:
     """Render one frame with sensor noise, ground truth and the labeller's polygons.
 
@@ -62,6 +63,11 @@ def render_frame(
     min_plane_fraction : float
         A plane is annotated when at least this share of the image shows it (a labeller skips
         slivers).
+    polygon_jitter_px : float
+        A careless labeller: every polygon vertex moves by an offset drawn from ``rng``
+        (after the depth noise), uniform in [-jitter, jitter] pixels per axis, then is clamped
+        to the image as CVAT does. 0 (default) leaves the polygons exact and draws nothing.
+        The ground truth does not change.
 
     Returns
     -------
@@ -79,8 +85,37 @@ def render_frame(
         polygon = plane_polygon(scene.planes[k], pose, camera, width, height)
         if polygon is not None:
             polygons[int(k)] = polygon
+    if polygon_jitter_px > 0:
+        polygons = jitter_polygons(polygons, polygon_jitter_px, width, height, rng)
     annotated = np.zeros(len(scene.planes) + len(scene.clutter) + 1, dtype=bool)
     annotated[list(polygons)] = True
     plane_index = np.where(annotated[clean.object_index] & (depth_raw > 0), clean.object_index, -1)
     return Frame(clean.rgb, depth_raw, plane_index.astype(np.int16), clean.object_index, polygons)
 
+
+
+def jitter_polygons(
+    polygons: dict[int, np.ndarray], jitter_px: float, width: int, height: int, rng: np.random.Generator
+) -> dict[int, np.ndarray]:
+    """Move every vertex by a random offset, as a labeller draws a few pixels off the real edge.
+
+    Parameters
+    ----------
+    polygons : dict of int to ndarray, shape (N, 2)
+        Plane index -> vertices in CVAT image coordinates; jittered in ascending key order.
+    jitter_px : float
+        Largest offset per axis, pixels; offsets are uniform in [-jitter_px, jitter_px].
+    width, height : int
+        Image size: the moved vertices are clamped to [0, width] x [0, height].
+    rng : numpy.random.Generator
+
+    Returns
+    -------
+    dict of int to ndarray
+        New arrays; the input is left alone.
+    """
+    moved = {}
+    for k in sorted(polygons):
+        points = polygons[k] + rng.uniform(-jitter_px, jitter_px, polygons[k].shape)
+        moved[k] = np.clip(points, 0.0, (float(width), float(height)))
+    return moved

@@ -13,7 +13,7 @@ import numpy as np
 
 from ..camera import Camera, project
 from .polygons import plane_polygon
-from .scene import NEAR, Clutter, Cylinder, Plane, Pose, Scene, Sphere
+from .scene import NEAR, Box, Clutter, Cylinder, Plane, Pose, Scene, Sphere
 
 
 @dataclass
@@ -83,6 +83,8 @@ def _extent(item: Plane | Clutter, pose: Pose, camera: Camera, width: int, heigh
     if isinstance(item, Sphere):
         centre = pose.to_camera(np.asarray([item.centre]))[0]
         return _box_corners(centre - item.radius, centre + item.radius)
+    if isinstance(item, Box):
+        return pose.to_camera(item.corners())
     ends = pose.to_camera(np.asarray([item.base, np.add(item.base, np.multiply(item.height, item.axis))]))
     return _box_corners(ends.min(axis=0) - item.radius, ends.max(axis=0) + item.radius)
 
@@ -160,6 +162,58 @@ def _cast_cylinder(cyl: Cylinder, pose: Pose, cols, rows, ray_norm2, light):
     return t.astype(np.float32), np.isfinite(t), shade
 
 
+def box_hits(
+    centre: np.ndarray, edges: np.ndarray, cols: np.ndarray, rows: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Where the pixel rays ``(x, y, 1)`` from the camera centre enter an oriented box (slab method).
+
+    Parameters
+    ----------
+    centre : ndarray, shape (3,)
+        Box centre in the camera frame, metres.
+    edges : ndarray, shape (3, 3)
+        The three full, mutually orthogonal edge vectors (rows) in the camera frame.
+    cols, rows : ndarray of float32, shapes (W,) and (H,)
+        The x/z and y/z of the pixel rays of a window.
+
+    Returns
+    -------
+    t : ndarray of float32, shape (H, W)
+        z depth where the ray enters the box (meaningless where not ``hit``).
+    hit : ndarray of bool, shape (H, W)
+        The ray enters the box farther than ``NEAR``.
+    face : ndarray of intp, shape (H, W)
+        Index of the edge whose pair of faces the ray enters through.
+    """
+    # Along edge i the box is the slab |(t * ray - centre) . e_i| <= |e_i|^2 / 2, i.e. t * (ray . e_i)
+    # between centre . e_i -+ |e_i|^2 / 2: an interval of t per edge; the ray is in the box where
+    # the three intervals overlap.
+    near = np.empty((3, rows.size, cols.size), dtype=np.float32)
+    far = np.empty_like(near)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for i, edge in enumerate(edges):
+            inverse = np.reciprocal(_dot(edge, cols, rows))
+            middle, half = float(edge @ centre), 0.5 * float(edge @ edge)
+            low, high = inverse * np.float32(middle - half), inverse * np.float32(middle + half)
+            np.minimum(low, high, out=near[i])
+            np.maximum(low, high, out=far[i])
+        face = np.argmax(near, axis=0)
+        t = np.take_along_axis(near, face[None], axis=0)[0]
+        hit = (t <= far.min(axis=0)) & (t > NEAR) & np.isfinite(t)
+    return t, hit, face
+
+
+def _cast_box(box: Box, pose: Pose, cols, rows, ray_norm2, light):
+    centre = pose.to_camera(np.asarray([box.centre]))[0]
+    edges = pose.direction_to_camera(np.asarray([box.edge_u, box.edge_v, box.edge_w]))
+    t, hit, face = box_hits(centre, edges, cols, rows)
+    # Lambert with the outward normal of the entry face: -sign(ray . e_i) e_i / |e_i|.
+    facing = np.stack([np.sign(_dot(edge, cols, rows)) for edge in edges])
+    facing = -np.take_along_axis(facing, face[None], axis=0)[0]
+    cosine = facing * (edges @ light / np.linalg.norm(edges, axis=1)).astype(np.float32)[face]
+    return t, hit, 0.45 + 0.55 * np.clip(cosine, 0.0, 1.0)
+
+
 def _plane_texture(kind: str, u: np.ndarray, v: np.ndarray) -> np.ndarray:
     """Brightness factor around 1 from metric plane coordinates ``u``, ``v``."""
     if kind == "tiles":  # 0.5 m tiles in two shades with dark grout lines
@@ -204,7 +258,7 @@ def render(scene: Scene, pose: Pose, camera: Camera, width: int, height: int) ->
     index = np.full((height, width), -1, dtype=np.int16)
     shade = np.ones((height, width), dtype=np.float32)
     items = list(scene.planes) + list(scene.clutter)
-    casters = {Plane: _cast_plane, Sphere: _cast_sphere, Cylinder: _cast_cylinder}
+    casters = {Plane: _cast_plane, Sphere: _cast_sphere, Cylinder: _cast_cylinder, Box: _cast_box}
     for k, item in enumerate(items):
         window = _window(_extent(item, pose, camera, width, height), camera, width, height)
         if window is None:

@@ -1,7 +1,7 @@
 """What a synthetic sequence shows: planes, clutter, the camera's poses, and the default room.
 
 A scene is a set of planar rectangles (walls, floor, a table top, cabinet faces, ...) and
-non-planar clutter (spheres, cylinders). World frame: metres, z up. Camera frame: x right,
+clutter (spheres, cylinders, boxes). World frame: metres, z up. Camera frame: x right,
 y down, z forward (the pinhole model of :mod:`annotate_rgbd.camera`).
 """
 
@@ -107,7 +107,34 @@ class Cylinder:
     colour: tuple[int, int, int]
 
 
-Clutter = Sphere | Cylinder
+@dataclass(frozen=True)
+class Box:
+    """An oriented box of clutter: ``centre + a * edge_u + b * edge_v + c * edge_w`` for
+    ``a, b, c`` in [-0.5, 0.5] (a book, a laptop, a carton, a picture frame).
+
+    Parameters
+    ----------
+    centre : tuple of float
+        World coordinates, metres.
+    edge_u, edge_v, edge_w : tuple of float
+        The three full edge vectors, mutually orthogonal, metres.
+    colour : tuple of int
+        RGB.
+    """
+
+    centre: tuple[float, float, float]
+    edge_u: tuple[float, float, float]
+    edge_v: tuple[float, float, float]
+    edge_w: tuple[float, float, float]
+    colour: tuple[int, int, int]
+
+    def corners(self) -> np.ndarray:
+        """The 8 corners as world points, shape (8, 3)."""
+        signs = np.array(np.meshgrid([-0.5, 0.5], [-0.5, 0.5], [-0.5, 0.5], indexing="ij")).reshape(3, -1).T
+        return np.asarray(self.centre) + signs @ np.array([self.edge_u, self.edge_v, self.edge_w], dtype=np.float64)
+
+
+Clutter = Sphere | Cylinder | Box
 
 
 @dataclass(frozen=True)
@@ -118,7 +145,7 @@ class Scene:
     Parameters
     ----------
     planes : tuple of Plane
-    clutter : tuple of Sphere or Cylinder
+    clutter : tuple of Sphere, Cylinder or Box
     light : tuple of float
         Direction towards the light in world coordinates (need not be unit length).
     """

@@ -61,6 +61,8 @@ def make_sequence(
     dropped_rgb_frames: Sequence[int] | None = None,
     start_time: float = 1700000000.0,
     ground_truth_dir: str | Path | None = None,
+    polygon_jitter_px: float = 0.0,
+    object_index_dir: str | Path | None = None,
 ) -> Annotation:
     """Render a synthetic sequence in TUM RGB-D layout with plane ground truth.
 
@@ -98,6 +100,14 @@ def make_sequence(
         Timestamp of the first RGB frame, seconds.
     ground_truth_dir : str or Path, optional
         Where the ground truth goes; default ``out_dir / "ground_truth"``.
+    polygon_jitter_px : float
+        Labeller's error: every polygon vertex moves by up to this many pixels per axis (see
+        :func:`render_frame <annotate_rgbd.synthetic.frame.render_frame>`); 0: exact outlines.
+    object_index_dir : str or Path, optional
+        When given, also write there per depth frame ``<depth file name>``: 16-bit, the index
+        + 1 of the scene object seen at each pixel whatever its depth (planes 1..P in
+        ``scene.planes`` order, then clutter), 0 where nothing is hit. For benchmarks that
+        tell clutter from planes and find the planes' true borders.
 
     Returns
     -------
@@ -117,8 +127,10 @@ def make_sequence(
     track_ids = rng.permutation(len(scene.planes))
     rgb_times, depth_times = _timestamps(n_frames, fps, rng, start_time)
     gt_dir = out_dir / "ground_truth" if ground_truth_dir is None else Path(ground_truth_dir)
-    for folder in (out_dir / "rgb", out_dir / "depth", gt_dir):
-        folder.mkdir(parents=True, exist_ok=True)
+    object_dir = None if object_index_dir is None else Path(object_index_dir)
+    for folder in (out_dir / "rgb", out_dir / "depth", gt_dir, object_dir):
+        if folder is not None:
+            folder.mkdir(parents=True, exist_ok=True)
 
     n_planes = len(scene.planes)
     shapes: dict[int, dict[int, Shape]] = {k: {} for k in range(n_planes)}
@@ -126,11 +138,14 @@ def make_sequence(
     rgb_names, depth_names, frame_records = [], [], []
     gt_value = np.append(track_ids + 1, 0).astype(np.uint16)  # plane index -1 -> 0
     for i, pose in enumerate(poses):
-        frame = render_frame(scene, pose, camera, width, height, np.random.default_rng([seed, i]))
+        frame = render_frame(scene, pose, camera, width, height, np.random.default_rng([seed, i]),
+                             polygon_jitter_px=polygon_jitter_px)
         depth_name = f"{depth_times[i]:.6f}.png"
         depth_names.append(depth_name)
         _write_png(out_dir / "depth" / depth_name, frame.depth_raw)
         _write_png(gt_dir / depth_name, gt_value[frame.plane_index])
+        if object_dir is not None:
+            _write_png(object_dir / depth_name, (frame.visible + 1).astype(np.uint16))
         record = {"depth": f"depth/{depth_name}", "ground_truth": depth_name,
                   "rgb": None, "annotation_frame": None}
         if i not in dropped:
