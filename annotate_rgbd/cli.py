@@ -79,34 +79,6 @@ def main(
     """Turn CVAT plane polygons on RGB-D sequences into depth-verified plane instance masks."""
 
 
-def parse_settings(settings: List[str]) -> dict:
-    """``section.key=value`` strings -> overrides; values are read as TOML (numbers, lists...)."""
-    from .config import tomllib
-
-    overrides = {}
-    for setting in settings:
-        key, sep, text = setting.partition("=")
-        if not sep or "." not in key:
-            raise InputError(None, f"--set {setting!r}: expected SECTION.KEY=VALUE, e.g. ransac.distance_threshold=0.01")
-        try:
-            value = tomllib.loads(f"v = {text}")["v"]
-        except tomllib.TOMLDecodeError:
-            value = text
-        overrides[key.strip()] = value
-    return overrides
-
-
-def parse_part_offsets(parts: List[str]) -> dict:
-    """``FILE:OFFSET`` strings -> {file: offset}."""
-    offsets = {}
-    for text in parts:
-        file, sep, offset = text.rpartition(":")
-        if not sep or not file or not offset.strip().isdigit():
-            raise InputError(None, f"--part {text!r}: expected FILE:OFFSET, e.g. --part 950-1900.xml:950")
-        offsets[file] = int(offset)
-    return offsets
-
-
 @app.command()
 def cvat2mask(
     sequence_dir: Path = typer.Argument(..., help="TUM RGB-D or ICL-NUIM (TUM format) sequence folder."),
@@ -136,7 +108,7 @@ def cvat2mask(
     workers = jobs or default_workers()
     prepare_process(workers)  # the helpers' server imports Open3D while this process does
 
-    from .config import load_config
+    from .config import load_config, parse_part_offsets, parse_settings
     from .pipeline import run_cvat2mask
     from .progress import Progress
 

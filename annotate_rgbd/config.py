@@ -42,7 +42,7 @@ import sys
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Iterable, Mapping
 
 from .camera import Camera
 from .errors import InputError
@@ -272,6 +272,67 @@ def load_config(source: str | Path | None = None, overrides: Mapping[str, Any] |
 def config_from_dict(values: Mapping[str, Any], origin: str | Path | None = None) -> Config:
     """The inverse of :func:`config_to_dict` (e.g. the ``config`` recorded in ``report.json``)."""
     return _build(values, origin)
+
+
+def parse_settings(settings: Iterable[str]) -> dict[str, Any]:
+    """Read ``--set SECTION.KEY=VALUE`` overrides (also a manifest's ``set`` list).
+
+    Parameters
+    ----------
+    settings : iterable of str
+        ``"section.key=value"`` texts. A value is read as a TOML value (numbers, booleans,
+        lists, quoted strings); one that is not valid TOML is kept as the plain text.
+
+    Returns
+    -------
+    dict of str to value
+        ``"section.key" -> value``, the ``overrides`` of :func:`load_config`.
+
+    Raises
+    ------
+    InputError
+        A text without ``=`` or without a ``.`` in its key.
+    """
+    overrides = {}
+    for setting in settings:
+        key, sep, text = setting.partition("=")
+        if not sep or "." not in key:
+            raise InputError(None, f"--set {setting!r}: expected SECTION.KEY=VALUE, e.g. ransac.distance_threshold=0.01")
+        try:
+            value = tomllib.loads(f"v = {text}")["v"]
+        except tomllib.TOMLDecodeError:
+            value = text
+        overrides[key.strip()] = value
+    return overrides
+
+
+def parse_part_offsets(parts: Iterable[str]) -> dict[str, int]:
+    """Read ``--part FILE:OFFSET`` texts (also a manifest's ``parts`` list), the command-line
+    form of a ``[[parts]]`` entry (:class:`PartConfig`).
+
+    Parameters
+    ----------
+    parts : iterable of str
+        ``"file:offset"`` texts; the file name may itself contain ``:``, the offset is what
+        follows the last one.
+
+    Returns
+    -------
+    dict of str to int
+        File -> RGB index of the part's frame 0.
+
+    Raises
+    ------
+    InputError
+        A text without a file name or without a non-negative integer offset.
+    """
+    offsets = {}
+    for text in parts:
+        file, sep, offset = text.rpartition(":")
+        if not sep or not file or not offset.strip().isdigit():
+            raise InputError(None, f"--part {text!r}: expected FILE:OFFSET, e.g. --part 950-1900.xml:950")
+        offsets[file] = int(offset)
+    return offsets
 
 
 def _read_source(source: str | Path) -> tuple[Path | str, str]:

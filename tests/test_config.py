@@ -1,6 +1,13 @@
 import pytest
 
-from annotate_rgbd.config import Config, config_to_dict, load_config, preset_names
+from annotate_rgbd.config import (
+    Config,
+    config_to_dict,
+    load_config,
+    parse_part_offsets,
+    parse_settings,
+    preset_names,
+)
 from annotate_rgbd.errors import InputError
 
 ISSUE_EXAMPLE = """
@@ -115,3 +122,23 @@ def test_input_errors_survive_pickling_between_processes():
     for error in (InputError("a/b.png", "broken"), OutputError("out", "disk full"), InputError(None, "no path")):
         again = pickle.loads(pickle.dumps(error))
         assert type(again) is type(error) and str(again) == str(error)
+
+
+def test_set_values_are_read_as_toml():
+    overrides = parse_settings(["ransac.seed=3", "filter.max_mean_distance=2.5", "annotation.labels=['wall', 'floor']",
+                                "annotation.labels2=wall", " sequence.max_time_diff =0.01"])
+    assert overrides == {"ransac.seed": 3, "filter.max_mean_distance": 2.5, "annotation.labels": ["wall", "floor"],
+                         "annotation.labels2": "wall", "sequence.max_time_diff": 0.01}
+    assert type(overrides["ransac.seed"]) is int
+    for bad in ("ransac.seed", "seed=3"):
+        with pytest.raises(InputError, match=r"expected SECTION\.KEY=VALUE"):
+            parse_settings([bad])
+
+
+def test_part_offsets_split_at_the_last_colon():
+    assert parse_part_offsets(["950-1900.xml:950", "C:/labels/a.xml:0", "b.xml: 7"]) == {
+        "950-1900.xml": 950, "C:/labels/a.xml": 0, "b.xml": 7,
+    }
+    for bad in ("a.xml", ":5", "a.xml:-1", "a.xml:x", "a.xml:"):
+        with pytest.raises(InputError, match="expected FILE:OFFSET"):
+            parse_part_offsets([bad])
