@@ -39,6 +39,8 @@ from __future__ import annotations
 
 import dataclasses
 import sys
+import types
+import typing
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -372,6 +374,7 @@ def _build_list(name: str, entry_type: type, tables: Any, origin: str | Path | N
     if not isinstance(tables, list) or not all(isinstance(t, Mapping) for t in tables):
         raise InputError(origin, f"'{name}' must be a list of tables: write each entry as [[{name}]]")
     fields = {f.name: f for f in dataclasses.fields(entry_type)}
+    kinds = _entry_types(entry_type)
     required = [f.name for f in fields.values() if f.default is dataclasses.MISSING]
     entries = []
     for number, table in enumerate(tables, start=1):
@@ -384,17 +387,43 @@ def _build_list(name: str, entry_type: type, tables: Any, origin: str | Path | N
                 raise InputError(origin, f"{where}: '{key}' is missing")
         values = {}
         for key, value in table.items():
-            kind = fields[key].type
-            ok = (
-                (isinstance(value, str) if "str" in kind else False)
-                or (isinstance(value, bool) if "bool" in kind else False)
-                or (isinstance(value, int) and not isinstance(value, bool) if "int" in kind else False)
-            )
-            if not ok:
+            accepted = [kind for kind in kinds[key] if _is_a(value, kind)]
+            if not accepted:
                 raise InputError(origin, f"{where}: '{key}' has the wrong type ({value!r})")
-            values[key] = value
+            values[key] = float(value) if accepted[0] is float else value
         entries.append(entry_type(**values))
     return tuple(entries)
+
+
+#: The types a ``[[list]]`` entry's field may have (alone, or in a union such as ``int | None``).
+ENTRY_VALUE_TYPES = (str, bool, int, float)
+
+
+def _entry_types(entry_type: type) -> dict[str, tuple[type, ...]]:
+    """Field name -> the types its value may have, read from the dataclass's type hints.
+
+    ``int | None`` gives ``(int,)``: TOML has no null, leaving a key out gives its default.
+    A field of any other type is a programming error (TOML cannot say what it means).
+    """
+    hints = typing.get_type_hints(entry_type)
+    kinds = {}
+    for f in dataclasses.fields(entry_type):
+        hint = hints[f.name]
+        members = typing.get_args(hint) if typing.get_origin(hint) in (typing.Union, types.UnionType) else (hint,)
+        members = tuple(m for m in members if m is not type(None))
+        if not members or not all(m in ENTRY_VALUE_TYPES for m in members):
+            raise TypeError(f"{entry_type.__name__}.{f.name}: a [[list]] entry cannot hold a {hint}")
+        kinds[f.name] = members
+    return kinds
+
+
+def _is_a(value: Any, kind: type) -> bool:
+    """Whether a TOML value fits ``kind``: booleans are no numbers, integers are floats."""
+    if isinstance(value, bool):
+        return kind is bool
+    if kind is float:
+        return isinstance(value, (int, float))
+    return isinstance(value, kind)
 
 
 def _build_section(name: str, default: Any, table: Mapping[str, Any], origin: str | Path | None) -> Any:
