@@ -182,18 +182,27 @@ def presets() -> None:
 
 @app.command()
 def evaluate(
+    ctx: typer.Context,
     gt: Path = typer.Argument(..., help="Ground-truth masks: a folder of label files, or one file."),
     pred: Path = typer.Argument(..., help="Predicted masks, matched to GT by file name; or one file."),
     full: float = typer.Option(0.75, "--full", help="IoU for a full match (a true positive)."),
-    part: float = typer.Option(0.2, "--part", help="IoU for a partial overlap (usr, osr, noise, missed)."),
+    partial: float = typer.Option(0.2, "--partial", help="IoU for a partial overlap (usr, osr, noise, missed)."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object instead of a table."),
     per_frame: Optional[Path] = typer.Option(None, "--per-frame", help="Also write each frame's statistics to this CSV."),
+    # The old name of --partial, kept working for scripts; cvat2mask's --part is FILE:OFFSET.
+    part: Optional[float] = typer.Option(None, "--part", hidden=True),
 ) -> None:
     """Score plane masks against ground truth with the EVOPS metrics (sequence means)."""
     from .evaluate import evaluate_paths, format_json, format_table, write_per_frame_csv
 
     with user_errors():
-        result = evaluate_paths(gt, pred, full=full, part=part)
+        if part is not None:
+            # By name: typer >= 0.29 has its own copy of click, whose enum is not click's.
+            if getattr(ctx.get_parameter_source("partial"), "name", None) == "COMMANDLINE":
+                raise InputError(None, "give --partial only (--part is its deprecated name)")
+            typer.echo("warning: evaluate --part is deprecated, use --partial (the same IoU threshold)", err=True)
+            partial = part
+        result = evaluate_paths(gt, pred, full=full, part=partial)
         if per_frame is not None:
             write_per_frame_csv(result, per_frame)
         typer.echo(format_json(result) if as_json else format_table(result))
