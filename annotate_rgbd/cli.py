@@ -216,10 +216,14 @@ def review(
     sheet: bool = typer.Option(True, "--sheet/--no-sheet", help="Write contact_sheet.png from overlays/."),
 ) -> None:
     """Write review overlays, the offline review page and a contact sheet for a finished run."""
+    from .progress import Progress
     from .review import review_run
 
     with user_errors():
-        output = review_run(out_dir, overlays=overlays, page=page, sheet=sheet)
+        scene = out_dir.resolve().name
+        progress = Progress({scene: 0})
+        output = review_run(out_dir, overlays=overlays, page=page, sheet=sheet, progress=progress.callback(scene))
+        progress.finish()
         lines = [f"{len(output.overlays)} overlays in {out_dir / 'overlays'}"] if overlays else []
         lines += [str(path) for path in (output.page, output.sheet) if path is not None]
         if output.warnings:

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import base64
 import fcntl
+import io
+import itertools
 import json
 import os
 import select
@@ -22,6 +24,7 @@ from annotate_rgbd.cli import app
 from annotate_rgbd.config import load_config
 from annotate_rgbd.errors import InputError
 from annotate_rgbd.pipeline import run_cvat2mask
+from annotate_rgbd.progress import Progress
 from annotate_rgbd.review import review_run
 from annotate_rgbd.review_page import page_data, render_review_page
 from annotate_rgbd.sequence import read_rgb
@@ -81,6 +84,35 @@ def test_review_warns_when_a_frame_no_longer_matches_the_report(finished_run, tm
     (out / "report.json").write_text(json.dumps(report), encoding="utf-8")
     result = review_run(out, sheet=False, page=False)
     assert len(result.warnings) == 1 and frame["depth"] in result.warnings[0]
+
+
+def test_review_reports_progress_after_each_overlay(finished_run, tmp_path):
+    out = tmp_path / "out"
+    shutil.copytree(finished_run, out, ignore=shutil.ignore_patterns("overlays"))
+    calls = []
+    review_run(out, page=False, sheet=False, progress=lambda done, total: calls.append((done, total, len(list((out / "overlays").iterdir())))))
+    written = _report(out)["summary"]["masks_written"]
+    # Each call comes once its overlay is on disk.
+    assert calls == [(i, written, i) for i in range(1, written + 1)]
+
+
+class Terminal(io.StringIO):
+    def isatty(self) -> bool:
+        return True
+
+
+def test_progress_on_a_terminal_ends_its_line_only_if_it_drew_one():
+    terminal = Terminal()
+    Progress({"run": 0}, stream=terminal).finish()  # review --no-overlays: no progress at all
+    assert terminal.getvalue() == ""
+    progress = Progress({"run": 0}, stream=terminal, clock=itertools.count().__next__)
+    update = progress.callback("run")
+    update(1, 2)
+    update(2, 2)
+    progress.finish()
+    lines = terminal.getvalue().split("\r\033[K")
+    assert lines[0] == "" and lines[1].startswith("run: 1/2 frames") and lines[2].startswith("run: 2/2 frames")
+    assert lines[2].endswith("\n") and lines[2].count("\n") == 1
 
 
 def test_review_of_a_run_without_masks_writes_only_the_page(tmp_path):
@@ -143,7 +175,11 @@ def test_cli_review(finished_run, tmp_path):
     result = CliRunner().invoke(app, ["review", str(out), "--no-sheet"])
     assert result.exit_code == 0, result.output
     assert (out / "review.html").is_file() and not (out / "contact_sheet.png").exists()
-    assert len(list((out / "overlays").iterdir())) == _report(out)["summary"]["masks_written"]
+    written = _report(out)["summary"]["masks_written"]
+    assert len(list((out / "overlays").iterdir())) == written
+    # Progress goes to stderr (not a terminal here: a plain line at the end), stdout keeps the summary.
+    assert f"out: {written}/{written} frames" in result.stderr
+    assert "frames/s" not in result.stdout
     missing = CliRunner().invoke(app, ["review", str(tmp_path / "nothing")])
     assert missing.exit_code == 1 and "error:" in missing.output
 
