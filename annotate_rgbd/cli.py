@@ -79,34 +79,6 @@ def main(
     """Turn CVAT plane polygons on RGB-D sequences into depth-verified plane instance masks."""
 
 
-def parse_settings(settings: List[str]) -> dict:
-    """``section.key=value`` strings -> overrides; values are read as TOML (numbers, lists...)."""
-    from .config import tomllib
-
-    overrides = {}
-    for setting in settings:
-        key, sep, text = setting.partition("=")
-        if not sep or "." not in key:
-            raise InputError(None, f"--set {setting!r}: expected SECTION.KEY=VALUE, e.g. ransac.distance_threshold=0.01")
-        try:
-            value = tomllib.loads(f"v = {text}")["v"]
-        except tomllib.TOMLDecodeError:
-            value = text
-        overrides[key.strip()] = value
-    return overrides
-
-
-def parse_part_offsets(parts: List[str]) -> dict:
-    """``FILE:OFFSET`` strings -> {file: offset}."""
-    offsets = {}
-    for text in parts:
-        file, sep, offset = text.rpartition(":")
-        if not sep or not file or not offset.strip().isdigit():
-            raise InputError(None, f"--part {text!r}: expected FILE:OFFSET, e.g. --part 950-1900.xml:950")
-        offsets[file] = int(offset)
-    return offsets
-
-
 @app.command()
 def cvat2mask(
     sequence_dir: Path = typer.Argument(..., help="TUM RGB-D or ICL-NUIM (TUM format) sequence folder."),
@@ -136,7 +108,7 @@ def cvat2mask(
     workers = jobs or default_workers()
     prepare_process(workers)  # the helpers' server imports Open3D while this process does
 
-    from .config import load_config
+    from .config import load_config, parse_part_offsets, parse_settings
     from .pipeline import run_cvat2mask
     from .progress import Progress
 
@@ -210,18 +182,27 @@ def presets() -> None:
 
 @app.command()
 def evaluate(
+    ctx: typer.Context,
     gt: Path = typer.Argument(..., help="Ground-truth masks: a folder of label files, or one file."),
     pred: Path = typer.Argument(..., help="Predicted masks, matched to GT by file name; or one file."),
     full: float = typer.Option(0.75, "--full", help="IoU for a full match (a true positive)."),
-    part: float = typer.Option(0.2, "--part", help="IoU for a partial overlap (usr, osr, noise, missed)."),
+    partial: float = typer.Option(0.2, "--partial", help="IoU for a partial overlap (usr, osr, noise, missed)."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object instead of a table."),
     per_frame: Optional[Path] = typer.Option(None, "--per-frame", help="Also write each frame's statistics to this CSV."),
+    # The old name of --partial, kept working for scripts; cvat2mask's --part is FILE:OFFSET.
+    part: Optional[float] = typer.Option(None, "--part", hidden=True),
 ) -> None:
     """Score plane masks against ground truth with the EVOPS metrics (sequence means)."""
     from .evaluate import evaluate_paths, format_json, format_table, write_per_frame_csv
 
     with user_errors():
-        result = evaluate_paths(gt, pred, full=full, part=part)
+        if part is not None:
+            # By name: typer >= 0.29 has its own copy of click, whose enum is not click's.
+            if getattr(ctx.get_parameter_source("partial"), "name", None) == "COMMANDLINE":
+                raise InputError(None, "give --partial only (--part is its deprecated name)")
+            typer.echo("warning: evaluate --part is deprecated, use --partial (the same IoU threshold)", err=True)
+            partial = part
+        result = evaluate_paths(gt, pred, full=full, part=partial)
         if per_frame is not None:
             write_per_frame_csv(result, per_frame)
         typer.echo(format_json(result) if as_json else format_table(result))
@@ -235,10 +216,14 @@ def review(
     sheet: bool = typer.Option(True, "--sheet/--no-sheet", help="Write contact_sheet.png from overlays/."),
 ) -> None:
     """Write review overlays, the offline review page and a contact sheet for a finished run."""
+    from .progress import Progress
     from .review import review_run
 
     with user_errors():
-        output = review_run(out_dir, overlays=overlays, page=page, sheet=sheet)
+        scene = out_dir.resolve().name
+        progress = Progress({scene: 0})
+        output = review_run(out_dir, overlays=overlays, page=page, sheet=sheet, progress=progress.callback(scene))
+        progress.finish()
         lines = [f"{len(output.overlays)} overlays in {out_dir / 'overlays'}"] if overlays else []
         lines += [str(path) for path in (output.page, output.sheet) if path is not None]
         if output.warnings:

@@ -46,10 +46,12 @@ from __future__ import annotations
 
 import dataclasses
 import sys
+import types
+import typing
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Iterable, Mapping
 
 from .camera import Camera
 from .errors import InputError
@@ -313,6 +315,67 @@ def config_from_dict(values: Mapping[str, Any], origin: str | Path | None = None
     return _build(values, origin)
 
 
+def parse_settings(settings: Iterable[str]) -> dict[str, Any]:
+    """Read ``--set SECTION.KEY=VALUE`` overrides (also a manifest's ``set`` list).
+
+    Parameters
+    ----------
+    settings : iterable of str
+        ``"section.key=value"`` texts. A value is read as a TOML value (numbers, booleans,
+        lists, quoted strings); one that is not valid TOML is kept as the plain text.
+
+    Returns
+    -------
+    dict of str to value
+        ``"section.key" -> value``, the ``overrides`` of :func:`load_config`.
+
+    Raises
+    ------
+    InputError
+        A text without ``=`` or without a ``.`` in its key.
+    """
+    overrides = {}
+    for setting in settings:
+        key, sep, text = setting.partition("=")
+        if not sep or "." not in key:
+            raise InputError(None, f"--set {setting!r}: expected SECTION.KEY=VALUE, e.g. ransac.distance_threshold=0.01")
+        try:
+            value = tomllib.loads(f"v = {text}")["v"]
+        except tomllib.TOMLDecodeError:
+            value = text
+        overrides[key.strip()] = value
+    return overrides
+
+
+def parse_part_offsets(parts: Iterable[str]) -> dict[str, int]:
+    """Read ``--part FILE:OFFSET`` texts (also a manifest's ``parts`` list), the command-line
+    form of a ``[[parts]]`` entry (:class:`PartConfig`).
+
+    Parameters
+    ----------
+    parts : iterable of str
+        ``"file:offset"`` texts; the file name may itself contain ``:``, the offset is what
+        follows the last one.
+
+    Returns
+    -------
+    dict of str to int
+        File -> RGB index of the part's frame 0.
+
+    Raises
+    ------
+    InputError
+        A text without a file name or without a non-negative integer offset.
+    """
+    offsets = {}
+    for text in parts:
+        file, sep, offset = text.rpartition(":")
+        if not sep or not file or not offset.strip().isdigit():
+            raise InputError(None, f"--part {text!r}: expected FILE:OFFSET, e.g. --part 950-1900.xml:950")
+        offsets[file] = int(offset)
+    return offsets
+
+
 def _read_source(source: str | Path) -> tuple[Path | str, str]:
     path = Path(source)
     if path.is_file():
@@ -356,6 +419,7 @@ def _build_list(name: str, entry_type: type, tables: Any, origin: str | Path | N
     if not isinstance(tables, list) or not all(isinstance(t, Mapping) for t in tables):
         raise InputError(origin, f"'{name}' must be a list of tables: write each entry as [[{name}]]")
     fields = {f.name: f for f in dataclasses.fields(entry_type)}
+    kinds = _entry_types(entry_type)
     required = [f.name for f in fields.values() if f.default is dataclasses.MISSING]
     entries = []
     for number, table in enumerate(tables, start=1):
@@ -368,17 +432,43 @@ def _build_list(name: str, entry_type: type, tables: Any, origin: str | Path | N
                 raise InputError(origin, f"{where}: '{key}' is missing")
         values = {}
         for key, value in table.items():
-            kind = fields[key].type
-            ok = (
-                (isinstance(value, str) if "str" in kind else False)
-                or (isinstance(value, bool) if "bool" in kind else False)
-                or (isinstance(value, int) and not isinstance(value, bool) if "int" in kind else False)
-            )
-            if not ok:
+            accepted = [kind for kind in kinds[key] if _is_a(value, kind)]
+            if not accepted:
                 raise InputError(origin, f"{where}: '{key}' has the wrong type ({value!r})")
-            values[key] = value
+            values[key] = float(value) if accepted[0] is float else value
         entries.append(entry_type(**values))
     return tuple(entries)
+
+
+#: The types a ``[[list]]`` entry's field may have (alone, or in a union such as ``int | None``).
+ENTRY_VALUE_TYPES = (str, bool, int, float)
+
+
+def _entry_types(entry_type: type) -> dict[str, tuple[type, ...]]:
+    """Field name -> the types its value may have, read from the dataclass's type hints.
+
+    ``int | None`` gives ``(int,)``: TOML has no null, leaving a key out gives its default.
+    A field of any other type is a programming error (TOML cannot say what it means).
+    """
+    hints = typing.get_type_hints(entry_type)
+    kinds = {}
+    for f in dataclasses.fields(entry_type):
+        hint = hints[f.name]
+        members = typing.get_args(hint) if typing.get_origin(hint) in (typing.Union, types.UnionType) else (hint,)
+        members = tuple(m for m in members if m is not type(None))
+        if not members or not all(m in ENTRY_VALUE_TYPES for m in members):
+            raise TypeError(f"{entry_type.__name__}.{f.name}: a [[list]] entry cannot hold a {hint}")
+        kinds[f.name] = members
+    return kinds
+
+
+def _is_a(value: Any, kind: type) -> bool:
+    """Whether a TOML value fits ``kind``: booleans are no numbers, integers are floats."""
+    if isinstance(value, bool):
+        return kind is bool
+    if kind is float:
+        return isinstance(value, (int, float))
+    return isinstance(value, kind)
 
 
 def _build_section(name: str, default: Any, table: Mapping[str, Any], origin: str | Path | None) -> Any:

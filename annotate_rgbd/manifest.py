@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from .config import tomllib
+from .config import parse_part_offsets, parse_settings, tomllib
 from .errors import InputError
 
 SCENE_KEYS = {"name", "sequence", "annotations", "config", "out", "parts", "set", "raw_masks"}
@@ -64,8 +64,6 @@ def read_manifest(path: str | Path) -> tuple[list[SceneSpec], int | None]:
         Unreadable or invalid TOML, no scenes, unknown or missing keys, values of the wrong
         type, or two scenes writing to one output folder.
     """
-    from .cli import parse_part_offsets, parse_settings
-
     path = Path(path)
     try:
         data = tomllib.loads(path.read_text(encoding="utf-8"))

@@ -36,6 +36,7 @@ class Progress:
         self.start = clock()
         self.last_line = -float("inf")
         self.interactive = hasattr(self.stream, "isatty") and self.stream.isatty()
+        self.drawn = False  # an unfinished in-place line is on the terminal
 
     def callback(self, scene: str) -> Callable[[int, int], None]:
         """A ``progress(done, total)`` function for one scene."""
@@ -60,16 +61,19 @@ class Progress:
         return text
 
     def finish(self) -> None:
-        """End the in-place line on a terminal."""
-        if self.interactive:
+        """End the in-place line on a terminal (if one was drawn: e.g. ``review --no-overlays``
+        reports no progress at all)."""
+        if self.interactive and self.drawn:
             self.stream.write("\n")
             self.stream.flush()
+            self.drawn = False
 
     def _show(self, scene: str, final: bool) -> None:
         now = self.clock()
         if self.interactive:
             self.stream.write("\r\033[K" + self.line(scene))
             self.stream.flush()
+            self.drawn = True
         elif final or now - self.last_line >= self.interval:
             self.stream.write(self.line(scene) + "\n")
             self.stream.flush()

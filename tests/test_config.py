@@ -1,8 +1,22 @@
+from __future__ import annotations  # annotations stay text, as in annotate_rgbd/config.py
+
+from dataclasses import dataclass
+from typing import Optional
+
 import numpy as np
 import pytest
 
+from annotate_rgbd.config import (
+    Config,
+    _build_list,
+    config_from_dict,
+    config_to_dict,
+    load_config,
+    parse_part_offsets,
+    parse_settings,
+    preset_names,
+)
 from annotate_rgbd.noise import SENSOR_MODELS, NoiseSettings, QuadraticNoise
-from annotate_rgbd.config import Config, config_from_dict, config_to_dict, load_config, preset_names
 from annotate_rgbd.errors import InputError
 
 ISSUE_EXAMPLE = """
@@ -134,3 +148,59 @@ def test_input_errors_survive_pickling_between_processes():
     for error in (InputError("a/b.png", "broken"), OutputError("out", "disk full"), InputError(None, "no path")):
         again = pickle.loads(pickle.dumps(error))
         assert type(again) is type(error) and str(again) == str(error)
+
+
+def test_set_values_are_read_as_toml():
+    overrides = parse_settings(["ransac.seed=3", "filter.max_mean_distance=2.5", "annotation.labels=['wall', 'floor']",
+                                "annotation.labels2=wall", " sequence.max_time_diff =0.01"])
+    assert overrides == {"ransac.seed": 3, "filter.max_mean_distance": 2.5, "annotation.labels": ["wall", "floor"],
+                         "annotation.labels2": "wall", "sequence.max_time_diff": 0.01}
+    assert type(overrides["ransac.seed"]) is int
+    for bad in ("ransac.seed", "seed=3"):
+        with pytest.raises(InputError, match=r"expected SECTION\.KEY=VALUE"):
+            parse_settings([bad])
+
+
+def test_part_offsets_split_at_the_last_colon():
+    assert parse_part_offsets(["950-1900.xml:950", "C:/labels/a.xml:0", "b.xml: 7"]) == {
+        "950-1900.xml": 950, "C:/labels/a.xml": 0, "b.xml": 7,
+    }
+    for bad in ("a.xml", ":5", "a.xml:-1", "a.xml:x", "a.xml:"):
+        with pytest.raises(InputError, match="expected FILE:OFFSET"):
+            parse_part_offsets([bad])
+
+
+@dataclass(frozen=True)
+class Checkpoint:  # a type whose name contains "int", "str" nowhere near it
+    frame: int
+
+
+@dataclass(frozen=True)
+class Entry:
+    file: str
+    weight: float = 1.0
+    track: Optional[int] = None
+    plane: int | None = None
+    new: bool = False
+
+
+@dataclass(frozen=True)
+class EntryWithCheckpoint:
+    at: Checkpoint
+
+
+def test_list_entries_are_checked_against_their_field_types():
+    entries = _build_list("entries", Entry, [{"file": "a.xml", "weight": 2, "track": 3, "plane": 4, "new": True},
+                                             {"file": "b.xml", "weight": 0.5}], "t.toml")
+    assert entries == (Entry("a.xml", 2.0, 3, 4, True), Entry("b.xml", 0.5))
+    assert type(entries[0].weight) is float  # an integer where a float is expected is converted
+    for key, value in [("file", 3), ("weight", "heavy"), ("weight", True), ("track", True), ("track", 2.0),
+                       ("plane", "4"), ("new", 1)]:
+        with pytest.raises(InputError, match=f"t.toml: \\[\\[entries\\]\\] entry 1: '{key}' has the wrong type"):
+            _build_list("entries", Entry, [{"file": "a.xml", key: value}], "t.toml")
+
+
+def test_a_list_entry_field_of_another_type_is_a_programming_error():
+    # Judged by its name, "Checkpoint" would pass for an int; an int is no Checkpoint.
+    with pytest.raises(TypeError, match="EntryWithCheckpoint.at"):
+        _build_list("entries", EntryWithCheckpoint, [{"at": 5}], "t.toml")

@@ -206,7 +206,7 @@ def test_cli_table(sequence):
 def test_cli_json_and_per_frame_csv(sequence, tmp_path):
     gt_dir, pred_dir, _, _ = sequence
     per_frame = tmp_path / "frames.csv"
-    args = ["evaluate", str(gt_dir), str(pred_dir), "--json", "--full", "0.8", "--part", "0.3"]
+    args = ["evaluate", str(gt_dir), str(pred_dir), "--json", "--full", "0.8", "--partial", "0.3"]
     result = CliRunner().invoke(app, [*args, "--per-frame", str(per_frame)])
     assert result.exit_code == 0, result.output
     payload = json.loads(result.stdout)
@@ -220,6 +220,24 @@ def test_cli_json_and_per_frame_csv(sequence, tmp_path):
     assert [row["missing"] for row in rows] == ["0", "0", "1"]
     for row, frame in zip(rows, expected.frames):
         assert float(row["recall"]) == frame.statistics.recall
+
+
+def test_cli_part_is_the_deprecated_name_of_partial(sequence):
+    gt_dir, pred_dir, _, _ = sequence
+    base = ["evaluate", str(gt_dir), str(pred_dir), "--json"]
+    # At 0.6 the merged prediction is no partial overlap any more: the threshold is really used.
+    expected = evaluate_paths(gt_dir, pred_dir, part=0.6).to_dict()
+    assert expected != evaluate_paths(gt_dir, pred_dir).to_dict()
+    new = CliRunner().invoke(app, [*base, "--partial", "0.6"])
+    old = CliRunner().invoke(app, [*base, "--part", "0.6"])
+    assert new.exit_code == old.exit_code == 0, old.output
+    assert json.loads(new.stdout) == json.loads(old.stdout) == expected
+    assert new.stderr == ""
+    assert old.stderr.count("\n") == 1 and old.stderr.startswith("warning: evaluate --part is deprecated, use --partial")
+    both = CliRunner().invoke(app, [*base, "--part", "0.6", "--partial", "0.5"])
+    assert both.exit_code == 1 and both.stderr.startswith("error: give --partial only")
+    help_text = CliRunner().invoke(app, ["evaluate", "--help"], env={"COLUMNS": "200"}).stdout
+    assert "--partial" in help_text and "--part " not in help_text
 
 
 def test_cli_reports_bad_input_in_one_line(sequence, tmp_path):

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import base64
 import fcntl
+import io
+import itertools
 import json
 import os
 import select
@@ -22,6 +24,7 @@ from annotate_rgbd.cli import app
 from annotate_rgbd.config import load_config
 from annotate_rgbd.errors import InputError
 from annotate_rgbd.pipeline import run_cvat2mask
+from annotate_rgbd.progress import Progress
 from annotate_rgbd.records import PlaneInfo, RunRecord
 from annotate_rgbd.review import review_run
 from annotate_rgbd.review_page import page_data, render_review_page
@@ -84,6 +87,35 @@ def test_review_warns_when_a_frame_no_longer_matches_the_report(finished_run, tm
     assert len(result.warnings) == 1 and frame["depth"] in result.warnings[0]
 
 
+def test_review_reports_progress_after_each_overlay(finished_run, tmp_path):
+    out = tmp_path / "out"
+    shutil.copytree(finished_run, out, ignore=shutil.ignore_patterns("overlays"))
+    calls = []
+    review_run(out, page=False, sheet=False, progress=lambda done, total: calls.append((done, total, len(list((out / "overlays").iterdir())))))
+    written = _report(out)["summary"]["masks_written"]
+    # Each call comes once its overlay is on disk.
+    assert calls == [(i, written, i) for i in range(1, written + 1)]
+
+
+class Terminal(io.StringIO):
+    def isatty(self) -> bool:
+        return True
+
+
+def test_progress_on_a_terminal_ends_its_line_only_if_it_drew_one():
+    terminal = Terminal()
+    Progress({"run": 0}, stream=terminal).finish()  # review --no-overlays: no progress at all
+    assert terminal.getvalue() == ""
+    progress = Progress({"run": 0}, stream=terminal, clock=itertools.count().__next__)
+    update = progress.callback("run")
+    update(1, 2)
+    update(2, 2)
+    progress.finish()
+    lines = terminal.getvalue().split("\r\033[K")
+    assert lines[0] == "" and lines[1].startswith("run: 1/2 frames") and lines[2].startswith("run: 2/2 frames")
+    assert lines[2].endswith("\n") and lines[2].count("\n") == 1
+
+
 def test_review_of_a_run_without_masks_writes_only_the_page(tmp_path):
     report = {"inputs": {"sequence": "gone", "parts": []}, "config": {}, "planes": [],
               "frames": [{"depth": "depth/1.png", "depth_timestamp": 1.0, "rgb": "rgb/1.png", "rgb_index": 0,
@@ -142,7 +174,11 @@ def test_cli_review(finished_run, tmp_path):
     result = CliRunner().invoke(app, ["review", str(out), "--no-sheet"])
     assert result.exit_code == 0, result.output
     assert (out / "review.html").is_file() and not (out / "contact_sheet.png").exists()
-    assert len(list((out / "overlays").iterdir())) == _report(out)["summary"]["masks_written"]
+    written = _report(out)["summary"]["masks_written"]
+    assert len(list((out / "overlays").iterdir())) == written
+    # Progress goes to stderr (not a terminal here: a plain line at the end), stdout keeps the summary.
+    assert f"out: {written}/{written} frames" in result.stderr
+    assert "frames/s" not in result.stdout
     missing = CliRunner().invoke(app, ["review", str(tmp_path / "nothing")])
     assert missing.exit_code == 1 and "error:" in missing.output
 
@@ -167,28 +203,16 @@ BROWSER_FLAGS = [
     "--disable-background-networking", "--disable-component-update", "--disable-sync",
     "--remote-debugging-pipe",
 ]
-#: Bound on installing the browser and on every wait for it.
-INSTALL_TIMEOUT = 600
+#: Bound on every wait for the browser.
 REPLY_TIMEOUT = 30
 
 
 @pytest.fixture(scope="module")
 def chromium() -> str:
-    """Path of Debian's chromium; installed with apt-get when missing and running as root."""
-    found = shutil.which("chromium")
-    if found:
-        return found
-    if not hasattr(os, "geteuid") or os.geteuid() != 0 or not shutil.which("apt-get"):
-        pytest.skip("no browser: chromium is not installed and apt-get cannot install it here (not root)")
-    env = {**os.environ, "DEBIAN_FRONTEND": "noninteractive"}
-    try:
-        for command in (["apt-get", "update", "-qq"], ["apt-get", "install", "-y", "-qq", "chromium"]):
-            subprocess.run(command, check=True, env=env, timeout=INSTALL_TIMEOUT, capture_output=True)
-    except (subprocess.SubprocessError, OSError) as exc:
-        pytest.skip(f"no browser: chromium is not installed and installing it failed ({exc})")
+    """Path of Debian's chromium (``bash .ci/setup`` installs it where it can); skip without it."""
     found = shutil.which("chromium")
     if not found:
-        pytest.skip("no browser: apt-get installed chromium but it is not on PATH")
+        pytest.skip("no browser: chromium is not installed (bash .ci/setup installs it as root or through sudo)")
     return found
 
 
