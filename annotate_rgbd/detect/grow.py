@@ -252,11 +252,11 @@ def _fits_plane(plane, centred, mean, count, cells, cos_limit, band2) -> np.ndar
 def merge_segments(region: np.ndarray, cells: CloudCells, config: DetectorConfig) -> np.ndarray:
     """Merge regions that lie on one plane and touch (or nearly touch) on the cell grid.
 
-    Candidate pairs are regions within ``merge_gap_cells`` cells of each other; they are tried
-    in order of how well one plane fits both (then by region number), and merged when the
-    points of each lie within the band of their joint plane (mean squared distance at most
-    ``band_k ** 2`` times their mean noise variance) and their normals agree within the angle
-    limit. Tests use the merged groups, so a chain of small tilts cannot bend a plane.
+    Candidate pairs are regions within ``merge_gap_cells`` cells of each other. They merge
+    when the points of each lie within the band of their joint plane (:func:`merge_costs`).
+    Merging goes in rounds: all pairs of current groups are costed at once and the cheapest
+    merges are made (ties by region numbers), each group at most once per round; the next
+    round tests the merged groups, so a chain of small tilts cannot bend a plane.
 
     Parameters
     ----------
@@ -286,25 +286,31 @@ def merge_segments(region: np.ndarray, cells: CloudCells, config: DetectorConfig
             touch = (a > 0) & (b > 0) & (a != b)
             lo, hi = np.minimum(a[touch], b[touch]), np.maximum(a[touch], b[touch])
             pairs.update(zip(lo.tolist(), hi.tolist()))
-    parent = list(range(n + 1))
+    root = np.arange(n + 1)
     if pairs:
         moments = sum_moments(cell_moments(cells), region - 1, n)
-        groups = {k: _take(moments, [k - 1]) for k in range(1, n + 1)}
-        pairs = sorted(pairs)
-        first, second = (np.array(side) - 1 for side in zip(*pairs))
-        costs = merge_costs(_take(moments, first), _take(moments, second), config)
-        for index in np.lexsort((np.arange(len(pairs)), costs)).tolist():
-            a, b = pairs[index]
-            ra, rb = _root(parent, a), _root(parent, b)
-            if ra == rb:
-                continue
-            cost = costs[index] if (ra, rb) == (a, b) else merge_costs(groups[ra], groups[rb], config)[0]
-            if cost <= 1.0:
-                low, high = min(ra, rb), max(ra, rb)
-                parent[high] = low
-                groups[low] = Moments(*(x + y for x, y in zip(groups[low].__dict__.values(), groups[high].__dict__.values())))
-    roots = np.array([_root(parent, k) for k in range(n + 1)])
-    _, renumbered = np.unique(roots, return_inverse=True)  # root 0 stays 0
+        groups = Moments(*(np.concatenate([np.zeros((1,) + x.shape[1:]), x]) for x in moments.__dict__.values()))
+        pairs = np.array(sorted(pairs))
+        # Rounds: cost every pair of current groups at once, merge the cheapest pairs whose
+        # groups no earlier merge of the round has changed, repeat until nothing merges.
+        while pairs.size:
+            costs = merge_costs(_take(groups, pairs[:, 0]), _take(groups, pairs[:, 1]), config)
+            changed = np.zeros(n + 1, dtype=bool)
+            for index in np.lexsort((np.arange(len(pairs)), costs)).tolist():
+                if costs[index] > 1.0:
+                    break
+                low, high = pairs[index]
+                if changed[low] or changed[high]:
+                    continue
+                changed[low] = changed[high] = True
+                root[root == high] = low
+                for total in groups.__dict__.values():
+                    total[low] += total[high]
+            if not changed.any():
+                break
+            pairs = np.sort(root[pairs], axis=1)
+            pairs = np.unique(pairs[pairs[:, 0] != pairs[:, 1]], axis=0)
+    _, renumbered = np.unique(root, return_inverse=True)  # root 0 stays 0
     return renumbered[region].astype(np.int32)
 
 
@@ -352,8 +358,3 @@ def _residual_ms_many(planes, mean, centred, count) -> np.ndarray:
     return spread + (np.einsum("ki,ki->k", mean, normal) + planes[:, 3]) ** 2
 
 
-def _root(parent: list[int], k: int) -> int:
-    while parent[k] != k:
-        parent[k] = parent[parent[k]]
-        k = parent[k]
-    return k

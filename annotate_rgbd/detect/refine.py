@@ -89,13 +89,25 @@ def pixel_moments(cells: CloudCells, labels: np.ndarray, n: int) -> tuple[np.nda
     for k, window in enumerate(ndimage.find_objects(labels, max_label=n)):
         if window is None:
             continue
-        rows, cols = np.nonzero(labels[window] == k + 1)
-        z = cells.depth[window][rows, cols].astype(np.float64)
-        xyz = np.stack([z * cells.ray_x[window[1]][cols], z * cells.ray_y[window[0]][rows], z])
-        count[k] = z.size
-        mean[k] = xyz.mean(axis=1)
-        xyz -= mean[k][:, None]  # centred first: exact sums even far from the camera
-        centred[k] = xyz @ xyz.T
+        inside = labels[window] == k + 1
+        z = np.where(inside, cells.depth[window], 0).astype(np.float64)
+        # With x = z * ray_x[col] and y = z * ray_y[row], every moment is a sum of
+        # z**p * ray_y**i * ray_x**j: two small matrix products give them all.
+        ray_x, ray_y = cells.ray_x[window[1]].astype(np.float64), cells.ray_y[window[0]].astype(np.float64)
+        across = np.stack([np.ones_like(ray_x), ray_x, ray_x**2], axis=1)
+        down = np.stack([np.ones_like(ray_y), ray_y, ray_y**2], axis=1)
+        first = down.T @ (z @ across)  # first[i, j] = sum z * ray_y**i * ray_x**j
+        second = down.T @ ((z * z) @ across)
+        count[k] = np.count_nonzero(inside)
+        mean[k] = np.array([first[0, 1], first[1, 0], first[0, 0]]) / count[k]
+        raw = np.array(
+            [
+                [second[0, 2], second[1, 1], second[0, 1]],
+                [second[1, 1], second[2, 0], second[1, 0]],
+                [second[0, 1], second[1, 0], second[0, 0]],
+            ]
+        )
+        centred[k] = raw - count[k] * np.outer(mean[k], mean[k])
     return count, mean, centred
 
 
