@@ -42,19 +42,16 @@ def plane_outlines(labels: np.ndarray, tolerance_px: float = 1.5) -> dict[int, n
         raise ValueError(f"label image must be 2-D, got shape {labels.shape}")
     if tolerance_px < 0:
         raise ValueError(f"tolerance_px must be >= 0, got {tolerance_px}")
+    if labels.size and labels.min() < 0:
+        raise ValueError("labels must be >= 0")
     outlines: dict[int, np.ndarray] = {}
-    present = np.unique(labels)
-    present = present[present != 0]
-    if present.size == 0:
-        return outlines
-    index = np.searchsorted(present, labels)  # 0.. for labels, but 0 also where labels == 0
-    index = np.where(labels == 0, 0, index + 1).astype(np.int32)
-    for position, window in enumerate(ndimage.find_objects(index)):
+    for position, window in enumerate(ndimage.find_objects(labels.astype(np.int64, copy=False))):
         if window is None:
             continue
+        label = position + 1
         top, left = window[0].start, window[1].start
         # One pixel of margin so that outlines along the window's edge close properly.
-        mask = np.pad(index[window] == position + 1, 1).astype(np.uint8)
+        mask = np.pad(labels[window] == label, 1).astype(np.uint8)
         fine = cv2.resize(mask, None, fx=2, fy=2, interpolation=cv2.INTER_NEAREST)
         contours, _ = cv2.findContours(fine, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
         if not contours:
@@ -67,5 +64,5 @@ def plane_outlines(labels: np.ndarray, tolerance_px: float = 1.5) -> dict[int, n
         # margin and place the window.
         xy = (simple.reshape(-1, 2).astype(np.float64) + 0.5) / 2.0 - 1.0
         xy += (left, top)
-        outlines[int(present[position])] = xy
+        outlines[label] = xy
     return outlines
