@@ -111,10 +111,6 @@ def wall(distance, tilt_deg=10.0, step=None):
 
 def render_facing(faces, camera=KINECT):
     """Render with the camera at the origin looking along +z, y down (world = camera axes)."""
-    return render_camera_frame(faces, camera)
-
-
-def render_camera_frame(faces, camera):
     rows, cols = np.mgrid[0 : SHAPE[0], 0 : SHAPE[1]]
     rays = backproject(cols.ravel(), rows.ravel(), np.ones(rows.size), camera)
     depth = np.full(rows.size, np.inf)
@@ -238,7 +234,7 @@ def test_deterministic(room):
 
 def test_far_noisy_wall_is_one_plane():
     """At 3.5 m the noise is 2 cm: a fixed millimetre threshold would shatter the wall."""
-    depth, truth, plane = render_facing(wall(3.5))
+    depth, _, plane = render_facing(wall(3.5))
     measured = sensor(depth, seed=3)
     assert np.nanstd(measured - depth) > 0.015
     detection = detect_planes(measured, KINECT)
