@@ -1,0 +1,195 @@
+"""Organised point cloud and the planarity of its cells (the first stage of the detector).
+
+The image is cut into square cells; each cell gets a plane by PCA of its valid points. All
+cells are fitted at once: the points are regrouped cell by cell with a reshape, centred on each
+cell's mean, and the 3 x 3 scatter matrices come from one batched matrix product.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+from typing import Callable
+
+import numpy as np
+
+from ..camera import Camera, backproject
+
+NoiseModel = Callable[[np.ndarray], np.ndarray]
+
+
+@dataclass(frozen=True)
+class CloudCells:
+    """The point cloud and per-cell plane fits of one depth frame.
+
+    The point of pixel ``(r, c)`` is ``depth[r, c] * (ray_x[c], ray_y[r], 1)``. ``C = rows *
+    cols`` cells in raster order; the cell of pixel ``(r, c)`` is ``(min(r // cell_px, rows -
+    1), min(c // cell_px, cols - 1))`` (pixels of a margin too thin for a whole cell belong to
+    the last cell of their row or column for refinement, but take no part in the cell fits).
+
+    Attributes
+    ----------
+    depth : ndarray of float32, shape (H, W)
+        Depth in metres, NaN where invalid.
+    ray_x : ndarray of float32, shape (W,)
+        ``x / z`` of each column's ray.
+    ray_y : ndarray of float32, shape (H,)
+        ``y / z`` of each row's ray.
+    sigma : ndarray of float32, shape (H, W)
+        Noise standard deviation at each pixel's depth in metres (NaN where invalid).
+    cell_px : int
+        Cell side in pixels.
+    grid : tuple of int
+        ``(rows, cols)`` of the cell grid.
+    count : ndarray of int, shape (C,)
+        Valid pixels per cell.
+    mean : ndarray of float64, shape (C, 3)
+        Centroid of each cell's points (NaN for an empty cell).
+    scatter : ndarray of float64, shape (C, 3, 3)
+        Sum of outer products of the centred points.
+    normal : ndarray of float64, shape (C, 3)
+        Unit normal of the cell's plane, oriented towards the camera.
+    offset : ndarray of float64, shape (C,)
+        ``d`` of the plane ``normal . p + d = 0`` (positive for a plane facing the camera).
+    mse : ndarray of float64, shape (C,)
+        Mean squared distance of the cell's points to its plane (smallest eigenvalue / count).
+    cell_sigma : ndarray of float64, shape (C,)
+        Noise standard deviation at the cell's mean depth.
+    half_width : ndarray of float64, shape (C,)
+        Half-width of the cell's points across their narrower in-plane direction in metres,
+        ``sqrt(3 * lambda_2 / count)`` (lambda_2 the middle eigenvalue of the scatter; exact
+        for evenly spread points).
+    planar : ndarray of bool, shape (C,)
+        Cells with enough valid pixels and a residual within the noise bound.
+    """
+
+    depth: np.ndarray
+    ray_x: np.ndarray
+    ray_y: np.ndarray
+    sigma: np.ndarray
+    cell_px: int
+    grid: tuple[int, int]
+    count: np.ndarray
+    mean: np.ndarray
+    scatter: np.ndarray
+    normal: np.ndarray
+    offset: np.ndarray
+    mse: np.ndarray
+    cell_sigma: np.ndarray
+    half_width: np.ndarray
+    planar: np.ndarray
+
+
+@lru_cache(maxsize=8)
+def pixel_rays(height: int, width: int, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
+    """Direction of every pixel's ray at depth 1 m; a pinhole ray's x depends on the column only.
+
+    Parameters
+    ----------
+    height, width : int
+        Image size.
+    camera : Camera
+        Intrinsics (fx, fy may be negative).
+
+    Returns
+    -------
+    ray_x : ndarray of float32, shape (W,), read-only
+        ``x / z`` per column.
+    ray_y : ndarray of float32, shape (H,), read-only
+        ``y / z`` per row. Cached: every frame of a sequence shares them.
+    """
+    size = max(height, width)
+    index = np.arange(size)
+    rays = backproject(index, index, np.ones(size), camera).astype(np.float32)
+    ray_x, ray_y = rays[:width, 0].copy(), rays[:height, 1].copy()
+    ray_x.flags.writeable = ray_y.flags.writeable = False
+    return ray_x, ray_y
+
+
+def cloud_cells(
+    depth_m: np.ndarray,
+    camera: Camera,
+    cell_px: int,
+    noise: NoiseModel,
+    planar_k: float,
+    min_valid_fraction: float,
+) -> CloudCells:
+    """Back-project a depth image and fit a plane to every cell.
+
+    Parameters
+    ----------
+    depth_m : ndarray of float, shape (H, W)
+        Depth in metres, NaN (or <= 0) where invalid.
+    camera : Camera
+        Intrinsics.
+    cell_px : int
+        Cell side in pixels; the image must hold at least one cell.
+    noise : callable
+        ``sigma(z)``: axial noise standard deviation in metres at depth ``z`` (elementwise).
+    planar_k : float
+        A cell is planar when its RMS plane residual is at most ``planar_k * sigma``.
+    min_valid_fraction : float
+        Share of valid pixels a cell needs to be tested.
+
+    Returns
+    -------
+    CloudCells
+    """
+    height, width = depth_m.shape
+    rows, cols = height // cell_px, width // cell_px
+    if rows == 0 or cols == 0:
+        raise ValueError(f"a {height} x {width} depth image holds no {cell_px} x {cell_px} cell")
+    z = np.asarray(depth_m, dtype=np.float32)
+    with np.errstate(invalid="ignore"):
+        z = np.where(z > 0, z, np.float32(np.nan))  # NaN stays NaN; zero and negative become NaN
+    ray_x, ray_y = pixel_rays(height, width, camera)
+    sigma = np.asarray(noise(z), dtype=np.float32)
+
+    def cell_major(image: np.ndarray) -> np.ndarray:
+        """(rows * cell_px, cols * cell_px) -> (cells, pixels of a cell), cells in raster order."""
+        blocks = image[: rows * cell_px, : cols * cell_px].reshape(rows, cell_px, cols, cell_px)
+        return blocks.transpose(0, 2, 1, 3).reshape(rows * cols, cell_px * cell_px)
+
+    bz = cell_major(z)
+    valid = np.isfinite(bz)
+    weight = valid.astype(np.float32)
+    count = valid.sum(axis=1)
+    bz = np.where(valid, bz, np.float32(0))
+    bx = bz * cell_major(np.broadcast_to(ray_x, z.shape))
+    by = bz * cell_major(np.broadcast_to(ray_y[:, None], z.shape))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = np.stack([b.sum(axis=1, dtype=np.float64) for b in (bx, by, bz)], axis=1) / count[:, None]
+    # Centred on each cell's mean, float32 keeps the millimetre residuals exact enough.
+    centred = [(b - m[:, None].astype(np.float32)) * weight for b, m in zip((bx, by, bz), np.nan_to_num(mean).T)]
+    scatter = np.empty((rows * cols, 3, 3), dtype=np.float64)
+    for i in range(3):
+        for j in range(i, 3):
+            scatter[:, i, j] = scatter[:, j, i] = np.einsum("ij,ij->i", centred[i], centred[j])
+
+    eigenvalues, eigenvectors = np.linalg.eigh(scatter)  # ascending
+    normal = eigenvectors[:, :, 0]
+    normal = normal * np.where(np.einsum("ij,ij->i", normal, np.nan_to_num(mean)) > 0, -1.0, 1.0)[:, None]
+    offset = -np.einsum("ij,ij->i", normal, mean)
+    mse = np.maximum(eigenvalues[:, 0], 0) / np.maximum(count, 1)
+    cell_sigma = np.asarray(noise(mean[:, 2]), dtype=np.float64)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        half_width = np.sqrt(3 * np.maximum(eigenvalues[:, 1], 0) / count)
+        enough = (count >= min_valid_fraction * cell_px * cell_px) & (count >= 3)
+        planar = enough & (mse <= (planar_k * cell_sigma) ** 2) & (half_width > 0)
+    return CloudCells(
+        depth=z,
+        ray_x=ray_x,
+        ray_y=ray_y,
+        sigma=sigma,
+        cell_px=cell_px,
+        grid=(rows, cols),
+        count=count,
+        mean=mean,
+        scatter=scatter,
+        normal=normal,
+        offset=offset,
+        mse=mse,
+        cell_sigma=cell_sigma,
+        half_width=half_width,
+        planar=planar,
+    )

@@ -1,0 +1,360 @@
+"""Region growing of coplanar cells, and merging of coplanar segments, on the cell grid.
+
+Cells are summarised by their point count, centroid and scatter matrix; a set of cells by the
+sums of these (:class:`Moments`), from which its least-squares plane follows exactly. The grid
+holds a few hundred cells, so growing walks it cell by cell; every test against a region's
+plane is evaluated for all cells at once.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from .cells import CloudCells
+from .config import DetectorConfig
+
+
+@dataclass(frozen=True)
+class Moments:
+    """Sums over sets of points from which their planes follow, for ``K`` sets.
+
+    Attributes
+    ----------
+    count : ndarray of float64, shape (K,)
+        Number of points.
+    first : ndarray of float64, shape (K, 3)
+        Sum of the points.
+    second : ndarray of float64, shape (K, 3, 3)
+        Sum of the outer products of the points (about the camera centre).
+    noise : ndarray of float64, shape (K,)
+        Sum of ``sigma(z) ** 2`` over the points (cells count theirs at the cell's depth).
+    """
+
+    count: np.ndarray
+    first: np.ndarray
+    second: np.ndarray
+    noise: np.ndarray
+
+
+def cell_moments(cells: CloudCells) -> Moments:
+    """:class:`Moments` of every cell's valid points (``K`` = number of cells)."""
+    count = cells.count.astype(np.float64)
+    mean = np.nan_to_num(cells.mean)
+    return Moments(
+        count=count,
+        first=mean * count[:, None],
+        second=cells.scatter + count[:, None, None] * mean[:, :, None] * mean[:, None, :],
+        noise=count * np.nan_to_num(cells.cell_sigma) ** 2,
+    )
+
+
+def sum_moments(moments: Moments, groups: np.ndarray, n_groups: int) -> Moments:
+    """Add up cell moments per group.
+
+    Parameters
+    ----------
+    moments : Moments
+        Per-cell moments, ``C`` of them.
+    groups : ndarray of int, shape (C,)
+        Group of each cell in ``[0, n_groups)``, or -1 for none.
+    n_groups : int
+
+    Returns
+    -------
+    Moments
+        ``n_groups`` sums.
+    """
+    keep = groups >= 0
+    index = groups[keep]
+
+    def add(values: np.ndarray) -> np.ndarray:
+        out = np.zeros((n_groups,) + values.shape[1:], dtype=np.float64)
+        np.add.at(out, index, values[keep])
+        return out
+
+    return Moments(add(moments.count), add(moments.first), add(moments.second), add(moments.noise))
+
+
+def fit_planes(moments: Moments) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Least-squares (orthogonal) planes of point sets given by their moments.
+
+    Parameters
+    ----------
+    moments : Moments
+        ``K`` point sets with at least 3 points each.
+
+    Returns
+    -------
+    planes : ndarray of float64, shape (K, 4)
+        ``(a, b, c, d)`` with unit normal ``(a, b, c)`` oriented towards the camera
+        (``d > 0`` for a plane that does not pass through the camera centre).
+    mean : ndarray of float64, shape (K, 3)
+        Centroids.
+    centred : ndarray of float64, shape (K, 3, 3)
+        Scatter matrices about the centroids.
+    """
+    count = np.maximum(moments.count, 1)
+    mean = moments.first / count[:, None]
+    centred = moments.second - count[:, None, None] * mean[:, :, None] * mean[:, None, :]
+    _, vectors = np.linalg.eigh(centred)
+    normal = vectors[:, :, 0]
+    normal = normal * np.where(np.einsum("ij,ij->i", normal, mean) > 0, -1.0, 1.0)[:, None]
+    planes = np.concatenate([normal, -np.einsum("ij,ij->i", normal, mean)[:, None]], axis=1)
+    return planes, mean, centred
+
+
+def residual_ms(plane: np.ndarray, mean: np.ndarray, centred: np.ndarray, count: np.ndarray) -> np.ndarray:
+    """Mean squared distance of point sets to one plane, from their moments.
+
+    Parameters
+    ----------
+    plane : ndarray, shape (4,)
+    mean : ndarray, shape (K, 3)
+    centred : ndarray, shape (K, 3, 3)
+        Scatter matrices about the centroids.
+    count : ndarray, shape (K,)
+
+    Returns
+    -------
+    ndarray of float64, shape (K,)
+        ``n^T S n / N + (n . m + d) ** 2`` per set.
+    """
+    normal = plane[:3]
+    spread = np.einsum("i,kij,j->k", normal, centred, normal) / np.maximum(count, 1)
+    return spread + (mean @ normal + plane[3]) ** 2
+
+
+def angle_limit(sigma: np.ndarray, half_width: np.ndarray, config: DetectorConfig) -> np.ndarray:
+    """Largest tilt of a patch's normal (radians) that its noise band explains.
+
+    ``atan(band_k * sigma / half_width)``: the tilt that moves the patch's edge by the band,
+    clipped to ``[min_angle_deg, max_angle_deg]`` (the ceiling where it is undefined).
+    """
+    low, high = np.deg2rad(config.min_angle_deg), np.deg2rad(config.max_angle_deg)
+    with np.errstate(invalid="ignore"):
+        tilt = np.arctan2(config.band_k * sigma, half_width)
+    return np.clip(np.nan_to_num(tilt, nan=high), low, high)
+
+
+def cell_angle_limits(cells: CloudCells, config: DetectorConfig) -> np.ndarray:
+    """:func:`angle_limit` of every cell, radians, shape (C,)."""
+    return angle_limit(cells.cell_sigma, cells.half_width, config)
+
+
+def neighbour_pairs(cells: CloudCells, config: DetectorConfig) -> tuple[list[list[int]], np.ndarray]:
+    """For every cell, the 4-neighbours it may share a plane with.
+
+    Two planar neighbours qualify when their normals agree within the :func:`angle_limit` of
+    the less certain one and the points of each lie within the band of the other's plane:
+    mean squared distance at most ``(band_k * sigma) ** 2`` (a step between parallel surfaces
+    fails this).
+
+    Returns
+    -------
+    neighbours : list of list of int
+        Neighbours of each cell, in raster order of the cells.
+    inner : ndarray of bool, shape (C,)
+        Cells with a qualifying neighbour both along their row and along their column: the
+        cells inside a plane, as opposed to a strip of cells along a crease.
+    """
+    rows, cols = cells.grid
+    index = np.arange(rows * cols).reshape(rows, cols)
+    a = np.concatenate([index[:, :-1].ravel(), index[:-1, :].ravel()])
+    b = np.concatenate([index[:, 1:].ravel(), index[1:, :].ravel()])
+    planes = np.concatenate([cells.normal, cells.offset[:, None]], axis=1)
+    mean, count = np.nan_to_num(cells.mean), cells.count
+    band2 = (config.band_k * cells.cell_sigma) ** 2
+    limit = cell_angle_limits(cells, config)
+    cos = np.einsum("ij,ij->i", cells.normal[a], cells.normal[b])
+    with np.errstate(invalid="ignore"):
+        ok = cells.planar[a] & cells.planar[b] & (cos >= np.cos(np.maximum(limit[a], limit[b])))
+        ok &= _residual_ms_many(planes[a], mean[b], cells.scatter[b], count[b]) <= band2[b]
+        ok &= _residual_ms_many(planes[b], mean[a], cells.scatter[a], count[a]) <= band2[a]
+    neighbours: list[list[int]] = [[] for _ in range(rows * cols)]
+    for i, j in zip(a[ok].tolist(), b[ok].tolist()):
+        neighbours[i].append(j)
+        neighbours[j].append(i)
+    along_row = np.zeros(rows * cols, dtype=bool)
+    along_column = np.zeros(rows * cols, dtype=bool)
+    horizontal = np.arange(a.size) < rows * (cols - 1)  # the first pairs are left-right ones
+    for side, pairs in ((along_row, ok & horizontal), (along_column, ok & ~horizontal)):
+        side[a[pairs]] = side[b[pairs]] = True
+    return neighbours, along_row & along_column
+
+
+def grow_regions(cells: CloudCells, config: DetectorConfig) -> np.ndarray:
+    """Group planar cells into regions that share a plane.
+
+    Seeds are taken best first (smallest residual relative to the noise, ties in raster
+    order) among the cells that agree with a neighbour in their row and one in their column
+    (cells across a crease may fit a plane within the noise of a far wall, but they line up
+    along the crease). A region spreads over neighbouring cells that pass :func:`neighbour_pairs` and
+    whose points lie within the band of the region's current plane (mean squared distance at
+    most ``(band_k * sigma) ** 2``, normal within the angle limit); the plane is refitted each
+    time the region doubles, and the region's cells are then offered their neighbours again.
+
+    Returns
+    -------
+    ndarray of int32, shape (C,)
+        Region of each cell, 0 for none, regions numbered 1, 2, ... in the order grown.
+    """
+    neighbours, inner = neighbour_pairs(cells, config)
+    moments = cell_moments(cells)
+    cos_limit = np.cos(cell_angle_limits(cells, config))
+    band2 = (config.band_k * cells.cell_sigma) ** 2
+    centred, mean, count = cells.scatter, np.nan_to_num(cells.mean), cells.count
+    with np.errstate(invalid="ignore", divide="ignore"):
+        score = np.where(cells.planar, cells.mse / cells.cell_sigma**2, np.inf)
+    region = np.zeros(cells.grid[0] * cells.grid[1], dtype=np.int32)
+    n_regions = 0
+    for seed in np.argsort(score, kind="stable").tolist():
+        if not cells.planar[seed]:
+            break  # the rest score inf
+        if region[seed] or not inner[seed]:
+            continue  # taken, or not inside a plane
+        n_regions += 1
+        region[seed] = n_regions
+        members = [seed]
+        plane = np.append(cells.normal[seed], cells.offset[seed])
+        fits = _fits_plane(plane, centred, mean, count, cells, cos_limit, band2)
+        queue = deque(members)
+        next_refit = 2
+        while queue:
+            cell = queue.popleft()
+            for other in neighbours[cell]:
+                if region[other] == 0 and fits[other]:
+                    region[other] = n_regions
+                    members.append(other)
+                    queue.append(other)
+            if len(members) >= next_refit:
+                next_refit = 2 * len(members)
+                group = np.asarray(members)
+                total = Moments(*(x[group].sum(axis=0)[None] for x in (moments.count, moments.first, moments.second, moments.noise)))
+                plane = fit_planes(total)[0][0]
+                fits = _fits_plane(plane, centred, mean, count, cells, cos_limit, band2)
+                queue.extend(members)  # the new plane may admit cells the old one refused
+    return region
+
+
+def _fits_plane(plane, centred, mean, count, cells, cos_limit, band2) -> np.ndarray:
+    """Which planar cells lie within the band of ``plane`` and face its way."""
+    with np.errstate(invalid="ignore"):
+        return (
+            cells.planar
+            & (residual_ms(plane, mean, centred, count) <= band2)
+            & (cells.normal @ plane[:3] >= cos_limit)
+        )
+
+
+def merge_segments(region: np.ndarray, cells: CloudCells, config: DetectorConfig) -> np.ndarray:
+    """Merge regions that lie on one plane and touch (or nearly touch) on the cell grid.
+
+    Candidate pairs are regions within ``merge_gap_cells`` cells of each other. They merge
+    when the points of each lie within the band of their joint plane (:func:`merge_costs`).
+    Merging goes in rounds: all pairs of current groups are costed at once and the cheapest
+    merges are made (ties by region numbers), each group at most once per round; the next
+    round tests the merged groups, so a chain of small tilts cannot bend a plane.
+
+    Parameters
+    ----------
+    region : ndarray of int, shape (C,)
+        Regions from :func:`grow_regions` (0 = none).
+    cells : CloudCells
+    config : DetectorConfig
+
+    Returns
+    -------
+    ndarray of int32, shape (C,)
+        Merged regions, renumbered 1, 2, ... by their smallest original number.
+    """
+    n = int(region.max())
+    if n == 0:
+        return region.astype(np.int32)
+    rows, cols = cells.grid
+    grid = region.reshape(rows, cols)
+    reach = config.merge_gap_cells + 1
+    pairs = set()
+    for dy in range(0, reach + 1):
+        for dx in range(-reach, reach + 1):
+            if dy == 0 and dx <= 0:
+                continue
+            a = grid[dy:, max(dx, 0) : cols + min(dx, 0)]
+            b = grid[: rows - dy, max(-dx, 0) : cols - max(dx, 0)]
+            touch = (a > 0) & (b > 0) & (a != b)
+            lo, hi = np.minimum(a[touch], b[touch]), np.maximum(a[touch], b[touch])
+            pairs.update(zip(lo.tolist(), hi.tolist()))
+    root = np.arange(n + 1)
+    if pairs:
+        moments = sum_moments(cell_moments(cells), region - 1, n)
+        groups = Moments(*(np.concatenate([np.zeros((1,) + x.shape[1:]), x]) for x in moments.__dict__.values()))
+        pairs = np.array(sorted(pairs))
+        # Rounds: cost every pair of current groups at once, merge the cheapest pairs whose
+        # groups no earlier merge of the round has changed, repeat until nothing merges.
+        while pairs.size:
+            costs = merge_costs(_take(groups, pairs[:, 0]), _take(groups, pairs[:, 1]), config)
+            changed = np.zeros(n + 1, dtype=bool)
+            for index in np.lexsort((np.arange(len(pairs)), costs)).tolist():
+                if costs[index] > 1.0:
+                    break
+                low, high = pairs[index]
+                if changed[low] or changed[high]:
+                    continue
+                changed[low] = changed[high] = True
+                root[root == high] = low
+                for total in groups.__dict__.values():
+                    total[low] += total[high]
+            if not changed.any():
+                break
+            pairs = np.sort(root[pairs], axis=1)
+            pairs = np.unique(pairs[pairs[:, 0] != pairs[:, 1]], axis=0)
+    _, renumbered = np.unique(root, return_inverse=True)  # root 0 stays 0
+    return renumbered[region].astype(np.int32)
+
+
+def _take(moments: Moments, index) -> Moments:
+    return Moments(moments.count[index], moments.first[index], moments.second[index], moments.noise[index])
+
+
+def merge_costs(a: Moments, b: Moments, config: DetectorConfig) -> np.ndarray:
+    """How far pairs of point sets are from sharing one plane: <= 1 where they may merge.
+
+    The cost is infinite when their normals differ by more than the :func:`angle_limit` of the
+    less certain set; otherwise it is the larger of the two sets' mean squared distances to the plane
+    fitted to both, each divided by ``band_k ** 2`` times that set's mean noise variance.
+
+    Parameters
+    ----------
+    a, b : Moments
+        ``P`` point sets each.
+    config : DetectorConfig
+
+    Returns
+    -------
+    ndarray of float64, shape (P,)
+    """
+    both = Moments(*(x + y for x, y in zip(a.__dict__.values(), b.__dict__.values())))
+    plane_a, mean_a, centred_a = fit_planes(a)
+    plane_b, mean_b, centred_b = fit_planes(b)
+    plane_ab = fit_planes(both)[0]
+    cos = np.abs(np.einsum("ij,ij->i", plane_a[:, :3], plane_b[:, :3]))
+    sigma2_a = a.noise / np.maximum(a.count, 1)
+    sigma2_b = b.noise / np.maximum(b.count, 1)
+    width_a = np.sqrt(3 * np.maximum(np.linalg.eigvalsh(centred_a)[:, 1], 0) / np.maximum(a.count, 1))
+    width_b = np.sqrt(3 * np.maximum(np.linalg.eigvalsh(centred_b)[:, 1], 0) / np.maximum(b.count, 1))
+    limit = np.maximum(angle_limit(np.sqrt(sigma2_a), width_a, config), angle_limit(np.sqrt(sigma2_b), width_b, config))
+    ms_a = _residual_ms_many(plane_ab, mean_a, centred_a, a.count)
+    ms_b = _residual_ms_many(plane_ab, mean_b, centred_b, b.count)
+    cost = np.maximum(ms_a / sigma2_a, ms_b / sigma2_b) / config.band_k**2
+    return np.where(cos >= np.cos(limit), cost, np.inf)
+
+
+def _residual_ms_many(planes, mean, centred, count) -> np.ndarray:
+    """:func:`residual_ms` of set ``k`` against plane ``k``."""
+    normal = planes[:, :3]
+    spread = np.einsum("ki,kij,kj->k", normal, centred, normal) / np.maximum(count, 1)
+    return spread + (np.einsum("ki,ki->k", mean, normal) + planes[:, 3]) ** 2
+
+

@@ -1,0 +1,150 @@
+"""Pixel-level refinement of cell segments, and the final planes fitted on their pixels."""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import ndimage
+
+from .cells import CloudCells
+
+
+def assign_pixels(cells: CloudCells, region: np.ndarray, planes: np.ndarray, band_k: float) -> np.ndarray:
+    """Give each pixel near a segment to the segment whose plane it lies on.
+
+    A segment may claim the valid pixels of its own cells and of the cells next to them
+    (8-neighbours: boundary and non-planar cells); a pixel goes to the nearest plane, in 3-D
+    distance, among those that claim it and hold it within ``band_k * sigma(z)``.
+
+    Parameters
+    ----------
+    cells : CloudCells
+    region : ndarray of int, shape (C,)
+        Segment of each cell, 0 for none, segments 1..K.
+    planes : ndarray, shape (K, 4)
+        Plane of each segment (unit normal).
+    band_k : float
+
+    Returns
+    -------
+    ndarray of int32, shape (H, W)
+        Segment of each pixel, 0 for none.
+    """
+    height, width = cells.depth.shape
+    rows, cols = cells.grid
+    cell_px = cells.cell_px
+    row_cell = np.minimum(np.arange(height) // cell_px, rows - 1)
+    col_cell = np.minimum(np.arange(width) // cell_px, cols - 1)
+    band = np.float32(band_k) * cells.sigma
+    labels = np.zeros((height, width), dtype=np.int32)
+    best = np.full((height, width), np.inf, dtype=np.float32)
+    grid = region.reshape(rows, cols)
+    ring = np.ones((3, 3), dtype=bool)
+    for k, window in enumerate(ndimage.find_objects(grid), start=1):
+        if window is None:
+            continue
+        # The segment's cells and their 8-neighbours, inside the segment's window grown by one cell.
+        top, left = max(window[0].start - 1, 0), max(window[1].start - 1, 0)
+        bottom, right = min(window[0].stop + 1, rows), min(window[1].stop + 1, cols)
+        near = ndimage.binary_dilation(grid[top:bottom, left:right] == k, structure=ring)
+        r0, r1 = top * cell_px, _stop(bottom, rows, cell_px, height)
+        c0, c1 = left * cell_px, _stop(right, cols, cell_px, width)
+        claim = near[np.ix_(row_cell[r0:r1] - top, col_cell[c0:c1] - left)]
+        a, b, c, d = planes[k - 1].astype(np.float32)
+        # Point = z * (ray_x, ray_y, 1), so the signed distance is z * (n . ray) + d.
+        facing = a * cells.ray_x[c0:c1] + (b * cells.ray_y[r0:r1, None] + c)
+        dist = np.abs(cells.depth[r0:r1, c0:c1] * facing + d)
+        with np.errstate(invalid="ignore"):
+            take = claim & (dist <= band[r0:r1, c0:c1]) & (dist < best[r0:r1, c0:c1])
+        labels[r0:r1, c0:c1][take] = k
+        best[r0:r1, c0:c1][take] = dist[take]
+    return labels
+
+
+def _stop(stop_cell: int, n_cells: int, cell_px: int, size: int) -> int:
+    """End pixel (exclusive) of cells up to ``stop_cell``; the last cell also covers the margin."""
+    return size if stop_cell == n_cells else stop_cell * cell_px
+
+
+def pixel_moments(cells: CloudCells, labels: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Count, centroid and centred scatter matrix of the points of each label.
+
+    Parameters
+    ----------
+    cells : CloudCells
+        The point cloud.
+    labels : ndarray of int, shape (H, W)
+        0 for none, else 1..n; labelled pixels must have valid depth.
+    n : int
+
+    Returns
+    -------
+    count : ndarray of int64, shape (n,)
+    mean : ndarray of float64, shape (n, 3)
+    centred : ndarray of float64, shape (n, 3, 3)
+        Zero where a label has no pixel.
+    """
+    count = np.zeros(n, dtype=np.int64)
+    mean = np.zeros((n, 3))
+    centred = np.zeros((n, 3, 3))
+    for k, window in enumerate(ndimage.find_objects(labels, max_label=n)):
+        if window is None:
+            continue
+        inside = labels[window] == k + 1
+        z = np.where(inside, cells.depth[window], 0).astype(np.float64)
+        # With x = z * ray_x[col] and y = z * ray_y[row], every moment is a sum of
+        # z**p * ray_y**i * ray_x**j: two small matrix products give them all.
+        ray_x, ray_y = cells.ray_x[window[1]].astype(np.float64), cells.ray_y[window[0]].astype(np.float64)
+        across = np.stack([np.ones_like(ray_x), ray_x, ray_x**2], axis=1)
+        down = np.stack([np.ones_like(ray_y), ray_y, ray_y**2], axis=1)
+        first = down.T @ (z @ across)  # first[i, j] = sum z * ray_y**i * ray_x**j
+        second = down.T @ ((z * z) @ across)
+        count[k] = np.count_nonzero(inside)
+        mean[k] = np.array([first[0, 1], first[1, 0], first[0, 0]]) / count[k]
+        raw = np.array(
+            [
+                [second[0, 2], second[1, 1], second[0, 1]],
+                [second[1, 1], second[2, 0], second[1, 0]],
+                [second[0, 1], second[1, 0], second[0, 0]],
+            ]
+        )
+        centred[k] = raw - count[k] * np.outer(mean[k], mean[k])
+    return count, mean, centred
+
+
+def planes_from_scatter(mean: np.ndarray, centred: np.ndarray) -> np.ndarray:
+    """Orthogonal least-squares planes ``(a, b, c, d)``, unit normal towards the camera (``d > 0``)."""
+    _, vectors = np.linalg.eigh(centred)
+    normal = vectors[:, :, 0]
+    normal = normal * np.where(np.einsum("ij,ij->i", normal, mean) > 0, -1.0, 1.0)[:, None]
+    return np.concatenate([normal, -np.einsum("ij,ij->i", normal, mean)[:, None]], axis=1)
+
+
+def order_labels(labels: np.ndarray, count: np.ndarray, min_area: int) -> np.ndarray:
+    """New number of each label: by area descending, ties by first pixel in raster order.
+
+    Parameters
+    ----------
+    labels : ndarray of int, shape (H, W)
+    count : ndarray, shape (n,)
+        Pixels of labels 1..n.
+    min_area : int
+        Labels with fewer pixels get 0.
+
+    Returns
+    -------
+    ndarray of int64, shape (n + 1,)
+        Lookup table from old to new label (entry 0 is 0).
+    """
+    n = count.size
+    first = np.zeros(n, dtype=np.int64)
+    keep = np.flatnonzero(count >= max(min_area, 1))
+    _, multiplicity = np.unique(count[keep], return_counts=True)
+    if np.any(multiplicity > 1):  # the first pixel only matters for ties: find it just for those
+        tied = keep[np.isin(count[keep], np.unique(count[keep])[multiplicity > 1])]
+        flat = labels.ravel()
+        for k in tied:
+            first[k] = int(np.argmax(flat == k + 1))
+    order = keep[np.lexsort((first[keep], -count[keep]))]
+    table = np.zeros(n + 1, dtype=np.int64)
+    table[order + 1] = np.arange(1, order.size + 1)
+    return table
