@@ -48,7 +48,7 @@ import cv2
 import numpy as np
 
 from annotate_rgbd.camera import Camera
-from annotate_rgbd.cli import parse_settings
+from annotate_rgbd.config import parse_settings
 from annotate_rgbd.config import load_config
 from annotate_rgbd.cvat import read_cvat, write_cvat_video
 from annotate_rgbd.execute import prepare_process
