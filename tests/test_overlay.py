@@ -159,3 +159,11 @@ def test_contact_sheet_captions_add_a_line_below_each_thumbnail():
         contact_sheet(images, ["only one"])
     with pytest.raises(ValueError):
         contact_sheet([])
+
+
+def test_a_frame_without_shapes_has_no_label_points_and_shows_the_rgb_image():
+    empty = np.zeros((H, W), dtype=np.int32)
+    assert label_points(empty) == {}
+    rgb = np.random.default_rng(0).integers(0, 256, (H, W, 3), dtype=np.uint8)
+    result = FrameResult(labels=empty, drawn=empty.copy())
+    assert np.array_equal(render_overlay(rgb, result, plane_colours(3)), rgb)
