@@ -341,7 +341,7 @@ def read_depth(path: Path, data: np.ndarray | None = None) -> np.ndarray:
     """
     data = read_bytes(path) if data is None else data
     if bytes(data[: len(PNG_SIGNATURE)]) != PNG_SIGNATURE:
-        raise InputError(path, "not a PNG file; depth images are 16-bit PNGs (TUM / ICL-NUIM)")
+        raise InputError(path, "not a readable image (not a PNG file; depth images are 16-bit PNGs, as in TUM / ICL-NUIM)")
     image = decode_image(data, path, cv2.IMREAD_UNCHANGED)
     if image.ndim != 2:
         raise InputError(path, f"depth image has {image.shape[2]} channels; expected a single-channel depth map")
@@ -471,7 +471,7 @@ def png_size(data: np.ndarray | bytes, path: Path) -> tuple[int, int]:
     """
     head = bytes(data[:33])
     if head[:8] != PNG_SIGNATURE:
-        raise InputError(path, "not a PNG file")
+        raise InputError(path, "not a readable image (not a PNG file)")
     if len(head) < 33:
         raise InputError(path, "not a readable image (truncated PNG header)")
     length, kind, width, height = struct.unpack(">I4sII", head[8:24])

@@ -190,8 +190,8 @@ def test_png_size_reads_the_header_only(tmp_path):
 @pytest.mark.parametrize(
     ("data", "problem"),
     [
-        (cv2.imencode(".tiff", np.zeros((4, 4), np.uint16))[1].tobytes(), "not a PNG file; depth images are 16-bit PNGs (TUM / ICL-NUIM)"),
-        (b"", "not a PNG file; depth images are 16-bit PNGs (TUM / ICL-NUIM)"),
+        (cv2.imencode(".tiff", np.zeros((4, 4), np.uint16))[1].tobytes(), "not a readable image (not a PNG file; depth images are 16-bit PNGs, as in TUM / ICL-NUIM)"),
+        (b"", "not a readable image (not a PNG file; depth images are 16-bit PNGs, as in TUM / ICL-NUIM)"),
         (png_claiming(40, 30)[:32], "not a readable image (truncated PNG header)"),
         (png_claiming(40, 30)[:20] + b"\x01" + png_claiming(40, 30)[21:], "not a readable image (corrupt PNG header)"),
         (png_claiming(0, 30), "not a readable image (the PNG header says 0x30 pixels)"),
