@@ -206,7 +206,7 @@ def label_points(regions: np.ndarray) -> dict[int, tuple[int, int]]:
     Returns
     -------
     dict of int to (int, int)
-        Region id -> (row, col).
+        Region id -> (row, col); empty when ``regions`` has no region.
     """
     padded = np.pad(regions, 1, constant_values=-1)
     centre = padded[1:-1, 1:-1]
@@ -214,8 +214,10 @@ def label_points(regions: np.ndarray) -> dict[int, tuple[int, int]]:
         (padded[:-2, 1:-1] != centre) | (padded[2:, 1:-1] != centre)
         | (padded[1:-1, :-2] != centre) | (padded[1:-1, 2:] != centre)
     )
-    distance = ndimage.distance_transform_edt(~edge)
     index = np.flatnonzero(regions > 0)
+    if index.size == 0:  # a frame without shapes (e.g. its track ended): nothing to label
+        return {}
+    distance = ndimage.distance_transform_edt(~edge)
     ids = regions.ravel()[index]
     order = np.lexsort((distance.ravel()[index], ids))  # by id, then distance: the last is the deepest
     ids, index = ids[order], index[order]

@@ -13,13 +13,23 @@ Frames are always ordered by their timestamp as a number: sorting names as text,
 integer part of the timestamp only, mixes up frames within the same second (a pitfall of the
 original EVOPS tooling).
 
-A listed file must lie inside the sequence folder (no absolute path, no ``..``), so that a list
-can never make the tool read elsewhere; depth file names must be distinct, since each names its
-mask.
+A listed file must lie inside the sequence folder (no absolute path, no ``..``, no symbolic link
+leading out of it), so that a list can never make the tool read elsewhere; depth file names must
+be distinct, since each names its mask. Only regular files are read (a FIFO or a device would
+block or never end), and lists, images and timestamps are bounded (``MAX_*`` below), so that no
+input costs unbounded time or memory.
 """
 
 from __future__ import annotations
 
+import errno
+import io
+import math
+import os
+import stat
+import struct
+import zlib
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path, PurePosixPath, PureWindowsPath
 
@@ -29,6 +39,26 @@ import numpy as np
 from .errors import InputError
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
+
+#: Most frames one stream may list. TUM RGB-D and ICL-NUIM sequences have a few thousand frames;
+#: a million is over nine hours at 30 Hz.
+MAX_FRAMES = 1_000_000
+#: Largest frame list read (checked before reading): a million ``associate.py`` lines of about
+#: 90 bytes, with room for comments.
+MAX_LIST_BYTES = 128 * 2**20
+#: Most lines of a frame list, comments and blank lines included.
+MAX_LIST_LINES = 2 * MAX_FRAMES
+#: Largest image decoded, in pixels (8192 x 8192, eight times the 3840 x 2160 depth maps of the
+#: largest stereo cameras), checked in a PNG's header before decoding: a small file announcing
+#: a huge image (a decompression bomb) is refused without allocating it.
+MAX_IMAGE_PIXELS = 8192 * 8192
+#: Largest image file read, in bytes: an uncompressed 16-bit RGBA image of MAX_IMAGE_PIXELS.
+MAX_IMAGE_BYTES = 8 * MAX_IMAGE_PIXELS
+#: Largest timestamp magnitude. 2**63 ns (9.2e18, the end of 64-bit nanosecond clocks) is within,
+#: so seconds, milliseconds or nanoseconds since 1970 all pass, and the difference of two
+#: timestamps stays finite (1.7e308 - -1.7e308 is infinite).
+MAX_TIMESTAMP = 1e19
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 
 @dataclass(frozen=True)
@@ -74,19 +104,24 @@ def read_sequence(root: str | Path) -> Sequence:
     Raises
     ------
     InputError
-        The folder or its lists are missing, malformed or empty.
+        The folder or its lists are missing, malformed, empty or too long, a timestamp is not
+        finite or out of range, or a symbolic link leads a listed file out of the folder.
     """
     root = Path(root)
     if not root.is_dir():
         raise InputError(root, "sequence folder not found")
-    if (root / "rgb.txt").is_file() and (root / "depth.txt").is_file():
+    # exists(), not is_file(): a FIFO or a folder named rgb.txt is refused by name, not skipped.
+    if (root / "rgb.txt").exists() and (root / "depth.txt").exists():
+        check_inside(root, ("rgb.txt", "depth.txt"))
         rgb = read_frame_list(root / "rgb.txt")
         depth_source = root / "depth.txt"
         depth = read_frame_list(depth_source)
-    elif (root / "associations.txt").is_file():
+    elif (root / "associations.txt").exists():
+        check_inside(root, ("associations.txt",))
         depth_source = root / "associations.txt"
         rgb, depth = read_associations(depth_source)
     elif (root / "rgb").is_dir() and (root / "depth").is_dir():
+        check_inside(root, ("rgb", "depth"))
         rgb = list_image_folder(root / "rgb", root)
         depth_source = root / "depth"
         depth = list_image_folder(depth_source, root)
@@ -99,7 +134,45 @@ def read_sequence(root: str | Path) -> Sequence:
         if len(frames) == 0:
             raise InputError(root, f"the sequence lists no {name} frames")
     check_depth_names(depth, depth_source)
+    check_inside(root, rgb.files + depth.files)
     return Sequence(root=root, rgb=rgb, depth=depth)
+
+
+def check_inside(root: Path, files: tuple[str, ...]) -> None:
+    """Refuse files that a symbolic link puts outside the sequence folder.
+
+    Every folder of a listed file is resolved (symbolic links followed) and must lie inside the
+    resolved sequence folder, and so must every listed file that is a symbolic link. Each folder
+    is resolved and listed once, so a long list costs no system call per file. A missing file is
+    left to fail with its frame.
+
+    Parameters
+    ----------
+    root : Path
+        The sequence folder.
+    files : tuple of str
+        Paths relative to ``root``, as listed.
+
+    Raises
+    ------
+    InputError
+        Naming the first file that resolves outside ``root``.
+    """
+    inside = os.path.join(os.path.realpath(root), "")
+    folders: dict[str, tuple[str, frozenset[str]]] = {}  # listed folder -> (resolved, names of its links)
+    for file in files:
+        folder, _, name = file.rpartition("/")  # list paths are POSIX paths
+        if folder not in folders:
+            path = os.path.join(root, folder)
+            try:
+                with os.scandir(path) as entries:
+                    links = frozenset(e.name for e in entries if e.is_symlink())
+            except OSError:  # no such folder: its files fail with their frames
+                links = frozenset()
+            folders[folder] = (os.path.join(os.path.realpath(path), ""), links)
+        real, links = folders[folder]
+        if not real.startswith(inside) or (name in links and not os.path.realpath(real + name).startswith(inside)):
+            raise InputError(root / file, "a symbolic link leads outside the sequence folder; refused")
 
 
 def check_depth_names(depth: FrameList, source: Path) -> None:
@@ -112,7 +185,9 @@ def check_depth_names(depth: FrameList, source: Path) -> None:
     """
     first: dict[str, str] = {}
     for file in depth.files:
-        name = PurePosixPath(file).name
+        name = file.rpartition("/")[2]
+        if name in ("", "."):  # "a/b/" or "a/b/.": the slow, general way
+            name = PurePosixPath(file).name
         if name in first:
             raise InputError(
                 source,
@@ -125,7 +200,7 @@ def check_depth_names(depth: FrameList, source: Path) -> None:
 def read_frame_list(path: Path) -> FrameList:
     """Read a TUM ``rgb.txt`` / ``depth.txt``: ``#`` comments, then ``timestamp path`` lines."""
     rows = _read_rows(path, min_columns=2)
-    return _frame_list(path, [(ts, _inside(path, line, row[1]), line) for line, ts, row in rows])
+    return _frame_list(path, [(_timestamp(path, line, row[0]), _inside(path, line, row[1]), line) for line, row in rows])
 
 
 def read_associations(path: Path) -> tuple[FrameList, FrameList]:
@@ -136,10 +211,10 @@ def read_associations(path: Path) -> tuple[FrameList, FrameList]:
     """
     rows = _read_rows(path, min_columns=4)
     rgb, depth = [], []
-    for line, first_ts, row in rows:
-        second_ts = _timestamp(path, line, row[2])
+    for line, row in rows:
+        first_ts, second_ts = _timestamp(path, line, row[0]), _timestamp(path, line, row[2])
         pairs = [(first_ts, _inside(path, line, row[1])), (second_ts, _inside(path, line, row[3]))]
-        if "depth" in Path(row[3]).parts[0].lower() or "rgb" in Path(row[1]).parts[0].lower():
+        if "depth" in _top_folder(row[3]).lower() or "rgb" in _top_folder(row[1]).lower():
             pairs.reverse()
         (d_ts, d_file), (r_ts, r_file) = pairs
         depth.append((d_ts, d_file, line))
@@ -154,11 +229,32 @@ def list_image_folder(folder: Path, root: Path) -> FrameList:
         if file.suffix.lower() not in IMAGE_SUFFIXES:
             continue
         try:
-            ts = float(file.stem)
-        except ValueError:
-            raise InputError(file, "image name is not a timestamp (expected e.g. 1305031102.175304.png)") from None
+            ts = parse_timestamp(file.stem)
+        except ValueError as exc:
+            raise InputError(file, f"image name {exc} (expected e.g. 1305031102.175304.png)") from None
         entries.append((ts, file.relative_to(root).as_posix(), 0))
+        if len(entries) > MAX_FRAMES:
+            raise InputError(folder, f"more than {MAX_FRAMES} images; at most {MAX_FRAMES} frames are read")
     return _frame_list(folder, entries)
+
+
+def parse_timestamp(text: str) -> float:
+    """A timestamp in seconds, finite and within ``MAX_TIMESTAMP``.
+
+    Raises
+    ------
+    ValueError
+        Saying why ``text`` is none ("is not a timestamp", "is out of range ...").
+    """
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not math.isfinite(value):  # NaN would scramble the frame order, infinity every time offset
+        raise ValueError("is not a timestamp")
+    if abs(value) > MAX_TIMESTAMP:
+        raise ValueError(f"is out of range (timestamps are within +-{MAX_TIMESTAMP:g})")
+    return value
 
 
 def associate(depth_times: np.ndarray, rgb_times: np.ndarray, max_time_diff: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -239,10 +335,14 @@ def read_depth(path: Path, data: np.ndarray | None = None) -> np.ndarray:
     Raises
     ------
     InputError
-        Missing or undecodable file, an image with colour channels or an 8-bit image (not a
-        depth map).
+        Missing or undecodable file, not a PNG file, an image larger than ``MAX_IMAGE_PIXELS``
+        (by its header, before decoding), an image with colour channels or an 8-bit image (not
+        a depth map).
     """
-    image = decode_image(read_bytes(path) if data is None else data, path, cv2.IMREAD_UNCHANGED)
+    data = read_bytes(path) if data is None else data
+    if bytes(data[: len(PNG_SIGNATURE)]) != PNG_SIGNATURE:
+        raise InputError(path, "not a readable image (not a PNG file; depth images are 16-bit PNGs, as in TUM / ICL-NUIM)")
+    image = decode_image(data, path, cv2.IMREAD_UNCHANGED)
     if image.ndim != 2:
         raise InputError(path, f"depth image has {image.shape[2]} channels; expected a single-channel depth map")
     if image.dtype.itemsize == 1:
@@ -267,55 +367,157 @@ def read_image(path: Path, flags: int) -> np.ndarray:
     return decode_image(read_bytes(path), path, flags)
 
 
-def read_bytes(path: Path) -> np.ndarray:
-    """A file's bytes as a uint8 array.
+def read_bytes(path: Path, max_bytes: int = MAX_IMAGE_BYTES) -> np.ndarray:
+    """A regular file's bytes as a uint8 array.
+
+    Parameters
+    ----------
+    path : Path
+    max_bytes : int
+        Largest size read; a larger file is refused before reading.
 
     Raises
     ------
     InputError
-        Missing or unreadable file.
+        Missing, unreadable, not a regular file (FIFO, device, folder) or too large.
+    """
+    with open_regular(path, max_bytes) as handle:
+        try:
+            return np.fromfile(handle, dtype=np.uint8)
+        except OSError as exc:
+            raise InputError(path, f"cannot read ({exc.strerror})") from None
+
+
+def open_regular(path: Path, max_bytes: int):
+    """Open a regular file of at most ``max_bytes`` for reading in binary mode.
+
+    The file is opened without blocking and checked on the open descriptor (``fstat``): a FIFO
+    would block the open or the read until a writer comes, a device (``/dev/zero``) never ends.
+
+    Raises
+    ------
+    InputError
+        Missing, unreadable, not a regular file or larger than ``max_bytes``.
     """
     try:
-        return np.fromfile(path, dtype=np.uint8)
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_BINARY", 0))
     except OSError as exc:
         reason = "file not found" if isinstance(exc, FileNotFoundError) else f"cannot read ({exc.strerror})"
         raise InputError(path, reason) from None
+    info = os.fstat(fd)
+    problem = None
+    if stat.S_ISDIR(info.st_mode):
+        problem = f"cannot read ({os.strerror(errno.EISDIR)})"
+    elif not stat.S_ISREG(info.st_mode):
+        kind = "a FIFO" if stat.S_ISFIFO(info.st_mode) else "a device or socket"
+        problem = f"not a regular file ({kind}); refused"
+    elif info.st_size > max_bytes:
+        problem = f"file is {info.st_size / 2**20:.0f} MiB; at most {max_bytes / 2**20:.0f} MiB are read"
+    if problem is not None:
+        os.close(fd)
+        raise InputError(path, problem)
+    return os.fdopen(fd, "rb")
 
 
 def decode_image(data: np.ndarray, path: Path, flags: int) -> np.ndarray:
     """Decode an image file's bytes with OpenCV's ``imread`` ``flags``.
 
+    A PNG's size is read from its header first (:func:`png_size`): one larger than
+    ``MAX_IMAGE_PIXELS`` is refused before anything is allocated.
+
     Raises
     ------
     InputError
-        Empty or undecodable data (the message names ``path``).
+        Empty or undecodable data, or a PNG too large (the message names ``path``).
     """
-    image = cv2.imdecode(data, flags) if data.size else None
+    if bytes(data[: len(PNG_SIGNATURE)]) == PNG_SIGNATURE:
+        width, height = png_size(data, path)
+        if width * height > MAX_IMAGE_PIXELS:
+            raise InputError(
+                path, f"the PNG header says {width}x{height} pixels ({width * height / 1e6:.0f} Mpixel); images over "
+                f"{MAX_IMAGE_PIXELS / 1e6:.0f} Mpixel are refused (a corrupt file or a decompression bomb)",
+            )
+    try:
+        image = cv2.imdecode(data, flags) if data.size else None
+    except cv2.error:  # e.g. beyond OpenCV's own size limit in a format whose header is not read here
+        image = None
     if image is None:
         raise InputError(path, "not a readable image (corrupt or unsupported format)")
     return image
 
 
-def _read_rows(path: Path, min_columns: int) -> list[tuple[int, float, list[str]]]:
-    """Non-comment lines of a TUM-style list as (line number, first timestamp, columns)."""
+def png_size(data: np.ndarray | bytes, path: Path) -> tuple[int, int]:
+    """Width and height from a PNG's header, without decoding the image.
+
+    The header is the 8-byte signature and the IHDR chunk (length 13, type, width, height, bit
+    depth, colour type, compression, filter, interlace, CRC): the file's first 33 bytes.
+
+    Parameters
+    ----------
+    data : ndarray of uint8 or bytes
+        The file's bytes (at least its first 33).
+    path : Path
+        For messages.
+
+    Returns
+    -------
+    (int, int)
+        (width, height) in pixels, each at least 1.
+
+    Raises
+    ------
+    InputError
+        Not a PNG, or its header is truncated or corrupt.
+    """
+    head = bytes(data[:33])
+    if head[:8] != PNG_SIGNATURE:
+        raise InputError(path, "not a readable image (not a PNG file)")
+    if len(head) < 33:
+        raise InputError(path, "not a readable image (truncated PNG header)")
+    length, kind, width, height = struct.unpack(">I4sII", head[8:24])
+    if length != 13 or kind != b"IHDR" or struct.unpack(">I", head[29:33])[0] != zlib.crc32(head[12:29]):
+        raise InputError(path, "not a readable image (corrupt PNG header)")
+    if width == 0 or height == 0:
+        raise InputError(path, f"not a readable image (the PNG header says {width}x{height} pixels)")
+    return width, height
+
+
+def _read_rows(path: Path, min_columns: int) -> Iterator[tuple[int, list[str]]]:
+    """Non-comment lines of a TUM-style list as (line number, columns), read line by line.
+
+    Raises
+    ------
+    InputError
+        The list is unreadable, larger than ``MAX_LIST_BYTES``, has more than
+        ``MAX_LIST_LINES`` lines or ``MAX_FRAMES`` rows, or a row has too few columns.
+    """
     try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(path, f"cannot read frame list: {exc}") from None
-    rows = []
-    for number, raw in enumerate(text.splitlines(), start=1):
-        line = raw.strip()
-        if not line or line.startswith("#"):
-            continue
-        columns = line.split()
-        if len(columns) < min_columns:
-            raise InputError(path, f"line {number}: expected {min_columns} columns, got {len(columns)}")
-        rows.append((number, _timestamp(path, number, columns[0]), columns))
-    return rows
+        binary = open_regular(path, MAX_LIST_BYTES)
+    except InputError as exc:
+        raise InputError(path, f"cannot read frame list: {exc.message}") from None
+    with io.TextIOWrapper(binary, encoding="utf-8") as handle:
+        try:
+            rows = 0
+            for number, raw in enumerate(handle, start=1):
+                if number > MAX_LIST_LINES:
+                    raise InputError(path, f"more than {MAX_LIST_LINES} lines; refused")
+                columns = raw.split()
+                if not columns or columns[0][0] == "#":
+                    continue
+                if len(columns) < min_columns:
+                    raise InputError(path, f"line {number}: expected {min_columns} columns, got {len(columns)}")
+                rows += 1
+                if rows > MAX_FRAMES:
+                    raise InputError(path, f"line {number}: more than {MAX_FRAMES} frames listed; at most {MAX_FRAMES} are read")
+                yield number, columns
+        except (OSError, UnicodeDecodeError) as exc:
+            raise InputError(path, f"cannot read frame list: {exc}") from None
 
 
 def _inside(path: Path, line: int, file: str) -> str:
     """``file`` as listed, if it names a file inside the sequence folder."""
+    if not file.startswith((".", "/")) and "\\" not in file and ":" not in file and ".." not in file:
+        return file  # the usual "depth/1305031102.160407.png": none of the cases below
     posix = PurePosixPath(file.replace("\\", "/"))
     if posix.is_absolute() or PureWindowsPath(file).drive:
         raise InputError(path, f"line {line}: {file!r} is an absolute path; list files relative to the sequence folder")
@@ -326,14 +528,17 @@ def _inside(path: Path, line: int, file: str) -> str:
     return file
 
 
+def _top_folder(file: str) -> str:
+    """The first component of a listed path (``Path(file).parts[0]``, fast for the usual case)."""
+    return file.split("/", 1)[0] if not file.startswith((".", "/")) else Path(file).parts[0]
+
+
 def _timestamp(path: Path, line: int, text: str) -> float:
     try:
-        value = float(text)
-    except ValueError:
-        value = float("nan")
-    if not np.isfinite(value):
-        raise InputError(path, f"line {line}: '{text}' is not a timestamp")
-    return value
+        return parse_timestamp(text)
+    except ValueError as exc:
+        shown = text if len(text) <= 40 else text[:37] + "..."
+        raise InputError(path, f"line {line}: '{shown}' {exc}") from None
 
 
 def _unique(entries: list[tuple[float, str, int]]) -> list[tuple[float, str, int]]:
@@ -348,11 +553,13 @@ def _unique(entries: list[tuple[float, str, int]]) -> list[tuple[float, str, int
 
 
 def _frame_list(source: Path, entries: list[tuple[float, str, int]]) -> FrameList:
-    entries = sorted(entries, key=lambda e: e[0])
+    """The entries (timestamp, file, line) ordered by timestamp; a repeated timestamp is refused."""
     times = np.array([e[0] for e in entries], dtype=np.float64)
+    order = np.argsort(times, kind="stable")
+    times = times[order]
     repeated = np.flatnonzero(np.diff(times) == 0)
     if repeated.size:
-        ts, file, line = entries[repeated[0] + 1]
+        ts, file, line = entries[order[repeated[0] + 1]]
         where = f"line {line}: " if line else ""
         raise InputError(source, f"{where}timestamp {ts:.6f} appears twice ({file})")
-    return FrameList(timestamps=times, files=tuple(e[1] for e in entries))
+    return FrameList(timestamps=times, files=tuple(entries[i][1] for i in order.tolist()))

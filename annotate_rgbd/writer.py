@@ -9,7 +9,9 @@ from __future__ import annotations
 import csv
 import io
 import json
+import math
 import os
+import re
 import secrets
 import tempfile
 from pathlib import Path
@@ -90,14 +92,67 @@ def write_png(path: Path, image: np.ndarray) -> bytes:
 
 
 def write_json(path: Path, data: Any) -> None:
-    """Write JSON (indented, UTF-8) atomically."""
-    write_bytes_atomic(path, (json.dumps(data, indent=1, ensure_ascii=False) + "\n").encode("utf-8"))
+    """Write strict JSON (indented, UTF-8) atomically.
+
+    NaN and infinity are not JSON (Python writes them as ``NaN`` / ``Infinity``, which most
+    readers refuse): the producers turn undefined numbers into ``None`` (``null``), and one that
+    slips through stops the write rather than leave an invalid file.
+
+    Raises
+    ------
+    OutputError
+        ``data`` holds NaN or infinity (the message says where), or the file cannot be written.
+    """
+    try:
+        text = json.dumps(data, indent=1, ensure_ascii=False, allow_nan=False)
+    except ValueError as exc:
+        if "float" not in str(exc):  # not a NaN ("Out of range float values ..."): a circular structure
+            raise
+        where = _non_finite(data, "") or ("", math.nan)
+        raise OutputError(path, f"{where[0] or 'the value'} is {where[1]}, which JSON cannot hold (a bug: please report it)") from None
+    write_bytes_atomic(path, (text + "\n").encode("utf-8"))
+
+
+def _non_finite(data: Any, where: str) -> tuple[str, float] | None:
+    """Where in ``data`` (as ``frames[3].time_offset``) the first NaN or infinity is, and its value."""
+    if isinstance(data, float):
+        return None if math.isfinite(data) else (where, data)
+    if isinstance(data, dict):
+        items = ((f"{where}.{k}" if where else str(k), v) for k, v in data.items())
+    elif isinstance(data, (list, tuple)):
+        items = ((f"{where}[{i}]", v) for i, v in enumerate(data))
+    else:
+        return None
+    return next((found for key, value in items if (found := _non_finite(value, key)) is not None), None)
+
+
+#: First characters that make a spreadsheet read a cell as a formula (OWASP, "CSV Injection").
+FORMULA_STARTS = ("=", "+", "-", "@", "\t", "\r")
+#: A number as written in a cell (``-0.5``, ``+1e-3``, ``-inf``): no formula, left as it is.
+_NUMBER = re.compile(r"[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?|[+-]?(inf|nan)", re.IGNORECASE)
 
 
 def write_csv(path: Path, header: Sequence[str], rows: Iterable[Sequence[Any]]) -> None:
-    """Write a CSV table atomically."""
+    """Write a CSV table atomically, with text cells made safe for spreadsheets.
+
+    A text cell starting with ``=``, ``+``, ``-``, ``@``, a tab or a carriage return (a label
+    such as ``=HYPERLINK(...)``) would run as a formula when the file is opened in a
+    spreadsheet; it is written with a leading ``'``, which spreadsheets show as text (OWASP's
+    advice). Numbers, and text that is a number (``-0.5``), are written unchanged.
+    """
     buffer = io.StringIO()
     table = csv.writer(buffer, lineterminator="\n")
-    table.writerow(header)
-    table.writerows(rows)
+    # The csv module quotes a cell with a line break only if the break is in lineterminator:
+    # a row with a carriage return in a cell is written with every cell quoted.
+    quoted = csv.writer(buffer, lineterminator="\n", quoting=csv.QUOTE_ALL)
+    for row in [header, *rows]:
+        cells = [safe_cell(cell) for cell in row]
+        (quoted if any(isinstance(c, str) and "\r" in c for c in cells) else table).writerow(cells)
     write_bytes_atomic(path, buffer.getvalue().encode("utf-8"))
+
+
+def safe_cell(cell: Any) -> Any:
+    """``cell``, or ``"'" + cell`` for text a spreadsheet would read as a formula."""
+    if isinstance(cell, str) and cell.startswith(FORMULA_STARTS) and not _NUMBER.fullmatch(cell):
+        return "'" + cell
+    return cell

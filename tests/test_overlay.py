@@ -174,3 +174,11 @@ def test_grown_pixels_are_nearly_opaque_in_the_plane_colour(frame):
     # The tint inside the polygon is lighter: grown pixels stand out from it.
     assert np.abs(out[rows, 60].astype(int) - colours[0]).sum() > np.abs(out[rows, 101].astype(int) - colours[0]).sum()
     assert (plain[rows, 100:103] == GREY).all()
+
+
+def test_a_frame_without_shapes_has_no_label_points_and_shows_the_rgb_image():
+    empty = np.zeros((H, W), dtype=np.int32)
+    assert label_points(empty) == {}
+    rgb = np.random.default_rng(0).integers(0, 256, (H, W, 3), dtype=np.uint8)
+    result = FrameResult(labels=empty, drawn=empty.copy())
+    assert np.array_equal(render_overlay(rgb, result, plane_colours(3)), rgb)
