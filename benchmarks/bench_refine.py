@@ -18,7 +18,9 @@ the drop rules keep) over every written frame and kept plane:
 
 * mean IoU of the (frame, kept plane) pairs, and the EVOPS precision and recall at IoU 0.8
   (``annotate_rgbd.metrics.frame_statistics``, averaged over frames as ``evaluate`` does);
-* leak: the share of clutter pixels (with depth) and of missing-depth pixels given a plane;
+* leak: the share of clutter pixels (with depth) and of missing-depth pixels given a plane
+  (the targets are checked on these), and the share of the masks' pixels that lie on clutter or
+  have no depth;
 * the share of true plane pixels kept (given their own plane), the miss rate per z-depth band
   and the bands' share of the misses, and the share of the misses within 2 px of the plane's
   true border (the border of what the renderer sees of it, the image edge included);
@@ -166,7 +168,8 @@ def score(out: Path, report, rendered: Rendered) -> dict[str, float]:
     plane_of_value = {gt_value[r["label"]]: int(r["plane_id"]) for r in rows}
 
     ious, precision, recall = [], [], []
-    counts = dict.fromkeys(("clutter", "clutter_leak", "missing", "missing_leak", "true", "kept", "border_miss"), 0)
+    counts = dict.fromkeys(("clutter", "clutter_leak", "missing", "missing_leak", "true", "kept", "border_miss",
+                            "labelled"), 0)
     band_true, band_miss = np.zeros(len(BANDS)), np.zeros(len(BANDS))
     dropped_pairs = 0
     edges = np.array([b[0] for b in BANDS[1:]])
@@ -197,6 +200,7 @@ def score(out: Path, report, rendered: Rendered) -> dict[str, float]:
         counts["clutter_leak"] += int((clutter & labelled).sum())
         counts["missing"] += int(missing.sum())
         counts["missing_leak"] += int((missing & labelled).sum())
+        counts["labelled"] += int(labelled.sum())
         true = gt > 0
         miss = true & (pred != gt)
         counts["true"] += int(true.sum())
@@ -215,6 +219,8 @@ def score(out: Path, report, rendered: Rendered) -> dict[str, float]:
         "recall@0.8": float(np.mean(recall)) if recall else 0.0,
         "leak clutter %": 100 * counts["clutter_leak"] / max(counts["clutter"], 1),
         "leak no-depth %": 100 * counts["missing_leak"] / max(counts["missing"], 1),
+        "mask pixels on clutter or no depth %": 100 * (counts["clutter_leak"] + counts["missing_leak"])
+        / max(counts["labelled"], 1),
         "plane pixels kept %": 100 * counts["kept"] / max(counts["true"], 1),
         "misses within 2 px of border %": 100 * counts["border_miss"] / misses,
         "kept planes dropped (pairs)": dropped_pairs,
