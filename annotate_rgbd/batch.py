@@ -13,11 +13,11 @@ from typing import Callable
 
 from .config import load_config
 from .errors import InputError
-from .execute import SceneRun, execute_scenes, start_frame_helpers
+from .execute import STALL_TIMEOUT, SceneRun, execute_scenes, start_frame_helpers
 from .manifest import SceneSpec
 from .pipeline import finish_scene
 from .plan import plan_run
-from .records import FAILED, summarize
+from .records import summarize
 
 
 @dataclass
@@ -32,9 +32,7 @@ class SceneOutcome:
     @property
     def failed_frames(self) -> list[str]:
         """Depth frames that failed, with the reason."""
-        if self.run is None:
-            return []
-        return [f"{f.depth}: {f.error or f.reason}" for f in self.run.frames if f.status == FAILED]
+        return [] if self.run is None else self.run.failures()
 
 
 def run_batch(
@@ -42,6 +40,7 @@ def run_batch(
     workers: int,
     force: bool = False,
     progress_for: Callable[[str], Callable[[int, int], None]] | None = None,
+    job_timeout: float = STALL_TIMEOUT,
 ) -> list[SceneOutcome]:
     """Relabel every scene; a scene with broken input fails alone.
 
@@ -54,6 +53,9 @@ def run_batch(
         Redo every frame, even those unchanged since the last run.
     progress_for : callable, optional
         ``progress_for(scene name)`` returns that scene's ``progress(done, total)`` callback.
+    job_timeout : float
+        Seconds without a frame finished by the helpers before they are taken to hang
+        (:func:`annotate_rgbd.execute.execute_scenes`).
 
     Returns
     -------
@@ -73,7 +75,7 @@ def run_batch(
                 continue
             progress = progress_for(spec.name) if progress_for else None
             runs.append((outcome, SceneRun(spec.name, plan, spec.out, config, progress)))
-        execute_scenes([run for _, run in runs], helpers, force=force)
+        execute_scenes([run for _, run in runs], helpers, force=force, job_timeout=job_timeout)
         if helpers is not None:
             helpers.shutdown(cancel_futures=True)
             helpers = None

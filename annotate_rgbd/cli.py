@@ -14,6 +14,7 @@ import typer
 
 from . import __version__
 from .errors import InputError
+from .pool import STALL_TIMEOUT
 
 app = typer.Typer(
     help="Turn CVAT plane polygons on RGB-D sequences into depth-verified plane instance masks.",
@@ -86,7 +87,9 @@ def cvat2mask(
     out: Path = typer.Option(..., "--out", "-o", help="Output folder for masks/, planes.csv and report.json."),
     config: Optional[str] = typer.Option(None, "--config", "-c", help="TOML file or preset name (see 'annotate-rgbd presets')."),
     label: List[str] = typer.Option([], "--label", help="Use only shapes with this CVAT label (repeatable)."),
-    distance_threshold: Optional[float] = typer.Option(None, help="RANSAC inlier distance in metres."),
+    distance_threshold: Optional[float] = typer.Option(
+        None, help="A fixed inlier band in metres at every depth, instead of the [noise] model's."
+    ),
     max_invalid_ratio: Optional[float] = typer.Option(None, help="Drop a plane with a larger share of invalid depth."),
     max_mean_distance: Optional[float] = typer.Option(None, help="Drop a plane farther than this on average (m)."),
     max_time_diff: Optional[float] = typer.Option(None, help="Largest depth-to-RGB time difference (s)."),
@@ -98,6 +101,9 @@ def cvat2mask(
     force: bool = typer.Option(False, "--force", help="Redo every frame, even those unchanged since the last run."),
     raw_masks: bool = typer.Option(False, "--raw-masks", help="Also write masks_raw/: the shapes as drawn, unrefined."),
     overlays: bool = typer.Option(False, "--overlays", help="Also write overlays/, review.html and contact_sheet.png."),
+    job_timeout: float = typer.Option(
+        STALL_TIMEOUT, "--job-timeout", min=1.0, help="Seconds without a frame finished by the helpers before they are replaced."
+    ),
 ) -> None:
     """Write one colour-coded plane mask per depth frame, refined against the depth.
 
@@ -127,7 +133,7 @@ def cvat2mask(
         report = run_cvat2mask(
             sequence_dir, annotations, out, load_config(config, overrides), offsets=offsets,
             workers=workers, force=force, raw_masks=raw_masks, overlays=overlays,
-            progress=progress.callback(sequence_dir.name),
+            progress=progress.callback(sequence_dir.name), job_timeout=job_timeout,
         )
         progress.finish()
         if overlays:
@@ -138,10 +144,17 @@ def cvat2mask(
             f"{report.written} masks in {out / 'masks'} ({report.counts.made} made, "
             f"{report.counts.reused} unchanged), {report.n_planes} planes"
         )
+        failures = report.failures()
+        if failures:
+            summary += f", {len(failures)} frame{'s' if len(failures) > 1 else ''} failed"
         if report.warnings:
             count = len(report.warnings)
             summary += f", {count} warning{'s' if count > 1 else ''} (see {out / 'report.json'})"
         typer.echo(summary)
+        for line in failures:
+            typer.echo(f"  failed: {line}")
+        if failures:
+            raise typer.Exit(1)  # every mask that could be made is written
 
 
 @app.command()
@@ -149,6 +162,9 @@ def batch(
     manifest: Path = typer.Argument(..., help="TOML manifest: one scene table per scene (see the README)."),
     jobs: Optional[int] = typer.Option(None, "--jobs", "-j", min=1, help="Worker processes (default: the manifest's jobs, else all cores)."),
     force: bool = typer.Option(False, "--force", help="Redo every frame, even those unchanged since the last run."),
+    job_timeout: float = typer.Option(
+        STALL_TIMEOUT, "--job-timeout", min=1.0, help="Seconds without a frame finished by the helpers before they are replaced."
+    ),
 ) -> None:
     """Relabel several scenes with one pool of workers; only changed frames are redone."""
     from .execute import default_workers, prepare_process
@@ -163,7 +179,7 @@ def batch(
         from .progress import Progress
 
         progress = Progress({scene.name: 0 for scene in scenes})
-        outcomes = run_batch(scenes, workers, force, progress.callback)
+        outcomes = run_batch(scenes, workers, force, progress.callback, job_timeout=job_timeout)
         progress.finish()
         for line in summary_lines(outcomes):
             typer.echo(line)

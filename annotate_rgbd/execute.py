@@ -146,6 +146,10 @@ class SceneRun:
         """Number of masks written."""
         return sum(1 for f in self.frames if f.written)
 
+    def failures(self) -> list[str]:
+        """One line per failed depth frame: the file and why."""
+        return [f"{f.depth}: {f.error or f.reason}" for f in self.frames if f.status == FAILED]
+
     def _step(self) -> None:
         if self.progress:
             self.progress(self.counts.done, len(self.plan.jobs))

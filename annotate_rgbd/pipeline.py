@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Callable, Mapping, Sequence as SequenceType
 
 from .config import Config
-from .execute import SceneRun, execute_scenes, start_frame_helpers
+from .execute import STALL_TIMEOUT, SceneRun, execute_scenes, start_frame_helpers
 from .outdir import remove_review_files, remove_stale_files
 from .plan import plan_run
 from .report import run_record, write_tables
@@ -34,6 +34,7 @@ def run_cvat2mask(
     raw_masks: bool = False,
     overlays: bool = False,
     progress: Callable[[int, int], None] | None = None,
+    job_timeout: float = STALL_TIMEOUT,
 ) -> SceneRun:
     """Run the whole job: ``masks/``, ``planes.csv``, ``tracks.csv`` and ``report.json`` in ``out_dir``.
 
@@ -62,6 +63,9 @@ def run_cvat2mask(
         Also write ``overlays/``: the review overlays (:mod:`annotate_rgbd.overlay`).
     progress : callable, optional
         Called as ``progress(done, total)`` after each frame that gets a mask.
+    job_timeout : float
+        Seconds without a frame finished by the helper processes before they are taken to hang
+        and replaced (:func:`annotate_rgbd.pool.run_jobs`).
 
     Returns
     -------
@@ -79,7 +83,7 @@ def run_cvat2mask(
     try:
         plan = plan_run(sequence_dir, annotation_paths, out_dir, config, offsets, raw_masks, overlays)
         scene = SceneRun(Path(sequence_dir).name, plan, Path(out_dir), config, progress)
-        execute_scenes([scene], helpers, force=force)
+        execute_scenes([scene], helpers, force=force, job_timeout=job_timeout)
         if helpers is not None:
             helpers.shutdown(cancel_futures=True)
             helpers = None

@@ -195,3 +195,18 @@ def test_an_unknown_label_is_a_warning(tmp_path):
     report = run_cvat2mask(SEQUENCE, [ANNOTATIONS], tmp_path, config)
     assert "no shape in the exports has the label 'ceiling' (--label / [annotation] labels)" in report.warnings
     assert report.n_planes == 1
+
+
+def test_cvat2mask_exits_1_when_a_frame_failed_after_writing_every_other_mask(tmp_path):
+    seq = tmp_path / "sequence"
+    shutil.copytree(SEQUENCE, seq)
+    depth_files = sorted((seq / "depth").iterdir())
+    broken = depth_files[3]
+    cv2.imwrite(str(broken), (cv2.imread(str(broken), cv2.IMREAD_UNCHANGED) // 256).astype(np.uint8))  # an 8-bit preview
+    result = CliRunner().invoke(app, ["cvat2mask", str(seq), str(ANNOTATIONS), "--config", str(SAMPLE_DATA / "camera.toml"),
+                                      "--out", str(tmp_path / "out")])
+    assert result.exit_code == 1
+    assert "18 masks in" in result.output and "1 frame failed" in result.output
+    assert f"  failed: depth/{broken.name}: " in result.output
+    assert len(list((tmp_path / "out" / "masks").iterdir())) == 18
+    assert json.loads((tmp_path / "out" / "report.json").read_text())["summary"]["frames_failed"] == 1
