@@ -549,9 +549,10 @@ def break_depth(scene: Scene, how: str) -> Path:
 def test_unusable_depth_frame_is_skipped_and_reported(scene, how, problem):
     path = break_depth(scene, how)
     result = scene.run()
-    assert result.exit_code == 0, result.stderr
+    assert result.exit_code == 1, result.stderr  # a failed frame fails the run, after every other mask
     message = f"{path}: {problem}"
     assert f"warning: {message}; skipped" in result.stderr.splitlines()
+    assert f"  failed: {path.relative_to(scene.seq)}: {message}" in result.stdout.splitlines()
     report = scene.report()
     entry = report["frames"][1]
     assert (entry["status"], entry["reason"], entry["error"]) == ("failed", "unreadable_depth", message)

@@ -169,7 +169,7 @@ def test_a_depth_png_announcing_a_huge_image_fails_its_frame_alone(tmp_path, siz
     bomb = tmp_path / "seq" / "depth" / f"{timestamp(1)}.png"
     bomb.write_bytes(png_claiming(*size))
     result, out = tiny_run(tmp_path)
-    assert result.exit_code == 0, result.stderr
+    assert result.exit_code == 1, result.stderr  # a failed frame fails the run
     message = (
         f"{bomb}: the PNG header says {size[0]}x{size[1]} pixels ({size[0] * size[1] / 1e6:.0f} Mpixel); images "
         f"over {MAX_IMAGE_PIXELS / 1e6:.0f} Mpixel are refused (a corrupt file or a decompression bomb)"
@@ -242,7 +242,7 @@ def test_a_fifo_in_place_of_a_depth_file_fails_its_frame_alone(tmp_path):
     with watch_fifo(fifo) as blocked:
         result, out = tiny_run(tmp_path)
     assert not blocked, "the run blocked on the FIFO"
-    assert result.exit_code == 0, result.stderr
+    assert result.exit_code == 1, result.stderr  # a failed frame fails the run
     frames = report_of(out)["frames"]
     assert [f["status"] for f in frames] == ["written", "failed", "written"]
     assert frames[1]["error"] == f"{fifo}: not a regular file (a FIFO); refused"
