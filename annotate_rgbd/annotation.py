@@ -58,11 +58,15 @@ class Track:
     shapes : dict of int to Shape
         Frame number -> outline on that frame, for every frame where the track is visible:
         interpolated frames are filled in and ``outside`` frames are absent.
+    keyframes : frozenset of int, optional
+        The frames whose shape the labeller drew (CVAT's keyframes); the others were filled in
+        by interpolation. None: every shape was drawn (an images export, a rendered sequence).
     """
 
     track_id: int
     label: str
     shapes: dict[int, Shape] = field(default_factory=dict)
+    keyframes: frozenset[int] | None = None
 
 
 @dataclass

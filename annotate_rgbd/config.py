@@ -56,6 +56,7 @@ from typing import Any, Iterable, Mapping
 from .camera import Camera
 from .errors import InputError
 from .noise import NoiseSettings, noise_settings_from_mapping
+from .poses import DEFAULT_MAX_POSE_GAP
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -72,9 +73,20 @@ class SequenceConfig:
     max_time_diff : float
         Largest |t_depth - t_rgb| in seconds for a depth frame to use an RGB frame's
         annotation. 0.02 s is the default of TUM RGB-D's ``associate.py``.
+    poses : str
+        A camera trajectory in TUM format (``timestamp tx ty tz qx qy qz qw``, camera to world):
+        keyframe shapes are then carried to every frame by the poses
+        (:mod:`annotate_rgbd.propagate`). Relative to the configuration file's folder. Empty:
+        no poses (shapes between keyframes are interpolated in 2-D, as CVAT does).
+    max_pose_gap : float
+        A frame gets a pose only when trajectory samples on both sides lie within this many
+        seconds (:data:`annotate_rgbd.poses.DEFAULT_MAX_POSE_GAP`: TUM's motion capture runs at
+        100 Hz and has drop-outs).
     """
 
     max_time_diff: float = 0.02
+    poses: str = ""
+    max_pose_gap: float = DEFAULT_MAX_POSE_GAP
 
 
 @dataclass(frozen=True)
@@ -300,6 +312,9 @@ def load_config(source: str | Path | None = None, overrides: Mapping[str, Any] |
             values = tomllib.loads(text)
         except tomllib.TOMLDecodeError as exc:
             raise InputError(origin, f"invalid TOML: {exc}") from None
+    poses = values.get("sequence", {}).get("poses") if isinstance(values.get("sequence"), Mapping) else None
+    if isinstance(poses, str) and poses and isinstance(origin, Path):
+        values["sequence"]["poses"] = str(origin.parent / poses)  # relative to the file
     config = _build(values, origin)
     if not overrides:
         return config
@@ -485,6 +500,10 @@ def _build_section(name: str, default: Any, table: Mapping[str, Any], origin: st
 
 def _coerce(key: str, default: Any, value: Any, origin: str | Path | None) -> Any:
     """Check ``value`` against the type of the default and convert ints to floats where needed."""
+    if isinstance(default, str):
+        if not isinstance(value, str):
+            raise InputError(origin, f"'{key}' must be a string, got {value!r}")
+        return value
     if isinstance(default, tuple):
         if isinstance(value, str):
             value = [value]
@@ -510,6 +529,7 @@ def _check_ranges(config: Config, origin: str | Path | None) -> None:
         ("camera.fy", config.camera.fy != 0, "must not be 0"),
         ("camera.depth_scale", config.camera.depth_scale > 0, "must be > 0"),
         ("sequence.max_time_diff", config.sequence.max_time_diff >= 0, "must be >= 0"),
+        ("sequence.max_pose_gap", config.sequence.max_pose_gap > 0, "must be > 0"),
         ("filter.max_invalid_ratio", 0 <= config.filter.max_invalid_ratio <= 1, "must be in [0, 1]"),
         ("filter.max_mean_distance", config.filter.max_mean_distance > 0, "must be > 0"),
         ("filter.min_valid_pixels", config.filter.min_valid_pixels >= 3, "must be >= 3"),

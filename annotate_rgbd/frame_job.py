@@ -6,7 +6,7 @@ needs (Open3D, OpenCV, numpy), not the CVAT reader or the planning: a worker sta
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -48,6 +48,9 @@ class FrameJob:
         Where the review overlay goes, if wanted.
     rgb_path : Path or None
         The RGB image the overlay is drawn on.
+    propagated : frozenset of int
+        Planes whose shapes the camera poses carried here from keyframes on other frames
+        (:mod:`annotate_rgbd.propagate`); their records say so.
     """
 
     depth_path: Path
@@ -58,6 +61,7 @@ class FrameJob:
     raw_mask_path: Path | None = None
     overlay_path: Path | None = None
     rgb_path: Path | None = None
+    propagated: frozenset[int] = frozenset()
 
     @property
     def outputs(self) -> list[Path]:
@@ -178,6 +182,9 @@ def run_frame_job(task: FrameTask) -> FrameOutcome:
     if up_to_date(job, made_from, task.recorded):
         return FrameOutcome(made_from)
     result = segment_job(job, task.config, depth_file)
+    if job.propagated:
+        result.kept = [replace(r, propagated=r.plane in job.propagated) for r in result.kept]
+        result.dropped = [replace(r, propagated=r.plane in job.propagated) for r in result.dropped]
     written = {}
     if job.raw_mask_path is not None:
         written[job.raw_mask_path] = write_png(job.raw_mask_path, colourize(result.drawn, colours))

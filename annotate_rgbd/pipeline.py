@@ -35,6 +35,7 @@ def run_cvat2mask(
     overlays: bool = False,
     progress: Callable[[int, int], None] | None = None,
     job_timeout: float = STALL_TIMEOUT,
+    poses: str | Path | None = None,
 ) -> SceneRun:
     """Run the whole job: ``masks/``, ``planes.csv``, ``tracks.csv`` and ``report.json`` in ``out_dir``.
 
@@ -66,6 +67,9 @@ def run_cvat2mask(
     job_timeout : float
         Seconds without a frame finished by the helper processes before they are taken to hang
         and replaced (:func:`annotate_rgbd.pool.run_jobs`).
+    poses : str or Path, optional
+        A camera trajectory (TUM format) that carries the keyframe shapes to every frame
+        (:mod:`annotate_rgbd.propagate`); default: the configuration's ``sequence.poses``.
 
     Returns
     -------
@@ -81,7 +85,7 @@ def run_cvat2mask(
     helpers = start_frame_helpers(workers)
     scene = None
     try:
-        plan = plan_run(sequence_dir, annotation_paths, out_dir, config, offsets, raw_masks, overlays)
+        plan = plan_run(sequence_dir, annotation_paths, out_dir, config, offsets, raw_masks, overlays, poses)
         scene = SceneRun(Path(sequence_dir).name, plan, Path(out_dir), config, progress)
         execute_scenes([scene], helpers, force=force, job_timeout=job_timeout)
         if helpers is not None:

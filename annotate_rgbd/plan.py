@@ -25,6 +25,8 @@ from .frame_job import OVERLAY_DIR, FrameJob
 from .palette import plane_colours
 from .part_overlap import part_pair_iou
 from .parts import Part, frame_owners, place_parts
+from .poses import FramePoses, poses_at, read_trajectory
+from .propagate import TrackLift, lift_tracks, propagated_shapes
 from .records import NO_RGB_FRAME, OUTSIDE_ANNOTATION, RGB_NOT_ANNOTATED, FrameRecord
 from .sequence import Sequence, associate, camera_problem, read_depth, read_sequence
 from .stitch import PartTracks, TrackPlane, assign_planes, label_conflicts
@@ -89,11 +91,40 @@ class RunPlan:
     jobs: list[tuple[int, FrameJob]]
     warnings: list[str]
     notes: list[str]
+    propagation: Propagation | None = None
 
     @property
     def n_planes(self) -> int:
         """Number of global planes."""
         return len(self.colours)
+
+
+@dataclass
+class Propagation:
+    """What the camera poses give a run (:mod:`annotate_rgbd.propagate`).
+
+    Parameters
+    ----------
+    path : str
+        The trajectory file.
+    lifts : dict of (str, int) to TrackLift
+        (part, track id) -> its keyframes lifted onto their planes.
+    depth_poses : FramePoses
+        The pose of every depth frame (``ok`` False where the trajectory has none).
+    """
+
+    path: str
+    lifts: dict[tuple[str, int], TrackLift]
+    depth_poses: FramePoses
+
+    def to_json(self) -> dict:
+        """The report's ``propagation`` section."""
+        return {
+            "poses": self.path,
+            "frames_with_pose": int(np.count_nonzero(self.depth_poses.ok)),
+            "tracks": [lift.to_json() for lift in self.lifts.values()],
+            "inconsistent_tracks": [f"{lift.part}:{lift.track}" for lift in self.lifts.values() if not lift.consistent],
+        }
 
 
 @dataclass(frozen=True)
@@ -122,10 +153,13 @@ def plan_run(
     offsets: Mapping[str, int] | None = None,
     raw_masks: bool = False,
     overlays: bool = False,
+    poses: str | Path | None = None,
 ) -> RunPlan:
     """Read the inputs and decide, for every depth frame, whether and how it gets a mask.
 
-    Parameters are those of :func:`annotate_rgbd.pipeline.run_cvat2mask`.
+    Parameters are those of :func:`annotate_rgbd.pipeline.run_cvat2mask`; ``poses`` (else the
+    configuration's ``sequence.poses``) is a TUM trajectory that carries keyframe shapes to
+    every frame (:mod:`annotate_rgbd.propagate`).
 
     Returns
     -------
@@ -158,10 +192,49 @@ def plan_run(
     _warn(warnings, label_conflicts(tracks))
     colours = plane_colours(max((t.plane for t in tracks), default=0))
     output = OutputOptions(Path(out_dir), raw_masks, overlays)
-    frames, jobs, frame_warnings = plan_frames(sequence, parts, tracks, association, output, config.sequence.max_time_diff)
+    propagation = None
+    poses = poses or config.sequence.poses
+    if poses:
+        propagation = plan_propagation(Path(poses), sequence, parts, tracks, depth_of_rgb, config)
+        _warn(warnings, propagation_warnings(propagation))
+        if any(a.format == "video" for a in annotations):
+            notes.append("with poses, the interpolated shapes of the exports (keyframe=\"0\") are not used: "
+                         "keyframes are carried to every frame by the poses")
+    frames, jobs, frame_warnings = plan_frames(sequence, parts, tracks, association, output,
+                                               config.sequence.max_time_diff, propagation, config)
     _warn(warnings, frame_warnings)
     _warn(warnings, camera_warnings(jobs, config))
-    return RunPlan(sequence, parts, tracks, colours, frames, jobs, warnings, notes)
+    return RunPlan(sequence, parts, tracks, colours, frames, jobs, warnings, notes, propagation)
+
+
+def plan_propagation(
+    path: Path, sequence: Sequence, parts: SequenceType[Part], tracks: SequenceType[TrackPlane],
+    depth_of_rgb: dict[int, int], config: Config,
+) -> Propagation:
+    """Read the trajectory, give every depth and RGB frame its pose and lift every track's
+    keyframes (reads the depth frames nearest the keyframes)."""
+    trajectory = read_trajectory(path)
+    gap = config.sequence.max_pose_gap
+    depth_poses = poses_at(trajectory, sequence.depth.timestamps, gap)
+    rgb_poses = poses_at(trajectory, sequence.rgb.timestamps, gap)
+    plane_of = {(t.part, t.track): t.plane for t in tracks}
+    wanted = [(p.name, t, plane_of[(p.name, t.track_id)], p.rgb_of_frame) for p in parts for t in p.annotation.tracks]
+    lifts = lift_tracks(wanted, depth_of_rgb, [sequence.root / f for f in sequence.depth.files], depth_poses,
+                        rgb_poses, config)
+    return Propagation(str(path), {(lift.part, lift.track): lift for lift in lifts}, depth_poses)
+
+
+def propagation_warnings(propagation: Propagation) -> list[str]:
+    """A warning per track whose lifted keyframes disagree, and one for frames without a pose."""
+    lines = [
+        f"{lift.part} track {lift.track} (plane {lift.plane}): its keyframes lie on different planes "
+        f"({lift.angle:.1f} degrees, {100 * lift.offset:.1f} cm apart): two surfaces under one track, or the poses are off"
+        for lift in propagation.lifts.values() if not lift.consistent
+    ]
+    missing = int(np.count_nonzero(~propagation.depth_poses.ok))
+    if missing:
+        lines.append(f"{propagation.path}: {missing} depth frames have no pose; their shapes are interpolated in 2-D")
+    return lines
 
 
 def label_warnings(annotations: SequenceType[Annotation], labels: SequenceType[str]) -> list[str]:
@@ -180,6 +253,8 @@ def plan_frames(
     association: Association,
     output: OutputOptions,
     max_time_diff: float,
+    propagation: Propagation | None = None,
+    config: Config | None = None,
 ) -> tuple[list[FrameRecord], list[tuple[int, FrameJob]], list[str]]:
     """Decide, for every depth frame, whether it gets a mask and from which part's shapes.
 
@@ -196,6 +271,11 @@ def plan_frames(
     output : OutputOptions
     max_time_diff : float
         For the warning about a depth frame without RGB frame.
+    propagation : Propagation, optional
+        With poses: tracks with lifted keyframes get their shapes projected with the depth
+        frame's pose (frames without a pose keep the 2-D shapes; their record says why).
+    config : Config, optional
+        The camera, for projecting (needed with ``propagation``).
 
     Returns
     -------
@@ -233,22 +313,45 @@ def plan_frames(
             part = parts[owners[rgb]]
             frame = part.frame_of_rgb[rgb]
             record.part, record.cvat_frame = part.name, frame
-            jobs.append((d, _frame_job(sequence, part, frame, rgb, depth_file, plane_of, output)))
+            shapes, propagated = _frame_shapes(part, frame, plane_of, propagation, config, d)
+            if propagation is not None:
+                record.pose = "ok" if propagation.depth_poses.ok[d] else str(propagation.depth_poses.reasons[d])
+            jobs.append((d, _frame_job(sequence, part, frame, rgb, depth_file, shapes, propagated, output)))
     return frames, jobs, warnings
 
 
+def _frame_shapes(
+    part: Part, frame: int, plane_of: dict, propagation: Propagation | None, config: Config | None, depth: int
+) -> tuple[tuple, frozenset[int]]:
+    """The ``(plane id, shape)`` pairs of one frame, in track order, and the planes whose shapes
+    the poses carried there from other frames."""
+    shapes, propagated = [], set()
+    has_pose = propagation is not None and bool(propagation.depth_poses.ok[depth])
+    for track in part.annotation.tracks:
+        if frame not in track.shapes:
+            continue  # outside the track's life
+        plane = plane_of[(part.name, track.track_id)]
+        lift = propagation.lifts.get((part.name, track.track_id)) if has_pose else None
+        if lift is None or not lift.keyframes:
+            shapes.append((plane, track.shapes[frame]))
+            continue
+        pose = (propagation.depth_poses.rotations[depth], propagation.depth_poses.translations[depth])
+        shapes += [(plane, shape) for shape in propagated_shapes(lift, frame, config, pose)]
+        if frame not in {k.frame for k in lift.keyframes}:
+            propagated.add(plane)
+    return tuple(shapes), frozenset(propagated)
+
+
 def _frame_job(
-    sequence: Sequence, part: Part, frame: int, rgb: int, depth_file: str, plane_of: dict, output: OutputOptions
+    sequence: Sequence, part: Part, frame: int, rgb: int, depth_file: str, shapes: tuple, propagated: frozenset[int],
+    output: OutputOptions,
 ) -> FrameJob:
     name = Path(depth_file).name
     return FrameJob(
         depth_path=sequence.root / depth_file,
         mask_path=output.out_dir / "masks" / name,
-        shapes=tuple(
-            (plane_of[(part.name, track.track_id)], track.shapes[frame])
-            for track in part.annotation.tracks
-            if frame in track.shapes
-        ),
+        shapes=shapes,
+        propagated=propagated,
         image_size=part.annotation.image_size.get(frame),
         part_path=part.annotation.path,
         raw_mask_path=output.out_dir / "masks_raw" / name if output.raw_masks else None,

@@ -62,6 +62,9 @@ class PlaneRecord:
     grown : int, optional
         Kept planes: pixels outside the drawn shape added by edge growing (the mask holds
         ``inliers + grown`` pixels of the plane).
+    propagated : bool, optional
+        With camera poses: whether the plane's shape was carried here by the poses from
+        keyframes on other frames (False: drawn on this frame's keyframe). None without poses.
     reason : str, optional
         Dropped planes: why (``invalid_depth``, ``too_few_points``, ``too_far``); None: kept.
     invalid_ratio : float, optional
@@ -83,6 +86,7 @@ class PlaneRecord:
     grown: int | None = None
     reason: str | None = None
     invalid_ratio: float | None = None
+    propagated: bool | None = None
 
     @property
     def kept(self) -> bool:
@@ -105,6 +109,8 @@ class PlaneRecord:
                          grown=self.grown)
         else:
             entry.update(reason=self.reason, invalid_ratio=self.invalid_ratio)
+        if self.propagated is not None:
+            entry["propagated"] = self.propagated
         return entry
 
     @classmethod
@@ -134,6 +140,7 @@ class PlaneRecord:
             grown=_optional_int(entry, "grown"),
             reason=_text(entry, "reason", optional=True),
             invalid_ratio=_number(entry, "invalid_ratio", optional=True),
+            propagated=entry["propagated"] if isinstance(entry.get("propagated"), bool) else None,
         )
 
 
@@ -215,6 +222,9 @@ class FrameRecord:
         A written frame's planes and fingerprint.
     mask : str, optional
         A written frame's mask, relative to the output folder (``masks/<name>``).
+    pose : str, optional
+        With camera poses: ``ok``, or why the frame has none (``pose_gap``,
+        ``outside_trajectory``: its shapes are then interpolated in 2-D). None without poses.
     """
 
     depth: str
@@ -229,6 +239,7 @@ class FrameRecord:
     error: str | None = None
     result: MaskRecord | None = None
     mask: str | None = None
+    pose: str | None = None
 
     @property
     def written(self) -> bool:
@@ -265,6 +276,8 @@ class FrameRecord:
         }
         if self.part is not None:
             entry.update(part=self.part, cvat_frame=self.cvat_frame)
+        if self.pose is not None:
+            entry["pose"] = self.pose
         if self.reason is not None:
             entry["reason"] = self.reason
         if self.error is not None:
@@ -305,6 +318,7 @@ class FrameRecord:
             error=_text(entry, "error", optional=True),
             result=result,
             mask=_text(entry, "mask") if status == WRITTEN else None,
+            pose=_text(entry, "pose", optional=True),
         )
 
 
@@ -440,6 +454,9 @@ class RunRecord:
         :class:`annotate_rgbd.stitch.TrackPlane`).
     frames : list of FrameRecord
     warnings, notes : list of str
+    propagation : dict, optional
+        With camera poses: the trajectory, the frames with a pose and every track's lifted
+        keyframes and their agreement (:meth:`annotate_rgbd.plan.Propagation.to_json`).
     """
 
     version: str
@@ -452,6 +469,7 @@ class RunRecord:
     frames: list[FrameRecord]
     warnings: list[str] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
+    propagation: dict | None = None
 
     def to_json(self) -> dict[str, Any]:
         """The content of ``report.json``."""
@@ -474,6 +492,7 @@ class RunRecord:
             "frames": [f.to_json() for f in self.frames],
             "warnings": self.warnings,
             "notes": self.notes,
+            **({"propagation": self.propagation} if self.propagation is not None else {}),
         }
 
     @classmethod
@@ -510,6 +529,7 @@ class RunRecord:
             frames=frames,
             warnings=[str(w) for w in report.get("warnings", [])],
             notes=[str(n) for n in report.get("notes", [])],
+            propagation=report["propagation"] if isinstance(report.get("propagation"), dict) else None,
         )
 
 

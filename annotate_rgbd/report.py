@@ -63,4 +63,5 @@ def run_record(plan: RunPlan, config: Config) -> RunRecord:
         frames=plan.frames,
         warnings=plan.warnings,
         notes=plan.notes,
+        propagation=None if plan.propagation is None else plan.propagation.to_json(),
     )

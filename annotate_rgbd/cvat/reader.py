@@ -180,13 +180,13 @@ def _read_shape(
         line=line,
         z_order=int_attr(element, "z_order", path, default=0),
         occluded=flag(element, "occluded"),
+        drawn=element.get("keyframe") != "0",
     )
     if kind == "polygon":
         shape.points = points_attr(element, path)
         problem = polygon_problem(shape.points)
         # Checked on the shapes a labeller drew, not on the frames CVAT interpolated from them.
-        drawn = element.get("keyframe") != "0"
-        if problem is None and check and drawn and crosses_itself(shape.points):
+        if problem is None and check and shape.drawn and crosses_itself(shape.points):
             context.notes.count(
                 "self-intersecting polygons, used as drawn (filled by the even-odd rule)",
                 f"line {line}",

@@ -43,6 +43,7 @@ class Keyframe:
     occluded: bool = False
     bitmap: np.ndarray | None = None
     usable: bool = True  # False for an outside shape whose geometry has no area
+    drawn: bool = True  # False for a shape CVAT interpolated (keyframe="0" in a file export)
 
 
 @dataclass
@@ -87,7 +88,8 @@ def assemble_video(raw_tracks: list[RawTrack], meta: Meta, context: ReadContext)
                 "all (one shape per track and frame): export a shorter task or job",
             )
         if shapes:
-            tracks.append(Track(raw.track_id, raw.label, shapes))
+            drawn = frozenset(k.frame for k in keyframes if k.drawn and not k.outside and k.frame in shapes)
+            tracks.append(Track(raw.track_id, raw.label, shapes, keyframes=drawn))
         else:
             context.notes.add(f"track {raw.track_id} (line {raw.line}) is never visible: dropped")
     image_size = {}
