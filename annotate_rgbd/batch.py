@@ -69,7 +69,8 @@ def run_batch(
         for spec, outcome in zip(scenes, outcomes):
             try:
                 config = load_config(spec.config, spec.overrides)
-                plan = plan_run(spec.sequence, spec.annotations, spec.out, config, spec.offsets, spec.raw_masks)
+                plan = plan_run(spec.sequence, spec.annotations, spec.out, config, spec.offsets, spec.raw_masks,
+                                poses=spec.poses)
             except InputError as exc:
                 outcome.error = str(exc)
                 continue

@@ -104,6 +104,9 @@ def cvat2mask(
     job_timeout: float = typer.Option(
         STALL_TIMEOUT, "--job-timeout", min=1.0, help="Seconds without a frame finished by the helpers before they are replaced."
     ),
+    poses: Optional[Path] = typer.Option(
+        None, "--poses", help="Camera trajectory (TUM format): carry keyframe shapes to every frame by the poses."
+    ),
 ) -> None:
     """Write one colour-coded plane mask per depth frame, refined against the depth.
 
@@ -133,7 +136,7 @@ def cvat2mask(
         report = run_cvat2mask(
             sequence_dir, annotations, out, load_config(config, overrides), offsets=offsets,
             workers=workers, force=force, raw_masks=raw_masks, overlays=overlays,
-            progress=progress.callback(sequence_dir.name), job_timeout=job_timeout,
+            progress=progress.callback(sequence_dir.name), job_timeout=job_timeout, poses=poses,
         )
         progress.finish()
         if overlays:

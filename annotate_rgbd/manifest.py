@@ -13,6 +13,7 @@ A manifest has one ``[[scene]]`` table per scene; paths are relative to the mani
     parts = ["0-299.xml:0"]        # optional, as --part FILE:OFFSET
     set = ["ransac.distance_threshold=0.01"]   # optional, as --set
     raw_masks = false              # optional, as --raw-masks
+    poses = "data/rgbd_dataset_freiburg1_desk/groundtruth.txt"  # optional, as --poses
 
 Reading one is light (no pipeline imports), so that the command line knows the number of
 workers before it starts any.
@@ -27,7 +28,7 @@ from typing import Any
 from .config import parse_part_offsets, parse_settings, tomllib
 from .errors import InputError
 
-SCENE_KEYS = {"name", "sequence", "annotations", "config", "out", "parts", "set", "raw_masks"}
+SCENE_KEYS = {"name", "sequence", "annotations", "config", "out", "parts", "set", "raw_masks", "poses"}
 
 
 @dataclass(frozen=True)
@@ -42,6 +43,7 @@ class SceneSpec:
     offsets: dict[str, int] = field(default_factory=dict)
     overrides: dict[str, Any] = field(default_factory=dict)
     raw_masks: bool = False
+    poses: Path | None = None
 
 
 def read_manifest(path: str | Path) -> tuple[list[SceneSpec], int | None]:
@@ -96,7 +98,7 @@ def read_manifest(path: str | Path) -> tuple[list[SceneSpec], int | None]:
         if isinstance(annotations, str):
             annotations = [annotations]
         strings = {"sequence": table["sequence"], "out": table["out"], "name": table.get("name", ""),
-                   "config": table.get("config", "")}
+                   "config": table.get("config", ""), "poses": table.get("poses", "")}
         lists = {"annotations": annotations, "parts": table.get("parts", []), "set": table.get("set", [])}
         if not all(isinstance(v, str) for v in strings.values()) or not all(
             isinstance(v, list) and all(isinstance(x, str) for x in v) for v in lists.values()
@@ -120,6 +122,7 @@ def read_manifest(path: str | Path) -> tuple[list[SceneSpec], int | None]:
             offsets=offsets,
             overrides=overrides,
             raw_masks=table.get("raw_masks", False),
+            poses=base / table["poses"] if table.get("poses") else None,
         ))
     outs = [s.out.resolve() for s in scenes]
     for out in set(outs):

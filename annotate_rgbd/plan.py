@@ -227,8 +227,10 @@ def plan_propagation(
 def propagation_warnings(propagation: Propagation) -> list[str]:
     """A warning per track whose lifted keyframes disagree, and one for frames without a pose."""
     lines = [
-        f"{lift.part} track {lift.track} (plane {lift.plane}): its keyframes lie on different planes "
-        f"({lift.angle:.1f} degrees, {100 * lift.offset:.1f} cm apart): two surfaces under one track, or the poses are off"
+        f"{lift.part} track {lift.track} (plane {lift.plane}): keyframes {', '.join(map(str, lift.off_plane))} lie off "
+        f"the plane its other keyframes agree on (up to {lift.angle:.1f} degrees, {100 * lift.offset:.1f} cm): "
+        "a shape over another surface or clutter, two surfaces under one track, or poses that are off; "
+        "they were lifted onto the agreed plane"
         for lift in propagation.lifts.values() if not lift.consistent
     ]
     missing = int(np.count_nonzero(~propagation.depth_poses.ok))

@@ -110,6 +110,7 @@ def make_contact_sequence(folder: Path, frames: int, width: int, height: int, ji
         rendered.sequence, n_frames=frames, width=width, height=height, camera=camera, seed=seed,
         scene=contact_scene(), poses=contact_trajectory(frames), dropped_rgb_frames=(),
         ground_truth_dir=rendered.ground_truth, polygon_jitter_px=jitter, object_index_dir=rendered.objects,
+        write_trajectory=True,
     )
     write_cvat_video(annotation, rendered.single[0], width=width, height=height)
     parts[0].parent.mkdir()

@@ -42,7 +42,7 @@ from .polygons import plane_polygon
 from .raycast import Render, render
 from .scene import NEAR, Box, Clutter, Cylinder, Plane, Pose, Scene, Sphere, look_at, room_scene, room_trajectory
 from .sensor import MAX_DEPTH, MIN_DEPTH, kinect_noise_sigma, sensor_depth
-from .sequence import make_sequence
+from .sequence import make_sequence, write_tum_trajectory
 
 __all__ = [
     "MAX_DEPTH",
@@ -71,4 +71,5 @@ __all__ = [
     "room_scene",
     "room_trajectory",
     "sensor_depth",
+    "write_tum_trajectory",
 ]

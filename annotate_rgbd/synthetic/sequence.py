@@ -63,6 +63,7 @@ def make_sequence(
     ground_truth_dir: str | Path | None = None,
     polygon_jitter_px: float = 0.0,
     object_index_dir: str | Path | None = None,
+    write_trajectory: bool = False,
 ) -> Annotation:
     """Render a synthetic sequence in TUM RGB-D layout with plane ground truth.
 
@@ -103,6 +104,11 @@ def make_sequence(
     polygon_jitter_px : float
         Labeller's error: every polygon vertex moves by up to this many pixels per axis (see
         :func:`render_frame <annotate_rgbd.synthetic.frame.render_frame>`); 0: exact outlines.
+    write_trajectory : bool
+        Also write ``groundtruth.txt``: the exact camera pose of every frame in TUM format
+        (``timestamp tx ty tz qx qy qz qw``, camera to world), at the RGB and the depth
+        frames' timestamps (both images of a frame are rendered at one pose), as TUM RGB-D ships
+        a trajectory with its sequences.
     object_index_dir : str or Path, optional
         When given, also write there per depth frame ``<depth file name>``: 16-bit, the index
         + 1 of the scene object seen at each pixel whatever its depth (planes 1..P in
@@ -160,6 +166,12 @@ def make_sequence(
 
     _write_list(out_dir / "rgb.txt", "color images", "rgb", rgb_names, seed)
     _write_list(out_dir / "depth.txt", "depth maps", "depth", depth_names, seed)
+    if write_trajectory:
+        # Frame i's RGB and depth images are both rendered at pose i, so the trajectory holds
+        # pose i at both their timestamps: it is exact wherever a frame was captured.
+        samples = sorted({**{float(t): p for t, p in zip(rgb_times, poses)},
+                          **{float(t): p for t, p in zip(depth_times, poses)}}.items())
+        write_tum_trajectory(out_dir / "groundtruth.txt", [t for t, _ in samples], [p for _, p in samples])
     order = [k for k in np.argsort(track_ids) if shapes[k]]
     description = {
         "description": "Synthetic room rendered by annotate_rgbd.synthetic.make_sequence. "
@@ -184,3 +196,24 @@ def make_sequence(
         path=str(out_dir), format="video", tracks=tracks, frames=frames,
         image_size={f: (width, height) for f in frames},
     )
+
+
+def write_tum_trajectory(path: Path, timestamps: Sequence[float], poses: Sequence[Pose]) -> None:
+    """Write camera poses as a TUM trajectory file (what :func:`annotate_rgbd.poses.read_trajectory` reads).
+
+    Parameters
+    ----------
+    path : Path
+    timestamps : sequence of float
+        Seconds, one per pose, increasing.
+    poses : sequence of Pose
+        Camera-to-world poses (the camera's x right, y down, z forward, as TUM's optical frame).
+    """
+    from scipy.spatial.transform import Rotation
+
+    quaternions = Rotation.from_matrix(np.array([p.rotation for p in poses])).as_quat()  # x, y, z, w
+    lines = ["# ground-truth trajectory of a rendered sequence (annotate_rgbd.synthetic)",
+             "# timestamp tx ty tz qx qy qz qw"]
+    for time, pose, q in zip(timestamps, poses, quaternions):
+        lines.append(f"{time:.6f} " + " ".join(f"{v:.9f}" for v in (*pose.position, *q)))
+    Path(path).write_text("\n".join(lines) + "\n", encoding="utf-8")
