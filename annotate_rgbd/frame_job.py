@@ -48,9 +48,10 @@ class FrameJob:
         Where the review overlay goes, if wanted.
     rgb_path : Path or None
         The RGB image the overlay is drawn on.
-    propagated : frozenset of int
-        Planes whose shapes the camera poses carried here from keyframes on other frames
-        (:mod:`annotate_rgbd.propagate`); their records say so.
+    propagated : frozenset of int, optional
+        With camera poses: the planes whose shapes the poses carried here from keyframes on
+        other frames (:mod:`annotate_rgbd.propagate`); every plane record says whether it is
+        one of them. None without poses.
     """
 
     depth_path: Path
@@ -61,7 +62,7 @@ class FrameJob:
     raw_mask_path: Path | None = None
     overlay_path: Path | None = None
     rgb_path: Path | None = None
-    propagated: frozenset[int] = frozenset()
+    propagated: frozenset[int] | None = None
 
     @property
     def outputs(self) -> list[Path]:
@@ -182,7 +183,7 @@ def run_frame_job(task: FrameTask) -> FrameOutcome:
     if up_to_date(job, made_from, task.recorded):
         return FrameOutcome(made_from)
     result = segment_job(job, task.config, depth_file)
-    if job.propagated:
+    if job.propagated is not None:
         result.kept = [replace(r, propagated=r.plane in job.propagated) for r in result.kept]
         result.dropped = [replace(r, propagated=r.plane in job.propagated) for r in result.dropped]
     written = {}

@@ -218,7 +218,10 @@ def plan_propagation(
     depth_poses = poses_at(trajectory, sequence.depth.timestamps, gap)
     rgb_poses = poses_at(trajectory, sequence.rgb.timestamps, gap)
     plane_of = {(t.part, t.track): t.plane for t in tracks}
-    wanted = [(p.name, t, plane_of[(p.name, t.track_id)], p.rgb_of_frame) for p in parts for t in p.annotation.tracks]
+    wanted = [
+        (p.name, p.annotation.tracks, [plane_of[(p.name, t.track_id)] for t in p.annotation.tracks], p.rgb_of_frame)
+        for p in parts
+    ]
     lifts = lift_tracks(wanted, depth_of_rgb, [sequence.root / f for f in sequence.depth.files], depth_poses,
                         rgb_poses, config)
     return Propagation(str(path), {(lift.part, lift.track): lift for lift in lifts}, depth_poses)
@@ -227,7 +230,7 @@ def plan_propagation(
 def propagation_warnings(propagation: Propagation) -> list[str]:
     """A warning per track whose lifted keyframes disagree, and one for frames without a pose."""
     lines = [
-        f"{lift.part} track {lift.track} (plane {lift.plane}): keyframes {', '.join(map(str, lift.off_plane))} lie off "
+        f"{lift.part} track {lift.track} (plane {lift.plane}): keyframes {', '.join(map(str, lift.substantial))} lie off "
         f"the plane its other keyframes agree on (up to {lift.angle:.1f} degrees, {100 * lift.offset:.1f} cm): "
         "a shape over another surface or clutter, two surfaces under one track, or poses that are off; "
         "they were lifted onto the agreed plane"
@@ -324,7 +327,7 @@ def plan_frames(
 
 def _frame_shapes(
     part: Part, frame: int, plane_of: dict, propagation: Propagation | None, config: Config | None, depth: int
-) -> tuple[tuple, frozenset[int]]:
+) -> tuple[tuple, frozenset[int] | None]:
     """The ``(plane id, shape)`` pairs of one frame, in track order, and the planes whose shapes
     the poses carried there from other frames."""
     shapes, propagated = [], set()
@@ -335,18 +338,18 @@ def _frame_shapes(
         plane = plane_of[(part.name, track.track_id)]
         lift = propagation.lifts.get((part.name, track.track_id)) if has_pose else None
         if lift is None or not lift.keyframes:
-            shapes.append((plane, track.shapes[frame]))
+            shapes.append((plane, track.shapes[frame]))  # 2-D, as drawn or interpolated
             continue
         pose = (propagation.depth_poses.rotations[depth], propagation.depth_poses.translations[depth])
         shapes += [(plane, shape) for shape in propagated_shapes(lift, frame, config, pose)]
         if frame not in {k.frame for k in lift.keyframes}:
             propagated.add(plane)
-    return tuple(shapes), frozenset(propagated)
+    return tuple(shapes), (frozenset(propagated) if propagation is not None else None)
 
 
 def _frame_job(
-    sequence: Sequence, part: Part, frame: int, rgb: int, depth_file: str, shapes: tuple, propagated: frozenset[int],
-    output: OutputOptions,
+    sequence: Sequence, part: Part, frame: int, rgb: int, depth_file: str, shapes: tuple,
+    propagated: frozenset[int] | None, output: OutputOptions,
 ) -> FrameJob:
     name = Path(depth_file).name
     return FrameJob(

@@ -41,6 +41,11 @@ from .sequence import read_depth
 #: floor: 0.7 m; a wall and the door in it: a few cm, flagged when the poses are good).
 MAX_KEYFRAME_ANGLE = 5.0
 MAX_KEYFRAME_OFFSET = 0.05
+#: A keyframe off its track's agreed plane makes the track "inconsistent" (a warning, the
+#: review queue) only when its shape holds at least this share of the valid depth pixels of
+#: the track's largest keyframe: a sliver of a plane leaving the view is mostly another
+#: surface, and its own fit says nothing about the track.
+MIN_KEYFRAME_WEIGHT = 0.25
 
 
 @dataclass(frozen=True)
@@ -84,8 +89,11 @@ class TrackLift:
     off_plane : list of int
         Keyframes whose own plane disagreed with the track's consensus plane (lifted onto the
         consensus plane instead).
+    substantial : list of int
+        Those of them that hold a good share of the track's depth (:data:`MIN_KEYFRAME_WEIGHT`):
+        the track needs review.
     angle, offset : float
-        Their largest disagreement with the consensus plane (degrees, metres); 0 when all agree.
+        The largest disagreement of those with the consensus plane (degrees, metres).
     """
 
     part: str
@@ -94,14 +102,15 @@ class TrackLift:
     keyframes: list[LiftedKeyframe] = field(default_factory=list)
     failed: list[tuple[int, str]] = field(default_factory=list)
     off_plane: list[int] = field(default_factory=list)
+    substantial: list[int] = field(default_factory=list)
     angle: float = 0.0
     offset: float = 0.0
 
     @property
     def consistent(self) -> bool:
-        """Whether every keyframe's own plane agrees with the track's consensus plane (within
-        :data:`MAX_KEYFRAME_ANGLE` and :data:`MAX_KEYFRAME_OFFSET`)."""
-        return not self.off_plane
+        """Whether every substantial keyframe's own plane agrees with the track's consensus plane
+        (within :data:`MAX_KEYFRAME_ANGLE` and :data:`MAX_KEYFRAME_OFFSET`)."""
+        return not self.substantial
 
     def to_json(self) -> dict:
         """The report's entry for the track."""
@@ -112,6 +121,7 @@ class TrackLift:
             "keyframes_lifted": [k.frame for k in self.keyframes],
             "keyframes_failed": [{"frame": frame, "reason": reason} for frame, reason in self.failed],
             "keyframes_off_plane": self.off_plane,
+            "keyframes_in_conflict": self.substantial,
             "angle_deg": round(self.angle, 3),
             "offset_m": round(self.offset, 4),
             "consistent": self.consistent,
@@ -126,13 +136,25 @@ def keyframe_frames(track: Track) -> list[int]:
     return sorted(f for f in track.keyframes if f in track.shapes)
 
 
-def keyframe_plane(shape: Shape, depth_path: Path, depth_pose: tuple[np.ndarray, np.ndarray], config: Config) -> np.ndarray | str:
-    """Fit the plane under one keyframe shape, in world coordinates.
+def keyframe_planes(
+    shapes: list[tuple[int, Shape]],
+    wanted: list[int],
+    depth_path: Path,
+    depth_pose: tuple[np.ndarray, np.ndarray],
+    config: Config,
+) -> dict[int, tuple[np.ndarray, int] | str]:
+    """Fit the planes under the keyframe shapes of one frame, in world coordinates.
+
+    The frame's shapes are drawn in ``z_order`` as refinement draws them, so that each plane is
+    fitted to the pixels where its shape is on top (a floor drawn under a table is fitted to the
+    floor, not to the table).
 
     Parameters
     ----------
-    shape : Shape
-        A polygon or box.
+    shapes : list of (int, Shape)
+        Every shape of the frame, with a key, in track order.
+    wanted : list of int
+        The keys of the keyframe shapes to fit (polygons or boxes).
     depth_path : Path
         The depth frame nearest the keyframe.
     depth_pose : (ndarray (3, 3), ndarray (3,))
@@ -142,8 +164,9 @@ def keyframe_plane(shape: Shape, depth_path: Path, depth_pose: tuple[np.ndarray,
 
     Returns
     -------
-    ndarray of float64, shape (4,), or str
-        The world plane, or why there is none.
+    dict of int to ((ndarray (4,), int) or str)
+        For each wanted key: the world plane and the number of valid depth pixels it was
+        fitted to, or why there is none.
 
     Raises
     ------
@@ -151,16 +174,22 @@ def keyframe_plane(shape: Shape, depth_path: Path, depth_pose: tuple[np.ndarray,
         The depth frame is unreadable.
     """
     depth_m = depth_to_metres(read_depth(depth_path), config.camera.depth_scale)
-    drawn = rasterize_frame([(1, shape)], *depth_m.shape)
-    rows, cols = np.nonzero((drawn == 1) & np.isfinite(depth_m))
-    if rows.size < config.filter.min_valid_pixels:
-        return f"too little valid depth under the shape ({rows.size} pixels)"
-    step = max(1, int(np.ceil(np.sqrt(rows.size / config.ransac.max_points)))) if config.ransac.max_points else 1
-    pick = (rows % step == 0) & (cols % step == 0)
-    if np.count_nonzero(pick) >= 3:
-        rows, cols = rows[pick], cols[pick]
-    fit = fit_plane(backproject(cols, rows, depth_m[rows, cols], config.camera), config.ransac, config.inlier_band())
-    return plane_to_world(fit.equation, *depth_pose)
+    drawn = rasterize_frame(shapes, *depth_m.shape)
+    on_valid = np.where(np.isfinite(depth_m), drawn, 0)
+    planes: dict[int, tuple[np.ndarray, int] | str] = {}
+    for key in wanted:
+        rows, cols = np.nonzero(on_valid == key)
+        if rows.size < config.filter.min_valid_pixels:
+            planes[key] = f"too little valid depth where the shape is on top ({rows.size} pixels)"
+            continue
+        valid = int(rows.size)
+        step = max(1, int(np.ceil(np.sqrt(valid / config.ransac.max_points)))) if config.ransac.max_points else 1
+        pick = (rows % step == 0) & (cols % step == 0)
+        if np.count_nonzero(pick) >= 3:
+            rows, cols = rows[pick], cols[pick]
+        fit = fit_plane(backproject(cols, rows, depth_m[rows, cols], config.camera), config.ransac, config.inlier_band())
+        planes[key] = (plane_to_world(fit.equation, *depth_pose), valid)
+    return planes
 
 
 def outline_of(shape: Shape) -> np.ndarray | None:
@@ -173,12 +202,15 @@ def outline_of(shape: Shape) -> np.ndarray | None:
     return shape.points
 
 
-def consensus_plane(planes: list[np.ndarray], outlines: list[np.ndarray]) -> tuple[np.ndarray, list[bool]]:
+def consensus_plane(
+    planes: list[np.ndarray], outlines: list[np.ndarray], weights: list[float] | None = None
+) -> tuple[np.ndarray, list[bool]]:
     """The plane most of a track's keyframes agree on, and which of them agree with it.
 
     Each fitted plane is a candidate; it is supported by the keyframes whose plane lies within
     :data:`MAX_KEYFRAME_ANGLE` and :data:`MAX_KEYFRAME_OFFSET` of it (offset measured at that
-    keyframe's outline centroid); the best supported wins (ties: the earliest).
+    keyframe's outline centroid), each with its weight; the best supported wins (ties: the
+    earliest).
 
     Parameters
     ----------
@@ -186,6 +218,8 @@ def consensus_plane(planes: list[np.ndarray], outlines: list[np.ndarray]) -> tup
         World planes, one per keyframe.
     outlines : list of ndarray, shape (V, 3)
         The keyframes' outlines lifted onto their own planes (for the centroids).
+    weights : list of float, optional
+        How much each keyframe counts (the valid depth pixels it was fitted to); default 1 each.
 
     Returns
     -------
@@ -200,7 +234,8 @@ def consensus_plane(planes: list[np.ndarray], outlines: list[np.ndarray]) -> tup
             angle, offset = plane_agreement(candidate, plane, at=centroid)
             agree.append(angle <= MAX_KEYFRAME_ANGLE and offset <= MAX_KEYFRAME_OFFSET)
         support.append(agree)
-    best = max(range(len(planes)), key=lambda i: (sum(support[i]), -i))
+    weights = [1.0] * len(planes) if weights is None else weights
+    best = max(range(len(planes)), key=lambda i: (sum(w for w, ok in zip(weights, support[i]) if ok), -i))
     return planes[best], support[best]
 
 
@@ -238,7 +273,7 @@ def propagated_shapes(lift: TrackLift, frame: int, config: Config, pose: tuple[n
 
 
 def lift_tracks(
-    tracks: list[tuple[str, Track, int, dict[int, int]]],
+    parts: list[tuple[str, list[Track], list[int], dict[int, int]]],
     depth_of_rgb: dict[int, int],
     depth_files: list[Path],
     depth_poses: FramePoses,
@@ -247,18 +282,19 @@ def lift_tracks(
 ) -> list[TrackLift]:
     """Lift the keyframes of every track (reads the depth frames nearest the keyframes).
 
-    Each keyframe's plane is fitted to its shape's depth (:func:`keyframe_plane`) and its
-    outline lifted onto it with the RGB camera's pose at the keyframe's time. A plane is rigid
-    and static, so a keyframe whose plane disagrees with the one most keyframes of the track
-    agree on (:func:`consensus_plane`: the shape lay mostly over clutter or another surface), or
-    whose depth cannot give a plane, is lifted onto that consensus plane instead; the track is
-    then listed (``angle``, ``offset``: its largest disagreement) for review.
+    Each keyframe's plane is fitted to the depth where its shape is on top
+    (:func:`keyframe_planes`) and its outline lifted onto it with the RGB camera's pose at the
+    keyframe's time. A plane is rigid and static, so a keyframe whose plane disagrees with the
+    one the track's keyframes agree on (:func:`consensus_plane`, weighted by their depth
+    pixels: the shape lay mostly over clutter or another surface) is lifted onto that
+    consensus plane instead, and listed; the track is flagged (``consistent`` False) when such
+    a keyframe holds a good share of the track's depth (:data:`MIN_KEYFRAME_WEIGHT`).
 
     Parameters
     ----------
-    tracks : list of (str, Track, int, dict of int to int)
-        Each track with its part's name, its global plane id and its part's CVAT frame -> RGB
-        index map.
+    parts : list of (str, list of Track, list of int, dict of int to int)
+        Each annotation part: its name, its tracks in export order, their global plane ids and
+        its CVAT frame -> RGB index map.
     depth_of_rgb : dict of int to int
         RGB index -> the depth frame that shows it.
     depth_files : list of Path
@@ -270,51 +306,73 @@ def lift_tracks(
     Returns
     -------
     list of TrackLift
-        In the order of ``tracks``.
+        Part by part, in track order.
     """
     lifts = []
-    for part, track, plane_id, rgb_of_frame in tracks:
-        lift = TrackLift(part, track.track_id, plane_id)
-        fitted = []  # (frame, outline px, rgb pose, plane or None)
-        for frame in keyframe_frames(track):
-            shape = track.shapes[frame]
-            outline = outline_of(shape)
+    for part, tracks, plane_ids, rgb_of_frame in parts:
+        part_lifts = [TrackLift(part, track.track_id, plane) for track, plane in zip(tracks, plane_ids)]
+        # (track index) -> list of (frame, outline px, rgb pose, fitted (plane, pixels) or reason)
+        fitted: dict[int, list] = {i: [] for i in range(len(tracks))}
+        keyframes_at: dict[int, list[int]] = {}
+        for i, track in enumerate(tracks):
+            for frame in keyframe_frames(track):
+                keyframes_at.setdefault(frame, []).append(i)
+        for frame in sorted(keyframes_at):
+            wanted = []
             rgb = rgb_of_frame.get(frame)
             depth = depth_of_rgb.get(rgb) if rgb is not None else None
-            if outline is None:
-                lift.failed.append((frame, "mask shapes are not propagated"))
-                continue
-            if depth is None or not depth_poses.ok[depth]:
-                why = "no depth frame near the keyframe" if depth is None else depth_poses.reasons[depth]
-                lift.failed.append((frame, f"no pose ({why})"))
+            for i in keyframes_at[frame]:
+                if outline_of(tracks[i].shapes[frame]) is None:
+                    part_lifts[i].failed.append((frame, "mask shapes are not propagated"))
+                elif depth is None or not depth_poses.ok[depth]:
+                    why = "no depth frame near the keyframe" if depth is None else depth_poses.reasons[depth]
+                    part_lifts[i].failed.append((frame, f"no pose ({why})"))
+                else:
+                    wanted.append(i)
+            if not wanted:
                 continue
             depth_pose = (depth_poses.rotations[depth], depth_poses.translations[depth])
             rgb_pose = (rgb_poses.rotations[rgb], rgb_poses.translations[rgb]) if rgb_poses.ok[rgb] else depth_pose
+            shapes = [(i + 1, t.shapes[frame]) for i, t in enumerate(tracks) if frame in t.shapes]
             try:
-                plane = keyframe_plane(shape, depth_files[depth], depth_pose, config)
+                planes = keyframe_planes(shapes, [i + 1 for i in wanted], depth_files[depth], depth_pose, config)
             except InputError as exc:
-                plane = f"unreadable depth ({exc.message})"
-            fitted.append((frame, outline, rgb_pose, plane if not isinstance(plane, str) else None, plane))
-        own = [(f, o, p, plane) for f, o, p, plane, _ in fitted if plane is not None]
-        lifted_own = [lift_polygon(o, plane_to_camera(plane, *p), config.camera, *p) for _, o, p, plane in own]
-        usable = [(entry, lifted) for entry, lifted in zip(own, lifted_own) if lifted.ok]
-        consensus, agree = None, []
-        if usable:
-            consensus, agree = consensus_plane([e[3] for e, _ in usable], [lifted.world for _, lifted in usable])
-        agrees = {e[0]: ok for (e, _), ok in zip(usable, agree)}
-        for frame, outline, rgb_pose, plane, why in fitted:
-            target = plane if plane is not None and agrees.get(frame, False) else consensus
-            if target is None:
-                lift.failed.append((frame, why if isinstance(why, str) else "its outline cannot be lifted onto its plane"))
-                continue
-            lifted = lift_polygon(outline, plane_to_camera(target, *rgb_pose), config.camera, *rgb_pose)
-            if not lifted.ok:
-                lift.failed.append((frame, f"the outline cannot be lifted onto its plane ({lifted.reason})"))
-                continue
-            lift.keyframes.append(LiftedKeyframe(frame, lifted.world, target, track.shapes[frame].z_order))
-            if plane is not None and target is consensus and not agrees.get(frame, False):
+                planes = {i + 1: f"unreadable depth ({exc.message})" for i in wanted}
+            for i in wanted:
+                fitted[i].append((frame, outline_of(tracks[i].shapes[frame]), rgb_pose, planes[i + 1]))
+        for i, track in enumerate(tracks):
+            _lift_onto_planes(part_lifts[i], track, fitted[i], config)
+        lifts += part_lifts
+    return lifts
+
+
+def _lift_onto_planes(lift: TrackLift, track: Track, fitted: list, config: Config) -> None:
+    """Lift a track's fitted keyframes onto their own plane, or the track's consensus plane."""
+    own = [(frame, outline, pose, result) for frame, outline, pose, result in fitted if not isinstance(result, str)]
+    lifted_own = [lift_polygon(o, plane_to_camera(r[0], *p), config.camera, *p) for _, o, p, r in own]
+    usable = [(entry, lifted) for entry, lifted in zip(own, lifted_own) if lifted.ok]
+    consensus, agree = None, []
+    if usable:
+        consensus, agree = consensus_plane([e[3][0] for e, _ in usable], [lifted.world for _, lifted in usable],
+                                           [e[3][1] for e, _ in usable])
+    agrees = {e[0]: ok for (e, _), ok in zip(usable, agree)}
+    weight = {frame: result[1] for frame, _, _, result in own}
+    largest = max(weight.values(), default=0)
+    for frame, outline, pose, result in fitted:
+        plane = None if isinstance(result, str) else result[0]
+        target = plane if plane is not None and agrees.get(frame, False) else consensus
+        if target is None:
+            lift.failed.append((frame, result if isinstance(result, str) else "the outline cannot be lifted onto its plane"))
+            continue
+        lifted = lift_polygon(outline, plane_to_camera(target, *pose), config.camera, *pose)
+        if not lifted.ok:
+            lift.failed.append((frame, f"the outline cannot be lifted onto its plane ({lifted.reason})"))
+            continue
+        lift.keyframes.append(LiftedKeyframe(frame, lifted.world, target, track.shapes[frame].z_order))
+        if plane is not None and target is consensus and not agrees.get(frame, False):
+            lift.off_plane.append(frame)
+            if weight[frame] >= MIN_KEYFRAME_WEIGHT * largest:
                 angle, offset = plane_agreement(consensus, plane, at=lifted.world.mean(axis=0))
                 lift.angle, lift.offset = max(lift.angle, angle), max(lift.offset, offset)
-                lift.off_plane.append(frame)
-        lifts.append(lift)
-    return lifts
+                lift.substantial.append(frame)
+    lift.keyframes.sort(key=lambda k: k.frame)

@@ -1,0 +1,189 @@
+"""Pose-guided propagation: keyframes lifted onto their planes and carried to every frame."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from dataclasses import replace
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from annotate_rgbd.camera import Camera
+from annotate_rgbd.cli import app
+from annotate_rgbd.config import load_config
+from annotate_rgbd.cvat import read_cvat, write_cvat_video
+from annotate_rgbd.lift import plane_agreement
+from annotate_rgbd.pipeline import run_cvat2mask
+from annotate_rgbd.propagate import MAX_KEYFRAME_ANGLE, consensus_plane
+from annotate_rgbd.synthetic import make_sequence
+
+CAMERA = Camera(fx=262.5, fy=262.5, cx=159.5, cy=119.5, depth_scale=5000.0)
+FRAMES, STEP = 24, 8
+
+
+@pytest.fixture(scope="module")
+def rendered(tmp_path_factory) -> dict:
+    """A rendered room walk with its exact trajectory, annotated on every 8th frame only."""
+    root = tmp_path_factory.mktemp("propagate")
+    annotation = make_sequence(root / "sequence", n_frames=FRAMES, width=320, height=240, camera=CAMERA, seed=3,
+                               dropped_rgb_frames=(), write_trajectory=True)
+    keyframes = root / "keyframes.xml"
+    write_cvat_video(annotation, keyframes, width=320, height=240, keyframe_step=STEP, keyframes_only=True)
+    config = root / "camera.toml"
+    config.write_text("[camera]\nfx = 262.5\nfy = 262.5\ncx = 159.5\ncy = 119.5\ndepth_scale = 5000.0\n")
+    return {"root": root, "sequence": root / "sequence", "keyframes": keyframes, "config": config,
+            "poses": root / "sequence" / "groundtruth.txt", "truth": root / "sequence" / "ground_truth"}
+
+
+def _mean_iou(out: Path, truth: Path) -> float:
+    """Mean IoU of the planes the ground truth keeps, matched by label through planes.csv."""
+    planes = json.loads((truth / "planes.json").read_text())
+    kept = {p["label"]: p["gt_value"] for p in planes["planes"] if p["expected"] == "kept"}
+    rows = (out / "planes.csv").read_text().splitlines()[1:]
+    colour_of = {}
+    for row in rows:
+        fields = row.split(",")
+        colour_of[fields[5]] = tuple(int(v) for v in fields[2:5])
+    ious = []
+    for mask in sorted((out / "masks").iterdir()):
+        rgb = cv2.cvtColor(cv2.imread(str(mask)), cv2.COLOR_BGR2RGB)
+        gt = cv2.imread(str(truth / mask.name), cv2.IMREAD_UNCHANGED)
+        for label, value in kept.items():
+            if label not in colour_of or not (gt == value).any():
+                continue
+            ours = (rgb == colour_of[label]).all(axis=2)
+            ious.append(((ours & (gt == value)).sum()) / ((ours | (gt == value)).sum()))
+    return float(np.mean(ious))
+
+
+def test_poses_carry_keyframes_to_the_frames_between(rendered, tmp_path):
+    config = load_config(rendered["config"])
+    flat = run_cvat2mask(rendered["sequence"], [rendered["keyframes"]], tmp_path / "flat", config)
+    posed = run_cvat2mask(rendered["sequence"], [rendered["keyframes"]], tmp_path / "posed", config,
+                          poses=rendered["poses"])
+    iou_flat, iou_posed = _mean_iou(tmp_path / "flat", rendered["truth"]), _mean_iou(tmp_path / "posed", rendered["truth"])
+    assert iou_posed > iou_flat + 0.05 and iou_posed > 0.85, (iou_flat, iou_posed)
+    report = json.loads((tmp_path / "posed" / "report.json").read_text())
+    assert all(f["pose"] == "ok" for f in report["frames"])
+    assert report["propagation"]["frames_with_pose"] == FRAMES
+    drawn_on = {}  # plane -> frames where its shape was drawn (keyframes)
+    labels = {t.track_id: t for t in read_cvat(rendered["keyframes"]).tracks}
+    for track in posed.tracks:
+        drawn_on[track.plane] = labels[track.track].keyframes
+    propagated = 0
+    for frame in (f for f in report["frames"] if f["status"] == "written"):
+        for plane in frame["kept"] + frame["dropped"]:
+            assert plane["propagated"] == (frame["cvat_frame"] not in drawn_on[plane["plane"]])
+            propagated += plane["propagated"]
+    assert propagated > 0.5 * sum(len(f["kept"]) + len(f["dropped"]) for f in report["frames"] if f["status"] == "written")
+    # Without poses the report has none of this.
+    plain = json.loads((tmp_path / "flat" / "report.json").read_text())
+    assert "propagation" not in plain and "pose" not in plain["frames"][0]
+    assert "propagated" not in next(f for f in plain["frames"] if f["status"] == "written")["kept"][0]
+    assert posed.written == flat.written
+
+
+def test_lifted_planes_are_the_rendered_planes(rendered, tmp_path):
+    config = load_config(rendered["config"])
+    run = run_cvat2mask(rendered["sequence"], [rendered["keyframes"]], tmp_path / "out", config, poses=rendered["poses"])
+    lifts = run.plan.propagation.lifts
+    assert lifts and all(lift.consistent for lift in lifts.values())
+    # Independent: the scene's planes in world coordinates (point and normal from the scene).
+    from annotate_rgbd.synthetic import room_scene
+
+    scene = {plane.label: plane for plane in room_scene().planes}
+    labels = {t.track_id: t.label for t in read_cvat(rendered["keyframes"]).tracks}
+    checked = 0
+    for (part, track), lift in lifts.items():
+        plane = scene[labels[track]]
+        normal = np.cross(plane.edge_u, plane.edge_v)
+        normal = normal / np.linalg.norm(normal)
+        truth = np.append(normal, -normal @ np.asarray(plane.centre))
+        for keyframe in lift.keyframes:
+            angle, offset = plane_agreement(truth, keyframe.plane, at=keyframe.world.mean(axis=0))
+            if plane.valid_fraction >= 1:  # glass returns too little depth to fit well
+                assert angle < 2.0 and offset < 0.02, (labels[track], angle, offset)
+                checked += 1
+    assert checked >= 6
+
+
+def test_frames_without_a_pose_keep_the_2d_shapes(rendered, tmp_path):
+    lines = rendered["poses"].read_text().splitlines()
+    samples = [line for line in lines if not line.startswith("#")]
+    short = tmp_path / "half.txt"
+    short.write_text("\n".join(samples[: len(samples) // 2]) + "\n")
+    run = run_cvat2mask(rendered["sequence"], [rendered["keyframes"]], tmp_path / "out",
+                        load_config(rendered["config"]), poses=short)
+    report = json.loads((tmp_path / "out" / "report.json").read_text())
+    reasons = [f["pose"] for f in report["frames"]]
+    assert reasons[0] == "ok" and reasons[-1] == "outside_trajectory"
+    late = [f for f in report["frames"] if f["pose"] != "ok" and f["status"] == "written"]
+    assert late and all(not p["propagated"] for f in late for p in f["kept"])
+    assert any("depth frames have no pose; their shapes are interpolated in 2-D" in w for w in run.warnings)
+
+
+def test_a_keyframe_drawn_over_another_surface_is_listed_and_lifted_onto_the_agreed_plane(rendered, tmp_path):
+    annotation = read_cvat(rendered["keyframes"])
+    by_label = {t.label: t for t in annotation.tracks}
+    floor, table = by_label["floor"], by_label["table_top"]
+    frame = STEP  # a keyframe both have: the floor's outline there is the table's, drawn on top
+    assert frame in floor.keyframes and frame in table.keyframes
+    floor.shapes[frame] = replace(table.shapes[frame], z_order=10)
+    export = tmp_path / "wrong.xml"
+    write_cvat_video(annotation, export, width=320, height=240, keyframe_step=STEP, keyframes_only=True)
+    run = run_cvat2mask(rendered["sequence"], [export], tmp_path / "out", load_config(rendered["config"]),
+                        poses=rendered["poses"])
+    lift = run.plan.propagation.lifts[(export.name, floor.track_id)]
+    assert frame in lift.substantial and lift.angle < 2 and lift.offset > 0.6  # the table top, 0.74 m up
+    floor_plane = np.array([0.0, 0.0, 1.0, 0.0])  # the rendered floor: z = 0 in the world
+    for keyframe in lift.keyframes:  # the table's outline too was lifted onto the floor
+        angle, offset = plane_agreement(floor_plane, keyframe.plane, at=keyframe.world.mean(axis=0))
+        assert angle < 2 and offset < 0.02, (keyframe.frame, angle, offset)
+    report = json.loads((tmp_path / "out" / "report.json").read_text())
+    assert f"{export.name}:{floor.track_id}" in report["propagation"]["inconsistent_tracks"]
+    assert any(f"track {floor.track_id}" in w and "lie off the plane" in w for w in report["warnings"])
+
+
+def test_consensus_plane_is_the_best_supported_one():
+    floor = np.array([0.0, 0.0, 1.0, 0.0])
+    tilted = np.array([0.0, np.sin(np.radians(2)), np.cos(np.radians(2)), 0.001])
+    wall = np.array([1.0, 0.0, 0.0, -2.0])
+    outline = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    plane, agree = consensus_plane([wall, floor, tilted, floor], [outline + [2, 0, 0], outline, outline, outline])
+    assert plane is floor and agree == [False, True, True, True]
+    assert plane_agreement(floor, tilted)[0] < MAX_KEYFRAME_ANGLE
+
+
+def test_cli_poses_option_and_a_bad_pose_file(rendered, tmp_path):
+    runner = CliRunner()
+    base = ["cvat2mask", str(rendered["sequence"]), str(rendered["keyframes"]), "--config", str(rendered["config"])]
+    good = runner.invoke(app, [*base, "--out", str(tmp_path / "a"), "--poses", str(rendered["poses"])])
+    assert good.exit_code == 0, good.output
+    bad = tmp_path / "bad.txt"
+    bad.write_text("1700000000.0 0 0 0 0 0 0 1\n1700000000.1 0 0 nan 0 0 0 1\n")
+    result = runner.invoke(app, [*base, "--out", str(tmp_path / "b"), "--poses", str(bad)])
+    assert result.exit_code == 1
+    last = result.output.strip().splitlines()[-1]
+    assert last.startswith(f"error: {bad}") and "line 2" in last
+
+
+def test_manifest_and_configuration_take_poses(rendered, tmp_path):
+    shutil.copy(rendered["poses"], tmp_path / "trajectory.txt")
+    config = tmp_path / "scene.toml"
+    config.write_text(rendered["config"].read_text() + '\n[sequence]\nposes = "trajectory.txt"\n')
+    assert load_config(config).sequence.poses == str(tmp_path / "trajectory.txt")  # relative to the file
+    run = run_cvat2mask(rendered["sequence"], [rendered["keyframes"]], tmp_path / "out", load_config(config))
+    assert run.plan.propagation is not None
+    manifest = tmp_path / "batch.toml"
+    manifest.write_text(
+        f'[[scene]]\nsequence = "{rendered["sequence"]}"\nannotations = ["{rendered["keyframes"]}"]\n'
+        f'config = "{rendered["config"]}"\nout = "batch_out"\nposes = "trajectory.txt"\n'
+    )
+    result = CliRunner().invoke(app, ["batch", str(manifest), "--jobs", "1"])
+    assert result.exit_code == 0, result.output
+    report = json.loads((tmp_path / "batch_out" / "report.json").read_text())
+    assert report["propagation"]["poses"] == str(tmp_path / "trajectory.txt")
