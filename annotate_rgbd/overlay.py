@@ -4,7 +4,8 @@
 
 * **kept plane** - the RGB image tinted with the plane's colour where the refined mask has it,
   the labeller's polygon outlined in that colour (solid line), and its global plane id in a box
-  of its colour;
+  of its colour (``7*`` when camera poses carried the shape here from keyframes on other
+  frames, :mod:`annotate_rgbd.propagate`);
 * **removed pixels** - inside a kept plane's polygon but not in its mask (RANSAC outliers or no
   valid depth): the image darkened, with diagonal stripes in the plane's colour;
 * **grown pixels** - outside every drawn shape but added to a plane by edge growing (its depth
@@ -113,9 +114,11 @@ def render_overlay(
     regions = np.where((labels == 0) & np.isin(drawn, unplaced), drawn, labels)
     points = label_points(regions)
     scale = font_scale if font_scale is not None else max(0.4 * labels.shape[1] / 640, MIN_FONT_SCALE)
+    carried = {r.plane for r in result.kept if r.propagated}
     for plane in kept_ids.tolist():
         if plane in points:
-            _text_box(out, str(plane), points[plane], scale, lookup[plane], _ink(lookup[plane]))
+            text = f"{plane}*" if plane in carried else str(plane)  # * : carried by the poses
+            _text_box(out, text, points[plane], scale, lookup[plane], _ink(lookup[plane]))
     for record in result.dropped:
         plane = record.plane
         if plane in points:

@@ -40,14 +40,15 @@ def page_data(report: RunRecord, overlays: Mapping[str, str]) -> dict:
         ``frames``: for every written frame its ``index`` among the depth frames, ``depth``,
         ``rgb``, ``part``, ``cvat_frame``, ``mask``, ``overlay`` (or ``None``) and ``planes``,
         rows ``[plane, "kept" | "dropped", reason, pixels, pixels after refinement, inlier
-        ratio]`` in plane order.
+        ratio, shape]`` in plane order, ``shape`` being ``drawn`` or ``propagated`` with camera
+        poses (:mod:`annotate_rgbd.propagate`), empty without.
     """
     frames = []
     for index, frame in enumerate(report.frames):
         if not frame.written:
             continue
-        rows = [[r.plane, "kept", None, r.pixels, r.inliers, r.inlier_ratio] for r in frame.kept]
-        rows += [[r.plane, "dropped", r.reason, r.pixels, 0, None] for r in frame.dropped]
+        rows = [[r.plane, "kept", None, r.pixels, r.inliers, r.inlier_ratio, _source(r)] for r in frame.kept]
+        rows += [[r.plane, "dropped", r.reason, r.pixels, 0, None, _source(r)] for r in frame.dropped]
         frames.append({
             "index": index,
             "depth": frame.depth,
@@ -93,3 +94,8 @@ def page_template() -> str:
     in any installation, zipped or not).
     """
     return (resources.files(__package__) / "templates" / "review.html").read_text(encoding="utf-8")
+
+
+def _source(record) -> str:
+    """Where a plane's shape on a frame came from: drawn there, or carried by the poses."""
+    return "" if record.propagated is None else ("propagated" if record.propagated else "drawn")

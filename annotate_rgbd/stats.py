@@ -45,6 +45,7 @@ def run_stats(report: RunRecord) -> dict:
         "planes_dropped": summary.planes_dropped,
         "dropped_by_reason": summary.dropped_by_reason,
         "mean_inlier_ratio": summary.mean_inlier_ratio,
+        "tracks_to_review": list((report.propagation or {}).get("inconsistent_tracks", [])),
     }
 
 
@@ -74,6 +75,8 @@ def format_stats(stats: dict) -> str:
     rows += [(f"  {reason}", count) for reason, count in stats["dropped_by_reason"].items()]
     ratio = stats["mean_inlier_ratio"]
     rows.append(("mean inlier ratio", "-" if ratio is None else f"{ratio:.3f}"))
+    if stats.get("tracks_to_review"):
+        rows.append(("tracks to review (keyframes off their plane)", ", ".join(stats["tracks_to_review"])))
     width = max(len(name) for name, _ in rows)
     return "\n".join(f"{name:<{width}}  {value}" for name, value in rows)
 

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import cv2
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -182,3 +184,14 @@ def test_a_frame_without_shapes_has_no_label_points_and_shows_the_rgb_image():
     rgb = np.random.default_rng(0).integers(0, 256, (H, W, 3), dtype=np.uint8)
     result = FrameResult(labels=empty, drawn=empty.copy())
     assert np.array_equal(render_overlay(rgb, result, plane_colours(3)), rgb)
+
+
+def test_a_plane_carried_by_the_poses_is_marked_with_a_star(frame):
+    rgb, result, colours, _, plain = frame
+    carried = FrameResult(labels=result.labels, drawn=result.drawn,
+                          kept=[replace(r, propagated=True) for r in result.kept], dropped=result.dropped)
+    out = render_overlay(rgb, carried, colours)
+    changed = np.argwhere((out != plain).any(axis=2))
+    assert len(changed) > 0  # the id box of plane 1 is wider: "1*"
+    (top, left), (bottom, right) = changed.min(axis=0), changed.max(axis=0)
+    assert bottom - top < 30 and right - left < 40  # only around the id box

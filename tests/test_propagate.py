@@ -187,3 +187,25 @@ def test_manifest_and_configuration_take_poses(rendered, tmp_path):
     assert result.exit_code == 0, result.output
     report = json.loads((tmp_path / "batch_out" / "report.json").read_text())
     assert report["propagation"]["poses"] == str(tmp_path / "trajectory.txt")
+
+
+def test_review_and_stats_show_drawn_and_propagated_planes_and_tracks_to_review(rendered, tmp_path):
+    annotation = read_cvat(rendered["keyframes"])
+    by_label = {t.label: t for t in annotation.tracks}
+    floor, table = by_label["floor"], by_label["table_top"]
+    floor.shapes[STEP] = replace(table.shapes[STEP], z_order=10)
+    export = tmp_path / "wrong.xml"
+    write_cvat_video(annotation, export, width=320, height=240, keyframe_step=STEP, keyframes_only=True)
+    out = tmp_path / "out"
+    result = CliRunner().invoke(app, ["cvat2mask", str(rendered["sequence"]), str(export), "--config",
+                                      str(rendered["config"]), "--out", str(out), "--poses", str(rendered["poses"]),
+                                      "--overlays"])
+    assert result.exit_code == 0, result.output
+    page = (out / "review.html").read_text()
+    start = page.index('<script type="application/json" id="run-data">') + len('<script type="application/json" id="run-data">')
+    data = json.loads(page[start: page.index("</script>", start)])
+    sources = {row[6] for frame in data["frames"] for row in frame["planes"]}
+    assert sources == {"drawn", "propagated"}
+    assert data["stats"]["tracks_to_review"] == [f"wrong.xml:{floor.track_id}"]
+    stats = CliRunner().invoke(app, ["stats", str(out)])
+    assert f"tracks to review (keyframes off their plane)  wrong.xml:{floor.track_id}" in stats.output

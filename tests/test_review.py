@@ -184,8 +184,11 @@ def test_cli_review(finished_run, tmp_path):
 
 
 def _expected_rows(frame: dict) -> list[list]:
-    rows = [[r["plane"], "kept", None, r["pixels"], r["inliers"], r["inlier_ratio"]] for r in frame["kept"]]
-    rows += [[r["plane"], "dropped", r["reason"], r["pixels"], 0, None] for r in frame["dropped"]]
+    def source(r: dict) -> str:
+        return {None: "", True: "propagated", False: "drawn"}[r.get("propagated")]
+
+    rows = [[r["plane"], "kept", None, r["pixels"], r["inliers"], r["inlier_ratio"], source(r)] for r in frame["kept"]]
+    rows += [[r["plane"], "dropped", r["reason"], r["pixels"], 0, None, source(r)] for r in frame["dropped"]]
     return sorted(rows, key=lambda row: row[0])
 
 
@@ -410,6 +413,7 @@ def _table_text(frame: dict, report: dict) -> list[list[str]]:
     """The plane table of a frame as the page should show it, from report.json."""
     labels = {p["plane"]: p["label"] for p in report["planes"]}
     return [
-        [str(plane), labels[plane], status, reason or "", str(pixels), str(kept), "" if ratio is None else f"{ratio:.3f}"]
-        for plane, status, reason, pixels, kept, ratio in _expected_rows(frame)
+        [str(plane), labels[plane], status, reason or "", str(pixels), str(kept), "" if ratio is None else f"{ratio:.3f}",
+         source]
+        for plane, status, reason, pixels, kept, ratio, source in _expected_rows(frame)
     ]
