@@ -230,6 +230,15 @@ class NoiseSettings:
             values = {"model": "quadratic", "a": self.model.a, "b": self.model.b, "c": self.model.c}
         return {**values, "k": self.k, "floor": self.floor, "cap": self.cap}
 
+    def scaled(self, factor: float) -> NoiseSettings:
+        """The same settings with the noise ``factor`` times larger (the band's floor and cap
+        stay: a fixed band stays fixed)."""
+        if isinstance(self.model, ConstantNoise):
+            model: NoiseModel = ConstantNoise(self.model.value * factor)
+        else:
+            model = QuadraticNoise(self.model.a * factor, self.model.b * factor, self.model.c)
+        return NoiseSettings(model, self.k, self.floor, self.cap)
+
     @classmethod
     def fixed(cls, threshold: float) -> NoiseSettings:
         """A band of the same width at every depth (a ``distance_threshold``)."""

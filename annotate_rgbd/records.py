@@ -56,6 +56,9 @@ class PlaneRecord:
     rms_sigma : float, optional
         Kept planes: RMS distance of the fit's inliers to the plane in units of the sensor noise
         at their depth (about 1 when the noise model fits).
+    noise_scale : float, optional
+        Kept planes: how much noisier than the model the plane's points are (the band is
+        widened by it; 1 when the model fits, :data:`annotate_rgbd.refine.MAX_NOISE_SCALE` at most).
     fit_points, fit_inliers_ransac, fit_inliers_refit : int, optional
         Kept planes: the grid points the plane was fitted to, and how many of them lie within
         the band of RANSAC's plane and of the plane re-fitted to its inliers.
@@ -80,6 +83,7 @@ class PlaneRecord:
     equation: tuple[float, ...] | None = None
     band: float | None = None
     rms_sigma: float | None = None
+    noise_scale: float | None = None
     fit_points: int | None = None
     fit_inliers_ransac: int | None = None
     fit_inliers_refit: int | None = None
@@ -104,7 +108,8 @@ class PlaneRecord:
         if self.kept:
             entry.update(inliers=self.inliers, inlier_ratio=self.inlier_ratio,
                          equation=None if self.equation is None else list(self.equation),
-                         band=self.band, rms_sigma=self.rms_sigma, fit_points=self.fit_points,
+                         band=self.band, rms_sigma=self.rms_sigma, noise_scale=self.noise_scale,
+                         fit_points=self.fit_points,
                          fit_inliers_ransac=self.fit_inliers_ransac, fit_inliers_refit=self.fit_inliers_refit,
                          grown=self.grown)
         else:
@@ -134,6 +139,7 @@ class PlaneRecord:
             equation=None if equation is None else tuple(_numbers(equation, "equation", 4)),
             band=_number(entry, "band", optional=True),
             rms_sigma=_number(entry, "rms_sigma", optional=True),
+            noise_scale=_number(entry, "noise_scale", optional=True),
             fit_points=_optional_int(entry, "fit_points"),
             fit_inliers_ransac=_optional_int(entry, "fit_inliers_ransac"),
             fit_inliers_refit=_optional_int(entry, "fit_inliers_refit"),

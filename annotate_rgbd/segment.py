@@ -90,6 +90,7 @@ def segment_frame(depth_raw: np.ndarray, shapes: Sequence[tuple[int, Shape]], co
                 equation=tuple(round(float(v), 9) for v in fit.equation),
                 band=_rounded(fit.band),
                 rms_sigma=None if not np.isfinite(fit.rms_sigma) else round(fit.rms_sigma, 4),
+                noise_scale=round(fit.noise_scale, 4),
                 fit_points=len(fit.inliers),
                 fit_inliers_ransac=fit.inliers_ransac,
                 fit_inliers_refit=fit.inliers_refit,

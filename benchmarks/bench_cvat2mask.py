@@ -35,7 +35,7 @@ import cv2
 import numpy as np
 
 from annotate_rgbd.camera import Camera
-from annotate_rgbd.config import Config, RansacConfig
+from annotate_rgbd.config import Config
 from annotate_rgbd.cvat import write_cvat_video
 from annotate_rgbd.execute import default_workers, prepare_process
 from annotate_rgbd.palette import colourize, plane_colours
@@ -108,7 +108,7 @@ def main() -> None:
     prepare_process(args.workers)
 
     sequence_dir, annotations, camera = make_benchmark_sequence(args.workdir, args.frames, args.width, args.height)
-    config = Config(camera=camera, ransac=RansacConfig(distance_threshold=0.03))
+    config = Config(camera=camera)  # the defaults: noise-aware band, edge growing
     n = len(read_sequence(sequence_dir).depth)
     outputs = args.workdir / "outputs"
     shutil.rmtree(outputs, ignore_errors=True)

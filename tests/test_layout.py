@@ -179,3 +179,17 @@ def test_module_length():
     assert not long, f"modules over {MAX_LINES} lines, split them by job: " + ", ".join(
         f"annotate_rgbd/{name}.py ({n} lines)" for name, n in sorted(long.items())
     )
+
+
+def test_only_the_cvat_readers_and_writer_see_xml():
+    """The CVAT format is read in one place: no other module imports an XML library."""
+    allowed = {"cvat/xmlstream.py", "cvat/meta.py", "cvat/reader.py", "cvat/writer.py"}
+    package = Path(__file__).resolve().parents[1] / "annotate_rgbd"
+    seeing = set()
+    for path in package.rglob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            names = [a.name for a in node.names] if isinstance(node, ast.Import) else (
+                [node.module or ""] if isinstance(node, ast.ImportFrom) else [])
+            if any(n.split(".")[0] in ("lxml", "xml", "defusedxml") for n in names):
+                seeing.add(path.relative_to(package).as_posix())
+    assert seeing and seeing <= allowed, sorted(seeing - allowed)
