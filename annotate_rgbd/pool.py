@@ -137,6 +137,7 @@ class HelperPool:
     """
 
     def __init__(self, size: int, preload: Sequence[str] = ()):
+        _quiet_cancelled_futures()
         self.size = size
         self.preload = tuple(preload)
         self.ready = threading.Event()
@@ -189,6 +190,30 @@ class HelperPool:
 
     def __exit__(self, *exc) -> None:
         self.shutdown()
+
+
+def _quiet_cancelled_futures() -> None:
+    """Silence one harmless error of Python < 3.12's process pool (once per process).
+
+    When a helper dies, the pool's manager thread fails every queued job's future, including
+    those this process took back (cancelled) and does itself: ``set_exception`` on a cancelled
+    future raises ``InvalidStateError`` in that thread, which Python prints as a traceback
+    (fixed in Python 3.12). Only that error of that thread is dropped.
+    """
+    from concurrent.futures import InvalidStateError
+    from concurrent.futures.process import _ExecutorManagerThread
+
+    previous = threading.excepthook
+    if getattr(previous, "annotate_rgbd", False):
+        return
+
+    def hook(args: threading.ExceptHookArgs) -> None:
+        if isinstance(args.thread, _ExecutorManagerThread) and issubclass(args.exc_type, InvalidStateError):
+            return
+        previous(args)
+
+    hook.annotate_rgbd = True
+    threading.excepthook = hook
 
 
 class JobTimeout(InputError):
