@@ -110,7 +110,8 @@ def replan(report: RunRecord, out_dir: str | Path, config: Config) -> RunPlan:
         An input is gone or unreadable, or the inputs no longer give the run's frames and planes.
     """
     offsets = {p.name: p.offset for p in report.parts if p.placed_by in OFFSET_SOURCES}
-    plan = plan_run(report.sequence, [p.file for p in report.parts], out_dir, config, offsets)
+    poses = (report.propagation or {}).get("poses")  # the run's trajectory, however it was given
+    plan = plan_run(report.sequence, [p.file for p in report.parts], out_dir, config, offsets, poses=poses)
     if [f.depth for f in plan.frames] != [f.depth for f in report.frames] or plan.n_planes != len(report.planes):
         raise InputError(
             Path(out_dir) / REPORT_NAME,

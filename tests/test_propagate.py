@@ -209,3 +209,13 @@ def test_review_and_stats_show_drawn_and_propagated_planes_and_tracks_to_review(
     assert data["stats"]["tracks_to_review"] == [f"wrong.xml:{floor.track_id}"]
     stats = CliRunner().invoke(app, ["stats", str(out)])
     assert f"tracks to review (keyframes off their plane)  wrong.xml:{floor.track_id}" in stats.output
+
+
+def test_review_of_a_run_with_poses_segments_every_frame_as_the_run_did(rendered, tmp_path):
+    from annotate_rgbd.review import review_run
+
+    out = tmp_path / "out"
+    run_cvat2mask(rendered["sequence"], [rendered["keyframes"]], out, load_config(rendered["config"]),
+                  poses=rendered["poses"])
+    result = review_run(out)
+    assert result.overlays and result.warnings == []
