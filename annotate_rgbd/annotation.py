@@ -92,6 +92,8 @@ class Annotation:
     notes : list of str
         What was read but not used (polylines, points, unknown shapes, filtered labels), one
         line each, for the report.
+    labels : tuple of str
+        Every label the export's tracks and shapes carry, whether or not a label filter kept it.
     """
 
     path: str
@@ -101,3 +103,4 @@ class Annotation:
     image_names: dict[int, str] = field(default_factory=dict)
     image_size: dict[int, tuple[int, int]] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
+    labels: tuple[str, ...] = ()

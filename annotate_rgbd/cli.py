@@ -142,7 +142,8 @@ def cvat2mask(
         if overlays:
             from .review import review_run
 
-            review_run(out, overlays=False)
+            page = review_run(out, overlays=False).page
+            typer.echo(f"review page: {page}")
         summary = (
             f"{report.written} masks in {out / 'masks'} ({report.counts.made} made, "
             f"{report.counts.reused} unchanged), {report.n_planes} planes"

@@ -45,6 +45,7 @@ that is not listed is an error, so a typo never goes unnoticed::
 from __future__ import annotations
 
 import dataclasses
+import math
 import sys
 import types
 import typing
@@ -523,7 +524,20 @@ def _coerce(key: str, default: Any, value: Any, origin: str | Path | None) -> An
     return float(value)
 
 
+#: Largest integer setting: Open3D takes its RANSAC iterations and seed as a C int.
+MAX_INT_SETTING = 2**31 - 1
+
+
 def _check_ranges(config: Config, origin: str | Path | None) -> None:
+    for section in dataclasses.fields(config):
+        value = getattr(config, section.name)
+        if not dataclasses.is_dataclass(value) or isinstance(value, NoiseSettings):
+            continue  # lists of tables are checked per entry; the noise section by its reader
+        for key, number in vars(value).items() if not isinstance(value, Camera) else dataclasses.asdict(value).items():
+            if isinstance(number, float) and not math.isfinite(number):
+                raise InputError(origin, f"'{section.name}.{key}' must be a finite number, got {number!r}")
+            if isinstance(number, int) and not isinstance(number, bool) and abs(number) > MAX_INT_SETTING:
+                raise InputError(origin, f"'{section.name}.{key}' must be at most {MAX_INT_SETTING}, got {number}")
     checks = [
         ("camera.fx", config.camera.fx != 0, "must not be 0"),
         ("camera.fy", config.camera.fy != 0, "must not be 0"),

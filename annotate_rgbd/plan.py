@@ -245,8 +245,10 @@ def propagation_warnings(propagation: Propagation) -> list[str]:
 def label_warnings(annotations: SequenceType[Annotation], labels: SequenceType[str]) -> list[str]:
     """A warning for every wanted label that no track of the exports has."""
     present = {track.label for a in annotations for track in a.tracks}
+    known = sorted({label for a in annotations for label in a.labels} | present)
     return [
-        f"no shape in the exports has the label {label!r} (--label / [annotation] labels)"
+        f"no shape in the exports has the label {label!r} (--label / [annotation] labels); "
+        f"their labels: {', '.join(known) if known else 'none'}"
         for label in sorted(set(labels) - present)
     ]
 

@@ -97,6 +97,8 @@ def fit_plane(points: np.ndarray, config: RansacConfig, noise: NoiseSettings) ->
     sample = points
     if config.max_points and len(points) > config.max_points:
         sample = points[:: -(-len(points) // config.max_points)]
+        if len(sample) < 3:  # a stride over very few points (max_points = 3) can leave two
+            sample = points[: max(config.max_points, 3)]
     threshold = RANSAC_SHARE * float(noise.band(np.median(sample[:, 2])))
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(sample))
     threads = o3d.utility.get_max_threads()

@@ -204,3 +204,28 @@ def test_a_list_entry_field_of_another_type_is_a_programming_error():
     # Judged by its name, "Checkpoint" would pass for an int; an int is no Checkpoint.
     with pytest.raises(TypeError, match="EntryWithCheckpoint.at"):
         _build_list("entries", EntryWithCheckpoint, [{"at": 5}], "t.toml")
+
+
+@pytest.mark.parametrize("text, message", [
+    ("[camera]\nfx = nan\n", "'camera.fx' must be a finite number, got nan"),
+    ("[camera]\ncx = inf\n", "'camera.cx' must be a finite number, got inf"),
+    ("[filter]\nmax_mean_distance = nan\n", "'filter.max_mean_distance' must be a finite number"),
+    ("[ransac]\nnum_iterations = 2147483648\n", "'ransac.num_iterations' must be at most 2147483647"),
+    ("[ransac]\nseed = 2147483648\n", "'ransac.seed' must be at most 2147483647"),
+])
+def test_numbers_must_be_finite_and_fit_their_use(tmp_path, text, message):
+    path = tmp_path / "bad.toml"
+    path.write_text(text)
+    with pytest.raises(InputError, match=message.replace("[", r"\[")) as error:
+        load_config(path)
+    assert str(error.value).startswith(str(path))
+
+
+def test_max_points_3_is_valid_and_runs(tmp_path):
+    from annotate_rgbd.pipeline import run_cvat2mask
+
+    from conftest import SAMPLE_DATA
+
+    config = load_config(SAMPLE_DATA / "camera.toml", {"ransac.max_points": 3})
+    run = run_cvat2mask(SAMPLE_DATA / "sequence", [SAMPLE_DATA / "annotations.xml"], tmp_path / "out", config)
+    assert run.written == 19

@@ -193,7 +193,8 @@ def test_a_rerun_removes_outputs_it_did_not_make_and_leaves_the_users_files(tmp_
 def test_an_unknown_label_is_a_warning(tmp_path):
     config = load_config(SAMPLE_DATA / "camera.toml", {"annotation.labels": ["floor", "ceiling"]})
     report = run_cvat2mask(SEQUENCE, [ANNOTATIONS], tmp_path, config)
-    assert "no shape in the exports has the label 'ceiling' (--label / [annotation] labels)" in report.warnings
+    assert ("no shape in the exports has the label 'ceiling' (--label / [annotation] labels); their labels: cabinet_front, "
+            "cabinet_side, cabinet_top, floor, table_top, wall_back, wall_corridor, wall_left, wall_right, window") in report.warnings
     assert report.n_planes == 1
 
 
@@ -210,3 +211,10 @@ def test_cvat2mask_exits_1_when_a_frame_failed_after_writing_every_other_mask(tm
     assert f"  failed: depth/{broken.name}: " in result.output
     assert len(list((tmp_path / "out" / "masks").iterdir())) == 18
     assert json.loads((tmp_path / "out" / "report.json").read_text())["summary"]["frames_failed"] == 1
+
+
+def test_overlays_say_where_the_review_page_is(tmp_path):
+    result = CliRunner().invoke(app, ["cvat2mask", str(SEQUENCE), str(ANNOTATIONS), "--config",
+                                      str(SAMPLE_DATA / "camera.toml"), "--out", str(tmp_path / "out"), "--overlays"])
+    assert result.exit_code == 0, result.output
+    assert f"review page: {tmp_path / 'out' / 'review.html'}" in result.output.splitlines()

@@ -105,6 +105,7 @@ def read_cvat(path: str | Path, labels: Collection[str] | None = None) -> Annota
     else:
         annotation = assemble_video(raw_tracks, meta, context)
     annotation.notes = context.summary()
+    annotation.labels = tuple(sorted(context.labels_seen))
     return annotation
 
 
