@@ -144,10 +144,19 @@ def cvat2mask(
 
             page = review_run(out, overlays=False).page
             typer.echo(f"review page: {page}")
+        from .records import summarize
+        from .stats import drop_hint
+
+        counts = summarize(report.frames)
         summary = (
             f"{report.written} masks in {out / 'masks'} ({report.counts.made} made, "
-            f"{report.counts.reused} unchanged), {report.n_planes} planes"
+            f"{report.counts.reused} unchanged), {report.n_planes} planes, {counts.skipped} "
+            f"frame{'s' if counts.skipped != 1 else ''} skipped, "
+            f"{counts.planes_dropped} of {counts.planes_kept + counts.planes_dropped} plane records dropped"
         )
+        hint = drop_hint(counts, report.config.camera.depth_scale)
+        if hint:
+            logging.getLogger("annotate_rgbd").warning(hint)
         failures = report.failures()
         if failures:
             summary += f", {len(failures)} frame{'s' if len(failures) > 1 else ''} failed"

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import json
 
-from .records import RunRecord, summarize
+from .records import RunRecord, RunSummary, summarize
 
 
 def run_stats(report: RunRecord) -> dict:
@@ -84,3 +84,33 @@ def format_stats(stats: dict) -> str:
 def format_stats_json(stats: dict) -> str:
     """The summary as indented JSON."""
     return json.dumps(stats, indent=1)
+
+
+#: The likely cause when most planes of a run are dropped for one reason.
+DROP_HINTS = {
+    "too_far": "is camera.depth_scale right for this sensor? (TUM, ICL-NUIM: 5000 per metre; RealSense: 1000)",
+    "invalid_depth": "is the depth registered to the RGB images, and are the polygons drawn on them?",
+    "too_few_points": "are the shapes tiny, or the depth images of another size than the annotated ones?",
+}
+
+
+def drop_hint(summary: RunSummary, depth_scale: float) -> str | None:
+    """A warning when more than half of a run's plane records were dropped for one reason,
+    with the likely cause; None otherwise.
+
+    Parameters
+    ----------
+    summary : RunSummary
+    depth_scale : float
+        The configuration's, quoted in the hint about distances.
+    """
+    total = summary.planes_kept + summary.planes_dropped
+    if not total or not summary.dropped_by_reason:
+        return None
+    reason, count = max(summary.dropped_by_reason.items(), key=lambda item: item[1])
+    if count * 2 <= total:
+        return None
+    hint = DROP_HINTS.get(reason, "")
+    if reason == "too_far":
+        hint = hint.replace("camera.depth_scale right", f"camera.depth_scale = {depth_scale:g} right")
+    return f"{count} of {total} planes were dropped as {reason}: {hint}"
