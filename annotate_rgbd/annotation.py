@@ -58,11 +58,15 @@ class Track:
     shapes : dict of int to Shape
         Frame number -> outline on that frame, for every frame where the track is visible:
         interpolated frames are filled in and ``outside`` frames are absent.
+    attributes : dict of str to str
+        CVAT attributes of the track (name -> text value), e.g. a proposed plane's equation;
+        written by :func:`annotate_rgbd.cvat.write_cvat_video`. Empty when read from an export.
     """
 
     track_id: int
     label: str
     shapes: dict[int, Shape] = field(default_factory=dict)
+    attributes: dict[str, str] = field(default_factory=dict)
 
 
 @dataclass
