@@ -7,7 +7,7 @@ picklable dataclasses, and this module imports no Open3D.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -125,10 +125,14 @@ def propose_planes(
     FrameProposal
     """
     sigma = noise.model.sigma
-    detection = detect_planes(depth, camera, settings.detector, noise=sigma)
+    # The detector keeps pieces down to a fraction of the smallest plane: pieces of one plane
+    # that occluders cut apart (a floor around a table) reach the minimum area together.
+    min_area = settings.detector.min_area_fraction * depth.size
+    pieces = replace(settings.detector, min_area_fraction=settings.detector.min_area_fraction * settings.piece_fraction)
+    detection = detect_planes(depth, camera, pieces, noise=sigma)
     moments = label_moments(detection.labels, depth, camera)
     groups = merge_groups(moments, sigma, settings.merge_excess)
-    labels, planes, areas, centroids = _apply_groups(detection.labels, moments, groups)
+    labels, planes, areas, centroids = _apply_groups(detection.labels, moments, groups, min_area)
     outlines = plane_outlines(labels, settings.outline_tolerance_px)
     if len(outlines) != len(areas):  # pragma: no cover - every label has pixels
         raise InputError(None, "a proposed plane has no outline")
@@ -275,8 +279,9 @@ def merge_groups(moments: Moments, sigma, excess_k: float) -> np.ndarray:
     return group
 
 
-def _apply_groups(labels, moments: Moments, group: np.ndarray):
-    """Relabel merged groups 1..G by area (largest first; ties by smallest member label)."""
+def _apply_groups(labels, moments: Moments, group: np.ndarray, min_area: float):
+    """Relabel merged groups of at least ``min_area`` pixels 1..G by area (largest first; ties
+    by smallest member label); the others become 0."""
     n = len(group)
     if n == 0:
         return labels, np.zeros((0, 4)), np.zeros(0, np.int64), np.zeros((0, 3))
@@ -291,8 +296,9 @@ def _apply_groups(labels, moments: Moments, group: np.ndarray):
     areas = np.bincount(labels.ravel(), minlength=n + 1)[1:]
     area = np.array([areas[group == h].sum() for h in heads], dtype=np.int64)
     order = np.lexsort((heads, -area))
-    rank = np.empty(len(heads), dtype=np.intp)
-    rank[order] = np.arange(len(heads))
+    order = order[area[order] >= min_area]
+    rank = np.full(len(heads), -1, dtype=np.intp)
+    rank[order] = np.arange(len(order))
     table = np.zeros(n + 1, dtype=labels.dtype)
     table[1:] = rank[np.searchsorted(heads, group)] + 1
     planes, _ = fit(count[order], mean[order], scatter[order])

@@ -76,6 +76,10 @@ class ProposeConfig:
         a cabinet) are one plane when fitting one plane to both raises the mean squared
         residual by at most ``merge_excess * sigma(z)**2`` over their own fits: for two
         parallel planes of equal size, an offset of up to 2 sigma at 1.
+    piece_fraction : float
+        The detector keeps pieces down to this fraction of the smallest plane, for the merge
+        (0.25: a floor cut into four by a table and its legs still adds up); what is smaller
+        than the smallest plane after merging is not proposed.
     outline_tolerance_px : float
         Douglas-Peucker tolerance of the polygons (``plane_outlines``): a pixel or two of error.
     """
@@ -85,6 +89,7 @@ class ProposeConfig:
     label: str = DEFAULT_LABEL
     every: int = 1
     merge_excess: float = 1.0
+    piece_fraction: float = 0.25
     outline_tolerance_px: float = 1.5
 
     def __post_init__(self):
