@@ -113,6 +113,8 @@ class TrackLinker:
         """IoU of each of the frame's planes with the track, 0 where the planes disagree."""
         config = self.config
         k = len(proposal.areas)
+        if k == 0:
+            return np.zeros(0)
         band_last = float(self.noise.band(np.array([last.centroid[2]]))[0])
         band = self.noise.band(proposal.centroids[:, 2]) + band_last
         if pose is not None and last.pose is not None:
