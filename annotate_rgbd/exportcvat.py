@@ -4,7 +4,7 @@ for a correction round in CVAT.
 One polygon track per plane, with the run's plane id as CVAT track id and the plane's label;
 every written frame is a keyframe (frame number = RGB index, as ``cvat2mask`` reads a video
 export); a plane absent on a written frame is ``outside`` there. Polygons are the masks' outer
-outlines (:func:`annotate_rgbd.detect.plane_outlines`), drawn in the order that puts the plane
+outlines, every piece of a plane bridged into one (:func:`annotate_rgbd.propose.outlines.piece_outlines`), drawn in the order that puts the plane
 whose pixels fill an overlap on top (:func:`annotate_rgbd.propose.detect_job.draw_order`), so that
 ``cvat2mask`` reads the file back to nearly the same masks.
 """
@@ -15,23 +15,19 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from scipy import ndimage
 
 from .annotation import Shape
-from .detect import plane_outlines
 from .errors import InputError
 from .propose.detect_job import draw_order
+from .propose.outlines import piece_outlines
 from .propose.output import TrackShapes, write_polygon_tracks
 from .rasterize import shape_mask
 from .records import RunRecord
 from .review import read_report
 from .sequence import read_image
 
-#: Pieces of a plane's mask smaller than this are left out of its polygon (speckle, not area).
-MIN_PIECE_PX = 20
 
-
-def export_cvat(run_dir: str | Path, xml_path: str | Path, tolerance_px: float = 1.0) -> int:
+def export_cvat(run_dir: str | Path, xml_path: str | Path, tolerance_px: float = 0.5) -> int:
     """Write a run's masks as polygon tracks.
 
     Parameters
@@ -41,7 +37,9 @@ def export_cvat(run_dir: str | Path, xml_path: str | Path, tolerance_px: float =
     xml_path : str or Path
         The CVAT XML file to write.
     tolerance_px : float
-        Douglas-Peucker tolerance of the outlines, pixels.
+        Douglas-Peucker tolerance of the outlines, pixels. 0.5: on the 320x240 sample the run read
+        back scores within 0.002 mean IoU of the original against the ground truth (1.0 px: 0.014
+        lower, one boundary pixel in eight moves at that size).
 
     Returns
     -------
@@ -89,55 +87,6 @@ def export_cvat(run_dir: str | Path, xml_path: str | Path, tolerance_px: float =
     write_polygon_tracks([tracks[t] for t in sorted(tracks)], Path(xml_path), n_frames=last + 1,
                          sampled_frames=sampled, width=size[1], height=size[0])
     return len(tracks)
-
-
-def piece_outlines(labels: np.ndarray, tolerance_px: float, min_piece: int = MIN_PIECE_PX) -> dict[int, np.ndarray]:
-    """One polygon per label that covers all its pieces, not only the largest.
-
-    Each 8-connected piece of at least ``min_piece`` pixels is outlined
-    (:func:`annotate_rgbd.detect.plane_outlines`); the pieces are then chained into one polygon
-    by zero-width bridges, each walked there and back, which enclose no pixel centre under the
-    even-odd rule CVAT and :mod:`annotate_rgbd.rasterize` fill with.
-
-    Parameters
-    ----------
-    labels : ndarray of int, shape (H, W)
-        0 = none, else 1..K.
-    tolerance_px : float
-    min_piece : int
-
-    Returns
-    -------
-    dict of int to ndarray of float64, shape (V, 2)
-    """
-    outlines: dict[int, np.ndarray] = {}
-    for label, window in enumerate(ndimage.find_objects(labels), start=1):
-        if window is None:
-            continue
-        pieces, count = ndimage.label(labels[window] == label, structure=np.ones((3, 3), dtype=bool))
-        sizes = np.bincount(pieces.ravel(), minlength=count + 1)[1:]
-        keep = np.flatnonzero(sizes >= min_piece) + 1
-        if keep.size == 0:
-            keep = np.array([int(np.argmax(sizes)) + 1])
-        table = np.zeros(count + 1, dtype=np.int32)
-        table[keep] = np.arange(1, keep.size + 1)
-        polygons = plane_outlines(table[pieces], tolerance_px)
-        offset = np.array([window[1].start, window[0].start], dtype=np.float64)
-        chain = [polygons[k] + offset for k in sorted(polygons, key=lambda k: -sizes[keep[k - 1] - 1])]
-        outlines[label] = bridge(chain)
-    return outlines
-
-
-def bridge(polygons: list[np.ndarray]) -> np.ndarray:
-    """Chain polygons into one: from the first vertex of the first, out to the nearest vertex of
-    each next one, around it, and back the same way (each bridge is walked twice)."""
-    result = polygons[0]
-    for polygon in polygons[1:]:
-        gaps = np.linalg.norm(result[:, None, :] - polygon[None, :, :], axis=2)
-        i, j = np.unravel_index(int(np.argmin(gaps)), gaps.shape)
-        around = np.roll(polygon, -j, axis=0)
-        result = np.concatenate([result[: i + 1], around, around[:1], result[i:]])
-    return result
 
 
 def _keyframes(report: RunRecord) -> list:

@@ -10,7 +10,7 @@ from lxml import etree
 from annotate_rgbd.annotation import Annotation, Shape, Track
 from annotate_rgbd.camera import Camera
 from annotate_rgbd.cvat import read_cvat, write_cvat_video
-from annotate_rgbd.exportcvat import piece_outlines
+from annotate_rgbd.propose.outlines import piece_outlines
 from annotate_rgbd.noise import NoiseSettings
 from annotate_rgbd.propose import FrameProposal, LinkConfig, link_proposals
 from annotate_rgbd.propose.detect_job import draw_order, label_moments, merge_groups, paint
@@ -174,3 +174,13 @@ def test_piece_outlines_of_one_piece_equal_a_filled_region(shape):
     expected = labels.copy()
     expected[10:15, 10:20] = 1
     assert np.array_equal(drawn, expected)
+
+
+def test_piece_on_an_island_stays_covered():
+    labels = np.zeros((60, 60), np.int32)
+    labels[5:55, 5:55] = 1
+    labels[15:45, 15:45] = 2   # another plane in a hole of plane 1 ...
+    labels[25:35, 25:35] = 1   # ... with a piece of plane 1 on it
+    outlines = piece_outlines(labels, tolerance_px=0.0)
+    drawn = rasterize_frame([(1, Shape("polygon", outlines[1]))], *labels.shape)
+    assert drawn[25:35, 25:35].all() and drawn[5:55, 5:55].all()

@@ -15,12 +15,13 @@ import numpy as np
 from ..annotation import Shape
 from ..camera import Camera, depth_to_metres
 from ..config import FilterConfig
-from ..detect import detect_planes, plane_outlines
+from ..detect import detect_planes
 from ..errors import InputError
 from ..filters import drop_reasons, plane_statistics
 from ..noise import NoiseSettings
 from ..rasterize import shape_mask
 from ..sequence import read_depth
+from .outlines import piece_outlines
 from .settings import ProposeConfig
 
 
@@ -133,7 +134,7 @@ def propose_planes(
     moments = label_moments(detection.labels, depth, camera)
     groups = merge_groups(moments, sigma, settings.merge_excess)
     labels, planes, areas, centroids = _apply_groups(detection.labels, moments, groups, min_area)
-    outlines = plane_outlines(labels, settings.outline_tolerance_px)
+    outlines = piece_outlines(labels, settings.outline_tolerance_px)
     if len(outlines) != len(areas):  # pragma: no cover - every label has pixels
         raise InputError(None, "a proposed plane has no outline")
     polygons = [outlines[k] for k in range(1, len(areas) + 1)]
