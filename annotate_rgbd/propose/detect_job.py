@@ -12,16 +12,14 @@ from pathlib import Path
 
 import numpy as np
 
-from ..annotation import Shape
 from ..camera import Camera, depth_to_metres
 from ..config import FilterConfig
 from ..detect import detect_planes
 from ..errors import InputError
 from ..filters import drop_reasons, plane_statistics
 from ..noise import NoiseSettings
-from ..rasterize import shape_mask
 from ..sequence import read_depth
-from .outlines import piece_outlines
+from .outlines import fill_window, piece_outlines
 from .settings import ProposeConfig
 
 
@@ -139,7 +137,7 @@ def propose_planes(
         raise InputError(None, "a proposed plane has no outline")
     polygons = [outlines[k] for k in range(1, len(areas) + 1)]
     distance = plane_statistics(labels, depth, camera).mean_distance if len(areas) else np.zeros(0)
-    windows = [shape_mask(Shape("polygon", p), *labels.shape) for p in polygons]
+    windows = [fill_window(p, *labels.shape) for p in polygons]
     z_order = draw_order(labels, windows, distance)
     drawn = paint(windows, z_order, labels.shape)
     stats = plane_statistics(drawn, depth, camera)

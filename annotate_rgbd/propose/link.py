@@ -21,12 +21,11 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from ..annotation import Shape
 from ..camera import Camera
 from ..lift import lift_polygon, plane_agreement, plane_to_world, project_polygon
 from ..noise import NoiseSettings
-from ..rasterize import shape_mask
 from .detect_job import FrameProposal
+from .outlines import fill_window
 from .settings import LinkConfig
 
 
@@ -152,7 +151,7 @@ class TrackLinker:
         if len(polygon) < 3 or not np.isfinite(polygon).all():
             return np.zeros(k)
         height, width = proposal.labels.shape
-        top, left, window = shape_mask(Shape("polygon", polygon), height, width)
+        top, left, window = fill_window(polygon, height, width)
         rows, cols = window.shape
         covered = proposal.labels[top : top + rows, left : left + cols][window]
         inter = np.bincount(covered.astype(np.intp), minlength=k + 1)[1 : k + 1]

@@ -31,15 +31,18 @@ def piece_outlines(labels: np.ndarray, tolerance_px: float, min_piece: int = MIN
     -------
     dict of int to ndarray of float64, shape (V, 2)
     """
-    outlines: dict[int, np.ndarray] = {}
+    outlines = plane_outlines(labels, tolerance_px)  # the largest piece of each label
+    eight = np.ones((3, 3), dtype=bool)
     for label, window in enumerate(ndimage.find_objects(labels), start=1):
         if window is None:
             continue
-        pieces, count = ndimage.label(labels[window] == label, structure=np.ones((3, 3), dtype=bool))
+        pieces, count = ndimage.label(labels[window] == label, structure=eight)
+        if count == 1:
+            continue
         sizes = np.bincount(pieces.ravel(), minlength=count + 1)[1:]
         keep = np.flatnonzero(sizes >= min_piece) + 1
-        if keep.size == 0:
-            keep = np.array([int(np.argmax(sizes)) + 1])
+        if keep.size <= 1:
+            continue
         table = np.zeros(count + 1, dtype=np.int32)
         table[keep] = np.arange(1, keep.size + 1)
         polygons = plane_outlines(table[pieces], tolerance_px)
@@ -66,3 +69,35 @@ def bridge(polygons: list[np.ndarray]) -> np.ndarray:
         around = np.roll(polygon, -j, axis=0)
         result = np.concatenate([result[: i + 1], around, around[:1], result[i:]])
     return result
+
+
+def fill_window(polygon: np.ndarray, height: int, width: int) -> tuple[int, int, np.ndarray]:
+    """The pixels of a polygon, as a boolean window of the image, filled by OpenCV.
+
+    A fast stand-in for :func:`annotate_rgbd.rasterize.shape_mask` where a pixel more or less on
+    the outline does not matter (draw order, drop statistics, overlap of reprojected outlines):
+    ``cv2.fillPoly`` at 1/16 pixel takes the outline's pixels too, and is ~20x faster on the
+    long outlines of real planes.
+
+    Parameters
+    ----------
+    polygon : ndarray, shape (V, 2)
+        CVAT image coordinates (pixel ``(col, row)`` has its centre at ``(col + 0.5, row + 0.5)``).
+    height, width : int
+
+    Returns
+    -------
+    top, left : int
+    window : ndarray of bool, shape (rows, cols)
+        Empty when the polygon lies outside the image.
+    """
+    points = np.asarray(polygon, dtype=np.float64) - 0.5  # OpenCV puts pixel centres at integers
+    left = int(np.clip(np.floor(points[:, 0].min()), 0, width))
+    right = int(np.clip(np.ceil(points[:, 0].max()) + 1, 0, width))
+    top = int(np.clip(np.floor(points[:, 1].min()), 0, height))
+    bottom = int(np.clip(np.ceil(points[:, 1].max()) + 1, 0, height))
+    window = np.zeros((max(bottom - top, 0), max(right - left, 0)), dtype=np.uint8)
+    if window.size:
+        fixed = np.round((points - (left, top)) * 16).astype(np.int32)
+        cv2.fillPoly(window, [fixed.reshape(-1, 1, 2)], 1, lineType=cv2.LINE_8, shift=4)
+    return top, left, window.view(bool)
