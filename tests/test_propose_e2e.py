@@ -156,13 +156,21 @@ def test_datumaro_reads_the_proposals(room):
     assert len(one.attributes["equation"].split()) == 4
 
 
-def test_export_cvat_round_trip_on_the_sample(tmp_path):
+@pytest.fixture(scope="module")
+def sample_round_trip(tmp_path_factory):
+    """The sample run, its export-cvat file, and cvat2mask run again on that file."""
+    root = tmp_path_factory.mktemp("round_trip")
     config = load_config(SAMPLE_DATA / "camera.toml")
-    first, second, xml = tmp_path / "first", tmp_path / "second", tmp_path / "export.xml"
+    first, second, xml = root / "first", root / "second", root / "export.xml"
     run_cvat2mask(SAMPLE_DATA / "sequence", [SAMPLE_DATA / "annotations.xml"], first, config, workers=1)
     outcome = CliRunner().invoke(app, ["export-cvat", str(first), str(xml)])
     assert outcome.exit_code == 0, outcome.output
     run_cvat2mask(SAMPLE_DATA / "sequence", [xml], second, config, workers=1)
+    return first, second, xml
+
+
+def test_export_cvat_round_trip_on_the_sample(sample_round_trip):
+    first, second, xml = sample_round_trip
     names = sorted(p.name for p in (first / "masks").iterdir())
     assert names == sorted(p.name for p in (second / "masks").iterdir())
     gt_dir = SAMPLE_DATA / "ground_truth"
@@ -181,7 +189,12 @@ def test_export_cvat_round_trip_on_the_sample(tmp_path):
     planes = {p["plane"]: p["label"] for p in report["planes"] if p["plane"] in kept}
     tracks = {int(t.get("id")): t.get("label") for t in etree.parse(str(xml)).getroot().iter("track")}
     assert tracks == planes
+
+
+def test_datumaro_reads_the_export(sample_round_trip):
     datumaro = pytest.importorskip("datumaro", reason="datumaro: pip install '.[interop]'")
+    first, _, xml = sample_round_trip
+    report = json.loads((first / "report.json").read_text())
     dataset = datumaro.Dataset.import_from(str(xml), "cvat")
     expected = {f["rgb_index"]: len(f["kept"]) for f in report["frames"] if f["status"] == "written"}
     counted = {}
