@@ -61,12 +61,16 @@ class Track:
     keyframes : frozenset of int, optional
         The frames whose shape the labeller drew (CVAT's keyframes); the others were filled in
         by interpolation. None: every shape was drawn (an images export, a rendered sequence).
+    attributes : dict of str to str
+        CVAT attributes of the track (name -> text value), e.g. a proposed plane's equation;
+        written by :func:`annotate_rgbd.cvat.write_cvat_video`. Empty when read from an export.
     """
 
     track_id: int
     label: str
     shapes: dict[int, Shape] = field(default_factory=dict)
     keyframes: frozenset[int] | None = None
+    attributes: dict[str, str] = field(default_factory=dict)
 
 
 @dataclass

@@ -272,3 +272,63 @@ def stats(
     with user_errors():
         summary = run_stats(read_report(out_dir))
         typer.echo(format_stats_json(summary) if as_json else format_stats(summary))
+
+
+@app.command()
+def propose(
+    sequence_dir: Path = typer.Argument(..., help="TUM RGB-D or ICL-NUIM (TUM format) sequence folder."),
+    out: Path = typer.Option(..., "--out", "-o", help="Output folder for proposals.xml, masks/ and report.json."),
+    config: Optional[str] = typer.Option(None, "--config", "-c", help="TOML file or preset name (see 'annotate-rgbd presets')."),
+    poses: Optional[Path] = typer.Option(None, "--poses", help="TUM trajectory: link planes across frames by world plane."),
+    every: int = typer.Option(1, "--every", min=1, help="Process every N-th depth frame (CVAT keyframes)."),
+    jobs: Optional[int] = typer.Option(None, "--jobs", "-j", min=1, help="Worker processes (default: all cores)."),
+    label: Optional[str] = typer.Option(None, "--label", help="CVAT label of the proposed tracks (default: plane)."),
+    min_area: Optional[float] = typer.Option(
+        None, "--min-area", min=0.0, max=1.0, help="Smallest plane proposed, as a share of the image (default 0.01)."
+    ),
+    set_: List[str] = typer.Option([], "--set", help="Override any configuration key: SECTION.KEY=VALUE."),
+) -> None:
+    """Detect planes on the depth frames and write them as CVAT polygon tracks to correct."""
+    from dataclasses import replace
+
+    from .pool import default_workers, prepare_helpers, reuse_freed_memory
+
+    workers = jobs or default_workers()
+    prepare_helpers(workers, ["annotate_rgbd.propose.detect_job"])
+    reuse_freed_memory()
+
+    from .config import load_config, parse_settings
+    from .progress import Progress
+    from .propose import ProposeConfig, run_propose
+
+    with user_errors():
+        settings = ProposeConfig(every=every)
+        if label is not None:
+            settings = replace(settings, label=label)
+        if min_area is not None:
+            if min_area <= 0:
+                raise InputError(None, "--min-area must be a share of the image in (0, 1]")
+            settings = replace(settings, detector=replace(settings.detector, min_area_fraction=min_area))
+        progress = Progress({sequence_dir.name: 0})
+        result = run_propose(sequence_dir, out, load_config(config, parse_settings(set_)), settings, poses=poses,
+                             workers=workers, progress=progress.callback(sequence_dir.name))
+        progress.finish()
+        typer.echo(f"{result.tracks} plane tracks on {result.frames} frames: {out / 'proposals.xml'}, "
+                   f"{out / 'masks'}, {out / 'report.json'}")
+        for line in result.failed:
+            typer.echo(f"  failed: {line}")
+        if result.failed:
+            raise typer.Exit(1)
+
+
+@app.command("export-cvat")
+def export_cvat_command(
+    run_dir: Path = typer.Argument(..., help="Output folder of a finished cvat2mask run."),
+    xml: Path = typer.Argument(..., help="The CVAT for video 1.1 XML file to write."),
+) -> None:
+    """Write a run's refined masks as CVAT polygon tracks, for a correction round."""
+    from .exportcvat import export_cvat
+
+    with user_errors():
+        count = export_cvat(run_dir, xml)
+        typer.echo(f"{count} plane tracks: {xml}")

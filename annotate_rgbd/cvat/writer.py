@@ -23,6 +23,7 @@ def write_cvat_video(
     height: int,
     keyframe_step: int = 1,
     keyframes_only: bool = False,
+    sampled_frames: list[int] | None = None,
 ) -> None:
     """Write a "CVAT for video 1.1" task export, as CVAT writes it.
 
@@ -43,6 +44,15 @@ def write_cvat_video(
         Distance, in task frames, between keyframes inside a run.
     keyframes_only : bool
         Leave out the ``keyframe="0"`` shapes, as an export through the CVAT API does.
+    sampled_frames : list of int, optional
+        The task frames that were looked at (e.g. every N-th frame, proposals): a track's
+        shapes on consecutive sampled frames form one run, all of them keyframes, which CVAT
+        interpolates between; a run that ends before the last sampled frame is closed by an
+        ``outside="1"`` keyframe on the next sampled frame. Default: every task frame.
+
+    Track attributes (:attr:`Track.attributes`) are written into every shape of the track as
+    ``<attribute name="...">`` elements, as CVAT exports them, and declared as text attributes
+    of the label in ``<meta>``.
     """
     if keyframe_step < 1:
         raise ValueError("keyframe_step must be at least 1")
@@ -54,9 +64,12 @@ def write_cvat_video(
         etree.SubElement(size, "width").text = str(width)
         etree.SubElement(size, "height").text = str(height)
         xml.write(meta, pretty_print=True)
-        index = {frame: i for i, frame in enumerate(frames)}  # built once, not per track
+        runs_over = frames if sampled_frames is None else sorted(sampled_frames)
+        if not set(runs_over) <= set(frames):
+            raise ValueError("sampled frames must be annotation frames")
+        index = {frame: i for i, frame in enumerate(runs_over)}  # built once, not per track
         for track in annotation.tracks:
-            element = _track_element(track, frames, index, keyframe_step, keyframes_only)
+            element = _track_element(track, runs_over, index, keyframe_step, keyframes_only)
             xml.write(element, pretty_print=True)
 
 
@@ -125,6 +138,9 @@ def _track_element(
         if following < len(frames):  # the run ends before the task does
             last = track.shapes[run[-1]]
             element.append(_video_shape(last, frames[following], True, outside=True))
+    for shape in element:
+        for name, value in track.attributes.items():
+            etree.SubElement(shape, "attribute", name=name).text = value
     return element
 
 
@@ -173,10 +189,18 @@ def _meta_element(annotation: Annotation, mode: str, step: int) -> etree._Elemen
     for tag, text in fields.items():
         etree.SubElement(task, tag).text = text
     labels = etree.SubElement(task, "labels")
-    for name in dict.fromkeys(track.label for track in annotation.tracks):
+    attribute_names: dict[str, dict[str, None]] = {}
+    for track in annotation.tracks:
+        attribute_names.setdefault(track.label, {}).update(dict.fromkeys(track.attributes))
+    for name, names in attribute_names.items():
         label = etree.SubElement(labels, "label")
         etree.SubElement(label, "name").text = name
-        etree.SubElement(label, "attributes")
+        attributes = etree.SubElement(label, "attributes")
+        for attribute_name in names:  # as CVAT declares a text attribute
+            spec = etree.SubElement(attributes, "attribute")
+            for tag, text in (("name", attribute_name), ("mutable", "False"), ("input_type", "text"),
+                              ("default_value", ""), ("values", "")):
+                etree.SubElement(spec, tag).text = text
     return meta
 
 

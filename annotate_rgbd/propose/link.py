@@ -1,0 +1,217 @@
+"""Linking the planes proposed on successive processed frames into tracks (pure, deterministic).
+
+Two detections are candidates for one plane when their planes agree within the noise band and
+their masks overlap (see :class:`~annotate_rgbd.propose.settings.LinkConfig`):
+
+- **with poses**, by world plane (:func:`annotate_rgbd.lift.plane_agreement` at the later
+  detection's centroid) and by the IoU of the later mask with the earlier polygon lifted onto
+  its plane and reprojected into the later frame (:mod:`annotate_rgbd.lift`);
+- **without poses** (or where a frame has none), by the camera-frame planes, allowing for what
+  the camera may have turned and moved in between, and by the IoU of the two masks as detected.
+
+Among the candidates an optimal one-to-one assignment (Hungarian, maximum total IoU) links
+detections to tracks; the others start new tracks, numbered 1, 2, ... in order of appearance
+(frame order, then area).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from ..camera import Camera
+from ..lift import lift_polygon, plane_agreement, plane_to_world, project_polygon
+from ..noise import NoiseSettings
+from .detect_job import FrameProposal
+from .outlines import fill_window
+from .settings import LinkConfig
+
+
+@dataclass
+class _Last:
+    """Where a track was last seen."""
+
+    track: int
+    position: int
+    time: float
+    label: int  # in that frame's labels
+    plane: np.ndarray  # camera frame of that frame
+    centroid: np.ndarray
+    outline: np.ndarray
+    pose: tuple[np.ndarray, np.ndarray] | None
+
+
+class TrackLinker:
+    """Links the proposals of processed frames, given in frame order, into tracks.
+
+    Parameters
+    ----------
+    config : LinkConfig
+    noise : NoiseSettings
+        Gives the band ``noise.band(z)`` that plane offsets are compared against.
+    camera : Camera
+    """
+
+    def __init__(self, config: LinkConfig, noise: NoiseSettings, camera: Camera):
+        self.config = config
+        self.noise = noise
+        self.camera = camera
+        self.next_track = 1
+        self.last: dict[int, _Last] = {}
+        self.recent: dict[int, np.ndarray] = {}  # position -> labels, for the live tracks
+
+    def add(
+        self, proposal: FrameProposal, time: float, pose: tuple[np.ndarray, np.ndarray] | None = None
+    ) -> np.ndarray:
+        """Link one frame's planes (frames must come in increasing ``proposal.position``).
+
+        Parameters
+        ----------
+        proposal : FrameProposal
+        time : float
+            The frame's timestamp, seconds.
+        pose : (ndarray (3, 3), ndarray (3,)), optional
+            Camera-to-world rotation and camera centre; None: no pose for this frame.
+
+        Returns
+        -------
+        ndarray of int64, shape (K,)
+            Track id of each of the frame's planes (label k at position k - 1).
+        """
+        position = proposal.position
+        live = [t for t in sorted(self.last) if position - self.last[t].position <= self.config.max_gap + 1]
+        k = len(proposal.areas)
+        score = np.zeros((len(live), k))
+        self._joint: dict[int, np.ndarray] = {}  # previous position -> joint histogram, this frame
+        for row, track in enumerate(live):
+            score[row] = self._scores(self.last[track], proposal, time, pose)
+        tracks = np.zeros(k, dtype=np.int64)
+        if live and k:
+            rows, cols = linear_sum_assignment(-score)
+            for r, c in zip(rows.tolist(), cols.tolist()):
+                if score[r, c] >= self.config.min_iou:
+                    tracks[c] = live[r]
+        for c in range(k):
+            if tracks[c] == 0:
+                tracks[c] = self.next_track
+                self.next_track += 1
+            self.last[int(tracks[c])] = _Last(
+                int(tracks[c]), position, time, c + 1, proposal.planes[c], proposal.centroids[c],
+                proposal.outlines[c], pose,
+            )
+        self.recent[position] = proposal.labels
+        # Forget what no later frame can link to.
+        horizon = position - self.config.max_gap
+        self.last = {t: s for t, s in self.last.items() if s.position >= horizon}
+        self.recent = {p: labels for p, labels in self.recent.items() if p >= horizon}
+        return tracks
+
+    def _scores(self, last: _Last, proposal: FrameProposal, time: float, pose) -> np.ndarray:
+        """IoU of each of the frame's planes with the track, 0 where the planes disagree."""
+        config = self.config
+        k = len(proposal.areas)
+        if k == 0:
+            return np.zeros(0)
+        band_last = float(self.noise.band(np.array([last.centroid[2]]))[0])
+        band = self.noise.band(proposal.centroids[:, 2]) + band_last
+        if pose is not None and last.pose is not None:
+            world_last = plane_to_world(last.plane, *last.pose)
+            agree = np.zeros(k, dtype=bool)
+            for c in range(k):
+                at = pose[0] @ proposal.centroids[c] + pose[1]
+                angle, offset = plane_agreement(world_last, plane_to_world(proposal.planes[c], *pose), at)
+                agree[c] = angle <= config.angle_deg and offset <= band[c] + config.pose_error
+            if not agree.any():
+                return np.zeros(k)
+            overlap = self._reprojected_iou(last, proposal, pose)
+        else:
+            dt = abs(time - last.time)
+            cosine = np.clip(proposal.planes[:, :3] @ last.plane[:3], -1.0, 1.0)
+            angle = np.degrees(np.arccos(cosine))
+            # Turning about its centre leaves a plane's distance from the camera unchanged;
+            # moving changes it by at most the distance moved.
+            offset = np.abs(proposal.planes[:, 3] - last.plane[3])
+            agree = (angle <= config.angle_deg + config.max_turn_deg * dt) & (offset <= band + config.max_speed * dt)
+            if not agree.any():
+                return np.zeros(k)
+            if last.position not in self._joint:
+                self._joint[last.position] = joint_histogram(self.recent[last.position], proposal.labels, k)
+            overlap = iou_from_joint(self._joint[last.position], last.label)
+        return np.where(agree, overlap, 0.0)
+
+    def _reprojected_iou(self, last: _Last, proposal: FrameProposal, pose) -> np.ndarray:
+        """IoU of the track's last polygon, moved onto this frame, with each plane's mask."""
+        k = len(proposal.areas)
+        lifted = lift_polygon(last.outline, last.plane, self.camera, *last.pose)
+        if not lifted.ok:
+            return np.zeros(k)
+        polygon = project_polygon(lifted.world, self.camera, *pose)
+        if len(polygon) < 3 or not np.isfinite(polygon).all():
+            return np.zeros(k)
+        height, width = proposal.labels.shape
+        top, left, window = fill_window(polygon, height, width)
+        rows, cols = window.shape
+        covered = proposal.labels[top : top + rows, left : left + cols][window]
+        inter = np.bincount(covered.astype(np.intp), minlength=k + 1)[1 : k + 1]
+        union = window.sum() + proposal.areas - inter
+        return inter / np.maximum(union, 1)
+
+
+def joint_histogram(previous: np.ndarray, labels: np.ndarray, k: int) -> np.ndarray:
+    """Pixel counts of every (previous label, label) pair.
+
+    Parameters
+    ----------
+    previous, labels : ndarray of int, shape (H, W)
+        Two label images of one size; ``labels`` holds 0..k.
+    k : int
+
+    Returns
+    -------
+    ndarray of int64, shape (previous.max() + 1, k + 1)
+    """
+    n = int(previous.max(initial=0)) + 1
+    pairs = previous.astype(np.intp).ravel() * (k + 1) + labels.astype(np.intp).ravel()
+    return np.bincount(pairs, minlength=n * (k + 1)).reshape(n, k + 1)
+
+
+def iou_from_joint(joint: np.ndarray, label: int) -> np.ndarray:
+    """IoU of previous ``label`` with each current label 1..k, from :func:`joint_histogram`."""
+    inter = joint[label, 1:]
+    union = joint[label].sum() + joint[:, 1:].sum(axis=0) - inter
+    return inter / np.maximum(union, 1)
+
+
+def link_proposals(
+    proposals: list[FrameProposal],
+    times: np.ndarray,
+    config: LinkConfig,
+    noise: NoiseSettings,
+    camera: Camera,
+    poses: list | None = None,
+) -> list[np.ndarray]:
+    """Track ids of every frame's planes (:class:`TrackLinker` over a whole list).
+
+    Parameters
+    ----------
+    proposals : list of FrameProposal
+        In frame order, ``position`` increasing.
+    times : ndarray of float, shape (N,)
+        Seconds.
+    config : LinkConfig
+    noise : NoiseSettings
+    camera : Camera
+    poses : list of (rotation, translation) or None, optional
+        Per frame; None (or a None entry): link without poses.
+
+    Returns
+    -------
+    list of ndarray of int64
+    """
+    linker = TrackLinker(config, noise, camera)
+    return [
+        linker.add(p, float(t), None if poses is None else poses[i])
+        for i, (p, t) in enumerate(zip(proposals, times))
+    ]

@@ -1,0 +1,112 @@
+"""What ``propose`` and ``export-cvat`` write: polygon tracks as a CVAT video export, colour
+masks, the report's entries. The CVAT XML itself is :mod:`annotate_rgbd.cvat`'s job."""
+
+from __future__ import annotations
+
+import os
+import secrets
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..annotation import Annotation, Shape, Track
+from ..cvat import write_cvat_video
+from ..errors import OutputError
+from ..palette import colour_hex, colourize, plane_colours
+from ..writer import write_png
+
+
+@dataclass
+class TrackShapes:
+    """The polygons of one track (one plane) on the CVAT frames where it was found.
+
+    Parameters
+    ----------
+    track : int
+        Track (plane) id, > 0: its colour in the masks and its CVAT track id.
+    label : str
+        CVAT label.
+    shapes : dict of int to Shape
+        RGB frame index -> polygon.
+    attributes : dict of str to str
+        CVAT track attributes.
+    """
+
+    track: int
+    label: str
+    shapes: dict[int, Shape] = field(default_factory=dict)
+    attributes: dict[str, str] = field(default_factory=dict)
+
+
+def write_polygon_tracks(
+    tracks: list[TrackShapes],
+    path: Path,
+    *,
+    n_frames: int,
+    sampled_frames: list[int],
+    width: int,
+    height: int,
+) -> None:
+    """Write polygon tracks as a "CVAT for video 1.1" export of a task of ``n_frames`` RGB frames,
+    atomically.
+
+    Every shape is a keyframe; CVAT interpolates between the sampled frames of a track's run, and
+    a track absent on a sampled frame gets ``outside="1"`` there.
+
+    Parameters
+    ----------
+    tracks : list of TrackShapes
+        Written in this order (CVAT track ids are the ``track`` values).
+    path : Path
+    n_frames : int
+        Frames of the CVAT task: the RGB images 0..n_frames-1.
+    sampled_frames : list of int
+        The RGB frames that were looked at (every shape lies on one of them).
+    width, height : int
+        Image size.
+
+    Raises
+    ------
+    OutputError
+        The file cannot be written.
+    """
+    annotation = Annotation(
+        path=str(path.stem), format="video",
+        tracks=[Track(t.track, t.label, dict(sorted(t.shapes.items())), attributes=dict(t.attributes)) for t in tracks],
+        frames=list(range(n_frames)),
+    )
+    tmp = path.parent / f".{path.name}.{secrets.token_hex(4)}.tmp"
+    try:
+        write_cvat_video(annotation, tmp, width=width, height=height, sampled_frames=sorted(set(sampled_frames)))
+        os.replace(tmp, path)
+    except OSError as exc:
+        raise OutputError(path, f"cannot write output: {exc.strerror or exc}") from None
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
+def write_colour_mask(path: Path, labels: np.ndarray, ids: np.ndarray) -> None:
+    """Write a colour mask: label ``k`` of ``labels`` in the palette colour of ``ids[k - 1]``.
+
+    Parameters
+    ----------
+    path : Path
+    labels : ndarray of int, shape (H, W)
+        0 = black, else 1..K.
+    ids : ndarray of int, shape (K,)
+        Plane (track) id of each label, > 0.
+    """
+    palette = plane_colours(int(ids.max(initial=0)))
+    write_png(path, colourize(labels, palette[np.asarray(ids, dtype=np.intp) - 1]))
+
+
+def track_colour(track: int) -> str:
+    """``#rrggbb`` of a plane id."""
+    return colour_hex(plane_colours(track)[track - 1])
+
+
+def equation_text(equation: np.ndarray) -> str:
+    """A plane ``(a, b, c, d)`` as CVAT attribute text: ``a b c d``, 6 decimals."""
+    return " ".join(f"{float(v):.6f}" for v in equation)

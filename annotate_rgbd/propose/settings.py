@@ -1,0 +1,100 @@
+"""Every tunable of ``propose`` beyond the detector's, with its default and the reason for it.
+
+The detector's own settings, among them the smallest plane proposed
+(``DetectorConfig.min_area_fraction``, 1 % of the image), live in
+:class:`annotate_rgbd.detect.DetectorConfig`; the drop rules (invalid depth, distance) are the
+``[filter]`` section of the run's configuration, as for ``cvat2mask``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from ..detect import DetectorConfig
+
+#: CVAT label of the proposed tracks.
+DEFAULT_LABEL = "plane"
+
+
+@dataclass(frozen=True)
+class LinkConfig:
+    """How detections on successive processed frames are linked into tracks.
+
+    Two detections can be one plane when their planes agree within the noise band (plus what
+    the camera may have moved between the two frames, when no poses are given) and their
+    masks overlap; among those, an optimal one-to-one assignment maximises the overlap.
+
+    Parameters
+    ----------
+    min_iou : float
+        Smallest IoU of the two masks (without poses: as detected; with poses: the earlier
+        outline reprojected into the later frame). 0.3: a plane seen at 30 Hz overlaps itself
+        on the next frame with IoU > 0.8, at every 10th frame of TUM fr1 still > 0.5; two
+        different planes that touch overlap by a few boundary pixels only.
+    angle_deg : float
+        Largest angle between the two planes' normals from estimation noise alone: the
+        detector's own tolerance for coplanar patches (``DetectorConfig.min_angle_deg``).
+    max_speed : float
+        Without poses: the largest camera speed, m/s, allowed for between the two frames (the
+        planes' distances from the camera may differ by ``max_speed * dt`` more). 0.5 m/s:
+        TUM RGB-D's hand-held sequences stay below about 0.4 m/s (Sturm et al. 2012, Table 1).
+    max_turn_deg : float
+        Without poses: the largest camera rotation rate, degrees per second (normals may differ
+        by ``max_turn_deg * dt`` more). 60 deg/s: above the hand-held TUM fr1 sequences' mean
+        rates (fr1_rpy: ~50 deg/s).
+    pose_error : float
+        With poses: metres added to the offset tolerance for trajectory error (TUM's
+        motion-capture ground truth: ~1 cm; SLAM trajectories: a few cm).
+    max_gap : int
+        A track may skip this many processed frames and still be continued (a plane the
+        detector missed once keeps its track and colour).
+    """
+
+    min_iou: float = 0.3
+    angle_deg: float = DetectorConfig().min_angle_deg
+    max_speed: float = 0.5
+    max_turn_deg: float = 60.0
+    pose_error: float = 0.02
+    max_gap: int = 2
+
+
+@dataclass(frozen=True)
+class ProposeConfig:
+    """Settings of :func:`annotate_rgbd.propose.run_propose`.
+
+    Parameters
+    ----------
+    detector : DetectorConfig
+        The plane detector; ``detector.min_area_fraction`` is the smallest plane proposed.
+    link : LinkConfig
+    label : str
+        CVAT label of every proposed track.
+    every : int
+        Process every N-th depth frame (keyframes); 1: all.
+    merge_excess : float
+        Two detected planes that do not touch (a floor on both sides of a table, a wall behind
+        a cabinet) are one plane when fitting one plane to both raises the mean squared
+        residual by at most ``merge_excess * sigma(z)**2`` over their own fits: for two
+        parallel planes of equal size, an offset of up to 2 sigma at 1.
+    piece_fraction : float
+        The detector keeps pieces down to this fraction of the smallest plane, for the merge
+        (0.5: a floor cut in two by a table adds up; 0.25 found nothing more on the rendered
+        room and made detection a third slower); what is smaller than the smallest plane after
+        merging is not proposed.
+    outline_tolerance_px : float
+        Douglas-Peucker tolerance of the polygons (``plane_outlines``): a pixel or two of error.
+    """
+
+    detector: DetectorConfig = field(default_factory=DetectorConfig)
+    link: LinkConfig = field(default_factory=LinkConfig)
+    label: str = DEFAULT_LABEL
+    every: int = 1
+    merge_excess: float = 1.0
+    piece_fraction: float = 0.5
+    outline_tolerance_px: float = 1.5
+
+    def __post_init__(self):
+        if not isinstance(self.every, int) or self.every < 1:
+            raise ValueError(f"every must be an integer >= 1, got {self.every!r}")
+        if not self.label.strip():
+            raise ValueError("the label must not be empty")

@@ -1,0 +1,186 @@
+"""Unit tests of plane proposals: merging pieces, draw order, track linking, the CVAT writer's
+track attributes and sampled keyframes, and export-cvat's outlines."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from lxml import etree
+
+from annotate_rgbd.annotation import Annotation, Shape, Track
+from annotate_rgbd.camera import Camera
+from annotate_rgbd.cvat import read_cvat, write_cvat_video
+from annotate_rgbd.propose.outlines import piece_outlines
+from annotate_rgbd.noise import NoiseSettings
+from annotate_rgbd.propose import FrameProposal, LinkConfig, link_proposals
+from annotate_rgbd.propose.detect_job import draw_order, label_moments, merge_groups, paint
+from annotate_rgbd.rasterize import rasterize_frame, shape_mask
+
+CAMERA = Camera(fx=525.0, fy=525.0, cx=319.5, cy=239.5, depth_scale=5000.0)
+H, W = 480, 640
+NOISE = NoiseSettings()
+
+
+def plane_depth(normal, d, shape=(H, W), camera=CAMERA):
+    """z of each pixel's ray on the plane n . X + d = 0 (independent of the code under test)."""
+    rows, cols = np.mgrid[0 : shape[0], 0 : shape[1]].astype(np.float64)
+    x, y = (cols - camera.cx) / camera.fx, (rows - camera.cy) / camera.fy
+    return -d / (normal[0] * x + normal[1] * y + normal[2])
+
+
+def test_pieces_of_one_plane_merge_and_parallel_planes_do_not():
+    rng = np.random.default_rng(0)
+    floor = np.array([0.0, -0.8, -0.6])  # a floor seen from above at an angle
+    floor /= np.linalg.norm(floor)
+    depth = plane_depth(floor, 1.5)
+    sigma = NOISE.model.sigma
+    depth = (depth + rng.normal(0, 1, depth.shape) * sigma(depth)).astype(np.float32)
+    labels = np.zeros((H, W), np.uint8)
+    labels[300:400, 50:250] = 1   # left of a table
+    labels[300:400, 400:600] = 2  # right of it: the same floor
+    # 3: a parallel plane 8 sigma above the floor (a low step), beside the others.
+    step = plane_depth(floor, 1.5 - 8 * float(sigma(np.array([2.0]))[0]))
+    labels[420:470, 100:500] = 3
+    depth[420:470, 100:500] = step[420:470, 100:500]
+    moments = label_moments(labels, depth, CAMERA)
+    groups = merge_groups(moments, sigma, 1.0)
+    assert groups[0] == groups[1]
+    assert groups[2] != groups[0]
+
+
+def test_draw_order_puts_the_plane_that_fills_an_overlap_on_top():
+    labels = np.zeros((100, 120), np.uint8)
+    labels[10:90, 10:110] = 1   # a wall
+    labels[30:60, 40:80] = 2    # a picture on it: the wall's filled outline covers it
+    labels[70:100, 0:40] = 3    # a box in front of the wall's lower left corner
+    labels[70:90, 10:40] = 3
+    polygons = {
+        1: np.array([[10, 10], [110, 10], [110, 90], [10, 90]], float),
+        2: np.array([[40, 30], [80, 30], [80, 60], [40, 60]], float),
+        3: np.array([[0, 70], [40, 70], [40, 100], [0, 100]], float),
+    }
+    windows = [shape_mask(Shape("polygon", polygons[k]), *labels.shape) for k in (1, 2, 3)]
+    # Distances that would put the picture and the box below the wall if used alone.
+    z = draw_order(labels, windows, np.array([1.0, 2.0, 3.0]))
+    assert z[1] > z[0] and z[2] > z[0]
+    painted = paint(windows, z, labels.shape)
+    assert np.array_equal(painted, labels)
+
+
+def proposal(position, masks, planes, labels_shape=(H, W)):
+    """A FrameProposal of rectangles ``masks`` (rows, cols slices) with these planes."""
+    labels = np.zeros(labels_shape, np.uint8)
+    outlines = []
+    for k, (rows, cols) in enumerate(masks, start=1):
+        labels[rows, cols] = k
+        outlines.append(np.array([[cols.start, rows.start], [cols.stop, rows.start],
+                                  [cols.stop, rows.stop], [cols.start, rows.stop]], float))
+    planes = np.asarray(planes, float)
+    centroids = []
+    for (rows, cols), plane in zip(masks, planes):
+        r, c = (rows.start + rows.stop - 1) / 2, (cols.start + cols.stop - 1) / 2
+        ray = np.array([(c - CAMERA.cx) / CAMERA.fx, (r - CAMERA.cy) / CAMERA.fy, 1.0])
+        centroids.append(ray * (-plane[3] / (plane[:3] @ ray)))
+    areas = np.bincount(labels.ravel(), minlength=len(masks) + 1)[1:]
+    return FrameProposal(position, labels, planes.reshape(-1, 4), areas, np.array(centroids).reshape(-1, 3), np.ones(len(masks)),
+                         outlines, np.arange(len(masks)), [])
+
+
+WALL = [0.0, 0.0, -1.0, 2.0]  # z = 2 m, facing the camera
+
+
+def test_linking_without_poses_follows_overlap_and_plane():
+    first = proposal(0, [(slice(100, 300), slice(100, 300)), (slice(300, 400), slice(0, 640))],
+                     [WALL, [0.0, -1.0, 0.0, 1.0]])
+    # Moved a little; a third plane 20 cm behind the wall overlaps the wall's old place.
+    second = proposal(1, [(slice(110, 310), slice(110, 310)), (slice(305, 400), slice(0, 640)),
+                          (slice(100, 200), slice(300, 400))],
+                      [WALL, [0.0, -1.0, 0.0, 1.0], [0.0, 0.0, -1.0, 2.2]])
+    ids = link_proposals([first, second], np.array([0.0, 1 / 30]), LinkConfig(), NOISE, CAMERA)
+    assert ids[0].tolist() == [1, 2]
+    assert ids[1].tolist() == [1, 2, 3]
+    # The same frames 1 s apart: the allowed camera motion (0.5 m) now covers the 20 cm, but
+    # the new plane still overlaps the wall's old mask far less than the wall itself.
+    ids = link_proposals([first, second], np.array([0.0, 1.0]), LinkConfig(), NOISE, CAMERA)
+    assert ids[1].tolist() == [1, 2, 3]
+
+
+def test_plane_far_off_the_tracked_one_starts_a_new_track():
+    first = proposal(0, [(slice(100, 300), slice(100, 300))], [WALL])
+    second = proposal(1, [(slice(100, 300), slice(100, 300))], [[0.0, 0.0, -1.0, 2.3]])
+    ids = link_proposals([first, second], np.array([0.0, 1 / 30]), LinkConfig(), NOISE, CAMERA)
+    assert ids[1].tolist() == [2]
+
+
+def test_linking_with_poses_uses_the_reprojected_outline():
+    # The camera moves 0.4 m to the right: the wall's image moves 105 px left.
+    shift = int(round(CAMERA.fx * 0.4 / 2.0))
+    first = proposal(0, [(slice(100, 300), slice(200, 350))], [WALL])
+    second = proposal(1, [(slice(100, 300), slice(200 - shift, 350 - shift))], [WALL])
+    times = np.array([0.0, 1 / 30])
+    eye = np.eye(3)
+    poses = [(eye, np.zeros(3)), (eye, np.array([0.4, 0.0, 0.0]))]
+    config = LinkConfig(min_iou=0.5)
+    assert link_proposals([first, second], times, config, NOISE, CAMERA, poses)[1].tolist() == [1]
+    # Without poses the masks overlap too little (IoU ~0.17): a new track.
+    assert link_proposals([first, second], times, config, NOISE, CAMERA)[1].tolist() == [2]
+
+
+def test_tracks_continue_over_a_missed_frame_only_within_max_gap():
+    wall = [(slice(100, 300), slice(100, 300))]
+    frames = [proposal(0, wall, [WALL]), proposal(1, [], np.zeros((0, 4))), proposal(2, wall, [WALL])]
+    times = np.arange(3) / 30
+    assert link_proposals(frames, times, LinkConfig(max_gap=1), NOISE, CAMERA)[2].tolist() == [1]
+    assert link_proposals(frames, times, LinkConfig(max_gap=0), NOISE, CAMERA)[2].tolist() == [2]
+
+
+def test_video_writer_track_attributes_and_sampled_keyframes(tmp_path):
+    square = np.array([[10, 10], [50, 10], [50, 50], [10, 50]], float)
+    moved = square + [20, 0]
+    track = Track(7, "plane", {0: Shape("polygon", square), 5: Shape("polygon", moved)},
+                  attributes={"equation": "0 0 -1 2"})
+    annotation = Annotation("p", "video", [track], list(range(12)))
+    path = tmp_path / "p.xml"
+    write_cvat_video(annotation, path, width=64, height=64, sampled_frames=[0, 5, 10])
+    root = etree.parse(str(path)).getroot()
+    shapes = root.findall("track/polygon")
+    assert [(s.get("frame"), s.get("keyframe"), s.get("outside")) for s in shapes] == [
+        ("0", "1", "0"), ("5", "1", "0"), ("10", "1", "1")]
+    assert all(s.find("attribute").get("name") == "equation" and s.find("attribute").text == "0 0 -1 2"
+               for s in shapes)
+    assert root.find("meta/task/labels/label/attributes/attribute/name").text == "equation"
+    read = read_cvat(path).tracks[0]
+    assert sorted(read.shapes) == list(range(10))  # interpolated 1..4 and 6..9, outside from 10
+    assert np.allclose(read.shapes[3].points, square + [12, 0])
+
+
+def test_piece_outlines_cover_every_piece():
+    labels = np.zeros((60, 90), np.int32)
+    labels[5:25, 5:30] = 1
+    labels[30:55, 50:85] = 1  # the same plane, apart (a floor on both sides of a table)
+    labels[35:50, 10:40] = 2
+    outlines = piece_outlines(labels, tolerance_px=0.0)
+    drawn = rasterize_frame([(k, Shape("polygon", outlines[k])) for k in (1, 2)], *labels.shape)
+    assert np.array_equal(drawn, labels)
+
+
+@pytest.mark.parametrize("shape", [(40, 40), (33, 57)])
+def test_piece_outlines_of_one_piece_equal_a_filled_region(shape):
+    rng = np.random.default_rng(shape[1])
+    labels = (rng.random(shape) < 0.0).astype(np.int32)
+    labels[5:-5, 4:-6] = 1
+    labels[10:15, 10:20] = 0  # a hole: filled by the outline
+    drawn = rasterize_frame([(1, Shape("polygon", piece_outlines(labels, 0.0)[1]))], *shape)
+    expected = labels.copy()
+    expected[10:15, 10:20] = 1
+    assert np.array_equal(drawn, expected)
+
+
+def test_piece_on_an_island_stays_covered():
+    labels = np.zeros((60, 60), np.int32)
+    labels[5:55, 5:55] = 1
+    labels[15:45, 15:45] = 2   # another plane in a hole of plane 1 ...
+    labels[25:35, 25:35] = 1   # ... with a piece of plane 1 on it
+    outlines = piece_outlines(labels, tolerance_px=0.0)
+    drawn = rasterize_frame([(1, Shape("polygon", outlines[1]))], *labels.shape)
+    assert drawn[25:35, 25:35].all() and drawn[5:55, 5:55].all()
