@@ -533,7 +533,7 @@ def _check_ranges(config: Config, origin: str | Path | None) -> None:
         value = getattr(config, section.name)
         if not dataclasses.is_dataclass(value) or isinstance(value, NoiseSettings):
             continue  # lists of tables are checked per entry; the noise section by its reader
-        for key, number in vars(value).items() if not isinstance(value, Camera) else dataclasses.asdict(value).items():
+        for key, number in dataclasses.asdict(value).items():
             if isinstance(number, float) and not math.isfinite(number):
                 raise InputError(origin, f"'{section.name}.{key}' must be a finite number, got {number!r}")
             if isinstance(number, int) and not isinstance(number, bool) and abs(number) > MAX_INT_SETTING:

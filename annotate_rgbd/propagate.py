@@ -30,7 +30,7 @@ from .errors import InputError
 from .lift import lift_polygon, plane_agreement, plane_to_camera, plane_to_world, project_polygon
 from .poses import FramePoses
 from .rasterize import rasterize_frame
-from .refine import fit_plane
+from .refine import fit_plane, grid_pixels
 from .sequence import read_depth
 
 #: Largest angle (degrees) and offset (m, at the keyframes' centroid) between the planes lifted
@@ -178,15 +178,11 @@ def keyframe_planes(
     on_valid = np.where(np.isfinite(depth_m), drawn, 0)
     planes: dict[int, tuple[np.ndarray, int] | str] = {}
     for key in wanted:
-        rows, cols = np.nonzero(on_valid == key)
-        if rows.size < config.filter.min_valid_pixels:
-            planes[key] = f"too little valid depth where the shape is on top ({rows.size} pixels)"
+        valid = int(np.count_nonzero(on_valid == key))
+        if valid < config.filter.min_valid_pixels:
+            planes[key] = f"too little valid depth where the shape is on top ({valid} pixels)"
             continue
-        valid = int(rows.size)
-        step = max(1, int(np.ceil(np.sqrt(valid / config.ransac.max_points)))) if config.ransac.max_points else 1
-        pick = (rows % step == 0) & (cols % step == 0)
-        if np.count_nonzero(pick) >= 3:
-            rows, cols = rows[pick], cols[pick]
+        rows, cols = grid_pixels(on_valid, key, valid, config.ransac.max_points)
         fit = fit_plane(backproject(cols, rows, depth_m[rows, cols], config.camera), config.ransac, config.inlier_band())
         planes[key] = (plane_to_world(fit.equation, *depth_pose), valid)
     return planes

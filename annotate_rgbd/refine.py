@@ -204,16 +204,9 @@ def refine_planes(
     scales = np.ones(n_labels, dtype=np.float32)  # each plane's noise scale
     fits = {}
     for plane_id, count in zip(plane_ids.tolist(), np.asarray(valid_pixels).tolist()):
-        step = 1
-        if config.max_points:
-            step = max(1, int(np.ceil(np.sqrt(count / config.max_points))))
-        rows, cols = np.nonzero(on_valid[::step, ::step] == plane_id)
-        if rows.size < 3 and step > 1:
-            rows, cols = np.nonzero(on_valid == plane_id)
-            step = 1
+        rows, cols = grid_pixels(on_valid, plane_id, count, config.max_points)
         if rows.size < 3:
             continue
-        rows, cols = rows * step, cols * step
         fit = fit_plane(backproject(cols, rows, depth_m[rows, cols], camera), config, noise)
         fits[plane_id] = fit
         table[plane_id] = fit.equation
@@ -233,6 +226,23 @@ def refine_planes(
             band = np.clip(band * _lookup(scales, on_valid), np.float32(noise.floor), np.float32(noise.cap))
         on_plane = (distance < band) & (_lookup(fitted, on_valid) > 0)
     return np.where(on_plane, labels, 0).astype(labels.dtype), fits
+
+
+def grid_pixels(labels: np.ndarray, plane_id: int, count: int, max_points: int) -> tuple[np.ndarray, np.ndarray]:
+    """A plane's pixels on a regular grid: every s-th row and column, so that at most about
+    ``max_points`` of its ``count`` pixels remain (all of them when ``max_points`` is 0 or the
+    grid would leave fewer than 3).
+
+    Returns
+    -------
+    rows, cols : ndarray of int
+        In row-major order.
+    """
+    step = max(1, int(np.ceil(np.sqrt(count / max_points)))) if max_points else 1
+    rows, cols = np.nonzero(labels[::step, ::step] == plane_id)
+    if rows.size < 3 and step > 1:
+        return np.nonzero(labels == plane_id)
+    return rows * step, cols * step
 
 
 def band_image(depth_m: np.ndarray, noise: NoiseSettings) -> np.ndarray | float:
