@@ -21,6 +21,9 @@ app = typer.Typer(
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
+    # Plain help, like a Unix tool's: rich mode (typer >= 0.29) prints '--force <bool>' and
+    # '<list[Path]>'. Every parameter that takes a value names it with a metavar below.
+    rich_markup_mode=None,
 )
 
 
@@ -67,6 +70,26 @@ def user_errors() -> Iterator[None]:
         logger.removeHandler(handler)
 
 
+@contextmanager
+def interrupts_deferred() -> Iterator[None]:
+    """Hold Ctrl-C back until the block ends, then raise it.
+
+    For importing the pipeline: Open3D's compiled module turns a KeyboardInterrupt during its
+    initialisation into ``ImportError: initialization failed`` and a memory report at exit.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    received = []
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: received.append(signum))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    if received:
+        raise KeyboardInterrupt
+
+
 def _version(value: bool) -> None:
     if value:
         typer.echo(f"annotate-rgbd {__version__}")
@@ -82,46 +105,47 @@ def main(
 
 @app.command()
 def cvat2mask(
-    sequence_dir: Path = typer.Argument(..., help="TUM RGB-D or ICL-NUIM (TUM format) sequence folder."),
-    annotations: List[Path] = typer.Argument(..., help="CVAT export(s): 'CVAT for video 1.1' or 'CVAT for images 1.1' XML."),
-    out: Path = typer.Option(..., "--out", "-o", help="Output folder for masks/, planes.csv and report.json."),
-    config: Optional[str] = typer.Option(None, "--config", "-c", help="TOML file or preset name (see 'annotate-rgbd presets')."),
-    label: List[str] = typer.Option([], "--label", help="Use only shapes with this CVAT label (repeatable)."),
+    sequence_dir: Path = typer.Argument(..., metavar="SEQUENCE_DIR", help="TUM RGB-D or ICL-NUIM (TUM format) sequence folder."),
+    annotations: List[Path] = typer.Argument(..., metavar="ANNOTATIONS...", help="CVAT export(s): 'CVAT for video 1.1' or 'CVAT for images 1.1' XML."),
+    out: Path = typer.Option(..., "--out", "-o", metavar="DIR", help="Output folder for masks/, planes.csv and report.json."),
+    config: Optional[str] = typer.Option(None, "--config", "-c", metavar="FILE|PRESET", help="TOML file or preset name (see 'annotate-rgbd presets')."),
+    label: List[str] = typer.Option([], "--label", metavar="LABEL", help="Use only shapes with this CVAT label (repeatable)."),
     distance_threshold: Optional[float] = typer.Option(
-        None, help="A fixed inlier band in metres at every depth, instead of the [noise] model's."
+        None, metavar="METRES", help="A fixed inlier band in metres at every depth, instead of the [noise] model's."
     ),
-    max_invalid_ratio: Optional[float] = typer.Option(None, help="Drop a plane with a larger share of invalid depth."),
-    max_mean_distance: Optional[float] = typer.Option(None, help="Drop a plane farther than this on average (m)."),
-    max_time_diff: Optional[float] = typer.Option(None, help="Largest depth-to-RGB time difference (s)."),
-    set_: List[str] = typer.Option([], "--set", help="Override any configuration key: SECTION.KEY=VALUE."),
+    max_invalid_ratio: Optional[float] = typer.Option(None, metavar="SHARE", help="Drop a plane with a larger share of invalid depth."),
+    max_mean_distance: Optional[float] = typer.Option(None, metavar="METRES", help="Drop a plane farther than this on average (m)."),
+    max_time_diff: Optional[float] = typer.Option(None, metavar="SECONDS", help="Largest depth-to-RGB time difference (s)."),
+    set_: List[str] = typer.Option([], "--set", metavar="SECTION.KEY=VALUE", help="Override any configuration key: SECTION.KEY=VALUE."),
     part: List[str] = typer.Option(
-        [], "--part", help="Where an annotation part starts: FILE:OFFSET, the RGB index of its frame 0 (repeatable)."
+        [], "--part", metavar="FILE:OFFSET", help="Where an annotation part starts: FILE:OFFSET, the RGB index of its frame 0 (repeatable)."
     ),
-    jobs: Optional[int] = typer.Option(None, "--jobs", "-j", min=1, help="Worker processes (default: all cores)."),
+    jobs: Optional[int] = typer.Option(None, "--jobs", "-j", min=1, metavar="N", help="Worker processes (default: all cores)."),
     force: bool = typer.Option(False, "--force", help="Redo every frame, even those unchanged since the last run."),
     raw_masks: bool = typer.Option(False, "--raw-masks", help="Also write masks_raw/: the shapes as drawn, unrefined."),
     overlays: bool = typer.Option(False, "--overlays", help="Also write overlays/, review.html and contact_sheet.png."),
     job_timeout: float = typer.Option(
-        STALL_TIMEOUT, "--job-timeout", min=1.0, help="Seconds without a frame finished by the helpers before they are replaced."
+        STALL_TIMEOUT, "--job-timeout", min=1.0, metavar="SECONDS", help="Seconds without a frame finished by the helpers before they are replaced."
     ),
     poses: Optional[Path] = typer.Option(
-        None, "--poses", help="Camera trajectory (TUM format): carry keyframe shapes to every frame by the poses."
+        None, "--poses", metavar="FILE", help="Camera trajectory (TUM format): carry keyframe shapes to every frame by the poses."
     ),
 ) -> None:
     """Write one colour-coded plane mask per depth frame, refined against the depth.
 
     Several exports are annotation parts of one sequence: their tracks are matched into one plane id per physical plane (see tracks.csv).
     """
-    from .execute import default_workers, prepare_process
-
-    workers = jobs or default_workers()
-    prepare_process(workers)  # the helpers' server imports Open3D while this process does
-
-    from .config import load_config, parse_part_offsets, parse_settings
-    from .pipeline import run_cvat2mask
-    from .progress import Progress
-
     with user_errors():
+        from .execute import default_workers, prepare_process
+
+        workers = jobs or default_workers()
+        prepare_process(workers)  # the helpers' server imports Open3D while this process does
+
+        with interrupts_deferred():
+            from .config import load_config, parse_part_offsets, parse_settings
+            from .pipeline import run_cvat2mask
+            from .progress import Progress
+
         overrides = parse_settings(set_)
         named = {
             "annotation.labels": label or None,
@@ -172,24 +196,25 @@ def cvat2mask(
 
 @app.command()
 def batch(
-    manifest: Path = typer.Argument(..., help="TOML manifest: one scene table per scene (see the README)."),
-    jobs: Optional[int] = typer.Option(None, "--jobs", "-j", min=1, help="Worker processes (default: the manifest's jobs, else all cores)."),
+    manifest: Path = typer.Argument(..., metavar="MANIFEST", help="TOML manifest: one scene table per scene (see the README)."),
+    jobs: Optional[int] = typer.Option(None, "--jobs", "-j", min=1, metavar="N", help="Worker processes (default: the manifest's jobs, else all cores)."),
     force: bool = typer.Option(False, "--force", help="Redo every frame, even those unchanged since the last run."),
     job_timeout: float = typer.Option(
-        STALL_TIMEOUT, "--job-timeout", min=1.0, help="Seconds without a frame finished by the helpers before they are replaced."
+        STALL_TIMEOUT, "--job-timeout", min=1.0, metavar="SECONDS", help="Seconds without a frame finished by the helpers before they are replaced."
     ),
 ) -> None:
     """Relabel several scenes with one pool of workers; only changed frames are redone."""
-    from .execute import default_workers, prepare_process
-    from .manifest import read_manifest
-
     with user_errors():
+        from .execute import default_workers, prepare_process
+        from .manifest import read_manifest
+
         scenes, manifest_jobs = read_manifest(manifest)
         workers = jobs or manifest_jobs or default_workers()
         prepare_process(workers)  # the helpers' server imports Open3D while this process does
 
-        from .batch import run_batch, summary_lines
-        from .progress import Progress
+        with interrupts_deferred():
+            from .batch import run_batch, summary_lines
+            from .progress import Progress
 
         progress = Progress({scene.name: 0 for scene in scenes})
         outcomes = run_batch(scenes, workers, force, progress.callback, job_timeout=job_timeout)
@@ -212,12 +237,12 @@ def presets() -> None:
 @app.command()
 def evaluate(
     ctx: typer.Context,
-    gt: Path = typer.Argument(..., help="Ground-truth masks: a folder of label files, or one file."),
-    pred: Path = typer.Argument(..., help="Predicted masks, matched to GT by file name; or one file."),
-    full: float = typer.Option(0.75, "--full", help="IoU for a full match (a true positive)."),
-    partial: float = typer.Option(0.2, "--partial", help="IoU for a partial overlap (usr, osr, noise, missed)."),
+    gt: Path = typer.Argument(..., metavar="GT", help="Ground-truth masks: a folder of label files, or one file."),
+    pred: Path = typer.Argument(..., metavar="PRED", help="Predicted masks, matched to GT by file name; or one file."),
+    full: float = typer.Option(0.75, "--full", metavar="IOU", help="IoU for a full match (a true positive)."),
+    partial: float = typer.Option(0.2, "--partial", metavar="IOU", help="IoU for a partial overlap (usr, osr, noise, missed)."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object instead of a table."),
-    per_frame: Optional[Path] = typer.Option(None, "--per-frame", help="Also write each frame's statistics to this CSV."),
+    per_frame: Optional[Path] = typer.Option(None, "--per-frame", metavar="CSV", help="Also write each frame's statistics to this CSV."),
     # The old name of --partial, kept working for scripts; cvat2mask's --part is FILE:OFFSET.
     part: Optional[float] = typer.Option(None, "--part", hidden=True),
 ) -> None:
@@ -239,19 +264,26 @@ def evaluate(
 
 @app.command()
 def review(
-    out_dir: Path = typer.Argument(..., help="Output folder of a finished cvat2mask run."),
+    out_dir: Path = typer.Argument(..., metavar="RUN_DIR", help="Output folder of a finished cvat2mask run."),
     overlays: bool = typer.Option(True, "--overlays/--no-overlays", help="Segment the frames again and write overlays/."),
     page: bool = typer.Option(True, "--page/--no-page", help="Write review.html."),
     sheet: bool = typer.Option(True, "--sheet/--no-sheet", help="Write contact_sheet.png from overlays/."),
+    jobs: Optional[int] = typer.Option(None, "--jobs", "-j", min=1, metavar="N", help="Worker processes (default: all cores)."),
 ) -> None:
     """Write review overlays, the offline review page and a contact sheet for a finished run."""
-    from .progress import Progress
-    from .review import review_run
-
     with user_errors():
+        from .execute import default_workers, prepare_process
+
+        workers = jobs or default_workers()
+        prepare_process(workers if overlays else 1)
+        with interrupts_deferred():
+            from .progress import Progress
+            from .review import review_run
+
         scene = out_dir.resolve().name
         progress = Progress({scene: 0})
-        output = review_run(out_dir, overlays=overlays, page=page, sheet=sheet, progress=progress.callback(scene))
+        output = review_run(out_dir, overlays=overlays, page=page, sheet=sheet, progress=progress.callback(scene),
+                            workers=workers if overlays else 1)
         progress.finish()
         lines = [f"{len(output.overlays)} overlays in {out_dir / 'overlays'}"] if overlays else []
         lines += [str(path) for path in (output.page, output.sheet) if path is not None]
@@ -262,7 +294,7 @@ def review(
 
 @app.command()
 def stats(
-    out_dir: Path = typer.Argument(..., help="Output folder of a finished cvat2mask run."),
+    out_dir: Path = typer.Argument(..., metavar="RUN_DIR", help="Output folder of a finished cvat2mask run."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object instead of a table."),
 ) -> None:
     """Summarise a run: observations, planes per observation, dropped planes, inlier ratio."""
@@ -276,32 +308,33 @@ def stats(
 
 @app.command()
 def propose(
-    sequence_dir: Path = typer.Argument(..., help="TUM RGB-D or ICL-NUIM (TUM format) sequence folder."),
-    out: Path = typer.Option(..., "--out", "-o", help="Output folder for proposals.xml, masks/ and report.json."),
-    config: Optional[str] = typer.Option(None, "--config", "-c", help="TOML file or preset name (see 'annotate-rgbd presets')."),
-    poses: Optional[Path] = typer.Option(None, "--poses", help="TUM trajectory: link planes across frames by world plane."),
-    every: int = typer.Option(1, "--every", min=1, help="Process every N-th depth frame (CVAT keyframes)."),
-    jobs: Optional[int] = typer.Option(None, "--jobs", "-j", min=1, help="Worker processes (default: all cores)."),
-    label: Optional[str] = typer.Option(None, "--label", help="CVAT label of the proposed tracks (default: plane)."),
+    sequence_dir: Path = typer.Argument(..., metavar="SEQUENCE_DIR", help="TUM RGB-D or ICL-NUIM (TUM format) sequence folder."),
+    out: Path = typer.Option(..., "--out", "-o", metavar="DIR", help="Output folder for proposals.xml, masks/ and report.json."),
+    config: Optional[str] = typer.Option(None, "--config", "-c", metavar="FILE|PRESET", help="TOML file or preset name (see 'annotate-rgbd presets')."),
+    poses: Optional[Path] = typer.Option(None, "--poses", metavar="FILE", help="TUM trajectory: link planes across frames by world plane."),
+    every: int = typer.Option(1, "--every", min=1, metavar="N", help="Process every N-th depth frame (CVAT keyframes)."),
+    jobs: Optional[int] = typer.Option(None, "--jobs", "-j", min=1, metavar="N", help="Worker processes (default: all cores)."),
+    label: Optional[str] = typer.Option(None, "--label", metavar="LABEL", help="CVAT label of the proposed tracks (default: plane)."),
     min_area: Optional[float] = typer.Option(
-        None, "--min-area", min=0.0, max=1.0, help="Smallest plane proposed, as a share of the image (default 0.01)."
+        None, "--min-area", min=0.0, max=1.0, metavar="SHARE", help="Smallest plane proposed, as a share of the image (default 0.01)."
     ),
-    set_: List[str] = typer.Option([], "--set", help="Override any configuration key: SECTION.KEY=VALUE."),
+    set_: List[str] = typer.Option([], "--set", metavar="SECTION.KEY=VALUE", help="Override any configuration key: SECTION.KEY=VALUE."),
 ) -> None:
     """Detect planes on the depth frames and write them as CVAT polygon tracks to correct."""
     from dataclasses import replace
 
-    from .pool import default_workers, prepare_helpers, reuse_freed_memory
-
-    workers = jobs or default_workers()
-    prepare_helpers(workers, ["annotate_rgbd.propose.detect_job"])
-    reuse_freed_memory()
-
-    from .config import load_config, parse_settings
-    from .progress import Progress
-    from .propose import ProposeConfig, run_propose
-
     with user_errors():
+        from .pool import default_workers, prepare_helpers, reuse_freed_memory
+
+        workers = jobs or default_workers()
+        prepare_helpers(workers, ["annotate_rgbd.propose.detect_job"])
+        reuse_freed_memory()
+
+        with interrupts_deferred():
+            from .config import load_config, parse_settings
+            from .progress import Progress
+            from .propose import ProposeConfig, run_propose
+
         settings = ProposeConfig(every=every)
         if label is not None:
             settings = replace(settings, label=label)
@@ -323,8 +356,8 @@ def propose(
 
 @app.command("export-cvat")
 def export_cvat_command(
-    run_dir: Path = typer.Argument(..., help="Output folder of a finished cvat2mask run."),
-    xml: Path = typer.Argument(..., help="The CVAT for video 1.1 XML file to write."),
+    run_dir: Path = typer.Argument(..., metavar="RUN_DIR", help="Output folder of a finished cvat2mask run."),
+    xml: Path = typer.Argument(..., metavar="FILE.xml", help="The CVAT for video 1.1 XML file to write."),
 ) -> None:
     """Write a run's refined masks as CVAT polygon tracks, for a correction round."""
     from .exportcvat import export_cvat

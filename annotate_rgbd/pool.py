@@ -123,7 +123,17 @@ def prepare_helpers(workers: int, preload: Sequence[str] = ()) -> None:
     if workers > 1 and helper_context(preload).get_start_method() == "forkserver":
         from multiprocessing import forkserver
 
-        forkserver.ensure_running()
+        if threading.current_thread() is not threading.main_thread():
+            forkserver.ensure_running()
+            return
+        # The server inherits an ignored SIGINT (Python then installs no KeyboardInterrupt
+        # handler): Ctrl-C during its ~2 s of imports would otherwise print its own traceback.
+        # Helpers ignore Ctrl-C in any case; the main process stops them.
+        previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+        try:
+            forkserver.ensure_running()
+        finally:
+            signal.signal(signal.SIGINT, previous)
 
 
 class HelperPool:

@@ -14,6 +14,7 @@ from __future__ import annotations
 import json
 import logging
 from collections.abc import Callable
+from contextlib import nullcontext
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -21,14 +22,14 @@ import numpy as np
 
 from .config import Config, config_from_dict
 from .errors import InputError
-from .frame_job import OVERLAY_DIR, segment_job
+from .frame_job import OVERLAY_DIR, FrameJob, segment_job
 from .outdir import REVIEW_RECORD, check_output_names, file_digest, read_bounded, read_review_record
 from .overlay import contact_sheet, overlay_for_frame
 from .plan import RunPlan, plan_run
+from .pool import run_jobs, start_helpers
 from .records import FrameRecord, RecordError, RunRecord
 from .resume import MAX_RECORDS_BYTES, REPORT as REPORT_NAME
 from .review_page import render_review_page
-from .segment import FrameResult
 from .sequence import read_rgb
 from .writer import write_bytes_atomic, write_png
 
@@ -126,6 +127,7 @@ def review_run(
     page: bool = True,
     sheet: bool = True,
     progress: Callable[[int, int], None] | None = None,
+    workers: int = 1,
 ) -> ReviewOutput:
     """Write the review files of a finished run.
 
@@ -142,6 +144,8 @@ def review_run(
         masks).
     progress : callable, optional
         Called as ``progress(done, total)`` after each overlay.
+    workers : int
+        Processes that write overlays, this one included.
 
     Returns
     -------
@@ -161,17 +165,21 @@ def review_run(
         config = config_from_dict(report.config, origin=out_dir / REPORT_NAME)
         plan = replan(report, out_dir, config)
         jobs = {job.mask_path.name: job for _, job in plan.jobs}
-        for done, frame in enumerate(written, start=1):
+        tasks = []
+        for frame in written:
             path = _overlay_path(out_dir, frame)
             job = jobs.get(path.name)
             if job is None:
                 raise InputError(out_dir / REPORT_NAME, f"{frame.depth}: no longer gets a mask from the inputs; run cvat2mask again")
-            result = segment_job(job, config)
-            _check_records(frame, result, output.warnings)
-            write_png(path, overlay_for_frame(plan.sequence.root / frame.rgb, result, plan.colours))
-            output.overlays.append(path)
-            if progress:
-                progress(done, len(written))
+            tasks.append(OverlayTask(job, config, plan.sequence.root / frame.rgb, plan.colours, path))
+        with start_helpers(workers, [__name__]) or nullcontext() as helpers:
+            for done, outcome in enumerate(run_jobs(tasks, write_overlay, helpers), start=1):
+                if outcome.error is not None:
+                    raise outcome.error
+                _check_records(written[outcome.index], outcome.value, output.warnings)
+                if progress:
+                    progress(done, len(written))
+        output.overlays = [task.path for task in tasks]
     available = [f for f in written if _overlay_path(out_dir, f).is_file()]
     if page:
         output.page = out_dir / PAGE_NAME
@@ -193,16 +201,42 @@ def review_run(
     return output
 
 
+@dataclass(frozen=True)
+class OverlayTask:
+    """One overlay to write: the frame's job as the run planned it, and where to write."""
+
+    job: FrameJob
+    config: Config
+    rgb: Path
+    colours: np.ndarray
+    path: Path
+
+
+def write_overlay(task: OverlayTask) -> list[tuple]:
+    """Segment the task's frame again and write its overlay (run in a helper process).
+
+    Returns
+    -------
+    list of tuple
+        The frame's plane records as ``(plane, pixels, inliers, reason)``, sorted, to compare
+        with the report.
+    """
+    result = segment_job(task.job, task.config)
+    write_png(task.path, overlay_for_frame(task.rgb, result, task.colours))
+    return _plane_summary([*result.kept, *result.dropped])
+
+
+def _plane_summary(planes) -> list[tuple]:
+    return sorted((r.plane, r.pixels, r.inliers, r.reason) for r in planes)
+
+
 def _overlay_path(out_dir: Path, frame: FrameRecord) -> Path:
     return out_dir / OVERLAY_DIR / Path(frame.mask).name
 
 
-def _check_records(frame: FrameRecord, result: FrameResult, warnings: list[str]) -> None:
+def _check_records(frame: FrameRecord, planes: list[tuple], warnings: list[str]) -> None:
     """Warn when a frame no longer segments as the report says (its overlay would mislead)."""
-    def summary(planes) -> list[tuple]:
-        return sorted((r.plane, r.pixels, r.inliers, r.reason) for r in planes)
-
-    if summary([*result.kept, *result.dropped]) != summary([*frame.kept, *frame.dropped]):
+    if planes != _plane_summary([*frame.kept, *frame.dropped]):
         message = (
             f"{frame.depth}: segments differently from report.json (inputs or annotate-rgbd changed "
             "since the run?); the overlay shows what a run would make now"

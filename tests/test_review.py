@@ -97,6 +97,20 @@ def test_review_reports_progress_after_each_overlay(finished_run, tmp_path):
     assert calls == [(i, written, i) for i in range(1, written + 1)]
 
 
+def test_review_with_helpers_writes_the_same_overlays(finished_run, tmp_path):
+    out = tmp_path / "out"
+    shutil.copytree(finished_run, out, ignore=shutil.ignore_patterns("overlays"))
+    report = _report(out)
+    frame = next(f for f in report["frames"] if f["status"] == "written")
+    frame["kept"][0]["pixels"] += 1  # the helpers' results are checked against the report too
+    (out / "report.json").write_text(json.dumps(report), encoding="utf-8")
+    result = review_run(out, page=False, sheet=False, workers=2)
+    assert len(result.warnings) == 1 and frame["depth"] in result.warnings[0]
+    assert result.overlays == [out / "overlays" / Path(f["mask"]).name for f in report["frames"] if f["status"] == "written"]
+    for path in result.overlays:
+        assert path.read_bytes() == (finished_run / "overlays" / path.name).read_bytes()
+
+
 class Terminal(io.StringIO):
     def isatty(self) -> bool:
         return True
@@ -171,7 +185,7 @@ def test_page_data_cannot_end_the_script_block():
 def test_cli_review(finished_run, tmp_path):
     out = tmp_path / "out"
     shutil.copytree(finished_run, out, ignore=shutil.ignore_patterns("overlays", "review.html", "contact_sheet.png"))
-    result = CliRunner().invoke(app, ["review", str(out), "--no-sheet"])
+    result = CliRunner().invoke(app, ["review", str(out), "--no-sheet", "--jobs", "2"])
     assert result.exit_code == 0, result.output
     assert (out / "review.html").is_file() and not (out / "contact_sheet.png").exists()
     written = _report(out)["summary"]["masks_written"]

@@ -1,0 +1,38 @@
+"""The help of every command reads like a Unix tool's: option values named, flags bare."""
+
+import re
+
+import pytest
+from typer.testing import CliRunner
+
+from annotate_rgbd.cli import app
+
+COMMANDS = ["cvat2mask", "batch", "presets", "evaluate", "review", "stats", "propose", "export-cvat"]
+
+
+def _help(*args: str) -> str:
+    result = CliRunner().invoke(app, [*args, "--help"], prog_name="annotate-rgbd", env={"COLUMNS": "100"})
+    assert result.exit_code == 0, result.output
+    return result.output
+
+
+@pytest.mark.parametrize("command", [[], *([c] for c in COMMANDS)])
+def test_help_names_values_and_leaves_flags_bare(command):
+    text = _help(*command)
+    # Type tags as typer >= 0.27 prints them ('<bool>', '<list[Path]>', '{SEQUENCE_DIR}').
+    assert not re.search(r"<[a-z][\w\[\], ]*>|\{[A-Z_.]+\}", text), text
+    # A flag takes no value: its line is the flag, then spaces and its help.
+    for flag in ("--help", "--force", "--overlays", "--raw-masks", "--json", "--version"):
+        for line in text.splitlines():
+            if line.strip().startswith(flag + " "):
+                assert re.match(rf"\s+{flag}( / --no-[a-z-]+)?\s{{2,}}\S", line), line
+
+
+def test_cvat2mask_help_names_every_value():
+    text = _help("cvat2mask")
+    assert "Usage: annotate-rgbd cvat2mask [OPTIONS] SEQUENCE_DIR ANNOTATIONS..." in text
+    for shown in ("-o, --out DIR", "-c, --config FILE|PRESET", "--set SECTION.KEY=VALUE", "-j, --jobs N",
+                  "--poses FILE", "--part FILE:OFFSET", "--distance-threshold METRES"):
+        assert shown in text
+    # Square brackets in help text are printed, not taken for markup.
+    assert "[noise]" in text
