@@ -46,6 +46,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 import sys
 import types
 import typing
@@ -309,10 +310,7 @@ def load_config(source: str | Path | None = None, overrides: Mapping[str, Any] |
     origin: str | Path | None = None
     if source is not None:
         origin, text = _read_source(source)
-        try:
-            values = tomllib.loads(text)
-        except tomllib.TOMLDecodeError as exc:
-            raise InputError(origin, f"invalid TOML: {exc}") from None
+        values = read_toml(text, origin)
     poses = values.get("sequence", {}).get("poses") if isinstance(values.get("sequence"), Mapping) else None
     if isinstance(poses, str) and poses and isinstance(origin, Path):
         values["sequence"]["poses"] = str(origin.parent / poses)  # relative to the file
@@ -356,11 +354,51 @@ def parse_settings(settings: Iterable[str]) -> dict[str, Any]:
         if not sep or "." not in key:
             raise InputError(None, f"--set {setting!r}: expected SECTION.KEY=VALUE, e.g. ransac.distance_threshold=0.01")
         try:
-            value = tomllib.loads(f"v = {text}")["v"]
-        except tomllib.TOMLDecodeError:
+            value = read_toml(f"v = {text}", None)["v"]
+        except InputError as exc:
+            if "nested" in str(exc):
+                raise InputError(None, f"--set {key.strip()}: {exc.args[-1] if exc.args else exc}") from None
             value = text
         overrides[key.strip()] = value
     return overrides
+
+
+#: Deepest nesting of tables and arrays accepted in a configuration, manifest or ``--set``
+#: value (ours need 3 levels; tomllib itself recurses and would fail at ~1000 with a traceback).
+MAX_TOML_NESTING = 16
+
+
+def read_toml(text: str, origin: str | Path | None) -> dict[str, Any]:
+    """Parse TOML text (a configuration, a manifest, a ``--set`` value).
+
+    Raises
+    ------
+    InputError
+        Invalid TOML, or tables and arrays nested more than :data:`MAX_TOML_NESTING` deep.
+    """
+    # Arrays and inline tables opened before any is closed bound the depth tomllib recurses to.
+    if _bracket_depth(text) > MAX_TOML_NESTING:
+        raise InputError(origin, f"invalid TOML: values nested more than {MAX_TOML_NESTING} levels deep")
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(origin, f"invalid TOML: {exc}") from None
+    except RecursionError:
+        raise InputError(origin, f"invalid TOML: values nested more than {MAX_TOML_NESTING} levels deep") from None
+
+
+def _bracket_depth(text: str) -> int:
+    """The deepest nesting of ``[``/``{`` in ``text``, outside strings and comments (roughly:
+    an over-estimate only ever rejects a pathological file)."""
+    depth = deepest = 0
+    for bracket in _BRACKETS.findall(_STRINGS_AND_COMMENTS.sub("", text)):
+        depth += 1 if bracket in "[{" else -1
+        deepest = max(deepest, depth)
+    return deepest
+
+
+_STRINGS_AND_COMMENTS = re.compile(r'"(?:[^"\\\n]|\\.)*"|\'[^\'\n]*\'|#[^\n]*')
+_BRACKETS = re.compile(r"[\[\]{}]")
 
 
 def parse_part_offsets(parts: Iterable[str]) -> dict[str, int]:

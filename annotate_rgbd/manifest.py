@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from .config import parse_part_offsets, parse_settings, tomllib
+from .config import parse_part_offsets, parse_settings, read_toml
 from .errors import InputError
 
 SCENE_KEYS = {"name", "sequence", "annotations", "config", "out", "parts", "set", "raw_masks", "poses"}
@@ -68,11 +68,12 @@ def read_manifest(path: str | Path) -> tuple[list[SceneSpec], int | None]:
     """
     path = Path(path)
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
+        text = path.read_text(encoding="utf-8")
     except OSError as exc:
         raise InputError(path, f"cannot read manifest: {exc.strerror or exc}") from None
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+    except UnicodeDecodeError as exc:
         raise InputError(path, f"invalid TOML: {exc}") from None
+    data = read_toml(text, path)
     unknown = set(data) - {"scene", "jobs"}
     if unknown:
         raise InputError(path, f"unknown key '{sorted(unknown)[0]}' (a manifest has 'jobs' and [[scene]] tables)")

@@ -229,3 +229,27 @@ def test_max_points_3_is_valid_and_runs(tmp_path):
     config = load_config(SAMPLE_DATA / "camera.toml", {"ransac.max_points": 3})
     run = run_cvat2mask(SAMPLE_DATA / "sequence", [SAMPLE_DATA / "annotations.xml"], tmp_path / "out", config)
     assert run.written == 19
+
+
+@pytest.mark.parametrize("depth", [17, 100_000])
+def test_values_nested_absurdly_deep_are_one_error_everywhere(tmp_path, depth):
+    from annotate_rgbd.manifest import read_manifest
+
+    deep = "[" * depth + "]" * depth
+    config = tmp_path / "deep.toml"
+    config.write_text(f"[ransac]\nseed = {deep}\n")
+    with pytest.raises(InputError, match="nested more than 16 levels deep") as error:
+        load_config(config)
+    assert error.value.path == config
+    with pytest.raises(InputError, match=r"--set ransac.seed: .*nested more than 16"):
+        parse_settings([f"ransac.seed={deep}"])
+    manifest = tmp_path / "scenes.toml"
+    manifest.write_text(f"[[scene]]\nname = {'{a=' * depth}1{'}' * depth}\n")
+    with pytest.raises(InputError, match="nested more than 16 levels deep"):
+        read_manifest(manifest)
+
+
+def test_brackets_in_strings_and_comments_do_not_count_as_nesting(tmp_path):
+    config = tmp_path / "c.toml"
+    config.write_text('# [[[[[[[[[[[[[[[[[[[[\n[annotation]\nlabels = ["[[[[[[[[[[[[[[[[[[[[", \'{{{{{{{{{{{{{{{{{{{{\']\n')
+    assert load_config(config).annotation.labels == ("[" * 20, "{" * 20)
