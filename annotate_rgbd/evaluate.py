@@ -11,6 +11,7 @@ its mean over the GT frames.
 from __future__ import annotations
 
 import json
+import logging
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -20,6 +21,8 @@ from .errors import InputError
 from .writer import write_csv
 from .labelmaps import LABEL_SUFFIXES, read_label_map
 from .metrics import METRIC_NAMES, FrameStatistics, frame_statistics
+
+log = logging.getLogger("annotate_rgbd")
 
 
 @dataclass(frozen=True)
@@ -38,6 +41,8 @@ class FrameScore:
     name: str
     statistics: FrameStatistics
     missing: bool
+    #: Its label files that look like photographs (:func:`looks_like_a_photograph`).
+    unlikely_masks: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -109,6 +114,12 @@ def evaluate_paths(
             raise InputError(None, f"--{name} must be in (0, 1], not {value}")
     pairs, unmatched = match_frames(gt, pred)
     frames = tuple(score_frame(pair, full=full, part=part, measure=measure) for pair in pairs)
+    unlikely = [path for frame in frames for path in frame.unlikely_masks]
+    if unlikely:
+        log.warning(
+            "%s: %d label file%s made mostly of tiny labels (every shade a plane): photographs rather than "
+            "masks?", unlikely[0], len(unlikely), "s" if len(unlikely) > 1 else "",
+        )
     return EvaluationResult(frames=frames, full=full, part=part, predictions_unmatched=tuple(unmatched))
 
 
@@ -139,15 +150,49 @@ def match_frames(gt: str | Path, pred: str | Path) -> tuple[list[FramePair], lis
     if not gt_files:
         raise InputError(gt, f"no label files ({', '.join(LABEL_SUFFIXES)}) in the ground-truth folder")
     pred_files = _label_files(pred)
+    if not pred_files:
+        raise InputError(pred, f"no label files ({', '.join(LABEL_SUFFIXES)}) in the prediction folder")
+    if not pred_files.keys() & gt_files.keys():
+        raise InputError(
+            pred,
+            f"no file name in common with the ground truth (PRED has e.g. {min(pred_files)}, GT "
+            f"{min(gt_files)}): frames are matched by file name without its suffix",
+        )
     pairs = [FramePair(name, path, pred_files.get(name)) for name, path in sorted(gt_files.items())]
     unmatched = sorted(pred_files[name].name for name in pred_files.keys() - gt_files.keys())
     return pairs, unmatched
+
+
+#: A label covering less than this share of the image is a speck, not a plane (0.05 %: 38 pixels
+#: at 320x240). In a plane mask specks hold almost no pixels; in a photograph, whose every shade
+#: is a "label", they hold most (82 % on a TUM RGB frame, 4.7 % on the flat-shaded sample frames).
+SPECK_SHARE = 0.0005
+#: Share of pixels in specks above which a label file is taken for an image rather than a mask.
+MAX_SPECK_PIXELS = 0.02
+
+
+def looks_like_a_photograph(labels: np.ndarray) -> bool:
+    """Whether a label map is more likely an image given by mistake than a plane mask.
+
+    Parameters
+    ----------
+    labels : ndarray of int, shape (height, width)
+
+    Returns
+    -------
+    bool
+        True when more than :data:`MAX_SPECK_PIXELS` of the pixels carry labels that each cover
+        less than :data:`SPECK_SHARE` of the image.
+    """
+    _, inverse, counts = np.unique(labels.ravel(), return_inverse=True, return_counts=True)
+    return bool((counts[inverse] < SPECK_SHARE * labels.size).mean() > MAX_SPECK_PIXELS)
 
 
 def score_frame(pair: FramePair, *, full: float, part: float, measure: str = "iou") -> FrameScore:
     """Read one frame pair and compute its statistics (an absent PRED file is an empty prediction)."""
     gt = read_label_map(pair.gt)
     pred = np.zeros_like(gt) if pair.pred is None else read_label_map(pair.pred)
+    unlikely = tuple(str(path) for path, labels in ((pair.gt, gt), (pair.pred, pred)) if looks_like_a_photograph(labels))
     if pred.shape != gt.shape:
         raise InputError(
             pair.pred,
@@ -155,7 +200,7 @@ def score_frame(pair: FramePair, *, full: float, part: float, measure: str = "io
             f"but ground truth {pair.gt.name} is {gt.shape[1]}x{gt.shape[0]}",
         )
     statistics = frame_statistics(gt, pred, full=full, part=part, measure=measure)
-    return FrameScore(pair.name, statistics, missing=pair.pred is None)
+    return FrameScore(pair.name, statistics, missing=pair.pred is None, unlikely_masks=unlikely)
 
 
 def format_table(result: EvaluationResult) -> str:

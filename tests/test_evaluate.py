@@ -12,7 +12,7 @@ from typer.testing import CliRunner
 
 from annotate_rgbd.cli import app
 from annotate_rgbd.errors import InputError
-from annotate_rgbd.evaluate import evaluate_paths, match_frames
+from annotate_rgbd.evaluate import evaluate_paths, looks_like_a_photograph, match_frames
 from annotate_rgbd.labelmaps import colours_to_labels, read_cape_csv, read_label_map
 from annotate_rgbd.metrics import METRIC_NAMES, frame_statistics
 
@@ -189,6 +189,44 @@ def test_input_errors(tmp_path, sequence):
         evaluate_paths(gt_dir, tmp_path / "nowhere")
     with pytest.raises(InputError, match="--full"):
         evaluate_paths(gt_dir, pred_dir, full=0)
+
+
+def test_a_prediction_that_cannot_be_matched_is_an_error_not_a_zero_score(tmp_path, sequence):
+    gt_dir, _, _, _ = sequence
+    empty = tmp_path / "empty_pred"
+    empty.mkdir()
+    (empty / "notes.txt").write_text("not a label file")
+    with pytest.raises(InputError, match=r"no label files \(.png, .npy, .csv\) in the prediction folder") as error:
+        evaluate_paths(gt_dir, empty)
+    assert error.value.path == empty
+    renamed = tmp_path / "renamed"
+    renamed.mkdir()
+    np.save(renamed / "frame_0001.npy", _planes())
+    with pytest.raises(InputError, match="no file name in common with the ground truth .PRED has e.g. frame_0001, GT 0001.5."):
+        evaluate_paths(gt_dir, renamed)
+    # One name in common is enough: the rest are listed, as before.
+    np.save(renamed / "0002.5.npy", _planes(seed=1))
+    assert evaluate_paths(gt_dir, renamed).frames_missing == ["0001.5", "0003.5"]
+
+
+def test_photographs_given_as_masks_are_warned_about(tmp_path, caplog):
+    gt_dir, pred_dir = tmp_path / "gt", tmp_path / "pred"
+    gt_dir.mkdir()
+    pred_dir.mkdir()
+    rng = np.random.default_rng(0)
+    planes = np.repeat(np.repeat(_planes(), 4, axis=0), 4, axis=1)  # 64x48
+    planes[0, 0] = 9  # one speck of one pixel in a real mask is no photograph
+    shading = (rng.normal(0, 6, (*planes.shape, 3)) + COLOURS[planes % len(COLOURS)]).clip(0, 255).astype(np.uint8)
+    for name in ("a", "b"):
+        cv2.imwrite(str(gt_dir / f"{name}.png"), COLOURS[planes % len(COLOURS)])
+        cv2.imwrite(str(pred_dir / f"{name}.png"), shading)  # every shade of noise becomes a "plane"
+    with caplog.at_level("WARNING", logger="annotate_rgbd"):
+        result = evaluate_paths(gt_dir, pred_dir)
+    assert [f.unlikely_masks for f in result.frames] == [(str(pred_dir / "a.png"),), (str(pred_dir / "b.png"),)]
+    assert len(caplog.records) == 1
+    assert caplog.records[0].getMessage().startswith(f"{pred_dir / 'a.png'}: 2 label files made mostly of tiny labels")
+    assert looks_like_a_photograph(planes) is False
+    assert looks_like_a_photograph(colours_to_labels(shading)) is True
 
 
 # --- command line --------------------------------------------------------------------------------
