@@ -151,13 +151,19 @@ def segment_job(job: FrameJob, config: Config, depth_file: np.ndarray | None = N
         annotated image.
     """
     depth_raw = read_depth(job.depth_path, depth_file)
-    if job.image_size is not None and depth_raw.shape != (job.image_size[1], job.image_size[0]):
+    check_size(job, depth_raw.shape)
+    return segment_frame(depth_raw, job.shapes, config)
+
+
+def check_size(job: FrameJob, shape: tuple[int, ...]) -> None:
+    """Raise :class:`SizeMismatch` when a depth image of ``shape`` (rows, columns) does not have
+    the size of the images the job's annotation part was drawn on."""
+    if job.image_size is not None and tuple(shape[:2]) != (job.image_size[1], job.image_size[0]):
         raise SizeMismatch(
             job.depth_path,
-            f"depth image is {depth_raw.shape[1]}x{depth_raw.shape[0]} but {Path(job.part_path).name} "
+            f"depth image is {shape[1]}x{shape[0]} but {Path(job.part_path).name} "
             f"annotates {job.image_size[0]}x{job.image_size[1]} images",
         )
-    return segment_frame(depth_raw, job.shapes, config)
 
 
 def run_frame_job(task: FrameTask) -> FrameOutcome:

@@ -21,7 +21,7 @@ from .annotation import Annotation
 from .config import Config
 from .cvat import read_cvat
 from .errors import InputError
-from .frame_job import OVERLAY_DIR, FrameJob
+from .frame_job import OVERLAY_DIR, FrameJob, check_size
 from .palette import plane_colours
 from .part_overlap import part_pair_iou
 from .parts import Part, frame_owners, place_parts
@@ -202,8 +202,9 @@ def plan_run(
                          "keyframes are carried to every frame by the poses")
     frames, jobs, frame_warnings = plan_frames(sequence, parts, tracks, association, output,
                                                config.sequence.max_time_diff, propagation, config)
+    camera = check_first_frames(jobs, config)  # a size mismatch stops here, before any frame warning
     _warn(warnings, frame_warnings)
-    _warn(warnings, camera_warnings(jobs, config))
+    _warn(warnings, camera)
     return RunPlan(sequence, parts, tracks, colours, frames, jobs, warnings, notes, propagation)
 
 
@@ -367,18 +368,34 @@ def _frame_job(
     )
 
 
-def camera_warnings(jobs: SequenceType[tuple[int, FrameJob]], config: Config) -> list[str]:
-    """A warning when the camera's principal point does not fit the first masked depth frame
-    (reads that frame)."""
-    if not jobs:
-        return []
-    depth_path = jobs[0][1].depth_path
-    try:
-        height, width = read_depth(depth_path).shape
-    except InputError:
-        return []  # reported with its frame
-    problem = camera_problem(config.camera.cx, config.camera.cy, width, height)
-    return [] if problem is None else [f"{depth_path}: {problem}"]
+def check_first_frames(jobs: SequenceType[tuple[int, FrameJob]], config: Config) -> list[str]:
+    """Check the first masked depth frame of each annotation part before any work starts.
+
+    Returns
+    -------
+    list of str
+        A warning when the camera's principal point does not fit the first frame.
+
+    Raises
+    ------
+    SizeMismatch
+        A part's first depth frame does not have the size of the images it annotates (every
+        frame would fail, after the helpers had started and a page of warnings).
+    """
+    warnings = []
+    first_of_part = {}
+    for _, job in jobs:
+        first_of_part.setdefault(job.part_path, job)
+    for number, job in enumerate(first_of_part.values()):
+        try:
+            height, width = read_depth(job.depth_path).shape
+        except InputError:
+            continue  # reported with its frame
+        check_size(job, (height, width))
+        problem = camera_problem(config.camera.cx, config.camera.cy, width, height)
+        if number == 0 and problem is not None:
+            warnings.append(f"{job.depth_path}: {problem}")
+    return warnings
 
 
 def _warn(warnings: list[str], messages: SequenceType[str]) -> None:

@@ -164,7 +164,7 @@ def test_errors_raised_in_worker_processes_stay_one_line(tmp_path):
     # raised inside a worker process and carried back pickled.
     sequence = tmp_path / "sequence"
     shutil.copytree(SEQUENCE, sequence)
-    for path in (sequence / "depth").iterdir():
+    for path in sorted((sequence / "depth").iterdir())[1:]:  # the first frame is checked before the run
         cv2.imwrite(str(path), cv2.resize(cv2.imread(str(path), cv2.IMREAD_UNCHANGED), (640, 480)))
     result = CliRunner().invoke(
         app, ["cvat2mask", str(sequence), str(ANNOTATIONS), "--out", str(tmp_path / "out"), "--jobs", "2",
@@ -174,6 +174,24 @@ def test_errors_raised_in_worker_processes_stay_one_line(tmp_path):
     last = result.output.strip().splitlines()[-1]
     assert last.startswith(f"error: {sequence}/depth/") and "depth image is 640x480 but annotations.xml annotates 320x240" in last
     assert "Traceback" not in result.output
+
+
+def test_a_size_mismatch_is_found_before_the_run_starts(tmp_path):
+    sequence = tmp_path / "sequence"
+    shutil.copytree(SEQUENCE, sequence)
+    for path in (sequence / "depth").iterdir():
+        cv2.imwrite(str(path), cv2.resize(cv2.imread(str(path), cv2.IMREAD_UNCHANGED), (640, 480)))
+    out = tmp_path / "out"
+    result = CliRunner().invoke(
+        app, ["cvat2mask", str(sequence), str(ANNOTATIONS), "--out", str(out), "--jobs", "2",
+              "--config", str(SAMPLE_DATA / "camera.toml")]
+    )
+    assert result.exit_code == 1
+    # One line: no per-frame warning before it (the sample's skipped 11th frame has one), no
+    # progress line, and nothing in the output folder (no journal).
+    lines = result.output.strip().splitlines()
+    assert len(lines) == 1 and "depth image is 640x480 but annotations.xml annotates 320x240" in lines[0], lines
+    assert not out.exists() or not any(out.iterdir())
 
 
 def test_a_rerun_removes_outputs_it_did_not_make_and_leaves_the_users_files(tmp_path, caplog):
