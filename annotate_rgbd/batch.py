@@ -14,10 +14,12 @@ from typing import Callable
 from .config import load_config
 from .errors import InputError
 from .execute import STALL_TIMEOUT, SceneRun, execute_scenes, start_frame_helpers
+from .logs import scene_warnings
 from .manifest import SceneSpec
 from .pipeline import finish_scene
 from .plan import plan_run
 from .records import summarize
+from .review import review_run
 
 
 @dataclass
@@ -28,6 +30,7 @@ class SceneOutcome:
     out: Path
     run: SceneRun | None = None
     error: str | None = None
+    review_page: Path | None = None  # with overlays
 
     @property
     def failed_frames(self) -> list[str]:
@@ -63,14 +66,16 @@ def run_batch(
         One per scene, in manifest order.
     """
     outcomes = [SceneOutcome(spec.name, spec.out) for spec in scenes]
+    overlays = {id(outcome): spec.overlays for spec, outcome in zip(scenes, outcomes)}
     runs: list[tuple[SceneOutcome, SceneRun]] = []
     helpers = start_frame_helpers(workers)  # they start while the scenes are planned
     try:
         for spec, outcome in zip(scenes, outcomes):
             try:
-                config = load_config(spec.config, spec.overrides)
-                plan = plan_run(spec.sequence, spec.annotations, spec.out, config, spec.offsets, spec.raw_masks,
-                                poses=spec.poses)
+                with scene_warnings(spec.name):
+                    config = load_config(spec.config, spec.overrides)
+                    plan = plan_run(spec.sequence, spec.annotations, spec.out, config, spec.offsets, spec.raw_masks,
+                                    spec.overlays, poses=spec.poses)
             except InputError as exc:
                 outcome.error = str(exc)
                 continue
@@ -85,8 +90,11 @@ def run_batch(
                 outcome.error = str(run.error)
                 continue
             try:
-                finish_scene(run)
-                outcome.run = run
+                with scene_warnings(outcome.name):
+                    finish_scene(run)
+                    outcome.run = run
+                    if overlays[id(outcome)]:
+                        outcome.review_page = review_run(outcome.out, overlays=False).page
             except InputError as exc:
                 outcome.error = str(exc)
     finally:
@@ -110,5 +118,7 @@ def summary_lines(outcomes: list[SceneOutcome]) -> list[str]:
             f"{summary.skipped} skipped, {counts.failed} failed; {summary.planes_kept} planes kept, "
             f"{summary.planes_dropped} dropped"
         )
+        if outcome.review_page is not None:
+            lines.append(f"  review page: {outcome.review_page}")
         lines.extend(f"  failed: {line}" for line in outcome.failed_frames)
     return lines

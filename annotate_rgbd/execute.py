@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING, Callable, Sequence
 from .config import Config
 from .errors import InputError, OutputError
 from .outdir import OutputLock, check_output_names
+from .logs import scene_warnings
 from .pool import (
     STALL_TIMEOUT, HelperPool, JobTimeout, default_workers, prepare_helpers, reuse_freed_memory, run_jobs, start_helpers,
 )
@@ -230,8 +231,9 @@ def execute_scenes(
             journal.close()
     for scene in scenes:
         # In frame order, whatever order the workers finished in.
-        for frame in scene.plan.frames:
-            if frame.status == FAILED:
-                message = f"{frame.error}; skipped"
-                scene.plan.warnings.append(message)
-                log.warning(message)
+        with scene_warnings(scene.name if len(scenes) > 1 else None):
+            for frame in scene.plan.frames:
+                if frame.status == FAILED:
+                    message = f"{frame.error}; skipped"
+                    scene.plan.warnings.append(message)
+                    log.warning(message)

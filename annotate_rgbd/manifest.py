@@ -13,6 +13,7 @@ A manifest has one ``[[scene]]`` table per scene; paths are relative to the mani
     parts = ["0-299.xml:0"]        # optional, as --part FILE:OFFSET
     set = ["ransac.distance_threshold=0.01"]   # optional, as --set
     raw_masks = false              # optional, as --raw-masks
+    overlays = false               # optional, as --overlays (overlays/, review.html, contact sheet)
     poses = "data/rgbd_dataset_freiburg1_desk/groundtruth.txt"  # optional, as --poses
 
 Reading one is light (no pipeline imports), so that the command line knows the number of
@@ -28,7 +29,7 @@ from typing import Any
 from .config import parse_part_offsets, parse_settings, read_toml
 from .errors import InputError
 
-SCENE_KEYS = {"name", "sequence", "annotations", "config", "out", "parts", "set", "raw_masks", "poses"}
+SCENE_KEYS = {"name", "sequence", "annotations", "config", "out", "parts", "set", "raw_masks", "overlays", "poses"}
 
 
 @dataclass(frozen=True)
@@ -43,6 +44,7 @@ class SceneSpec:
     offsets: dict[str, int] = field(default_factory=dict)
     overrides: dict[str, Any] = field(default_factory=dict)
     raw_masks: bool = False
+    overlays: bool = False
     poses: Path | None = None
 
 
@@ -103,8 +105,9 @@ def read_manifest(path: str | Path) -> tuple[list[SceneSpec], int | None]:
         lists = {"annotations": annotations, "parts": table.get("parts", []), "set": table.get("set", [])}
         if not all(isinstance(v, str) for v in strings.values()) or not all(
             isinstance(v, list) and all(isinstance(x, str) for x in v) for v in lists.values()
-        ) or not isinstance(table.get("raw_masks", False), bool):
-            raise InputError(path, f"{where}: wrong type (paths and names are strings; annotations, parts and set are lists of strings)")
+        ) or not all(isinstance(table.get(flag, False), bool) for flag in ("raw_masks", "overlays")):
+            raise InputError(path, f"{where}: wrong type (paths and names are strings; annotations, parts and set are "
+                                   "lists of strings; raw_masks and overlays are true or false)")
         config = table.get("config")
         if config is not None and (base / config).is_file():
             config = str(base / config)
@@ -123,6 +126,7 @@ def read_manifest(path: str | Path) -> tuple[list[SceneSpec], int | None]:
             offsets=offsets,
             overrides=overrides,
             raw_masks=table.get("raw_masks", False),
+            overlays=table.get("overlays", False),
             poses=base / table["poses"] if table.get("poses") else None,
         ))
     outs = [s.out.resolve() for s in scenes]

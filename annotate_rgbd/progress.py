@@ -74,7 +74,9 @@ class Progress:
             self.stream.write("\r\033[K" + self.line(scene))
             self.stream.flush()
             self.drawn = True
-        elif final or now - self.last_line >= self.interval:
+        elif final or (self.done[scene] > 0 and now - self.last_line >= self.interval):
+            # Not at 0 frames done: a batch announces its scenes one by one, and a line printed
+            # before the last one would show a total that is too small.
             self.stream.write(self.line(scene) + "\n")
             self.stream.flush()
             self.last_line = now

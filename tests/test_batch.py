@@ -126,6 +126,24 @@ out = "out/broken"
     assert not (tmp_path / "out" / "broken").exists()
 
 
+def test_batch_overlays_and_warnings_that_name_their_scene(tmp_path):
+    manifest = write_manifest(tmp_path, SAMPLE_DATA / "annotations.xml")
+    manifest.write_text(manifest.read_text().replace('out = "out/room"\n', 'out = "out/room"\noverlays = true\n'))
+    result = CliRunner().invoke(app, ["batch", str(manifest), "--jobs", "1"])
+    assert result.exit_code == 0, result.output
+    room, tight = tmp_path / "out" / "room", tmp_path / "out" / "room_tight"
+    assert len(list((room / "overlays").iterdir())) == 19
+    assert (room / "review.html").is_file() and (room / "contact_sheet.png").is_file()
+    assert not (tight / "overlays").exists() and not (tight / "review.html").exists()
+    assert f"  review page: {room / 'review.html'}" in result.stdout.splitlines()
+    # The sample's 11th depth frame has no RGB frame near it: one warning per scene, each named.
+    skipped = [line for line in result.stderr.splitlines() if "no RGB frame within" in line]
+    assert [line.split(":")[:2] for line in skipped] == [["warning", " room"], ["warning", " room_tight"]]
+    # The first progress line already counts both scenes' frames.
+    first = next(line for line in result.stderr.splitlines() if "frames/s" in line)
+    assert "all scenes: 1/38" in first, first
+
+
 def test_a_failed_frame_fails_the_batch_and_is_listed(tmp_path):
     sequence = tmp_path / "sequence"
     import shutil
@@ -155,6 +173,7 @@ def test_a_failed_frame_fails_the_batch_and_is_listed(tmp_path):
          "two scenes write to"),
         ("[[scene]]\nsequence = 'a'\nannotations = ['x.xml']\nout = 'o'\nparts = ['x.xml']\n", "expected FILE:OFFSET"),
         ("[[scene\n", "invalid TOML"),
+        ("[[scene]]\nsequence = 'a'\nannotations = ['x.xml']\nout = 'o'\noverlays = 'yes'\n", "overlays are true or false"),
     ],
 )
 def test_bad_manifests_are_one_line_errors(tmp_path, text, message):

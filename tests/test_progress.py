@@ -1,0 +1,32 @@
+"""Progress lines: what a log file (not a terminal) gets."""
+
+import io
+import itertools
+
+from annotate_rgbd.progress import Progress
+
+
+def test_the_first_line_of_a_batch_shows_the_total_of_all_scenes():
+    stream = io.StringIO()
+    progress = Progress({"a": 0, "b": 0}, stream=stream, interval=10.0, clock=itertools.count(0, 0.5).__next__)
+    a, b = progress.callback("a"), progress.callback("b")
+    # As execute_scenes does: every scene announces its frames, then frames finish.
+    a(0, 3)
+    b(0, 4)
+    a(1, 3)
+    first = stream.getvalue().splitlines()[0]
+    assert first.startswith("a: 1/3 frames | all scenes: 1/7 | ")
+
+
+def test_a_log_gets_a_line_per_interval_and_one_per_finished_scene():
+    stream, now = io.StringIO(), [0.0]
+    progress = Progress({"a": 0}, stream=stream, interval=10.0, clock=lambda: now[0])
+    update = progress.callback("a")
+    for done in range(6):
+        now[0] = 4.0 * done  # one frame every 4 s
+        update(done, 5)
+    # The first finished frame (4 s), the first 10 s after it (16 s: frame 4), the last one.
+    assert [line.split(" |")[0] for line in stream.getvalue().splitlines()] == ["a: 1/5 frames", "a: 4/5 frames", "a: 5/5 frames"]
+    empty = io.StringIO()
+    Progress({"none": 0}, stream=empty).callback("none")(0, 0)  # a scene with nothing to do still ends its line
+    assert empty.getvalue().startswith("none: 0/0 frames")
