@@ -75,7 +75,7 @@ def run_batch(
                 with scene_warnings(spec.name):
                     config = load_config(spec.config, spec.overrides)
                     plan = plan_run(spec.sequence, spec.annotations, spec.out, config, spec.offsets, spec.raw_masks,
-                                    spec.overlays, poses=spec.poses)
+                                    spec.overlays, poses=spec.poses, instance_ids=spec.instance_ids)
             except InputError as exc:
                 outcome.error = str(exc)
                 continue

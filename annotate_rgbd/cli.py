@@ -124,6 +124,9 @@ def cvat2mask(
     force: bool = typer.Option(False, "--force", help="Redo every frame, even those unchanged since the last run."),
     raw_masks: bool = typer.Option(False, "--raw-masks", help="Also write masks_raw/: the shapes as drawn, unrefined."),
     overlays: bool = typer.Option(False, "--overlays", help="Also write overlays/, review.html and contact_sheet.png."),
+    instance_ids: bool = typer.Option(
+        False, "--instance-ids", help="Also write masks_id/: plane ids as pixel values (8/16-bit, as in planes.csv)."
+    ),
     job_timeout: float = typer.Option(
         STALL_TIMEOUT, "--job-timeout", min=1.0, metavar="SECONDS", help="Seconds without a frame finished by the helpers before they are replaced."
     ),
@@ -159,7 +162,7 @@ def cvat2mask(
         progress = Progress({sequence_dir.name: 0})
         report = run_cvat2mask(
             sequence_dir, annotations, out, load_config(config, overrides), offsets=offsets,
-            workers=workers, force=force, raw_masks=raw_masks, overlays=overlays,
+            workers=workers, force=force, raw_masks=raw_masks, overlays=overlays, instance_ids=instance_ids,
             progress=progress.callback(sequence_dir.name), job_timeout=job_timeout, poses=poses,
         )
         progress.finish()

@@ -15,7 +15,7 @@ from .annotation import Shape
 from .config import Config
 from .errors import InputError
 from .outdir import data_digest, file_digest
-from .palette import colourize
+from .palette import colourize, id_image
 from .records import MaskRecord
 from .resume import fingerprint
 from .segment import FrameResult, segment_frame
@@ -46,6 +46,8 @@ class FrameJob:
         Where the unrefined mask goes (the labeller's shapes as drawn), if wanted.
     overlay_path : Path or None
         Where the review overlay goes, if wanted.
+    id_mask_path : Path or None
+        Where the instance-id mask goes (plane ids as pixel values), if wanted.
     rgb_path : Path or None
         The RGB image the overlay is drawn on.
     propagated : frozenset of int, optional
@@ -62,12 +64,13 @@ class FrameJob:
     raw_mask_path: Path | None = None
     overlay_path: Path | None = None
     rgb_path: Path | None = None
+    id_mask_path: Path | None = None
     propagated: frozenset[int] | None = None
 
     @property
     def outputs(self) -> list[Path]:
         """The files this job writes."""
-        return [p for p in (self.mask_path, self.raw_mask_path, self.overlay_path) if p is not None]
+        return [p for p in (self.mask_path, self.raw_mask_path, self.overlay_path, self.id_mask_path) if p is not None]
 
     @property
     def output_names(self) -> set[str]:
@@ -195,6 +198,8 @@ def run_frame_job(task: FrameTask) -> FrameOutcome:
     written = {}
     if job.raw_mask_path is not None:
         written[job.raw_mask_path] = write_png(job.raw_mask_path, colourize(result.drawn, colours))
+    if job.id_mask_path is not None:
+        written[job.id_mask_path] = write_png(job.id_mask_path, id_image(result.labels, len(colours)))
     if job.overlay_path is not None:
         from .overlay import overlay_for_frame  # only when overlays are wanted (SciPy is slow to import)
 

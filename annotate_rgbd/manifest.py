@@ -14,6 +14,7 @@ A manifest has one ``[[scene]]`` table per scene; paths are relative to the mani
     set = ["ransac.distance_threshold=0.01"]   # optional, as --set
     raw_masks = false              # optional, as --raw-masks
     overlays = false               # optional, as --overlays (overlays/, review.html, contact sheet)
+    instance_ids = false           # optional, as --instance-ids (masks_id/)
     poses = "data/rgbd_dataset_freiburg1_desk/groundtruth.txt"  # optional, as --poses
 
 Reading one is light (no pipeline imports), so that the command line knows the number of
@@ -29,7 +30,9 @@ from typing import Any
 from .config import parse_part_offsets, parse_settings, read_toml
 from .errors import InputError
 
-SCENE_KEYS = {"name", "sequence", "annotations", "config", "out", "parts", "set", "raw_masks", "overlays", "poses"}
+SCENE_KEYS = {"name", "sequence", "annotations", "config", "out", "parts", "set", "raw_masks", "overlays",
+              "instance_ids", "poses"}
+FLAGS = ("raw_masks", "overlays", "instance_ids")
 
 
 @dataclass(frozen=True)
@@ -45,6 +48,7 @@ class SceneSpec:
     overrides: dict[str, Any] = field(default_factory=dict)
     raw_masks: bool = False
     overlays: bool = False
+    instance_ids: bool = False
     poses: Path | None = None
 
 
@@ -105,9 +109,9 @@ def read_manifest(path: str | Path) -> tuple[list[SceneSpec], int | None]:
         lists = {"annotations": annotations, "parts": table.get("parts", []), "set": table.get("set", [])}
         if not all(isinstance(v, str) for v in strings.values()) or not all(
             isinstance(v, list) and all(isinstance(x, str) for x in v) for v in lists.values()
-        ) or not all(isinstance(table.get(flag, False), bool) for flag in ("raw_masks", "overlays")):
+        ) or not all(isinstance(table.get(flag, False), bool) for flag in FLAGS):
             raise InputError(path, f"{where}: wrong type (paths and names are strings; annotations, parts and set are "
-                                   "lists of strings; raw_masks and overlays are true or false)")
+                                   f"lists of strings; {', '.join(FLAGS)} are true or false)")
         config = table.get("config")
         if config is not None and (base / config).is_file():
             config = str(base / config)
@@ -127,6 +131,7 @@ def read_manifest(path: str | Path) -> tuple[list[SceneSpec], int | None]:
             overrides=overrides,
             raw_masks=table.get("raw_masks", False),
             overlays=table.get("overlays", False),
+            instance_ids=table.get("instance_ids", False),
             poses=base / table["poses"] if table.get("poses") else None,
         ))
     outs = [s.out.resolve() for s in scenes]

@@ -34,9 +34,9 @@ log = logging.getLogger("annotate_rgbd")
 OWNER = ".annotate-rgbd.pid"
 #: What ``review`` wrote (file name -> digest), so that a later run removes only those files.
 REVIEW_RECORD = ".annotate-rgbd-review.json"
-#: Folders of per-frame outputs: colour masks, raw masks, overlays.
-MASKS, RAW_MASKS, OVERLAYS = "masks", "masks_raw", "overlays"
-OUTPUT_FOLDERS = (MASKS, RAW_MASKS, OVERLAYS)
+#: Folders of per-frame outputs: colour masks, raw masks, overlays, instance-id masks.
+MASKS, RAW_MASKS, OVERLAYS, ID_MASKS = "masks", "masks_raw", "overlays", "masks_id"
+OUTPUT_FOLDERS = (MASKS, RAW_MASKS, OVERLAYS, ID_MASKS)
 #: Every name a run may write or remove at the top of the output folder.
 TOP_LEVEL_NAMES = (
     *OUTPUT_FOLDERS, "report.json", "planes.csv", "tracks.csv", "review.html", "contact_sheet.png",
@@ -201,7 +201,7 @@ class Cleanup:
     def removals(self) -> list[str]:
         """One line per folder files were removed from, in the user's words."""
         what = {MASKS: "masks of frames that no longer get one", RAW_MASKS: "raw masks no longer asked for",
-                OVERLAYS: "overlays no longer asked for"}
+                OVERLAYS: "overlays no longer asked for", ID_MASKS: "instance-id masks no longer asked for"}
         return [f"removed {count} {what[folder]} ({folder}/)" for folder, count in self.removed.items() if count]
 
     def warnings(self) -> list[str]:

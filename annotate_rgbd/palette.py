@@ -58,6 +58,24 @@ def plane_colours(count: int) -> np.ndarray:
     return np.concatenate([greedy, _fine_order()[: count - len(greedy)]])
 
 
+def id_image(labels: np.ndarray, n_planes: int) -> np.ndarray:
+    """A mask whose pixel values are plane ids, for tools that want ids rather than colours.
+
+    Parameters
+    ----------
+    labels : ndarray of int, shape (H, W)
+        Plane ids, 0 = unsegmented.
+    n_planes : int
+        Planes in the run: every frame of a run gets the same type, 8-bit up to 255 planes,
+        else 16-bit (at most 65,535, as many as the palette has colours).
+
+    Returns
+    -------
+    ndarray of uint8 or uint16, shape (H, W)
+    """
+    return labels.astype(np.uint8 if n_planes <= np.iinfo(np.uint8).max else np.uint16)
+
+
 def colourize(labels: np.ndarray, colours: np.ndarray) -> np.ndarray:
     """Paint a label image with plane colours.
 

@@ -36,6 +36,7 @@ def run_cvat2mask(
     progress: Callable[[int, int], None] | None = None,
     job_timeout: float = STALL_TIMEOUT,
     poses: str | Path | None = None,
+    instance_ids: bool = False,
 ) -> SceneRun:
     """Run the whole job: ``masks/``, ``planes.csv``, ``tracks.csv`` and ``report.json`` in ``out_dir``.
 
@@ -70,6 +71,9 @@ def run_cvat2mask(
     poses : str or Path, optional
         A camera trajectory (TUM format) that carries the keyframe shapes to every frame
         (:mod:`annotate_rgbd.propagate`); default: the configuration's ``sequence.poses``.
+    instance_ids : bool
+        Also write ``masks_id/``: single-channel masks whose pixel values are the plane ids of
+        ``planes.csv`` (8-bit for up to 255 planes, else 16-bit; 0 = no plane).
 
     Returns
     -------
@@ -85,7 +89,8 @@ def run_cvat2mask(
     helpers = start_frame_helpers(workers)
     scene = None
     try:
-        plan = plan_run(sequence_dir, annotation_paths, out_dir, config, offsets, raw_masks, overlays, poses)
+        plan = plan_run(sequence_dir, annotation_paths, out_dir, config, offsets, raw_masks, overlays, poses,
+                        instance_ids)
         scene = SceneRun(Path(sequence_dir).name, plan, Path(out_dir), config, progress)
         execute_scenes([scene], helpers, force=force, job_timeout=job_timeout)
         if helpers is not None:

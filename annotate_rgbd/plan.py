@@ -22,6 +22,7 @@ from .config import Config
 from .cvat import read_cvat
 from .errors import InputError
 from .frame_job import OVERLAY_DIR, FrameJob, check_size
+from .outdir import ID_MASKS, RAW_MASKS
 from .palette import plane_colours
 from .part_overlap import part_pair_iou
 from .parts import Part, frame_owners, place_parts
@@ -138,11 +139,14 @@ class OutputOptions:
         Also write ``masks_raw/``.
     overlays : bool
         Also write ``overlays/``.
+    instance_ids : bool
+        Also write ``masks_id/``.
     """
 
     out_dir: Path
     raw_masks: bool = False
     overlays: bool = False
+    instance_ids: bool = False
 
 
 def plan_run(
@@ -154,6 +158,7 @@ def plan_run(
     raw_masks: bool = False,
     overlays: bool = False,
     poses: str | Path | None = None,
+    instance_ids: bool = False,
 ) -> RunPlan:
     """Read the inputs and decide, for every depth frame, whether and how it gets a mask.
 
@@ -191,7 +196,7 @@ def plan_run(
     _warn(warnings, label_warnings(annotations, config.annotation.labels))
     _warn(warnings, label_conflicts(tracks))
     colours = plane_colours(max((t.plane for t in tracks), default=0))
-    output = OutputOptions(Path(out_dir), raw_masks, overlays)
+    output = OutputOptions(Path(out_dir), raw_masks, overlays, instance_ids)
     propagation = None
     poses = poses or config.sequence.poses
     if poses:
@@ -362,7 +367,8 @@ def _frame_job(
         propagated=propagated,
         image_size=part.annotation.image_size.get(frame),
         part_path=part.annotation.path,
-        raw_mask_path=output.out_dir / "masks_raw" / name if output.raw_masks else None,
+        raw_mask_path=output.out_dir / RAW_MASKS / name if output.raw_masks else None,
+        id_mask_path=output.out_dir / ID_MASKS / name if output.instance_ids else None,
         overlay_path=output.out_dir / OVERLAY_DIR / name if output.overlays else None,
         rgb_path=sequence.root / sequence.rgb.files[rgb],
     )

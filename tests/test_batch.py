@@ -173,7 +173,7 @@ def test_a_failed_frame_fails_the_batch_and_is_listed(tmp_path):
          "two scenes write to"),
         ("[[scene]]\nsequence = 'a'\nannotations = ['x.xml']\nout = 'o'\nparts = ['x.xml']\n", "expected FILE:OFFSET"),
         ("[[scene\n", "invalid TOML"),
-        ("[[scene]]\nsequence = 'a'\nannotations = ['x.xml']\nout = 'o'\noverlays = 'yes'\n", "overlays are true or false"),
+        ("[[scene]]\nsequence = 'a'\nannotations = ['x.xml']\nout = 'o'\noverlays = 'yes'\n", "raw_masks, overlays, instance_ids are true or false"),
     ],
 )
 def test_bad_manifests_are_one_line_errors(tmp_path, text, message):

@@ -236,3 +236,31 @@ def test_overlays_say_where_the_review_page_is(tmp_path):
                                       str(SAMPLE_DATA / "camera.toml"), "--out", str(tmp_path / "out"), "--overlays"])
     assert result.exit_code == 0, result.output
     assert f"review page: {tmp_path / 'out' / 'review.html'}" in result.output.splitlines()
+
+
+def test_instance_id_masks_hold_the_plane_ids_of_planes_csv(tmp_path):
+    out = tmp_path / "out"
+    result = CliRunner().invoke(
+        app, ["cvat2mask", str(SEQUENCE), str(ANNOTATIONS), "--out", str(out), "--jobs", "1",
+              "--config", str(SAMPLE_DATA / "camera.toml"), "--instance-ids"]
+    )
+    assert result.exit_code == 0, result.output
+    with open(out / "planes.csv", newline="") as handle:
+        colour_of = {int(row["plane_id"]): (int(row["r"]), int(row["g"]), int(row["b"])) for row in csv.DictReader(handle)}
+    masks = sorted((out / "masks").iterdir())
+    assert [p.name for p in sorted((out / "masks_id").iterdir())] == [p.name for p in masks] and len(masks) == 19
+    for path in masks:
+        ids = cv2.imread(str(out / "masks_id" / path.name), cv2.IMREAD_UNCHANGED)
+        colours = cv2.cvtColor(cv2.imread(str(path)), cv2.COLOR_BGR2RGB)
+        assert ids.dtype == np.uint8 and ids.shape == colours.shape[:2]
+        # Independently: the colour mask read back through planes.csv gives the same ids.
+        expected = np.zeros(ids.shape, np.uint8)
+        for plane, rgb in colour_of.items():
+            expected[(colours == rgb).all(axis=2)] = plane
+        assert np.array_equal(ids, expected)
+    assert any(cv2.imread(str(p), cv2.IMREAD_UNCHANGED).max() > 0 for p in (out / "masks_id").iterdir())
+    # Recorded like the other outputs: a run without the option removes them, and says so.
+    again = CliRunner().invoke(app, ["cvat2mask", str(SEQUENCE), str(ANNOTATIONS), "--out", str(out), "--jobs", "1",
+                                     "--config", str(SAMPLE_DATA / "camera.toml")])
+    assert again.exit_code == 0 and "removed 19 instance-id masks no longer asked for (masks_id/)" in again.output
+    assert not (out / "masks_id").exists()

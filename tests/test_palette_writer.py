@@ -7,7 +7,7 @@ import pytest
 from skimage.color import rgb2lab
 
 from annotate_rgbd.errors import InputError
-from annotate_rgbd.palette import colour_hex, colourize, plane_colours
+from annotate_rgbd.palette import colour_hex, colourize, id_image, plane_colours
 from annotate_rgbd.writer import write_csv, write_json, write_png
 
 
@@ -64,3 +64,12 @@ def test_a_failed_write_leaves_the_old_file_and_no_temporary(tmp_path, monkeypat
         write_json(tmp_path / "r.json", {"new": True})
     assert json.loads((tmp_path / "r.json").read_text()) == {"old": True}
     assert [p.name for p in tmp_path.iterdir()] == ["r.json"]
+
+
+@pytest.mark.parametrize(("n_planes", "dtype"), [(1, np.uint8), (255, np.uint8), (256, np.uint16), (65535, np.uint16)])
+def test_id_images_are_8_bit_up_to_255_planes_else_16_bit(tmp_path, n_planes, dtype):
+    labels = np.array([[0, 1], [n_planes, n_planes // 2]], np.int32)
+    image = id_image(labels, n_planes)
+    assert image.dtype == dtype
+    write_png(tmp_path / "ids.png", image)
+    assert np.array_equal(cv2.imread(str(tmp_path / "ids.png"), cv2.IMREAD_UNCHANGED), labels)
