@@ -19,12 +19,27 @@ MAX_TASK_FRAMES = 200_000
 MAX_SHAPES = 2_000_000
 
 
+#: Vertex-frames of polygon interpolation in one export: the vertices of the two keyframes of
+#: each interpolated span (N + M) times the frames between them, summed over the tracks. It
+#: bounds the reader's time and the memory of the filled-in outlines (some 10 to 16 bytes per
+#: vertex-frame: about 1.5 GB at the bound). 30 planes of 200 vertices over 5000 frames take
+#: 60 million; two 100k-vertex keyframes 5000 frames apart would take a billion.
+MAX_INTERPOLATED_VERTICES = 100_000_000
+
+
 #: Pixels of one mask's box when the export states no image size (4096 x 4096).
 MAX_MASK_PIXELS = 1 << 24
 
 
 #: Decoded mask pixels of the whole export (1 GiB of bitmaps).
 MAX_MASK_PIXELS_TOTAL = 1 << 30
+
+
+#: Vertices of one polygon; a polygon with more is skipped. CVAT's own mask-to-polygon and a
+#: labeller's clicks rarely exceed a few thousand; the reader's work on a polygon (the
+#: self-crossing check, matching two keyframes for interpolation) and the memory of its
+#: interpolated frames grow with the vertex count.
+MAX_POLYGON_VERTICES = 100_000
 
 
 #: Coordinates farther than this from the image origin, in pixels, are a broken shape.
