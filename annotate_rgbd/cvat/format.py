@@ -42,6 +42,17 @@ MAX_MASK_PIXELS_TOTAL = 1 << 30
 MAX_POLYGON_VERTICES = 100_000
 
 
+#: Unpacked bytes of the XML read from a zip archive. The XML is parsed as a stream, so this
+#: bounds the time a zip bomb can take, not memory; a CVAT export of a sequence's planes is
+#: a few megabytes, of a long task with large polygons at most some hundreds.
+MAX_ARCHIVE_XML_BYTES = 4 << 30
+
+
+#: Files in a zip archive: an export with images holds one per frame (at most
+#: :data:`MAX_TASK_FRAMES`) and a few more; the archive's directory is read whole.
+MAX_ARCHIVE_MEMBERS = 250_000
+
+
 #: Coordinates farther than this from the image origin, in pixels, are a broken shape.
 MAX_COORDINATE = 1e6
 
