@@ -57,6 +57,9 @@ def test_a_cvat_zip_reads_like_its_xml(tmp_path, compression):
     assert annotation.path == str(task)  # a part is known by the file the user gave
     # An archive with one .xml elsewhere (a job folder) is read as well.
     same_annotation(read_cvat(make_zip(tmp_path / "job.zip", {"job_7/annotations.xml": xml})), annotation)
+    # The top-level annotations.xml is the one read, whatever other .xml files come with it.
+    extra = {"images/info.xml": "<info/>", "annotations.xml": xml, "other/annotations.xml": "<broken"}
+    same_annotation(read_cvat(make_zip(tmp_path / "extra.zip", extra)), annotation)
 
 
 def test_cvat2mask_on_the_zip_gives_the_masks_of_the_xml(tmp_path):

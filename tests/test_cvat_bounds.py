@@ -62,6 +62,17 @@ def test_crosses_itself_agrees_with_all_pairs():
     answers = [(crosses_itself(p), all_pairs_cross(p)) for p in random_polygons(rng, 2000)]
     assert all(new == old for new, old in answers)
     assert 100 < sum(old for _, old in answers) < 1900  # both kinds of answer were tested
+    # Exactly one crossing, at a random place and angle: the two edges' pieces fall into the
+    # same or any neighbouring grid cell.
+    rng = np.random.default_rng(5)
+    for _ in range(3000):
+        n = int(rng.integers(8, 30))
+        angle = np.sort(rng.random(n)) * 2 * np.pi
+        radius = 50 + rng.random(n) * 40
+        points = np.column_stack([radius * np.cos(angle), radius * np.sin(angle)])
+        k = int(rng.integers(0, n - 1))
+        points[[k, k + 1]] = points[[k + 1, k]]
+        assert crosses_itself(points) == all_pairs_cross(points)
     # Touching is no crossing: a vertex on another edge, an edge doubling back along another.
     assert not crosses_itself(np.array([[0, 0], [4, 0], [4, 4], [2, 0], [0, 4]], dtype=float))
     assert not crosses_itself(np.array([[0, 0], [4, 0], [4, 1], [4, 0], [8, 0], [8, 4], [0, 4]], dtype=float))

@@ -75,7 +75,7 @@ def crosses_itself(points: np.ndarray) -> bool:
         size = counts[second[pair]]
         a = starts[first[pair]] + offset // size
         b = starts[second[pair]] + offset % size
-        keep = (first[pair] != second[pair]) | (a < b)  # within a cell, each pair once
+        keep = a < b  # each pair once (a neighbouring cell comes later in the order)
         i, j = edge_by_cell[a[keep]], edge_by_cell[b[keep]]
         if (_straddles(start, end, along, i, j) & _straddles(start, end, along, j, i)).any():
             return True
