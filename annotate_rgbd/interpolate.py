@@ -107,11 +107,15 @@ def interpolate_polygon_series(
     start = left[pair_left]
     motion = right[pair_right] - start
     blocks = _merge_single_vertices(_thinning_segments(left, right, matching))
+    ts = np.asarray(ts, dtype=np.float64).reshape(-1)
+    keep, collapse, run_first, run_last = _thin_all(start, motion, ts, blocks)
     outlines = []
-    for t in ts:
+    for index, t in enumerate(ts):
         points = start + motion * t
-        reduced = np.concatenate([_thin(points, *block) for block in blocks])
-        outlines.append(reduced[:-1])  # drop the closing vertex again
+        # A run whose ends came closer than its threshold becomes their midpoint.
+        first, last = run_first[collapse[index]], run_last[collapse[index]]
+        points[first] = (points[first] + points[last]) / 2
+        outlines.append(points[keep[index]][:-1])  # drop the closing vertex again
     return outlines
 
 
@@ -134,14 +138,31 @@ def match_outlines(left: np.ndarray, right: np.ndarray) -> list[list[int]]:
     """
     left_offsets = _arc_length_offsets(left)
     right_offsets = _arc_length_offsets(right)
-    distance = np.abs(left_offsets[:, None] - right_offsets[None, :])
-    nearest_right = np.argmin(distance, axis=1)  # argmin keeps the first of equal minima
-    matching = [[j] for j in nearest_right.tolist()]
+    nearest_right = _nearest(right_offsets, left_offsets)
     chosen = np.zeros(len(right), dtype=bool)
     chosen[nearest_right] = True
-    for j in np.flatnonzero(~chosen).tolist():
-        matching[int(np.argmin(distance[:, j]))].append(j)
-    return [sorted(m) for m in matching]
+    unchosen = np.flatnonzero(~chosen)
+    # (left, right) pairs sorted by left vertex, then right vertex.
+    pair_left = np.concatenate([np.arange(len(left)), _nearest(left_offsets, right_offsets[unchosen])])
+    pair_right = np.concatenate([nearest_right, unchosen])
+    order = np.lexsort((pair_right, pair_left))
+    bounds = np.searchsorted(pair_left[order], np.arange(len(left) + 1)).tolist()
+    matched = pair_right[order].tolist()
+    return [matched[first:last] for first, last in zip(bounds, bounds[1:])]
+
+
+def _nearest(sorted_offsets: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+    """For each of ``offsets``, the index of the nearest of ``sorted_offsets`` (ascending).
+
+    Of equally near ones the first is taken, as ``argmin`` over all distances would; a sorted
+    search finds it among the two neighbours of the position, in n log m.
+    """
+    above = np.minimum(np.searchsorted(sorted_offsets, offsets, side="left"), len(sorted_offsets) - 1)
+    below = np.maximum(above - 1, 0)
+    # The first of a run of equal offsets below (zero-length edges repeat an offset).
+    below = np.searchsorted(sorted_offsets, sorted_offsets[below], side="left")
+    take_below = np.abs(offsets - sorted_offsets[below]) <= np.abs(offsets - sorted_offsets[above])
+    return np.where(take_below & (below < above), below, above)
 
 
 def _close(polygon: np.ndarray) -> np.ndarray:
@@ -219,20 +240,40 @@ def _merge_single_vertices(
     return blocks
 
 
-def _thin(points: np.ndarray, first: int, last: int, threshold: float | None) -> np.ndarray:
-    """Thin the interpolated vertices ``first..last`` (inclusive) as CVAT does.
+def _thin_all(
+    start: np.ndarray, motion: np.ndarray, ts: np.ndarray, blocks: list[tuple[int, int, float | None]]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Thin the interpolated vertices of every block as CVAT does, at all positions at once.
 
-    ``threshold`` is ``None`` for a block of vertices kept as they are. Otherwise the run's ends
-    are kept, each inner vertex only if it is at least ``threshold`` from the last one kept, and
-    a run whose ends are closer than ``threshold`` collapses into their midpoint.
+    A block with threshold ``None`` is kept as it is. Otherwise the run's ends are kept, each
+    inner vertex only if it is at least ``threshold`` from the last one kept, and a run whose
+    ends are closer than ``threshold`` with nothing kept between collapses into their midpoint.
+    The test runs vertex by vertex (it depends on the last vertex kept) but for every position
+    in ``ts`` at once, so its Python steps grow with the vertices, not vertices x frames.
+
+    Returns
+    -------
+    keep : ndarray of bool, shape (T, P)
+        Which interpolated vertices are kept at each position.
+    collapse : ndarray of bool, shape (T, R)
+        Which of the R thinned runs collapse into their midpoint at each position (the
+        midpoint takes the place of the run's first vertex; its last one is not kept).
+    run_first, run_last : ndarray of int, shape (R,)
+        The first and last vertex of each thinned run.
     """
-    if threshold is None:
-        return points[first : last + 1]
-    kept = [first]
-    for i in range(first + 1, last):
-        if np.hypot(*(points[i] - points[kept[-1]])) >= threshold:
-            kept.append(i)
-    kept.append(last)
-    if len(kept) == 2 and np.hypot(*(points[last] - points[first])) < threshold:
-        return points[[first, last]].mean(axis=0, keepdims=True)
-    return points[kept]
+    keep = np.ones((len(ts), len(start)), dtype=bool)
+    at = ts[:, None]
+    runs = [(first, last, threshold) for first, last, threshold in blocks if threshold is not None]
+    collapse = np.zeros((len(ts), len(runs)), dtype=bool)
+    for run, (first, last, threshold) in enumerate(runs):
+        kept = np.full(len(ts), first)
+        for i in range(first + 1, last):
+            far = np.hypot(*((start[i] + motion[i] * at) - (start[kept] + motion[kept] * at)).T) >= threshold
+            keep[:, i] = far
+            kept[far] = i
+        ends = (start[last] + motion[last] * at) - (start[first] + motion[first] * at)
+        collapse[:, run] = (kept == first) & (np.hypot(*ends.T) < threshold)
+        keep[collapse[:, run], last] = False
+    run_first = np.array([first for first, _, _ in runs], dtype=np.int64)
+    run_last = np.array([last for _, last, _ in runs], dtype=np.int64)
+    return keep, collapse, run_first, run_last

@@ -5,6 +5,7 @@ project) into the format-neutral :class:`~annotate_rgbd.annotation.Annotation`; 
 produce exports for fixtures, sample data, proposals and tests. One job per module:
 
 - :mod:`~annotate_rgbd.cvat.format`: the format's constants and the reader's bounds;
+- :mod:`~annotate_rgbd.cvat.archive`: the XML in CVAT's zip download; other exports (COCO ...) named;
 - :mod:`~annotate_rgbd.cvat.xmlstream`: safe incremental parsing, attribute parsing, error wording;
 - :mod:`~annotate_rgbd.cvat.meta`: ``<meta>`` (frame range, step, image size);
 - :mod:`~annotate_rgbd.cvat.reader`: :func:`read_cvat`, the shape elements;
@@ -30,26 +31,36 @@ Rules the reader follows (checked against CVAT's exporter and interpolation code
   note says so. Tracks are numbered 0, 1, ... in order of first appearance.
 - Rotated boxes become 4-vertex polygons; masks are decoded into bitmaps. Polylines, points,
   ellipses, cuboids, skeletons and tags carry no usable area and are counted in the notes.
-- Shapes that cannot be used (too few points, NaN, infinite or absurdly large coordinates,
+- Shapes that cannot be used (too few or too many points, NaN, infinite or absurdly large coordinates,
   all vertices on one line, inverted box, bad RLE, a mask larger than the image, frame off the
   task grid) are skipped with a note; a broken file raises
   :class:`~annotate_rgbd.errors.InputError`. A self-intersecting polygon is used as drawn
   (filled by the even-odd rule); those a labeller drew (not CVAT's interpolated frames) are
   counted in a note, so that they can be fixed.
 
+A zip archive (CVAT's download) is read in place: its top-level ``annotations.xml`` (or its one
+``.xml``), streamed and never extracted, at most :data:`MAX_ARCHIVE_XML_BYTES` unpacked. A COCO,
+Datumaro or other export, zipped or not, is refused in one line that says what to export.
+
 The file is parsed incrementally with entity expansion, DTD loading and network access
 disabled; a document that declares a DTD is refused. Memory stays bounded whatever the file
 says: at most :data:`MAX_TASK_FRAMES` task frames, :data:`MAX_SHAPES` shapes after filling in
-the frames of tracks, and :data:`MAX_MASK_PIXELS_TOTAL` decoded mask pixels.
+the frames of tracks, :data:`MAX_MASK_PIXELS_TOTAL` decoded mask pixels,
+:data:`MAX_POLYGON_VERTICES` vertices per polygon (more: the shape is skipped) and
+:data:`MAX_INTERPOLATED_VERTICES` vertex-frames of polygon interpolation.
 """
 
 from .codecs import decode_rle, encode_rle, rotated_box_corners
-from .format import IGNORED_KINDS, MAX_COORDINATE, MAX_MASK_PIXELS, MAX_MASK_PIXELS_TOTAL, MAX_SHAPES, MAX_TASK_FRAMES, SUPPORTED_VERSION
+from .format import (
+    IGNORED_KINDS, MAX_ARCHIVE_MEMBERS, MAX_ARCHIVE_XML_BYTES, MAX_COORDINATE, MAX_INTERPOLATED_VERTICES,
+    MAX_MASK_PIXELS, MAX_MASK_PIXELS_TOTAL, MAX_POLYGON_VERTICES, MAX_SHAPES, MAX_TASK_FRAMES, SUPPORTED_VERSION,
+)
 from .reader import read_cvat
 from .writer import write_cvat_images, write_cvat_video
 
 __all__ = [
-    "IGNORED_KINDS", "MAX_COORDINATE", "MAX_MASK_PIXELS", "MAX_MASK_PIXELS_TOTAL", "MAX_SHAPES", "MAX_TASK_FRAMES",
+    "IGNORED_KINDS", "MAX_ARCHIVE_MEMBERS", "MAX_ARCHIVE_XML_BYTES", "MAX_COORDINATE", "MAX_INTERPOLATED_VERTICES",
+    "MAX_MASK_PIXELS", "MAX_MASK_PIXELS_TOTAL", "MAX_POLYGON_VERTICES", "MAX_SHAPES", "MAX_TASK_FRAMES",
     "SUPPORTED_VERSION", "decode_rle", "encode_rle", "read_cvat", "rotated_box_corners", "write_cvat_images",
     "write_cvat_video",
 ]

@@ -52,6 +52,7 @@ class ReadContext:
     dropped_by_filter: int = 0
     labels_seen: set[str] = field(default_factory=set)
     mask_pixels: int = 0  # decoded so far, against MAX_MASK_PIXELS_TOTAL
+    vertex_frames: int = 0  # polygon interpolation so far, against MAX_INTERPOLATED_VERTICES
 
     def keep_label(self, label: str, shape_count: int) -> bool:
         self.labels_seen.add(label)

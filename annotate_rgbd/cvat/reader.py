@@ -14,6 +14,7 @@ from lxml import etree
 from annotate_rgbd.annotation import AREA_KINDS, Annotation
 from annotate_rgbd.errors import InputError
 
+from .archive import xml_source
 from .codecs import decode_rle
 from .format import IGNORED_KINDS, MAX_MASK_PIXELS_TOTAL, SUPPORTED_VERSION
 from .geometry import box_problem, crosses_itself, mask_problem, polygon_problem
@@ -29,7 +30,8 @@ def read_cvat(path: str | Path, labels: Collection[str] | None = None) -> Annota
     Parameters
     ----------
     path : str or Path
-        The ``annotations.xml`` of a task, job or project export.
+        The ``annotations.xml`` of a task, job or project export, or the zip archive CVAT
+        downloads, which holds it (read in place: see :mod:`~annotate_rgbd.cvat.archive`).
     labels : collection of str, optional
         Keep only shapes with these labels; by default all labels are kept.
 
@@ -43,16 +45,19 @@ def read_cvat(path: str | Path, labels: Collection[str] | None = None) -> Annota
     ------
     InputError
         The file is missing, unreadable, not well-formed (or cut short), not a CVAT 1.1
-        export, declares a DTD, lacks a required attribute or number, repeats a track or image
+        export (a COCO or other export, zipped or not, is named as such), a zip archive without
+        a CVAT XML or whose XML unpacks beyond the bound, declares a DTD, lacks a required attribute or number, repeats a track or image
         id, is a video export without a frame range, or exceeds one of the memory bounds.
     """
-    path = Path(path)
-    if not path.exists():
-        raise InputError(path, "file not found")
-    if not path.is_file():
-        raise InputError(path, "not a file")
-    if path.stat().st_size == 0:
-        raise InputError(path, "the file is empty")
+    given = Path(path)
+    if not given.exists():
+        raise InputError(given, "file not found")
+    if not given.is_file():
+        raise InputError(given, "not a file")
+    if given.stat().st_size == 0:
+        raise InputError(given, "the file is empty")
+    source = xml_source(given)
+    path = source.path  # what messages name: the file, or archive.zip/annotations.xml
     context = ReadContext(path, None if labels is None else frozenset(labels))
     version = None
     meta = Meta()
@@ -61,7 +66,7 @@ def read_cvat(path: str | Path, labels: Collection[str] | None = None) -> Annota
     track_lines: dict[int, int] = {}
     image_lines: dict[int, int] = {}
 
-    for element in top_level_elements(path):
+    for element in top_level_elements(source):
         tag = element.tag
         if tag == "version":
             version = (element.text or "").strip()
@@ -104,6 +109,7 @@ def read_cvat(path: str | Path, labels: Collection[str] | None = None) -> Annota
         annotation = assemble_images(images, meta, context)
     else:
         annotation = assemble_video(raw_tracks, meta, context)
+    annotation.path = str(given)  # a part is known by the file the user gave
     annotation.notes = context.summary()
     annotation.labels = tuple(sorted(context.labels_seen))
     return annotation

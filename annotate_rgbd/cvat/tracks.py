@@ -24,7 +24,7 @@ from annotate_rgbd.interpolate import (
 )
 
 from .codecs import rotated_box_corners
-from .format import MAX_SHAPES
+from .format import MAX_INTERPOLATED_VERTICES, MAX_SHAPES
 from .meta import Meta
 from .notes import Notes, ReadContext
 
@@ -79,7 +79,7 @@ def assemble_video(raw_tracks: list[RawTrack], meta: Meta, context: ReadContext)
         if not raw.keyframes:
             continue  # filtered out, or only shapes without area
         keyframes = _task_keyframes(raw, meta, context.notes)
-        shapes = _track_shapes(keyframes, meta.stop_frame, meta.step, context.notes, raw.track_id)
+        shapes = _track_shapes(keyframes, meta.stop_frame, meta.step, context, raw)
         total += len(shapes)
         if total > MAX_SHAPES:
             raise InputError(
@@ -115,7 +115,7 @@ def _task_keyframes(raw: RawTrack, meta: Meta, notes: Notes) -> list[Keyframe]:
 
 
 def _track_shapes(
-    keyframes: list[Keyframe], stop_frame: int, step: int, notes: Notes, track_id: int
+    keyframes: list[Keyframe], stop_frame: int, step: int, context: ReadContext, raw: RawTrack
 ) -> dict[int, Shape]:
     """Expand a track's sorted shapes into one shape per visible task frame, as CVAT does.
 
@@ -123,6 +123,7 @@ def _track_shapes(
     second is ``outside``); after an ``outside`` shape the track is hidden until its next shape;
     the last visible shape persists to ``stop_frame``.
     """
+    notes, track_id = context.notes, raw.track_id
     shapes: dict[int, Shape] = {}
     for current, following in zip(keyframes, keyframes[1:] + [None]):
         if current.outside:
@@ -143,6 +144,8 @@ def _track_shapes(
             )
             shapes.update(dict.fromkeys(between, shapes[current.frame]))
             continue
+        if current.kind == "polygon":
+            _charge_interpolation(context, raw, current, following, len(between))
         span = following.frame - current.frame
         ts = [(frame - current.frame) / span for frame in between]
         for frame, shape in zip(between, _interpolate(current, following, ts)):
@@ -154,6 +157,22 @@ def _track_shapes(
             else:
                 shapes[frame] = shape
     return shapes
+
+
+def _charge_interpolation(
+    context: ReadContext, raw: RawTrack, k0: Keyframe, k1: Keyframe, frames: int
+) -> None:
+    """Count a polygon span's vertex-frames against :data:`MAX_INTERPOLATED_VERTICES`."""
+    context.vertex_frames += (len(k0.points) + len(k1.points)) * frames
+    if context.vertex_frames > MAX_INTERPOLATED_VERTICES:
+        raise InputError(
+            context.path,
+            f"<track> at line {raw.line}: interpolating polygons of {len(k0.points)} and "
+            f"{len(k1.points)} vertices over the {frames} frames between frames {k0.frame} and "
+            f"{k1.frame} takes the export's interpolation past {MAX_INTERPOLATED_VERTICES} "
+            "vertex-frames (vertices x frames, all tracks): simplify the polygons or export a "
+            "shorter task or job",
+        )
 
 
 def _interpolate(k0: Keyframe, k1: Keyframe, ts: list[float]) -> list[Shape | None]:

@@ -17,13 +17,27 @@ from lxml import etree
 
 from annotate_rgbd.errors import InputError
 
+from .archive import XmlSource
 from .format import POINTS
 
 
-def top_level_elements(path: Path) -> Iterator[etree._Element]:
-    """Yield each complete child of the root ``<annotations>`` and free it afterwards."""
+def top_level_elements(source: XmlSource) -> Iterator[etree._Element]:
+    """Yield each complete child of the root ``<annotations>`` and free it afterwards.
+
+    A plain file is read by libxml2 itself; a zip member as the archive's bounded stream.
+    """
+    if source.member is None:
+        yield from _top_level_elements(source, str(source.file))
+    else:
+        with source.open() as stream:
+            yield from _top_level_elements(source, stream)
+
+
+def _top_level_elements(source: XmlSource, stream) -> Iterator[etree._Element]:
+    """:func:`top_level_elements` on ``stream``, a file name or a binary file."""
+    path = source.path
     events = etree.iterparse(
-        str(path),
+        stream,
         events=("start", "end"),
         resolve_entities=False,
         no_network=True,
@@ -55,12 +69,12 @@ def top_level_elements(path: Path) -> Iterator[etree._Element]:
                 while element.getprevious() is not None:
                     del parent[0]
     except etree.XMLSyntaxError as error:
-        raise InputError(path, _syntax_message(error, path, started)) from None
+        raise InputError(path, _syntax_message(error, source, started)) from None
     except OSError as error:
         raise InputError(path, f"cannot read the file: {error.strerror or error}") from None
 
 
-def _syntax_message(error: etree.XMLSyntaxError, path: Path, started: bool) -> str:
+def _syntax_message(error: etree.XMLSyntaxError, source: XmlSource, started: bool) -> str:
     """libxml2's complaint, reworded where its own words mislead the user.
 
     An error on the last line of a document whose root began but that does not end with
@@ -72,7 +86,7 @@ def _syntax_message(error: etree.XMLSyntaxError, path: Path, started: bool) -> s
     if message.startswith("Excessive depth in document"):
         # libxml2's limit without XML_PARSE_HUGE; CVAT exports nest about 6 levels deep.
         return f"malformed XML at line {line}: elements nested more than 256 levels deep"
-    last_line, ending = _last_line(path) if started else (0, b"")
+    last_line, ending = _last_line(source) if started else (0, b"")
     if started and line >= last_line and not ending.endswith(b"</annotations>"):
         return (
             f"the file ends at line {last_line} before </annotations> (a truncated export or "
@@ -81,10 +95,10 @@ def _syntax_message(error: etree.XMLSyntaxError, path: Path, started: bool) -> s
     return f"malformed XML at line {line}: {message}"
 
 
-def _last_line(path: Path) -> tuple[int, bytes]:
+def _last_line(source: XmlSource) -> tuple[int, bytes]:
     """Number of the last non-blank line and the file's last bytes, whitespace stripped."""
     newlines, tail = 0, b""
-    with open(path, "rb") as handle:
+    with source.open() as handle:
         for chunk in iter(lambda: handle.read(1 << 20), b""):
             newlines += chunk.count(b"\n")
             tail = (tail + chunk)[-4096:]
