@@ -106,7 +106,7 @@ def main(
 @app.command()
 def cvat2mask(
     sequence_dir: Path = typer.Argument(..., metavar="SEQUENCE_DIR", help="TUM RGB-D or ICL-NUIM (TUM format) sequence folder."),
-    annotations: List[Path] = typer.Argument(..., metavar="ANNOTATIONS...", help="CVAT export(s): 'CVAT for video 1.1' or 'CVAT for images 1.1' XML."),
+    annotations: List[Path] = typer.Argument(..., metavar="ANNOTATIONS...", help="CVAT export(s): 'CVAT for video 1.1' or 'CVAT for images 1.1' XML, or CVAT's .zip of it."),
     out: Path = typer.Option(..., "--out", "-o", metavar="DIR", help="Output folder for masks/, planes.csv and report.json."),
     config: Optional[str] = typer.Option(None, "--config", "-c", metavar="FILE|PRESET", help="TOML file or preset name (see 'annotate-rgbd presets')."),
     label: List[str] = typer.Option([], "--label", metavar="LABEL", help="Use only shapes with this CVAT label (repeatable)."),
