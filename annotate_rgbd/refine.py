@@ -2,16 +2,17 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
 import open3d as o3d
+import scipy.ndimage
 
 from .camera import Camera, backproject
 from .config import RansacConfig
 from .noise import ConstantNoise, NoiseSettings
-from .planefit import refit_plane
+from .planefit import refit_plane, weighted_plane_fit
 
 #: Least-squares re-fits of a RANSAC plane to its inliers (the second settles the inlier set).
 REFITS = 2
@@ -211,21 +212,199 @@ def refine_planes(
         fits[plane_id] = fit
         table[plane_id] = fit.equation
         scales[plane_id] = fit.noise_scale
-    # Distance of every pixel to its own label's plane: |z (a x_n + b y_n + c) + d| with
+    band = band_image(depth_m, noise)
+    if not isinstance(band, float) and (scales != 1).any():  # widened where a plane's noise is larger
+        band = np.clip(band * _lookup(scales, on_valid), np.float32(noise.floor), np.float32(noise.cap))
+    coherence = not isinstance(band, float) and COHERENCE_WINDOW > 0
+    if coherence:
+        # Surfaces within the band but off the plane (a whiteboard on a wall) pull the
+        # least-squares plane towards them, and so does an inlier test that cannot tell them
+        # apart: re-fit each plane to the windows around its dominant surface (the middle of the
+        # densest half of its window scores) until it settles, each time closer to that surface.
+        # On every other row and column (a quarter of the work; the windows cover the same area).
+        small = (slice(None, None, 2), slice(None, None, 2))
+        labels_s, depth_s, band_s = on_valid[small], depth_m[small], band[small]
+        camera_s = replace(camera, fx=camera.fx / 2, fy=camera.fy / 2, cx=camera.cx / 2, cy=camera.cy / 2)
+        window = COHERENCE_WINDOW // 2 + 1
+        on_plane_s, residual_s = _inlier_test(table, fits, labels_s, depth_s, camera_s, band_s, noise.k)
+        for _ in range(CORE_REFITS):
+            score, usable = window_scores(residual_s, on_plane_s, window)
+            centre, _ = _score_statistics(score, usable, labels_s, n_labels)
+            core = usable & (np.abs(score - _lookup(centre, labels_s)) <= CORE_SCORE)
+            before = table.copy()
+            _refit_to(core, labels_s, depth_s, band_s, noise.k, camera_s, config.max_points, fits, table)
+            if np.abs(table - before).max(initial=0.0) < SETTLED:
+                break
+            on_plane_s, residual_s = _inlier_test(table, fits, labels_s, depth_s, camera_s, band_s, noise.k)
+    on_plane, residual = _inlier_test(table, fits, on_valid, depth_m, camera, band, noise.k)
+    if coherence:
+        score, usable = window_scores(residual, on_plane)
+        centre, spread = _score_statistics(score, usable, on_valid, n_labels, step=4)
+        on_plane &= ~(usable & (np.abs(score - _lookup(centre, on_valid)) > COHERENCE_LIMIT * _lookup(spread, on_valid)))
+        on_plane &= inlier_density(on_plane, on_valid > 0) >= MIN_INLIER_DENSITY
+    return np.where(on_plane, labels, 0).astype(labels.dtype), fits
+
+
+#: Side (px) of the window in which a plane's residuals are averaged to find surfaces that stand
+#: off it by less than the inlier band (a whiteboard on a wall, a book on a table): their
+#: pixels' residuals are each within the noise, but share a sign and a size over an area.
+COHERENCE_WINDOW = 7
+#: How many standard deviations of a window mean (measured over the plane itself) mark the
+#: window's centre pixel as lying on another surface.
+COHERENCE_LIMIT = 5.0
+#: Fewest inliers in a window for its score to count: the score is normalised for any number,
+#: and a surface just beyond the band leaves only scattered inliers (its noise's tail).
+MIN_WINDOW_INLIERS = 4
+#: Inliers with fewer inliers than this share of their window's labelled pixels are dropped: a
+#: plane pixel's window holds about 99 % (a 3 sigma band), 57 % on an occluder's straight edge
+#: (4 of 7 columns), 33 % in a right-angled corner (16 of 49); a surface a little beyond the
+#: band, whose noise puts only its scattered pixels inside it, 5-40 %.
+MIN_INLIER_DENSITY = 0.3
+#: Re-fits of each plane to its core: the pixels whose window score lies within this many
+#: standard normal deviations of the plane's centre (on real sensors, whose noise is correlated,
+#: fewer than 95 % of the plane, but all of them on its dominant surface).
+CORE_SCORE = 2.0
+#: At most this many re-fits; they stop once no plane's normal or offset moved by SETTLED
+#: (unit normal components; metres), a small fraction of any band.
+CORE_REFITS = 2
+SETTLED = 5e-4
+#: Window scores are clipped to +-this for the statistics (far beyond any limit used).
+SCORE_CLIP = 1000.0
+
+
+def _refit_to(
+    core: np.ndarray, labels: np.ndarray, depth_m: np.ndarray, band: np.ndarray, k: float, camera: Camera,
+    max_points: int, fits: dict, table: np.ndarray,
+) -> None:
+    """Re-fit every plane of ``fits`` to its ``core`` pixels (weighted by 1 / sigma^2, on a grid of
+    at most about ``max_points``); updates ``fits`` and ``table`` in place."""
+    core_labels = np.where(core, labels, 0)
+    counts = np.bincount(core_labels.ravel(), minlength=len(table))
+    for plane_id, fit in list(fits.items()):
+        rows, cols = grid_pixels(core_labels, plane_id, int(counts[plane_id]), max_points)
+        if rows.size < 3:
+            continue
+        sigma = (band[rows, cols] / np.float32(k)).astype(np.float64)
+        try:
+            equation = weighted_plane_fit(backproject(cols, rows, depth_m[rows, cols], camera), 1.0 / np.square(sigma))
+        except ValueError:  # the core on one line
+            continue
+        fits[plane_id] = replace(fit, equation=equation)
+        table[plane_id] = equation
+
+
+def inlier_density(on_plane: np.ndarray, labelled: np.ndarray) -> np.ndarray:
+    """The share of inliers among the labelled pixels with depth of each pixel's window.
+
+    Parameters
+    ----------
+    on_plane : ndarray of bool, shape (H, W)
+        Pixels within their plane's band.
+    labelled : ndarray of bool, shape (H, W)
+        Pixels in a plane's shape with valid depth.
+
+    Returns
+    -------
+    ndarray of float32, shape (H, W)
+        About 1 on a plane (0.99 for a 3 sigma band), 0.57 on its straight edge against an
+        occluder, and low over a surface just beyond the band, whose noise puts only scattered
+        pixels inside it.
+    """
+    size = (COHERENCE_WINDOW, COHERENCE_WINDOW)
+    inliers = cv2.boxFilter(on_plane.astype(np.float32), -1, size, normalize=False, borderType=cv2.BORDER_CONSTANT)
+    total = cv2.boxFilter(labelled.astype(np.float32), -1, size, normalize=False, borderType=cv2.BORDER_CONSTANT)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return inliers / total
+
+
+def window_scores(
+    residual: np.ndarray, on_plane: np.ndarray, window: int = COHERENCE_WINDOW
+) -> tuple[np.ndarray, np.ndarray]:
+    """The mean residual of each pixel's window, scaled to a standard normal on a true plane.
+
+    Parameters
+    ----------
+    residual : ndarray of float32, shape (H, W)
+        Each pixel's signed distance to its plane in units of its noise (NaN without depth).
+    on_plane : ndarray of bool, shape (H, W)
+        The pixels within their plane's inlier band (the only ones averaged).
+    window : int
+        Side of the square window (px).
+
+    Returns
+    -------
+    score : ndarray of float32, shape (H, W)
+        The sum of the window's inlier residuals over the square root of their number: about
+        N(0, 1) where the noise is independent and the window lies on its plane, far from 0
+        over a surface that stands off the plane (its residuals share a sign).
+    usable : ndarray of bool, shape (H, W)
+        Inlier pixels whose window holds at least :data:`MIN_WINDOW_INLIERS` inliers.
+    """
+    values = np.where(on_plane, residual, np.float32(0))
+    size = (window, window)
+    total = cv2.boxFilter(values, -1, size, normalize=False, borderType=cv2.BORDER_CONSTANT)
+    count = cv2.boxFilter(on_plane.astype(np.float32), -1, size, normalize=False, borderType=cv2.BORDER_CONSTANT)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        score = total / np.sqrt(count)
+    return score, on_plane & (count >= MIN_WINDOW_INLIERS)
+
+
+def _score_statistics(
+    score: np.ndarray, usable: np.ndarray, labels: np.ndarray, n_labels: int, step: int = 2
+) -> tuple[np.ndarray, np.ndarray]:
+    """Each plane's centre and spread of window scores: the middle of the shortest interval that
+    holds half of them (robust to a surface in the band that covers almost half the plane's
+    pixels, which pulls a median or a mean), and the smaller of the spreads on either side of it
+    (the median distance to the centre over 0.6745, a standard deviation for a normal
+    distribution; the other surface widens one side only); at least 1 (real sensors' noise is
+    correlated between neighbouring pixels, which widens the spread). On every ``step``-th row
+    and column."""
+    centre = np.zeros(n_labels, dtype=np.float32)
+    spread = np.ones(n_labels, dtype=np.float32)
+    grid = (slice(None, None, step), slice(None, None, step))
+    sample = usable[grid]
+    ids = labels[grid][sample]
+    # One sort orders the samples by plane, then by score (scores clipped far beyond any limit).
+    values = np.sort(ids * np.float64(4 * SCORE_CLIP) + np.clip(score[grid][sample], -SCORE_CLIP, SCORE_CLIP))
+    ids = np.floor((values + SCORE_CLIP) / (4 * SCORE_CLIP)).astype(np.int64)
+    values -= ids * np.float64(4 * SCORE_CLIP)
+    starts = np.searchsorted(ids, np.arange(n_labels + 1))
+    for plane_id in range(1, n_labels):
+        v = values[starts[plane_id]:starts[plane_id + 1]]
+        if v.size < 10:
+            continue
+        half = v.size // 2
+        widths = v[half:] - v[: v.size - half]
+        first = int(np.argmin(widths))
+        middle = (v[first] + v[first + half]) / 2
+        # The spread on each side of the centre (the median distance of a normal's half is
+        # 0.6745 sigma): another surface lies on one side, the smaller one is the plane's.
+        split = int(np.searchsorted(v, middle))
+        sides = [middle - np.median(v[:split]), np.median(v[split:]) - middle] if 2 <= split <= v.size - 2 else [np.inf]
+        centre[plane_id] = middle
+        spread[plane_id] = max(1.0, min(sides) / 0.6745) if np.isfinite(min(sides)) else max(1.0, widths[first] / 2 / 0.6745)
+    return centre, spread
+
+
+def _inlier_test(
+    table: np.ndarray, fits: dict, labels: np.ndarray, depth_m: np.ndarray, camera: Camera,
+    band: np.ndarray | float, k: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Pixels within their plane's band, and every pixel's signed distance to its plane in
+    noise units (``k`` times distance over band)."""
+    # Distance of every pixel to its own label's plane: z (a x_n + b y_n + c) + d with
     # x_n = (col - cx) / fx, y_n = (row - cy) / fy the pixel's ray at z = 1.
     # float32 is ample here: depth has 0.2 mm steps, and the band is millimetres or more.
-    a, b, c, d = (_lookup(table[:, k], on_valid) for k in range(4))
+    a, b, c, d = (_lookup(table[:, i], labels) for i in range(4))
     x_n = ((np.arange(labels.shape[1], dtype=np.float32) - np.float32(camera.cx)) / np.float32(camera.fx))[None, :]
     y_n = ((np.arange(labels.shape[0], dtype=np.float32) - np.float32(camera.cy)) / np.float32(camera.fy))[:, None]
+    fitted = np.zeros(len(table), dtype=np.float32)
+    fitted[list(fits)] = 1
     with np.errstate(invalid="ignore"):
-        distance = np.abs(depth_m * (a * x_n + b * y_n + c) + d)
-        fitted = np.zeros(n_labels, dtype=np.float32)
-        fitted[list(fits)] = 1
-        band = band_image(depth_m, noise)
-        if not isinstance(band, float) and (scales != 1).any():  # widened where a plane's noise is larger
-            band = np.clip(band * _lookup(scales, on_valid), np.float32(noise.floor), np.float32(noise.cap))
-        on_plane = (distance < band) & (_lookup(fitted, on_valid) > 0)
-    return np.where(on_plane, labels, 0).astype(labels.dtype), fits
+        signed = depth_m * (a * x_n + b * y_n + c) + d
+        on_plane = (np.abs(signed) < band) & (_lookup(fitted, labels) > 0)
+        residual = signed * (np.float32(k) / band)
+    return on_plane, residual
 
 
 def grid_pixels(labels: np.ndarray, plane_id: int, count: int, max_points: int) -> tuple[np.ndarray, np.ndarray]:
