@@ -7,7 +7,6 @@ from dataclasses import dataclass, replace
 import cv2
 import numpy as np
 import open3d as o3d
-import scipy.ndimage
 
 from .camera import Camera, backproject
 from .config import RansacConfig
