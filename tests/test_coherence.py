@@ -123,7 +123,9 @@ def test_a_surface_just_beyond_the_band_leaves_no_scattered_pixels():
     refined, _ = refine_planes(labels, depth, np.array([1]), CAMERA, RansacConfig(), KINECT)
     interior = cv2.erode(board.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
     assert refined[interior].mean() < 0.005 and refined[board].mean() < 0.05
-    assert refined[~board].mean() > 0.985
+    # The wall loses a rim along the board (windows half on it), nothing elsewhere.
+    near = cv2.dilate(board.astype(np.uint8), np.ones((9, 9), np.uint8)).astype(bool)
+    assert refined[~near].mean() > 0.995 and refined[~board].mean() > 0.975
 
 
 def test_inlier_density_is_the_share_of_inliers_among_labelled_pixels_of_the_window():
