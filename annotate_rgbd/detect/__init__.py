@@ -47,11 +47,18 @@ class PlaneDetection:
         orthogonal least squares to the label's pixels.
     areas : ndarray of int64, shape (K,)
         Pixels per label.
+    means : ndarray of float64, shape (K, 3)
+        Centroid of each label's points (camera frame, metres).
+    scatters : ndarray of float64, shape (K, 3, 3)
+        Sum of the outer products of each label's points about their centroid: with ``areas``
+        and ``means``, the moments the planes were fitted to, for whoever combines labels.
     """
 
     labels: np.ndarray
     planes: np.ndarray
     areas: np.ndarray
+    means: np.ndarray
+    scatters: np.ndarray
 
 
 def detect_planes(
@@ -111,6 +118,8 @@ def detect_planes(
         labels=table.astype(dtype)[labels],
         planes=planes_from_scatter(mean[kept], centred[kept]).reshape(-1, 4),
         areas=count[kept].astype(np.int64),
+        means=mean[kept].reshape(-1, 3),
+        scatters=centred[kept].reshape(-1, 3, 3),
     )
 
 

@@ -129,7 +129,8 @@ def propose_planes(
     min_area = settings.detector.min_area_fraction * depth.size
     pieces = replace(settings.detector, min_area_fraction=settings.detector.min_area_fraction * settings.piece_fraction)
     detection = detect_planes(depth, camera, pieces, noise=sigma)
-    moments = label_moments(detection.labels, depth, camera)
+    # The detector's own moments of its final pixels: exact, and already paid for.
+    moments = Moments(detection.areas.astype(np.float64), detection.means, detection.scatters)
     groups = merge_groups(moments, sigma, settings.merge_excess)
     labels, planes, areas, centroids = _apply_groups(detection.labels, moments, groups, min_area)
     outlines = piece_outlines(labels, settings.outline_tolerance_px)

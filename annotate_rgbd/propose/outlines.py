@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 from scipy import ndimage
 
-from ..detect import plane_outlines
+from ..detect.outline import simplify, trace_pieces
 
 #: Pieces of a plane's mask smaller than this are left out of its polygon (speckle, not area).
 MIN_PIECE_PX = 20
@@ -15,10 +15,11 @@ MIN_PIECE_PX = 20
 def piece_outlines(labels: np.ndarray, tolerance_px: float, min_piece: int = MIN_PIECE_PX) -> dict[int, np.ndarray]:
     """One polygon per label that covers all its pieces, not only the largest.
 
-    Each 8-connected piece of at least ``min_piece`` pixels is outlined
-    (:func:`annotate_rgbd.detect.plane_outlines`); the pieces are then chained into one polygon
-    by zero-width bridges, each walked there and back, which enclose no pixel centre under the
-    even-odd rule CVAT and :mod:`annotate_rgbd.rasterize` fill with.
+    Each 8-connected piece of at least ``min_piece`` pixels is outlined as
+    :func:`annotate_rgbd.detect.plane_outlines` outlines the largest; the pieces are then
+    chained into one polygon by zero-width bridges, each walked there and back, which enclose
+    no pixel centre under the even-odd rule CVAT and :mod:`annotate_rgbd.rasterize` fill with.
+    Pieces inside a hole of another piece are left to that piece's outline, which covers them.
 
     Parameters
     ----------
@@ -31,25 +32,31 @@ def piece_outlines(labels: np.ndarray, tolerance_px: float, min_piece: int = MIN
     -------
     dict of int to ndarray of float64, shape (V, 2)
     """
-    outlines = plane_outlines(labels, tolerance_px)  # the largest piece of each label
-    eight = np.ones((3, 3), dtype=bool)
+    labels = np.asarray(labels)
+    outlines: dict[int, np.ndarray] = {}
     for label, window in enumerate(ndimage.find_objects(labels), start=1):
         if window is None:
             continue
-        pieces, count = ndimage.label(labels[window] == label, structure=eight)
-        if count == 1:
-            continue
-        sizes = np.bincount(pieces.ravel(), minlength=count + 1)[1:]
-        keep = np.flatnonzero(sizes >= min_piece) + 1
-        if keep.size <= 1:
-            continue
-        table = np.zeros(count + 1, dtype=np.int32)
-        table[keep] = np.arange(1, keep.size + 1)
-        polygons = plane_outlines(table[pieces], tolerance_px)
-        offset = np.array([window[1].start, window[0].start], dtype=np.float64)
-        chain = [polygons[k] + offset for k in sorted(polygons, key=lambda k: -sizes[keep[k - 1] - 1])]
-        outlines[label] = bridge(chain)
+        mask = labels[window] == label
+        contours = trace_pieces(mask)
+        top, left = window[0].start, window[1].start
+        kept = _large_pieces(mask, contours, min_piece) if len(contours) > 1 else []
+        if len(kept) <= 1:  # the largest piece (as plane_outlines draws it)
+            largest = contours[int(np.argmax([cv2.contourArea(c) for c in contours]))]
+            outlines[label] = simplify(largest, tolerance_px, left, top)
+        else:
+            outlines[label] = bridge([simplify(contours[i], tolerance_px, left, top) for i in kept])
     return outlines
+
+
+def _large_pieces(mask: np.ndarray, contours: list, min_piece: int) -> list[int]:
+    """Indices of the contours (:func:`~annotate_rgbd.detect.outline.trace_pieces`) of pieces of
+    at least ``min_piece`` pixels, largest first (ties: first pixel in raster order)."""
+    _, pieces, stats, _ = cv2.connectedComponentsWithStats(mask.view(np.uint8), connectivity=8)
+    starts = np.array([c[0, 0] for c in contours]) // 2 - 1  # (x, y) of each piece's first pixel
+    sizes = stats[pieces[starts[:, 1], starts[:, 0]], cv2.CC_STAT_AREA]
+    order = np.lexsort((starts[:, 0], starts[:, 1], -sizes))
+    return [int(i) for i in order if sizes[i] >= min_piece]
 
 
 def bridge(polygons: list[np.ndarray]) -> np.ndarray:
