@@ -52,9 +52,14 @@ def piece_outlines(labels: np.ndarray, tolerance_px: float, min_piece: int = MIN
 def _large_pieces(mask: np.ndarray, contours: list, min_piece: int) -> list[int]:
     """Indices of the contours (:func:`~annotate_rgbd.detect.outline.trace_pieces`) of pieces of
     at least ``min_piece`` pixels, largest first (ties: first pixel in raster order)."""
-    _, pieces, stats, _ = cv2.connectedComponentsWithStats(mask.view(np.uint8), connectivity=8)
+    boxes = np.array([cv2.boundingRect(c) for c in contours])  # fine x, y, width, height
+    cells = ((boxes[:, :2] + boxes[:, 2:] - 1) // 2 - boxes[:, :2] // 2 + 1).prod(axis=1)
+    if np.count_nonzero(cells >= min_piece) <= 1:
+        return []  # at most one piece has room for min_piece pixels (most are speckle)
+    # Sizes by a histogram of the components: OpenCV's own statistics take 3x longer.
+    count, pieces = cv2.connectedComponents(mask.view(np.uint8), connectivity=8, ltype=cv2.CV_32S)
     starts = np.array([c[0, 0] for c in contours]) // 2 - 1  # (x, y) of each piece's first pixel
-    sizes = stats[pieces[starts[:, 1], starts[:, 0]], cv2.CC_STAT_AREA]
+    sizes = np.bincount(pieces.ravel(), minlength=count)[pieces[starts[:, 1], starts[:, 0]]]
     order = np.lexsort((starts[:, 0], starts[:, 1], -sizes))
     return [int(i) for i in order if sizes[i] >= min_piece]
 
@@ -71,7 +76,10 @@ def bridge(polygons: list[np.ndarray]) -> np.ndarray:
         first = (float(polygon[0, 0]), float(polygon[0, 1]))
         if cv2.pointPolygonTest(result.astype(np.float32).reshape(-1, 1, 2), first, False) > 0:
             continue
-        gaps = np.linalg.norm(result[:, None, :] - polygon[None, :, :], axis=2)
+        # Squared distances: the same nearest pair (vertices lie on a quarter-pixel grid) without roots.
+        dx = result[:, 0, None] - polygon[None, :, 0]
+        dy = result[:, 1, None] - polygon[None, :, 1]
+        gaps = dx * dx + dy * dy
         i, j = np.unravel_index(int(np.argmin(gaps)), gaps.shape)
         around = np.roll(polygon, -j, axis=0)
         result = np.concatenate([result[: i + 1], around, around[:1], result[i:]])
