@@ -3,7 +3,7 @@
 The image is cut into square cells; each cell gets a plane by PCA of its valid points. All
 cells are fitted at once: with ``x = z * ray_x[col]`` and ``y = z * ray_y[row]``, every sum
 over a cell's points is a sum of ``z**p * ray_x**i * ray_y**j``, which two batched matrix
-products (along the cells' columns, then their rows) give for every cell at once.
+products (along the cells' rows, then their columns) give for every cell at once.
 """
 
 from __future__ import annotations
@@ -201,25 +201,29 @@ def cell_sums(
     """
     crop = z[: rows * cell_px, : cols * cell_px]
     valid = np.isfinite(crop)
-    z64 = np.where(valid, crop, 0).astype(np.float64)
     # Raw sums in float64: the centred scatter (millimetre residuals of points metres away)
     # keeps about 9 significant digits after the subtraction.
-    images = np.stack([valid.astype(np.float64), z64, z64 * z64]).reshape(3, rows * cell_px, cols, cell_px)
+    images = np.empty((3, rows * cell_px, cols * cell_px))  # z**0 (valid), z, z**2
+    images[0] = valid
+    np.copyto(images[1], crop)
+    images[1][~valid] = 0
+    np.multiply(images[1], images[1], out=images[2])
     rx = ray_x[: cols * cell_px].astype(np.float64).reshape(cols, cell_px)
     ry = ray_y[: rows * cell_px].astype(np.float64).reshape(rows, cell_px)
     across = np.stack([np.ones_like(rx), rx, rx * rx], axis=-1)  # (cols, cell_px, 3)
-    down = np.stack([np.ones_like(ry), ry, ry * ry], axis=-1)  # (rows, cell_px, 3)
-    # sums[p, c, r, j, i]: sum over cell (r, c) of z**p * ray_x**j * ray_y**i (z**0: valid pixels).
-    along = np.matmul(images.transpose(0, 2, 1, 3), across[None])  # (3, cols, rows * cell_px, 3)
-    sums = np.matmul(along.reshape(3, cols, rows, cell_px, 3).transpose(0, 1, 2, 4, 3), down)
-    sums = sums.transpose(0, 2, 1, 3, 4).reshape(3, rows * cols, 3, 3)  # cells in raster order
+    down = np.stack([np.ones_like(ry), ry, ry * ry], axis=1)  # (rows, 3, cell_px)
+    # Along each cell's rows first (contiguous image rows), then along its columns:
+    # sums[p, cell, i, j] = sum over the cell of z**p * ray_y**i * ray_x**j.
+    along = np.matmul(down, images.reshape(3, rows, cell_px, cols * cell_px))  # (3, rows, 3, W)
+    sums = np.matmul(along.reshape(3, rows, 3, cols, cell_px).transpose(0, 1, 3, 2, 4), across)
+    sums = sums.reshape(3, rows * cols, 3, 3)  # cells in raster order
     count = np.rint(sums[0, :, 0, 0]).astype(np.int64)
     first, second = sums[1], sums[2]
     with np.errstate(invalid="ignore", divide="ignore"):
-        mean = np.stack([first[:, 1, 0], first[:, 0, 1], first[:, 0, 0]], axis=1) / count[:, None]
+        mean = np.stack([first[:, 0, 1], first[:, 1, 0], first[:, 0, 0]], axis=1) / count[:, None]
     raw = np.empty((rows * cols, 3, 3))
     # x x: z^2 rx^2; y y: z^2 ry^2; z z: z^2; x y: z^2 rx ry; x z: z^2 rx; y z: z^2 ry.
-    for (i, j), (a, b) in {(0, 0): (2, 0), (1, 1): (0, 2), (2, 2): (0, 0), (0, 1): (1, 1), (0, 2): (1, 0), (1, 2): (0, 1)}.items():
+    for (i, j), (a, b) in {(0, 0): (0, 2), (1, 1): (2, 0), (2, 2): (0, 0), (0, 1): (1, 1), (0, 2): (0, 1), (1, 2): (1, 0)}.items():
         raw[:, i, j] = raw[:, j, i] = second[:, a, b]
     centre = np.nan_to_num(mean)
     scatter = raw - count[:, None, None] * centre[:, :, None] * centre[:, None, :]
