@@ -4,8 +4,9 @@ Two detections are candidates for one plane when their planes agree within the n
 their masks overlap (see :class:`~annotate_rgbd.propose.settings.LinkConfig`):
 
 - **with poses**, by world plane (:func:`world_agreement`: :func:`annotate_rgbd.lift.plane_agreement`
-  for all of a frame's planes at once, at the later detection's centroid) and by the IoU of the later mask with the earlier polygon lifted onto
-  its plane and reprojected into the later frame (:mod:`annotate_rgbd.lift`);
+  for all of a frame's planes at once, at the later detection's centroid) and by the IoU of
+  the later mask with the earlier polygon lifted onto its plane and reprojected into the later
+  frame (:mod:`annotate_rgbd.lift`);
 - **without poses** (or where a frame has none), by the camera-frame planes, allowing for what
   the camera may have turned and moved in between, and by the IoU of the two masks after the
   2-D shift that overlaps them best, among the shifts that camera motion can explain
