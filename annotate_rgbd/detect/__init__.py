@@ -26,7 +26,7 @@ from .cells import NoiseModel, cloud_cells
 from .config import DetectorConfig
 from .grow import cell_moments, fit_planes, grow_regions, merge_segments, sum_moments
 from .outline import plane_outlines
-from .refine import assign_pixels, claim_windows, order_labels, pixel_moments, planes_from_scatter
+from .refine import assign_pixels, claim_windows, order_labels, pixel_moments, planes_from_scatter, relabel
 
 __all__ = ["DetectorConfig", "PlaneDetection", "detect_planes", "plane_outlines"]
 
@@ -115,7 +115,7 @@ def detect_planes(
     kept = np.argsort(table[1:], kind="stable")[np.count_nonzero(table[1:] == 0) :]  # old index by new label
     dtype = np.uint8 if kept.size < 256 else np.uint16
     return PlaneDetection(
-        labels=table.astype(dtype)[labels],
+        labels=relabel(labels, table, dtype),
         planes=planes_from_scatter(mean[kept], centred[kept]).reshape(-1, 4),
         areas=count[kept].astype(np.int64),
         means=mean[kept].reshape(-1, 3),

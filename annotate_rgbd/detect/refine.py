@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 from scipy import ndimage
 
@@ -26,7 +27,7 @@ def assign_pixels(cells: CloudCells, region: np.ndarray, planes: np.ndarray, ban
 
     Returns
     -------
-    ndarray of int32, shape (H, W)
+    ndarray of uint8 (K < 256) or int32, shape (H, W)
         Segment of each pixel, 0 for none.
     """
     height, width = cells.depth.shape
@@ -38,7 +39,7 @@ def assign_pixels(cells: CloudCells, region: np.ndarray, planes: np.ndarray, ban
     cell_cols = np.full(cols, cell_px)
     cell_cols[-1] += width - cols * cell_px
     band = np.float32(band_k) * cells.sigma
-    labels = np.zeros((height, width), dtype=np.int32)
+    labels = np.zeros((height, width), dtype=np.uint8 if planes.shape[0] < 256 else np.int32)
     best = np.full((height, width), np.inf, dtype=np.float32)
     grid = region.reshape(rows, cols)
     ring = np.ones((3, 3), dtype=bool)
@@ -194,3 +195,26 @@ def order_labels(labels: np.ndarray, count: np.ndarray, min_area: int) -> np.nda
     table = np.zeros(n + 1, dtype=np.int64)
     table[order + 1] = np.arange(1, order.size + 1)
     return table
+
+
+def relabel(labels: np.ndarray, table: np.ndarray, dtype) -> np.ndarray:
+    """``table[labels]`` as ``dtype``; by OpenCV's lookup table where both fit in 8 bits (several
+    times faster than numpy's indexing).
+
+    Parameters
+    ----------
+    labels : ndarray of int, shape (H, W)
+    table : ndarray of int, shape (N,)
+        ``N > labels.max()``.
+    dtype : numpy dtype
+
+    Returns
+    -------
+    ndarray of ``dtype``, shape (H, W)
+    """
+    table = np.asarray(table)
+    if labels.dtype == np.uint8 and np.dtype(dtype) == np.uint8 and len(table) <= 256:
+        lut = np.zeros(256, dtype=np.uint8)
+        lut[: len(table)] = table
+        return cv2.LUT(labels, lut)
+    return table.astype(dtype)[labels]

@@ -15,6 +15,7 @@ import numpy as np
 from ..camera import Camera, depth_to_metres
 from ..config import FilterConfig
 from ..detect import detect_planes
+from ..detect.refine import relabel
 from ..errors import InputError
 from ..filters import PlaneStats, drop_reasons, label_histogram, ray_lengths
 from ..noise import NoiseSettings
@@ -161,7 +162,7 @@ def propose_planes(
     mean_distance = np.array([drawn_distance[k + 1] for k in np.flatnonzero(keep)], dtype=np.float64)
     return FrameProposal(
         position=position,
-        labels=table[labels],
+        labels=relabel(labels, table, labels.dtype),
         planes=planes[keep],
         areas=areas[keep],
         centroids=centroids[keep],
@@ -311,7 +312,8 @@ def merge_groups(moments: Moments, sigma, excess_k: float) -> np.ndarray:
 
 def _apply_groups(labels, moments: Moments, group: np.ndarray, min_area: float):
     """Relabel merged groups of at least ``min_area`` pixels 1..G by area (largest first; ties
-    by smallest member label); the others become 0."""
+    by smallest member label); the others become 0. ``moments.count`` counts each label's
+    pixels (the detector's moments)."""
     n = len(group)
     if n == 0:
         return labels, np.zeros((0, 4)), np.zeros(0, np.int64), np.zeros((0, 3))
@@ -323,8 +325,7 @@ def _apply_groups(labels, moments: Moments, group: np.ndarray, min_area: float):
             for k in np.flatnonzero(group == h))
         for g, h in enumerate(heads)
     ])
-    areas = np.bincount(labels.ravel(), minlength=n + 1)[1:]
-    area = np.array([areas[group == h].sum() for h in heads], dtype=np.int64)
+    area = np.array([moments.count[group == h].sum() for h in heads]).astype(np.int64)
     order = np.lexsort((heads, -area))
     order = order[area[order] >= min_area]
     rank = np.full(len(heads), -1, dtype=np.intp)
@@ -332,7 +333,7 @@ def _apply_groups(labels, moments: Moments, group: np.ndarray, min_area: float):
     table = np.zeros(n + 1, dtype=labels.dtype)
     table[1:] = rank[np.searchsorted(heads, group)] + 1
     planes, _ = fit(count[order], mean[order], scatter[order])
-    return table[labels], planes, area[order], mean[order]
+    return relabel(labels, table, labels.dtype), planes, area[order], mean[order]
 
 
 def draw_order(labels: np.ndarray, windows: list, distance: np.ndarray) -> np.ndarray:

@@ -40,20 +40,47 @@ def piece_outlines(labels: np.ndarray, tolerance_px: float, min_piece: int = MIN
         mask = labels[window] == label
         contours = trace_pieces(mask)
         top, left = window[0].start, window[1].start
-        kept = _large_pieces(mask, contours, min_piece) if len(contours) > 1 else []
+        if len(contours) == 1:
+            outlines[label] = simplify(contours[0], tolerance_px, left, top)
+            continue
+        boxes = _boxes(contours)
+        kept = _large_pieces(mask, contours, boxes, min_piece)
         if len(kept) <= 1:  # the largest piece (as plane_outlines draws it)
-            largest = contours[int(np.argmax([cv2.contourArea(c) for c in contours]))]
-            outlines[label] = simplify(largest, tolerance_px, left, top)
+            outlines[label] = simplify(contours[_largest(contours, boxes)], tolerance_px, left, top)
         else:
             outlines[label] = bridge([simplify(contours[i], tolerance_px, left, top) for i in kept])
     return outlines
 
 
-def _large_pieces(mask: np.ndarray, contours: list, min_piece: int) -> list[int]:
+def _boxes(contours: list) -> np.ndarray:
+    """``(x0, y0, x1, y1)`` (inclusive) of every contour, shape (N, 4)."""
+    lengths = np.fromiter((len(c) for c in contours), dtype=np.intp, count=len(contours))
+    points = np.concatenate(contours).reshape(-1, 2)
+    starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
+    low = np.minimum.reduceat(points, starts, axis=0)
+    high = np.maximum.reduceat(points, starts, axis=0)
+    return np.concatenate([low, high], axis=1)
+
+
+def _largest(contours: list, boxes: np.ndarray) -> int:
+    """Index of the contour of largest area (the first of equals), as ``argmax`` of
+    ``cv2.contourArea`` over all of them, measuring only those whose box could hold more."""
+    bound = (boxes[:, 2] - boxes[:, 0]) * (boxes[:, 3] - boxes[:, 1])  # >= the area inside
+    best, best_area = -1, -1.0
+    for i in np.argsort(-bound, kind="stable").tolist():
+        if bound[i] < best_area:
+            break
+        area = cv2.contourArea(contours[i])
+        if area > best_area or (area == best_area and i < best):
+            best, best_area = i, area
+    return best
+
+
+def _large_pieces(mask: np.ndarray, contours: list, boxes: np.ndarray, min_piece: int) -> list[int]:
     """Indices of the contours (:func:`~annotate_rgbd.detect.outline.trace_pieces`) of pieces of
     at least ``min_piece`` pixels, largest first (ties: first pixel in raster order)."""
-    boxes = np.array([cv2.boundingRect(c) for c in contours])  # fine x, y, width, height
-    cells = ((boxes[:, :2] + boxes[:, 2:] - 1) // 2 - boxes[:, :2] // 2 + 1).prod(axis=1)
+    # Mask pixels each box spans (fine pixel x lies in mask column x // 2 - 1).
+    cells = (boxes[:, 2:] // 2 - boxes[:, :2] // 2 + 1).prod(axis=1)
     if np.count_nonzero(cells >= min_piece) <= 1:
         return []  # at most one piece has room for min_piece pixels (most are speckle)
     # Sizes by a histogram of the components: OpenCV's own statistics take 3x longer.
