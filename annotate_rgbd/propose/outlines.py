@@ -43,31 +43,22 @@ def piece_outlines(labels: np.ndarray, tolerance_px: float, min_piece: int = MIN
         if len(contours) == 1:
             outlines[label] = simplify(contours[0], tolerance_px, left, top)
             continue
-        boxes = _boxes(contours)
-        kept = _large_pieces(mask, contours, boxes, min_piece)
+        lengths = np.fromiter((len(c) for c in contours), dtype=np.int64, count=len(contours))
+        kept = _large_pieces(mask, contours, lengths, min_piece)
         if len(kept) <= 1:  # the largest piece (as plane_outlines draws it)
-            outlines[label] = simplify(contours[_largest(contours, boxes)], tolerance_px, left, top)
+            outlines[label] = simplify(contours[_largest(contours, lengths)], tolerance_px, left, top)
         else:
             outlines[label] = bridge([simplify(contours[i], tolerance_px, left, top) for i in kept])
     return outlines
 
 
-def _boxes(contours: list) -> np.ndarray:
-    """``(x0, y0, x1, y1)`` (inclusive) of every contour, shape (N, 4)."""
-    lengths = np.fromiter((len(c) for c in contours), dtype=np.intp, count=len(contours))
-    points = np.concatenate(contours).reshape(-1, 2)
-    starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
-    low = np.minimum.reduceat(points, starts, axis=0)
-    high = np.maximum.reduceat(points, starts, axis=0)
-    return np.concatenate([low, high], axis=1)
-
-
-def _largest(contours: list, boxes: np.ndarray) -> int:
+def _largest(contours: list, lengths: np.ndarray) -> int:
     """Index of the contour of largest area (the first of equals), as ``argmax`` of
-    ``cv2.contourArea`` over all of them, measuring only those whose box could hold more."""
-    bound = (boxes[:, 2] - boxes[:, 0]) * (boxes[:, 3] - boxes[:, 1])  # >= the area inside
+    ``cv2.contourArea`` over all of them, measuring only those long enough to enclose more:
+    a closed path of ``L`` steps of at most sqrt(2) encloses at most ``L**2 / (2 pi)``."""
+    bound = lengths.astype(np.float64) ** 2 / 6.0
     best, best_area = -1, -1.0
-    for i in np.argsort(-bound, kind="stable").tolist():
+    for i in np.argsort(-lengths, kind="stable").tolist():
         if bound[i] < best_area:
             break
         area = cv2.contourArea(contours[i])
@@ -76,19 +67,29 @@ def _largest(contours: list, boxes: np.ndarray) -> int:
     return best
 
 
-def _large_pieces(mask: np.ndarray, contours: list, boxes: np.ndarray, min_piece: int) -> list[int]:
+def _large_pieces(mask: np.ndarray, contours: list, lengths: np.ndarray, min_piece: int) -> list[int]:
     """Indices of the contours (:func:`~annotate_rgbd.detect.outline.trace_pieces`) of pieces of
     at least ``min_piece`` pixels, largest first (ties: first pixel in raster order)."""
-    # Mask pixels each box spans (fine pixel x lies in mask column x // 2 - 1).
-    cells = (boxes[:, 2:] // 2 - boxes[:, :2] // 2 + 1).prod(axis=1)
-    if np.count_nonzero(cells >= min_piece) <= 1:
-        return []  # at most one piece has room for min_piece pixels (most are speckle)
-    # Sizes by a histogram of the components: OpenCV's own statistics take 3x longer.
-    count, pieces = cv2.connectedComponents(mask.view(np.uint8), connectivity=8, ltype=cv2.CV_32S)
-    starts = np.array([c[0, 0] for c in contours]) // 2 - 1  # (x, y) of each piece's first pixel
-    sizes = np.bincount(pieces.ravel(), minlength=count)[pieces[starts[:, 1], starts[:, 0]]]
+    # A closed path of L fine steps spans at most L / 2 fine pixels, so at most (L / 2 + 1) / 2
+    # + 1 mask pixels, along each axis: most pieces (speckle) are too short to be measured.
+    span = (lengths / 2 + 1) / 2 + 1
+    candidates = np.flatnonzero(span * span >= min_piece)
+    if len(candidates) <= 1:
+        return []
+    boxes = np.array([cv2.boundingRect(contours[i]) for i in candidates])  # fine x, y, width, height
+    cells = ((boxes[:, :2] + boxes[:, 2:] - 1) // 2 - boxes[:, :2] // 2 + 1).prod(axis=1)
+    candidates, boxes = candidates[cells >= min_piece], boxes[cells >= min_piece]
+    if len(candidates) <= 1:
+        return []  # at most one piece has room for min_piece pixels
+    _, pieces = cv2.connectedComponents(mask.view(np.uint8), connectivity=8, ltype=cv2.CV_32S)
+    starts = np.array([contours[i][0, 0] for i in candidates]) // 2 - 1  # (x, y) of each piece's first pixel
+    sizes = np.zeros(len(candidates), dtype=np.int64)
+    for n, ((x, y), (bx, by, bw, bh)) in enumerate(zip(starts.tolist(), boxes.tolist())):
+        rows = slice(max(by // 2 - 1, 0), (by + bh - 1) // 2)  # the piece's box in mask pixels
+        cols = slice(max(bx // 2 - 1, 0), (bx + bw - 1) // 2)
+        sizes[n] = np.count_nonzero(pieces[rows, cols] == pieces[y, x])
     order = np.lexsort((starts[:, 0], starts[:, 1], -sizes))
-    return [int(i) for i in order if sizes[i] >= min_piece]
+    return [int(candidates[i]) for i in order if sizes[i] >= min_piece]
 
 
 def bridge(polygons: list[np.ndarray]) -> np.ndarray:
