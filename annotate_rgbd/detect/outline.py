@@ -74,7 +74,7 @@ def trace_pieces(mask: np.ndarray) -> list[np.ndarray]:
         piece's first pixel in raster order.
     """
     # One pixel of margin so that outlines along the window's edge close properly.
-    padded = np.pad(mask, 1).view(np.uint8)
+    padded = cv2.copyMakeBorder(np.ascontiguousarray(mask).view(np.uint8), 1, 1, 1, 1, cv2.BORDER_CONSTANT, value=0)
     fine = cv2.resize(padded, None, fx=2, fy=2, interpolation=cv2.INTER_NEAREST)
     contours, _ = cv2.findContours(fine, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
     return list(contours)
