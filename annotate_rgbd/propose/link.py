@@ -95,8 +95,9 @@ class TrackLinker:
         k = len(proposal.areas)
         score = np.zeros((len(live), k))
         sampled = np.ascontiguousarray(proposal.labels[::STRIDE, ::STRIDE])
+        counts = np.bincount(sampled.ravel(), minlength=k + 1)[1 : k + 1]  # sampled pixels per plane
         for row, track in enumerate(live):
-            score[row] = self._scores(self.last[track], proposal, sampled, time, pose)
+            score[row] = self._scores(self.last[track], proposal, sampled, counts, time, pose)
         tracks = np.zeros(k, dtype=np.int64)
         if live and k:
             rows, cols = linear_sum_assignment(-score)
@@ -118,7 +119,9 @@ class TrackLinker:
         self.recent = {p: labels for p, labels in self.recent.items() if p >= horizon}
         return tracks
 
-    def _scores(self, last: _Last, proposal: FrameProposal, sampled: np.ndarray, time: float, pose) -> np.ndarray:
+    def _scores(
+        self, last: _Last, proposal: FrameProposal, sampled: np.ndarray, counts: np.ndarray, time: float, pose
+    ) -> np.ndarray:
         """IoU of each of the frame's planes with the track, 0 where the planes disagree."""
         config = self.config
         k = len(proposal.areas)
@@ -132,7 +135,7 @@ class TrackLinker:
             agree = (angle <= config.angle_deg) & (offset <= band + config.pose_error)
             if not agree.any():
                 return np.zeros(k)
-            return np.where(agree, self._reprojected_iou(last, proposal, pose), 0.0)
+            return np.where(agree, self._reprojected_iou(last, sampled, counts, pose), 0.0)
         dt = abs(time - last.time)
         cosine = np.clip(proposal.planes[:, :3] @ last.plane[:3], -1.0, 1.0)
         angle = np.degrees(np.arccos(cosine))
@@ -150,21 +153,22 @@ class TrackLinker:
             overlap[c] = shifted_iou(previous, sampled == c + 1, int(np.ceil(reach / STRIDE)))
         return overlap
 
-    def _reprojected_iou(self, last: _Last, proposal: FrameProposal, pose) -> np.ndarray:
-        """IoU of the track's last polygon, moved onto this frame, with each plane's mask."""
-        k = len(proposal.areas)
+    def _reprojected_iou(self, last: _Last, sampled: np.ndarray, counts: np.ndarray, pose) -> np.ndarray:
+        """IoU of the track's last polygon, moved onto this frame, with each plane's mask (on
+        the labels sampled every :data:`STRIDE` pixels; ``counts``: each plane's samples)."""
+        k = len(counts)
         lifted = lift_polygon(last.outline, last.plane, self.camera, *last.pose)
         if not lifted.ok:
             return np.zeros(k)
         polygon = project_polygon(lifted.world, self.camera, *pose)
         if len(polygon) < 3 or not np.isfinite(polygon).all():
             return np.zeros(k)
-        height, width = proposal.labels.shape
-        top, left, window = fill_window(polygon, height, width)
+        # Sampled pixel j has its centre where full pixel STRIDE * j has its own.
+        top, left, window = fill_window((polygon - 0.5) / STRIDE + 0.5, *sampled.shape)
         rows, cols = window.shape
-        covered = proposal.labels[top : top + rows, left : left + cols][window]
-        inter = np.bincount(covered.astype(np.intp), minlength=k + 1)[1 : k + 1]
-        union = window.sum() + proposal.areas - inter
+        covered = sampled[top : top + rows, left : left + cols][window]
+        inter = np.bincount(covered, minlength=k + 1)[1 : k + 1]
+        union = np.count_nonzero(window) + counts - inter
         return inter / np.maximum(union, 1)
 
 
