@@ -38,9 +38,11 @@ def assign_pixels(cells: CloudCells, region: np.ndarray, planes: np.ndarray, ban
     cell_rows[-1] += height - rows * cell_px
     cell_cols = np.full(cols, cell_px)
     cell_cols[-1] += width - cols * cell_px
-    band = np.float32(band_k) * cells.sigma
+    # A pixel is taken when it lies nearer than ``best``: first the band itself (just above it,
+    # so that a pixel on the band's edge is in; NaN where the depth is invalid: never taken),
+    # then the nearest plane's distance so far.
+    best = np.nextafter(np.float32(band_k) * cells.sigma, np.float32(np.inf))
     labels = np.zeros((height, width), dtype=np.uint8 if planes.shape[0] < 256 else np.int32)
-    best = np.full((height, width), np.inf, dtype=np.float32)
     grid = region.reshape(rows, cols)
     ring = np.ones((3, 3), dtype=bool)
     for k, (cell_window, window) in enumerate(claim_windows(cells, region), start=1):
@@ -58,7 +60,6 @@ def assign_pixels(cells: CloudCells, region: np.ndarray, planes: np.ndarray, ban
         dist += d
         np.abs(dist, out=dist)
         with np.errstate(invalid="ignore"):
-            claim &= dist <= band[r0:r1, c0:c1]
             claim &= dist < best[r0:r1, c0:c1]
         np.copyto(labels[r0:r1, c0:c1], k, where=claim)
         np.copyto(best[r0:r1, c0:c1], dist, where=claim)
