@@ -2,10 +2,11 @@
 
 Run from the repository root::
 
-    python benchmarks/bench_propose.py [--frames 60] [--jobs 1] [--rounds 2] [--workdir DIR]
+    python benchmarks/bench_propose.py [--frames 60] [--seed 3] [--jobs 1] [--rounds 2] [--workdir DIR]
 
 Renders once into ``--workdir`` (reused by later runs) ``--frames`` 640x480 frames of the room of
-``annotate_rgbd.synthetic.room_scene`` (walls, floor, table, cabinet, a window without depth, a
+``annotate_rgbd.synthetic.room_scene`` (``--seed``: sensor noise, holes, timestamps; the camera
+path is the same for any frame count, so fewer frames mean more motion between frames) (walls, floor, table, cabinet, a window without depth, a
 corridor wall beyond 3.5 m, clutter; Kinect noise), with the renderer's camera poses as a TUM
 ``groundtruth.txt`` and its annotation as a CVAT video export. Then, in one run and on the same
 frames, it times ``propose`` (with and without poses) and ``cvat2mask`` on the renderer's
@@ -50,12 +51,12 @@ CAMERA = Camera(fx=525.0, fy=525.0, cx=319.5, cy=239.5, depth_scale=5000.0)
 MIN_AREA = 0.01
 
 
-def render(workdir: Path, frames: int) -> Path:
-    """The sequence, its trajectory and its annotation (cached by frame count)."""
-    sequence = workdir / f"room_{frames}"
+def render(workdir: Path, frames: int, seed: int = 3) -> Path:
+    """The sequence, its trajectory and its annotation (cached by frame count and seed)."""
+    sequence = workdir / (f"room_{frames}" if seed == 3 else f"room_{frames}_seed{seed}")
     if (sequence / "annotation.xml").exists():
         return sequence
-    annotation = make_sequence(sequence, n_frames=frames, width=640, height=480, camera=CAMERA, seed=3)
+    annotation = make_sequence(sequence, n_frames=frames, width=640, height=480, camera=CAMERA, seed=seed)
     write_cvat_video(annotation, sequence / "annotation.xml", width=640, height=480)
     poses = room_trajectory(frames)
     times = read_sequence(sequence).depth.timestamps
@@ -101,13 +102,14 @@ def score(sequence: Path, masks: Path) -> dict[str, float]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--frames", type=int, default=60)
+    parser.add_argument("--seed", type=int, default=3)
     parser.add_argument("--jobs", type=int, default=1)
     parser.add_argument("--rounds", type=int, default=2)
     parser.add_argument("--workdir", type=Path, default=Path(tempfile.gettempdir()) / "annotate_rgbd_bench_propose")
     args = parser.parse_args()
     prepare_process(args.jobs)
-    sequence = render(args.workdir, args.frames)
-    out = args.workdir / "out"
+    sequence = render(args.workdir, args.frames, args.seed)
+    out = args.workdir / f"out_{sequence.name}"
     config = Config()
     runs = {
         "propose --poses": lambda: run_propose(sequence, out / "posed", config, poses=sequence / "groundtruth.txt",
@@ -124,7 +126,7 @@ def main() -> None:
             best[name] = min(best[name], time.perf_counter() - start)
     run_cvat2mask(sequence, [out / "posed" / "proposals.xml"], out / "refined", config, workers=args.jobs, force=True)
     written = len(list((out / "posed" / "masks").iterdir()))
-    print(f"{args.frames} rendered frames 640x480 ({written} with an RGB frame), {args.jobs} worker(s), "
+    print(f"{args.frames} rendered frames 640x480 (seed {args.seed}; {written} with an RGB frame), {args.jobs} worker(s), "
           f"best of {args.rounds} rounds\n")
     print(f"| run | ms per frame | vs cvat2mask | mean IoU | P@0.8 | R@0.8 | colour |")
     print("|---|---|---|---|---|---|---|")

@@ -203,6 +203,14 @@ def test_output_conventions(room):
     normal = np.linalg.svd(points - centre, full_matrices=False)[2][-1]
     normal *= -np.sign(normal @ centre)
     assert np.allclose(planes[1], np.append(normal, -normal @ centre), atol=1e-6)
+    # The moments the planes were fitted to come with them (for merging labels without a second pass).
+    for k in range(1, len(areas) + 1):
+        rows, cols = np.nonzero(labels == k)
+        points = backproject(cols, rows, depth[rows, cols].astype(float), KINECT)
+        centre = points.mean(axis=0)
+        scatter = (points - centre).T @ (points - centre)
+        assert np.allclose(detection.means[k - 1], centre, rtol=0, atol=1e-8)
+        assert np.allclose(detection.scatters[k - 1], scatter, rtol=0, atol=1e-6 * np.abs(scatter).max())
     # Every labelled pixel lies within the band of its plane (refit moves it a little).
     for k in range(1, len(areas) + 1):
         rows, cols = np.nonzero(labels == k)

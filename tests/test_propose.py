@@ -14,6 +14,7 @@ from annotate_rgbd.propose.outlines import piece_outlines
 from annotate_rgbd.noise import NoiseSettings
 from annotate_rgbd.propose import FrameProposal, LinkConfig, link_proposals
 from annotate_rgbd.propose.detect_job import draw_order, label_moments, merge_groups, paint
+from annotate_rgbd.propose.link import shifted_iou
 from annotate_rgbd.rasterize import rasterize_frame, shape_mask
 
 CAMERA = Camera(fx=525.0, fy=525.0, cx=319.5, cy=239.5, depth_scale=5000.0)
@@ -132,6 +133,52 @@ def test_tracks_continue_over_a_missed_frame_only_within_max_gap():
     times = np.arange(3) / 30
     assert link_proposals(frames, times, LinkConfig(max_gap=1), NOISE, CAMERA)[2].tolist() == [1]
     assert link_proposals(frames, times, LinkConfig(max_gap=0), NOISE, CAMERA)[2].tolist() == [2]
+
+
+SIDE = [1.0, 0.0, 0.0, 0.5]  # a cabinet side 0.5 m to the left, seen edge-on: a narrow strip
+
+
+def strip(position, left, width=32):
+    return proposal(position, [(slice(150, 350), slice(left, left + width))], [SIDE])
+
+
+def test_narrow_plane_panning_past_keeps_its_track_over_a_missed_frame():
+    # The camera pans: the strip moves 20 px a frame, and the detector misses it on frame 1.
+    # Its masks on frames 0 and 2 are 40 px apart and do not overlap at all (IoU 0); shifted
+    # back by what a camera turning 60 deg/s moves the image in 2/30 s (~45 px), they coincide.
+    frames = [strip(0, 300), proposal(1, [], np.zeros((0, 4))), strip(2, 340)]
+    ids = link_proposals(frames, np.arange(3) / 30, LinkConfig(), NOISE, CAMERA)
+    assert ids[2].tolist() == [1]
+
+
+def test_shift_search_stays_within_the_camera_motion_limits():
+    # 160 px in 1/30 s is far beyond 60 deg/s and 0.5 m/s: a different strip, a new track.
+    frames = [strip(0, 200), strip(1, 360)]
+    assert link_proposals(frames, np.arange(2) / 30, LinkConfig(), NOISE, CAMERA)[1].tolist() == [2]
+    # The same 160 px over 1/3 s (every 10th frame) is within them.
+    assert link_proposals(frames, np.arange(2) / 3, LinkConfig(), NOISE, CAMERA)[1].tolist() == [1]
+
+
+def test_shifted_iou_is_the_best_overlap_over_the_allowed_shifts():
+    rng = np.random.default_rng(4)
+    for _ in range(20):
+        first = np.zeros((30, 40), bool)
+        second = np.zeros((30, 40), bool)
+        r, c = rng.integers(0, 20, 2)
+        first[r : r + rng.integers(2, 10), c : c + rng.integers(2, 15)] = True
+        second[rng.random((30, 40)) < 0.05] = True
+        second[r + 3 : r + 9, c - 2 + rng.integers(0, 4) : c + 12] = True
+        reach = int(rng.integers(0, 6))
+        best = 0.0
+        for dy in range(-reach, reach + 1):
+            for dx in range(-reach, reach + 1):
+                moved = np.zeros_like(second)  # second[p + (dy, dx)] laid over first[p]
+                moved[max(-dy, 0) : 30 - max(dy, 0), max(-dx, 0) : 40 - max(dx, 0)] = \
+                    second[max(dy, 0) : 30 - max(-dy, 0), max(dx, 0) : 40 - max(-dx, 0)]
+                inter = np.count_nonzero(first & moved)
+                best = max(best, inter / (first.sum() + second.sum() - inter))
+        assert shifted_iou(first, second, reach) == pytest.approx(best, abs=1e-9)
+    assert shifted_iou(first, np.zeros_like(first), 3) == 0.0
 
 
 def test_video_writer_track_attributes_and_sampled_keyframes(tmp_path):

@@ -26,7 +26,7 @@ from .cells import NoiseModel, cloud_cells
 from .config import DetectorConfig
 from .grow import cell_moments, fit_planes, grow_regions, merge_segments, sum_moments
 from .outline import plane_outlines
-from .refine import assign_pixels, order_labels, pixel_moments, planes_from_scatter
+from .refine import assign_pixels, claim_windows, order_labels, pixel_moments, planes_from_scatter, relabel
 
 __all__ = ["DetectorConfig", "PlaneDetection", "detect_planes", "plane_outlines"]
 
@@ -47,11 +47,18 @@ class PlaneDetection:
         orthogonal least squares to the label's pixels.
     areas : ndarray of int64, shape (K,)
         Pixels per label.
+    means : ndarray of float64, shape (K, 3)
+        Centroid of each label's points (camera frame, metres).
+    scatters : ndarray of float64, shape (K, 3, 3)
+        Sum of the outer products of each label's points about their centroid: with ``areas``
+        and ``means``, the moments the planes were fitted to, for whoever combines labels.
     """
 
     labels: np.ndarray
     planes: np.ndarray
     areas: np.ndarray
+    means: np.ndarray
+    scatters: np.ndarray
 
 
 def detect_planes(
@@ -95,7 +102,7 @@ def detect_planes(
     moments = sum_moments(cell_moments(cells), region - 1, int(region.max()))
     planes = fit_planes(moments)[0]
     labels = assign_pixels(cells, region, planes, config.band_k)
-    count, mean, centred = pixel_moments(cells, labels, planes.shape[0])
+    count, mean, centred = pixel_moments(cells, labels, planes.shape[0], claim_windows(cells, region))
     small = count < max(min_area, 3)
     if small.any() and not small.all():
         # Give the pixels of segments that fell short to their neighbours, using the planes
@@ -103,14 +110,16 @@ def detect_planes(
         region = _renumber(region, ~small)
         planes = planes_from_scatter(mean[~small], centred[~small])
         labels = assign_pixels(cells, region, planes, config.band_k)
-        count, mean, centred = pixel_moments(cells, labels, planes.shape[0])
+        count, mean, centred = pixel_moments(cells, labels, planes.shape[0], claim_windows(cells, region))
     table = order_labels(labels, count, max(min_area, 3))
     kept = np.argsort(table[1:], kind="stable")[np.count_nonzero(table[1:] == 0) :]  # old index by new label
     dtype = np.uint8 if kept.size < 256 else np.uint16
     return PlaneDetection(
-        labels=table.astype(dtype)[labels],
+        labels=relabel(labels, table, dtype),
         planes=planes_from_scatter(mean[kept], centred[kept]).reshape(-1, 4),
         areas=count[kept].astype(np.int64),
+        means=mean[kept].reshape(-1, 3),
+        scatters=centred[kept].reshape(-1, 3, 3),
     )
 
 

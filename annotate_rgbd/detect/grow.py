@@ -203,15 +203,19 @@ def grow_regions(cells: CloudCells, config: DetectorConfig) -> np.ndarray:
     """
     neighbours, inner = neighbour_pairs(cells, config)
     moments = cell_moments(cells)
-    cos_limit = np.cos(cell_angle_limits(cells, config))
-    band2 = (config.band_k * cells.cell_sigma) ** 2
-    centred, mean, count = cells.scatter, np.nan_to_num(cells.mean), cells.count
+    # One row of sums per cell (count, first, second, noise): a region's totals in one reduction.
+    packed = np.concatenate(
+        [moments.count[:, None], moments.first, moments.second.reshape(-1, 9), moments.noise[:, None]], axis=1
+    )
+    fits_plane = _plane_test(cells, config)
     with np.errstate(invalid="ignore", divide="ignore"):
         score = np.where(cells.planar, cells.mse / cells.cell_sigma**2, np.inf)
-    region = np.zeros(cells.grid[0] * cells.grid[1], dtype=np.int32)
+    # The walk below visits cells one by one: Python lists are read faster than numpy arrays.
+    region = [0] * (cells.grid[0] * cells.grid[1])
+    planar, inner = cells.planar.tolist(), inner.tolist()
     n_regions = 0
     for seed in np.argsort(score, kind="stable").tolist():
-        if not cells.planar[seed]:
+        if not planar[seed]:
             break  # the rest score inf
         if region[seed] or not inner[seed]:
             continue  # taken, or not inside a plane
@@ -219,7 +223,7 @@ def grow_regions(cells: CloudCells, config: DetectorConfig) -> np.ndarray:
         region[seed] = n_regions
         members = [seed]
         plane = np.append(cells.normal[seed], cells.offset[seed])
-        fits = _fits_plane(plane, centred, mean, count, cells, cos_limit, band2)
+        fits = fits_plane(plane)
         queue = deque(members)
         next_refit = 2
         while queue:
@@ -231,22 +235,42 @@ def grow_regions(cells: CloudCells, config: DetectorConfig) -> np.ndarray:
                     queue.append(other)
             if len(members) >= next_refit:
                 next_refit = 2 * len(members)
-                group = np.asarray(members)
-                total = Moments(*(x[group].sum(axis=0)[None] for x in (moments.count, moments.first, moments.second, moments.noise)))
-                plane = fit_planes(total)[0][0]
-                fits = _fits_plane(plane, centred, mean, count, cells, cos_limit, band2)
+                plane = _fit_one(packed[members].sum(axis=0))
+                fits = fits_plane(plane)
                 queue.extend(members)  # the new plane may admit cells the old one refused
-    return region
+    return np.array(region, dtype=np.int32)
 
 
-def _fits_plane(plane, centred, mean, count, cells, cos_limit, band2) -> np.ndarray:
-    """Which planar cells lie within the band of ``plane`` and face its way."""
-    with np.errstate(invalid="ignore"):
-        return (
-            cells.planar
-            & (residual_ms(plane, mean, centred, count) <= band2)
-            & (cells.normal @ plane[:3] >= cos_limit)
-        )
+def _plane_test(cells: CloudCells, config: DetectorConfig):
+    """``fits(plane)``: which cells (a list of bool) are planar, lie within the band of
+    ``plane`` (:func:`residual_ms` at most ``(band_k * sigma) ** 2``) and face its way (normal
+    within the cell's angle limit)."""
+    cos_limit = np.cos(cell_angle_limits(cells, config))
+    band2 = (config.band_k * cells.cell_sigma) ** 2
+    mean, count = np.nan_to_num(cells.mean), np.maximum(cells.count, 1)
+    scatter = cells.scatter.reshape(-1, 9)
+
+    def fits(plane: np.ndarray) -> list[bool]:
+        normal = plane[:3]
+        # n^T S n for every cell at once: the scatter matrices flattened against n n^T.
+        spread = scatter @ np.outer(normal, normal).ravel() / count
+        with np.errstate(invalid="ignore"):
+            ok = cells.planar & (spread + (mean @ normal + plane[3]) ** 2 <= band2) & (cells.normal @ normal >= cos_limit)
+        return ok.tolist()
+
+    return fits
+
+
+def _fit_one(total: np.ndarray) -> np.ndarray:
+    """The plane of one set of points from its packed sums (count, first, second, noise), as
+    :func:`fit_planes` fits it."""
+    count = max(total[0], 1.0)
+    mean = total[1:4] / count
+    centred = total[4:13].reshape(3, 3) - (count * mean[:, None]) * mean[None, :]
+    normal = np.linalg.eigh(centred)[1][:, 0]
+    if normal @ mean > 0:
+        normal = -normal
+    return np.append(normal, -(normal @ mean))
 
 
 def merge_segments(region: np.ndarray, cells: CloudCells, config: DetectorConfig) -> np.ndarray:

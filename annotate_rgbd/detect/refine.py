@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 from scipy import ndimage
 
@@ -26,38 +27,74 @@ def assign_pixels(cells: CloudCells, region: np.ndarray, planes: np.ndarray, ban
 
     Returns
     -------
-    ndarray of int32, shape (H, W)
+    ndarray of uint8 (K < 256) or int32, shape (H, W)
         Segment of each pixel, 0 for none.
     """
     height, width = cells.depth.shape
     rows, cols = cells.grid
     cell_px = cells.cell_px
-    row_cell = np.minimum(np.arange(height) // cell_px, rows - 1)
-    col_cell = np.minimum(np.arange(width) // cell_px, cols - 1)
-    band = np.float32(band_k) * cells.sigma
-    labels = np.zeros((height, width), dtype=np.int32)
-    best = np.full((height, width), np.inf, dtype=np.float32)
+    # Pixel rows (columns) of each cell row (column): the last one also covers the margin.
+    cell_rows = np.full(rows, cell_px)
+    cell_rows[-1] += height - rows * cell_px
+    cell_cols = np.full(cols, cell_px)
+    cell_cols[-1] += width - cols * cell_px
+    # A pixel is taken when it lies nearer than ``best``: first the band itself (just above it,
+    # so that a pixel on the band's edge is in; NaN where the depth is invalid: never taken),
+    # then the nearest plane's distance so far.
+    best = np.nextafter(np.float32(band_k) * cells.sigma, np.float32(np.inf))
+    labels = np.zeros((height, width), dtype=np.uint8 if planes.shape[0] < 256 else np.int32)
     grid = region.reshape(rows, cols)
     ring = np.ones((3, 3), dtype=bool)
-    for k, window in enumerate(ndimage.find_objects(grid), start=1):
+    for k, (cell_window, window) in enumerate(claim_windows(cells, region), start=1):
         if window is None:
             continue
         # The segment's cells and their 8-neighbours, inside the segment's window grown by one cell.
-        top, left = max(window[0].start - 1, 0), max(window[1].start - 1, 0)
-        bottom, right = min(window[0].stop + 1, rows), min(window[1].stop + 1, cols)
+        (top, bottom), (left, right) = cell_window
+        (r0, r1), (c0, c1) = window
         near = ndimage.binary_dilation(grid[top:bottom, left:right] == k, structure=ring)
-        r0, r1 = top * cell_px, _stop(bottom, rows, cell_px, height)
-        c0, c1 = left * cell_px, _stop(right, cols, cell_px, width)
-        claim = near[np.ix_(row_cell[r0:r1] - top, col_cell[c0:c1] - left)]
+        claim = np.repeat(np.repeat(near, cell_rows[top:bottom], axis=0), cell_cols[left:right], axis=1)
         a, b, c, d = planes[k - 1].astype(np.float32)
         # Point = z * (ray_x, ray_y, 1), so the signed distance is z * (n . ray) + d.
         facing = a * cells.ray_x[c0:c1] + (b * cells.ray_y[r0:r1, None] + c)
-        dist = np.abs(cells.depth[r0:r1, c0:c1] * facing + d)
+        dist = cells.depth[r0:r1, c0:c1] * facing
+        dist += d
+        np.abs(dist, out=dist)
         with np.errstate(invalid="ignore"):
-            take = claim & (dist <= band[r0:r1, c0:c1]) & (dist < best[r0:r1, c0:c1])
-        labels[r0:r1, c0:c1][take] = k
-        best[r0:r1, c0:c1][take] = dist[take]
+            claim &= dist < best[r0:r1, c0:c1]
+        np.copyto(labels[r0:r1, c0:c1], k, where=claim)
+        np.copyto(best[r0:r1, c0:c1], dist, where=claim)
     return labels
+
+
+def claim_windows(cells: CloudCells, region: np.ndarray) -> list:
+    """Where each segment may claim pixels (:func:`assign_pixels`): its cells' bounding box
+    grown by one cell.
+
+    Parameters
+    ----------
+    cells : CloudCells
+    region : ndarray of int, shape (C,)
+        Segment of each cell, 0 for none, segments 1..K.
+
+    Returns
+    -------
+    list of (cells, pixels) or (None, None)
+        Per segment: ``((top, bottom), (left, right))`` in cells and the same in pixels (stop
+        exclusive); ``(None, None)`` for a segment without cells.
+    """
+    height, width = cells.depth.shape
+    rows, cols = cells.grid
+    cell_px = cells.cell_px
+    windows = []
+    for window in ndimage.find_objects(region.reshape(rows, cols)):
+        if window is None:
+            windows.append((None, None))
+            continue
+        top, left = max(window[0].start - 1, 0), max(window[1].start - 1, 0)
+        bottom, right = min(window[0].stop + 1, rows), min(window[1].stop + 1, cols)
+        pixels = (top * cell_px, _stop(bottom, rows, cell_px, height)), (left * cell_px, _stop(right, cols, cell_px, width))
+        windows.append((((top, bottom), (left, right)), pixels))
+    return windows
 
 
 def _stop(stop_cell: int, n_cells: int, cell_px: int, size: int) -> int:
@@ -65,7 +102,9 @@ def _stop(stop_cell: int, n_cells: int, cell_px: int, size: int) -> int:
     return size if stop_cell == n_cells else stop_cell * cell_px
 
 
-def pixel_moments(cells: CloudCells, labels: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def pixel_moments(
+    cells: CloudCells, labels: np.ndarray, n: int, windows: list | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Count, centroid and centred scatter matrix of the points of each label.
 
     Parameters
@@ -75,6 +114,9 @@ def pixel_moments(cells: CloudCells, labels: np.ndarray, n: int) -> tuple[np.nda
     labels : ndarray of int, shape (H, W)
         0 for none, else 1..n; labelled pixels must have valid depth.
     n : int
+    windows : list, optional
+        Where each label's pixels lie, as :func:`claim_windows` gives them for the segments
+        that :func:`assign_pixels` labelled (default: the labels' bounding boxes, found here).
 
     Returns
     -------
@@ -86,10 +128,17 @@ def pixel_moments(cells: CloudCells, labels: np.ndarray, n: int) -> tuple[np.nda
     count = np.zeros(n, dtype=np.int64)
     mean = np.zeros((n, 3))
     centred = np.zeros((n, 3, 3))
-    for k, window in enumerate(ndimage.find_objects(labels, max_label=n)):
+    if windows is None:
+        boxes = ndimage.find_objects(labels, max_label=n)
+    else:
+        boxes = [None if w is None else (slice(*w[0]), slice(*w[1])) for _, w in windows]
+    for k, window in enumerate(boxes):
         if window is None:
             continue
         inside = labels[window] == k + 1
+        count[k] = np.count_nonzero(inside)
+        if count[k] == 0:
+            continue
         z = np.where(inside, cells.depth[window], 0).astype(np.float64)
         # With x = z * ray_x[col] and y = z * ray_y[row], every moment is a sum of
         # z**p * ray_y**i * ray_x**j: two small matrix products give them all.
@@ -98,7 +147,6 @@ def pixel_moments(cells: CloudCells, labels: np.ndarray, n: int) -> tuple[np.nda
         down = np.stack([np.ones_like(ray_y), ray_y, ray_y**2], axis=1)
         first = down.T @ (z @ across)  # first[i, j] = sum z * ray_y**i * ray_x**j
         second = down.T @ ((z * z) @ across)
-        count[k] = np.count_nonzero(inside)
         mean[k] = np.array([first[0, 1], first[1, 0], first[0, 0]]) / count[k]
         raw = np.array(
             [
@@ -148,3 +196,26 @@ def order_labels(labels: np.ndarray, count: np.ndarray, min_area: int) -> np.nda
     table = np.zeros(n + 1, dtype=np.int64)
     table[order + 1] = np.arange(1, order.size + 1)
     return table
+
+
+def relabel(labels: np.ndarray, table: np.ndarray, dtype) -> np.ndarray:
+    """``table[labels]`` as ``dtype``; by OpenCV's lookup table where both fit in 8 bits (several
+    times faster than numpy's indexing).
+
+    Parameters
+    ----------
+    labels : ndarray of int, shape (H, W)
+    table : ndarray of int, shape (N,)
+        ``N > labels.max()``.
+    dtype : numpy dtype
+
+    Returns
+    -------
+    ndarray of ``dtype``, shape (H, W)
+    """
+    table = np.asarray(table)
+    if labels.dtype == np.uint8 and np.dtype(dtype) == np.uint8 and len(table) <= 256:
+        lut = np.zeros(256, dtype=np.uint8)
+        lut[: len(table)] = table
+        return cv2.LUT(labels, lut)
+    return table.astype(dtype)[labels]

@@ -15,8 +15,9 @@ import numpy as np
 from ..camera import Camera, depth_to_metres
 from ..config import FilterConfig
 from ..detect import detect_planes
+from ..detect.refine import relabel
 from ..errors import InputError
-from ..filters import drop_reasons, plane_statistics
+from ..filters import PlaneStats, drop_reasons, label_histogram, ray_lengths
 from ..noise import NoiseSettings
 from ..sequence import read_depth
 from .outlines import fill_window, piece_outlines
@@ -129,18 +130,23 @@ def propose_planes(
     min_area = settings.detector.min_area_fraction * depth.size
     pieces = replace(settings.detector, min_area_fraction=settings.detector.min_area_fraction * settings.piece_fraction)
     detection = detect_planes(depth, camera, pieces, noise=sigma)
-    moments = label_moments(detection.labels, depth, camera)
+    # The detector's own moments of its final pixels: exact, and already paid for.
+    moments = Moments(detection.areas.astype(np.float64), detection.means, detection.scatters)
     groups = merge_groups(moments, sigma, settings.merge_excess)
     labels, planes, areas, centroids = _apply_groups(detection.labels, moments, groups, min_area)
     outlines = piece_outlines(labels, settings.outline_tolerance_px)
     if len(outlines) != len(areas):  # pragma: no cover - every label has pixels
         raise InputError(None, "a proposed plane has no outline")
     polygons = [outlines[k] for k in range(1, len(areas) + 1)]
-    distance = plane_statistics(labels, depth, camera).mean_distance if len(areas) else np.zeros(0)
+    # What plane_statistics computes, with the distance image shared by its two uses.
+    ray_distance = np.fmax(depth * ray_lengths(camera, *depth.shape), 0).astype(np.float64)  # NaN -> 0
+    valid = ~np.isnan(depth)
+    # Every pixel of the detector's labels has valid depth: the mean needs only the sums.
+    distance = np.bincount(labels.ravel(), weights=ray_distance.ravel(), minlength=len(areas) + 1)[1:] / areas
     windows = [fill_window(p, *labels.shape) for p in polygons]
     z_order = draw_order(labels, windows, distance)
     drawn = paint(windows, z_order, labels.shape)
-    stats = plane_statistics(drawn, depth, camera)
+    stats = depth_statistics(drawn, ray_distance, valid)
     reasons = dict(zip(stats.plane_ids.tolist(), drop_reasons(stats, rules)))
     drawn_distance = dict(zip(stats.plane_ids.tolist(), stats.mean_distance.tolist()))
     drawn_invalid = dict(zip(stats.plane_ids.tolist(), stats.invalid_ratio.tolist()))
@@ -157,7 +163,7 @@ def propose_planes(
     mean_distance = np.array([drawn_distance[k + 1] for k in np.flatnonzero(keep)], dtype=np.float64)
     return FrameProposal(
         position=position,
-        labels=table[labels],
+        labels=relabel(labels, table, labels.dtype),
         planes=planes[keep],
         areas=areas[keep],
         centroids=centroids[keep],
@@ -166,6 +172,33 @@ def propose_planes(
         z_order=np.argsort(np.argsort(z_order[keep], kind="stable"), kind="stable").astype(np.int64),
         dropped=dropped,
     )
+
+
+def depth_statistics(labels: np.ndarray, distance: np.ndarray, valid: np.ndarray) -> PlaneStats:
+    """:func:`annotate_rgbd.filters.plane_statistics` of a label image, from the frame's
+    distances (computed once for the two label images of a frame).
+
+    Parameters
+    ----------
+    labels : ndarray of uint8 or uint16, shape (H, W)
+    distance : ndarray of float64, shape (H, W)
+        Distance of each pixel from the camera centre, metres, 0 where the depth is invalid.
+    valid : ndarray of bool, shape (H, W)
+        Pixels with valid depth.
+
+    Returns
+    -------
+    PlaneStats
+    """
+    n = int(labels.max(initial=0)) + 1
+    pixels = label_histogram(labels, n)
+    valid_pixels = label_histogram(labels, n, where=valid)
+    distance_sum = np.bincount(labels.ravel(), weights=distance.ravel(), minlength=n)
+    plane_ids = np.flatnonzero(pixels[1:]) + 1
+    pixels, valid_pixels, distance_sum = pixels[plane_ids], valid_pixels[plane_ids], distance_sum[plane_ids]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean_distance = np.where(valid_pixels > 0, distance_sum / np.maximum(valid_pixels, 1), np.nan)
+    return PlaneStats(plane_ids.astype(np.int32), pixels, valid_pixels, mean_distance)
 
 
 @dataclass(frozen=True)
@@ -280,7 +313,8 @@ def merge_groups(moments: Moments, sigma, excess_k: float) -> np.ndarray:
 
 def _apply_groups(labels, moments: Moments, group: np.ndarray, min_area: float):
     """Relabel merged groups of at least ``min_area`` pixels 1..G by area (largest first; ties
-    by smallest member label); the others become 0."""
+    by smallest member label); the others become 0. ``moments.count`` counts each label's
+    pixels (the detector's moments)."""
     n = len(group)
     if n == 0:
         return labels, np.zeros((0, 4)), np.zeros(0, np.int64), np.zeros((0, 3))
@@ -292,8 +326,7 @@ def _apply_groups(labels, moments: Moments, group: np.ndarray, min_area: float):
             for k in np.flatnonzero(group == h))
         for g, h in enumerate(heads)
     ])
-    areas = np.bincount(labels.ravel(), minlength=n + 1)[1:]
-    area = np.array([areas[group == h].sum() for h in heads], dtype=np.int64)
+    area = np.array([moments.count[group == h].sum() for h in heads]).astype(np.int64)
     order = np.lexsort((heads, -area))
     order = order[area[order] >= min_area]
     rank = np.full(len(heads), -1, dtype=np.intp)
@@ -301,7 +334,7 @@ def _apply_groups(labels, moments: Moments, group: np.ndarray, min_area: float):
     table = np.zeros(n + 1, dtype=labels.dtype)
     table[1:] = rank[np.searchsorted(heads, group)] + 1
     planes, _ = fit(count[order], mean[order], scatter[order])
-    return table[labels], planes, area[order], mean[order]
+    return relabel(labels, table, labels.dtype), planes, area[order], mean[order]
 
 
 def draw_order(labels: np.ndarray, windows: list, distance: np.ndarray) -> np.ndarray:

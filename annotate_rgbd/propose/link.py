@@ -3,11 +3,15 @@
 Two detections are candidates for one plane when their planes agree within the noise band and
 their masks overlap (see :class:`~annotate_rgbd.propose.settings.LinkConfig`):
 
-- **with poses**, by world plane (:func:`annotate_rgbd.lift.plane_agreement` at the later
-  detection's centroid) and by the IoU of the later mask with the earlier polygon lifted onto
-  its plane and reprojected into the later frame (:mod:`annotate_rgbd.lift`);
+- **with poses**, by world plane (:func:`world_agreement`: :func:`annotate_rgbd.lift.plane_agreement`
+  for all of a frame's planes at once, at the later detection's centroid) and by the IoU of
+  the later mask with the earlier polygon lifted onto its plane and reprojected into the later
+  frame (:mod:`annotate_rgbd.lift`);
 - **without poses** (or where a frame has none), by the camera-frame planes, allowing for what
-  the camera may have turned and moved in between, and by the IoU of the two masks as detected.
+  the camera may have turned and moved in between, and by the IoU of the two masks after the
+  2-D shift that overlaps them best, among the shifts that camera motion can explain
+  (:func:`shifted_iou`, on masks sampled every :data:`STRIDE` pixels): a narrow plane seen
+  while the camera pans moves off its own earlier mask within a frame or two.
 
 Among the candidates an optimal one-to-one assignment (Hungarian, maximum total IoU) links
 detections to tracks; the others start new tracks, numbered 1, 2, ... in order of appearance
@@ -18,15 +22,21 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from ..camera import Camera
-from ..lift import lift_polygon, plane_agreement, plane_to_world, project_polygon
+from ..lift import lift_polygon, plane_to_world, project_polygon
 from ..noise import NoiseSettings
 from .detect_job import FrameProposal
 from .outlines import fill_window
 from .settings import LinkConfig
+
+#: Masks are compared without poses on every STRIDE-th pixel along rows and columns: a plane
+#: of the smallest proposed size (1 % of the image) keeps ~190 samples, and a shift search over
+#: a few dozen pixels costs a few hundred microseconds.
+STRIDE = 4
 
 
 @dataclass
@@ -60,7 +70,7 @@ class TrackLinker:
         self.camera = camera
         self.next_track = 1
         self.last: dict[int, _Last] = {}
-        self.recent: dict[int, np.ndarray] = {}  # position -> labels, for the live tracks
+        self.recent: dict[int, np.ndarray] = {}  # position -> labels sampled every STRIDE pixels
 
     def add(
         self, proposal: FrameProposal, time: float, pose: tuple[np.ndarray, np.ndarray] | None = None
@@ -84,9 +94,10 @@ class TrackLinker:
         live = [t for t in sorted(self.last) if position - self.last[t].position <= self.config.max_gap + 1]
         k = len(proposal.areas)
         score = np.zeros((len(live), k))
-        self._joint: dict[int, np.ndarray] = {}  # previous position -> joint histogram, this frame
+        sampled = np.ascontiguousarray(proposal.labels[::STRIDE, ::STRIDE])
+        counts = np.bincount(sampled.ravel(), minlength=k + 1)[1 : k + 1]  # sampled pixels per plane
         for row, track in enumerate(live):
-            score[row] = self._scores(self.last[track], proposal, time, pose)
+            score[row] = self._scores(self.last[track], proposal, sampled, counts, time, pose)
         tracks = np.zeros(k, dtype=np.int64)
         if live and k:
             rows, cols = linear_sum_assignment(-score)
@@ -101,14 +112,16 @@ class TrackLinker:
                 int(tracks[c]), position, time, c + 1, proposal.planes[c], proposal.centroids[c],
                 proposal.outlines[c], pose,
             )
-        self.recent[position] = proposal.labels
+        self.recent[position] = sampled
         # Forget what no later frame can link to.
         horizon = position - self.config.max_gap
         self.last = {t: s for t, s in self.last.items() if s.position >= horizon}
         self.recent = {p: labels for p, labels in self.recent.items() if p >= horizon}
         return tracks
 
-    def _scores(self, last: _Last, proposal: FrameProposal, time: float, pose) -> np.ndarray:
+    def _scores(
+        self, last: _Last, proposal: FrameProposal, sampled: np.ndarray, counts: np.ndarray, time: float, pose
+    ) -> np.ndarray:
         """IoU of each of the frame's planes with the track, 0 where the planes disagree."""
         config = self.config
         k = len(proposal.areas)
@@ -118,70 +131,136 @@ class TrackLinker:
         band = self.noise.band(proposal.centroids[:, 2]) + band_last
         if pose is not None and last.pose is not None:
             world_last = plane_to_world(last.plane, *last.pose)
-            agree = np.zeros(k, dtype=bool)
-            for c in range(k):
-                at = pose[0] @ proposal.centroids[c] + pose[1]
-                angle, offset = plane_agreement(world_last, plane_to_world(proposal.planes[c], *pose), at)
-                agree[c] = angle <= config.angle_deg and offset <= band[c] + config.pose_error
+            angle, offset = world_agreement(world_last, proposal.planes, proposal.centroids, pose)
+            agree = (angle <= config.angle_deg) & (offset <= band + config.pose_error)
             if not agree.any():
                 return np.zeros(k)
-            overlap = self._reprojected_iou(last, proposal, pose)
-        else:
-            dt = abs(time - last.time)
-            cosine = np.clip(proposal.planes[:, :3] @ last.plane[:3], -1.0, 1.0)
-            angle = np.degrees(np.arccos(cosine))
-            # Turning about its centre leaves a plane's distance from the camera unchanged;
-            # moving changes it by at most the distance moved.
-            offset = np.abs(proposal.planes[:, 3] - last.plane[3])
-            agree = (angle <= config.angle_deg + config.max_turn_deg * dt) & (offset <= band + config.max_speed * dt)
-            if not agree.any():
-                return np.zeros(k)
-            if last.position not in self._joint:
-                self._joint[last.position] = joint_histogram(self.recent[last.position], proposal.labels, k)
-            overlap = iou_from_joint(self._joint[last.position], last.label)
-        return np.where(agree, overlap, 0.0)
+            return np.where(agree, self._reprojected_iou(last, sampled, counts, pose), 0.0)
+        dt = abs(time - last.time)
+        cosine = np.clip(proposal.planes[:, :3] @ last.plane[:3], -1.0, 1.0)
+        angle = np.degrees(np.arccos(cosine))
+        # Turning about its centre leaves a plane's distance from the camera unchanged;
+        # moving changes it by at most the distance moved.
+        offset = np.abs(proposal.planes[:, 3] - last.plane[3])
+        agree = (angle <= config.angle_deg + config.max_turn_deg * dt) & (offset <= band + config.max_speed * dt)
+        overlap = np.zeros(k)
+        if not agree.any():
+            return overlap
+        previous = self.recent[last.position] == last.label
+        for c in np.flatnonzero(agree).tolist():
+            nearest = min(float(last.centroid[2]), float(proposal.centroids[c, 2]))
+            reach = motion_px(self.camera, dt, config.max_turn_deg, config.max_speed, nearest)
+            overlap[c] = shifted_iou(previous, sampled == c + 1, int(np.ceil(reach / STRIDE)))
+        return overlap
 
-    def _reprojected_iou(self, last: _Last, proposal: FrameProposal, pose) -> np.ndarray:
-        """IoU of the track's last polygon, moved onto this frame, with each plane's mask."""
-        k = len(proposal.areas)
+    def _reprojected_iou(self, last: _Last, sampled: np.ndarray, counts: np.ndarray, pose) -> np.ndarray:
+        """IoU of the track's last polygon, moved onto this frame, with each plane's mask (on
+        the labels sampled every :data:`STRIDE` pixels; ``counts``: each plane's samples)."""
+        k = len(counts)
         lifted = lift_polygon(last.outline, last.plane, self.camera, *last.pose)
         if not lifted.ok:
             return np.zeros(k)
         polygon = project_polygon(lifted.world, self.camera, *pose)
         if len(polygon) < 3 or not np.isfinite(polygon).all():
             return np.zeros(k)
-        height, width = proposal.labels.shape
-        top, left, window = fill_window(polygon, height, width)
+        # Sampled pixel j has its centre where full pixel STRIDE * j has its own.
+        top, left, window = fill_window((polygon - 0.5) / STRIDE + 0.5, *sampled.shape)
         rows, cols = window.shape
-        covered = proposal.labels[top : top + rows, left : left + cols][window]
-        inter = np.bincount(covered.astype(np.intp), minlength=k + 1)[1 : k + 1]
-        union = window.sum() + proposal.areas - inter
+        covered = sampled[top : top + rows, left : left + cols][window]
+        inter = np.bincount(covered, minlength=k + 1)[1 : k + 1]
+        union = np.count_nonzero(window) + counts - inter
         return inter / np.maximum(union, 1)
 
 
-def joint_histogram(previous: np.ndarray, labels: np.ndarray, k: int) -> np.ndarray:
-    """Pixel counts of every (previous label, label) pair.
+def world_agreement(
+    world: np.ndarray, planes: np.ndarray, centroids: np.ndarray, pose: tuple[np.ndarray, np.ndarray]
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`annotate_rgbd.lift.plane_agreement` of a world plane with each of a frame's
+    camera-frame planes, taken to the world by ``pose`` and compared at their centroids.
 
     Parameters
     ----------
-    previous, labels : ndarray of int, shape (H, W)
-        Two label images of one size; ``labels`` holds 0..k.
-    k : int
+    world : ndarray, shape (4,)
+    planes : ndarray, shape (K, 4)
+        Camera frame, unit normals.
+    centroids : ndarray, shape (K, 3)
+        Camera frame.
+    pose : (ndarray (3, 3), ndarray (3,))
+        Camera-to-world rotation and camera centre.
 
     Returns
     -------
-    ndarray of int64, shape (previous.max() + 1, k + 1)
+    angle : ndarray of float64, shape (K,)
+        Degrees, in [0, 90].
+    offset : ndarray of float64, shape (K,)
+        Metres.
     """
-    n = int(previous.max(initial=0)) + 1
-    pairs = previous.astype(np.intp).ravel() * (k + 1) + labels.astype(np.intp).ravel()
-    return np.bincount(pairs, minlength=n * (k + 1)).reshape(n, k + 1)
+    rotation, centre = (np.asarray(x, dtype=np.float64) for x in pose)
+    first = np.asarray(world, dtype=np.float64) / np.linalg.norm(world[:3])
+    normals = planes[:, :3] @ rotation.T
+    second = np.concatenate([normals, (planes[:, 3] - normals @ centre)[:, None]], axis=1)
+    second /= np.linalg.norm(normals, axis=1)[:, None]
+    second *= np.where(second[:, :3] @ first[:3] < 0, -1.0, 1.0)[:, None]
+    cross = np.linalg.norm(np.cross(first[:3], second[:, :3]), axis=1)
+    angle = np.degrees(np.arctan2(cross, second[:, :3] @ first[:3]))
+    at = centroids @ rotation.T + centre
+    offset = np.abs((at @ first[:3] + first[3]) - (np.einsum("ki,ki->k", at, second[:, :3]) + second[:, 3]))
+    return angle, offset
 
 
-def iou_from_joint(joint: np.ndarray, label: int) -> np.ndarray:
-    """IoU of previous ``label`` with each current label 1..k, from :func:`joint_histogram`."""
-    inter = joint[label, 1:]
-    union = joint[label].sum() + joint[:, 1:].sum(axis=0) - inter
-    return inter / np.maximum(union, 1)
+def motion_px(camera: Camera, dt: float, max_turn_deg: float, max_speed: float, depth: float) -> float:
+    """How far, in pixels, a surface's image can move in ``dt`` seconds: a turn of
+    ``max_turn_deg * dt`` (at most 60 degrees) sweeps ``f tan(angle)``, a move of ``max_speed *
+    dt`` shifts a surface ``depth`` metres away by ``f * distance / depth``.
+
+    Parameters
+    ----------
+    camera : Camera
+    dt : float
+        Seconds.
+    max_turn_deg, max_speed : float
+        Degrees per second, metres per second.
+    depth : float
+        Metres (nearer surfaces move more); at least 0.1 m is assumed.
+
+    Returns
+    -------
+    float
+    """
+    focal = max(abs(camera.fx), abs(camera.fy))
+    turn = np.radians(min(max_turn_deg * dt, 60.0))
+    return focal * (np.tan(turn) + max_speed * dt / max(depth, 0.1))
+
+
+def shifted_iou(first: np.ndarray, second: np.ndarray, reach: int) -> float:
+    """The largest IoU of two masks over the shifts of ``second`` by up to ``reach`` pixels
+    along each axis (shift 0 included).
+
+    Parameters
+    ----------
+    first, second : ndarray of bool, shape (H, W)
+    reach : int
+        >= 0.
+
+    Returns
+    -------
+    float
+        0 when either mask is empty.
+    """
+    area_first, area_second = int(np.count_nonzero(first)), int(np.count_nonzero(second))
+    if area_first == 0 or area_second == 0:
+        return 0.0
+    rows, cols = np.flatnonzero(first.any(axis=1)), np.flatnonzero(first.any(axis=0))
+    top, bottom, left, right = rows[0], rows[-1] + 1, cols[0], cols[-1] + 1
+    template = first[top:bottom, left:right].astype(np.float32)
+    # The second mask around the first one's box, with ``reach`` pixels of zeros beyond the image.
+    height, width = second.shape
+    image = np.zeros((bottom - top + 2 * reach, right - left + 2 * reach), dtype=np.float32)
+    r0, r1 = max(top - reach, 0), min(bottom + reach, height)
+    c0, c1 = max(left - reach, 0), min(right + reach, width)
+    image[r0 - (top - reach) : r1 - (top - reach), c0 - (left - reach) : c1 - (left - reach)] = second[r0:r1, c0:c1]
+    inter = np.rint(cv2.matchTemplate(image, template, cv2.TM_CCORR)).astype(np.float64)  # pixel counts
+    return float(np.max(inter / (area_first + area_second - inter)))
 
 
 def link_proposals(

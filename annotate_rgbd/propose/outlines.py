@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 from scipy import ndimage
 
-from ..detect import plane_outlines
+from ..detect.outline import simplify, trace_pieces
 
 #: Pieces of a plane's mask smaller than this are left out of its polygon (speckle, not area).
 MIN_PIECE_PX = 20
@@ -15,10 +15,11 @@ MIN_PIECE_PX = 20
 def piece_outlines(labels: np.ndarray, tolerance_px: float, min_piece: int = MIN_PIECE_PX) -> dict[int, np.ndarray]:
     """One polygon per label that covers all its pieces, not only the largest.
 
-    Each 8-connected piece of at least ``min_piece`` pixels is outlined
-    (:func:`annotate_rgbd.detect.plane_outlines`); the pieces are then chained into one polygon
-    by zero-width bridges, each walked there and back, which enclose no pixel centre under the
-    even-odd rule CVAT and :mod:`annotate_rgbd.rasterize` fill with.
+    Each 8-connected piece of at least ``min_piece`` pixels is outlined as
+    :func:`annotate_rgbd.detect.plane_outlines` outlines the largest; the pieces are then
+    chained into one polygon by zero-width bridges, each walked there and back, which enclose
+    no pixel centre under the even-odd rule CVAT and :mod:`annotate_rgbd.rasterize` fill with.
+    Pieces inside a hole of another piece are left to that piece's outline, which covers them.
 
     Parameters
     ----------
@@ -31,25 +32,64 @@ def piece_outlines(labels: np.ndarray, tolerance_px: float, min_piece: int = MIN
     -------
     dict of int to ndarray of float64, shape (V, 2)
     """
-    outlines = plane_outlines(labels, tolerance_px)  # the largest piece of each label
-    eight = np.ones((3, 3), dtype=bool)
+    labels = np.asarray(labels)
+    outlines: dict[int, np.ndarray] = {}
     for label, window in enumerate(ndimage.find_objects(labels), start=1):
         if window is None:
             continue
-        pieces, count = ndimage.label(labels[window] == label, structure=eight)
-        if count == 1:
+        mask = labels[window] == label
+        contours = trace_pieces(mask)
+        top, left = window[0].start, window[1].start
+        if len(contours) == 1:
+            outlines[label] = simplify(contours[0], tolerance_px, left, top)
             continue
-        sizes = np.bincount(pieces.ravel(), minlength=count + 1)[1:]
-        keep = np.flatnonzero(sizes >= min_piece) + 1
-        if keep.size <= 1:
-            continue
-        table = np.zeros(count + 1, dtype=np.int32)
-        table[keep] = np.arange(1, keep.size + 1)
-        polygons = plane_outlines(table[pieces], tolerance_px)
-        offset = np.array([window[1].start, window[0].start], dtype=np.float64)
-        chain = [polygons[k] + offset for k in sorted(polygons, key=lambda k: -sizes[keep[k - 1] - 1])]
-        outlines[label] = bridge(chain)
+        lengths = np.fromiter((len(c) for c in contours), dtype=np.int64, count=len(contours))
+        kept = _large_pieces(mask, contours, lengths, min_piece)
+        if len(kept) <= 1:  # the largest piece (as plane_outlines draws it)
+            outlines[label] = simplify(contours[_largest(contours, lengths)], tolerance_px, left, top)
+        else:
+            outlines[label] = bridge([simplify(contours[i], tolerance_px, left, top) for i in kept])
     return outlines
+
+
+def _largest(contours: list, lengths: np.ndarray) -> int:
+    """Index of the contour of largest area (the first of equals), as ``argmax`` of
+    ``cv2.contourArea`` over all of them, measuring only those long enough to enclose more:
+    a closed path of ``L`` steps of at most sqrt(2) encloses at most ``L**2 / (2 pi)``."""
+    bound = lengths.astype(np.float64) ** 2 / 6.0
+    best, best_area = -1, -1.0
+    for i in np.argsort(-lengths, kind="stable").tolist():
+        if bound[i] < best_area:
+            break
+        area = cv2.contourArea(contours[i])
+        if area > best_area or (area == best_area and i < best):
+            best, best_area = i, area
+    return best
+
+
+def _large_pieces(mask: np.ndarray, contours: list, lengths: np.ndarray, min_piece: int) -> list[int]:
+    """Indices of the contours (:func:`~annotate_rgbd.detect.outline.trace_pieces`) of pieces of
+    at least ``min_piece`` pixels, largest first (ties: first pixel in raster order)."""
+    # A closed path of L fine steps spans at most L / 2 fine pixels, so at most (L / 2 + 1) / 2
+    # + 1 mask pixels, along each axis: most pieces (speckle) are too short to be measured.
+    span = (lengths / 2 + 1) / 2 + 1
+    candidates = np.flatnonzero(span * span >= min_piece)
+    if len(candidates) <= 1:
+        return []
+    boxes = np.array([cv2.boundingRect(contours[i]) for i in candidates])  # fine x, y, width, height
+    cells = ((boxes[:, :2] + boxes[:, 2:] - 1) // 2 - boxes[:, :2] // 2 + 1).prod(axis=1)
+    candidates, boxes = candidates[cells >= min_piece], boxes[cells >= min_piece]
+    if len(candidates) <= 1:
+        return []  # at most one piece has room for min_piece pixels
+    _, pieces = cv2.connectedComponents(mask.view(np.uint8), connectivity=8, ltype=cv2.CV_32S)
+    starts = np.array([contours[i][0, 0] for i in candidates]) // 2 - 1  # (x, y) of each piece's first pixel
+    sizes = np.zeros(len(candidates), dtype=np.int64)
+    for n, ((x, y), (bx, by, bw, bh)) in enumerate(zip(starts.tolist(), boxes.tolist())):
+        rows = slice(max(by // 2 - 1, 0), (by + bh - 1) // 2)  # the piece's box in mask pixels
+        cols = slice(max(bx // 2 - 1, 0), (bx + bw - 1) // 2)
+        sizes[n] = np.count_nonzero(pieces[rows, cols] == pieces[y, x])
+    order = np.lexsort((starts[:, 0], starts[:, 1], -sizes))
+    return [int(candidates[i]) for i in order if sizes[i] >= min_piece]
 
 
 def bridge(polygons: list[np.ndarray]) -> np.ndarray:
@@ -64,7 +104,10 @@ def bridge(polygons: list[np.ndarray]) -> np.ndarray:
         first = (float(polygon[0, 0]), float(polygon[0, 1]))
         if cv2.pointPolygonTest(result.astype(np.float32).reshape(-1, 1, 2), first, False) > 0:
             continue
-        gaps = np.linalg.norm(result[:, None, :] - polygon[None, :, :], axis=2)
+        # Squared distances: the same nearest pair (vertices lie on a quarter-pixel grid) without roots.
+        dx = result[:, 0, None] - polygon[None, :, 0]
+        dy = result[:, 1, None] - polygon[None, :, 1]
+        gaps = dx * dx + dy * dy
         i, j = np.unravel_index(int(np.argmin(gaps)), gaps.shape)
         around = np.roll(polygon, -j, axis=0)
         result = np.concatenate([result[: i + 1], around, around[:1], result[i:]])

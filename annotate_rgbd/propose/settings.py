@@ -27,21 +27,26 @@ class LinkConfig:
     Parameters
     ----------
     min_iou : float
-        Smallest IoU of the two masks (without poses: as detected; with poses: the earlier
-        outline reprojected into the later frame). 0.3: a plane seen at 30 Hz overlaps itself
-        on the next frame with IoU > 0.8, at every 10th frame of TUM fr1 still > 0.5; two
-        different planes that touch overlap by a few boundary pixels only.
+        Smallest IoU of the two masks (without poses: after the 2-D shift that overlaps them
+        best among those the camera motion limits below allow; with poses: the earlier outline
+        reprojected into the later frame). 0.3: a plane seen at 30 Hz overlaps itself on the
+        next frame with IoU > 0.8, at every 10th frame of TUM fr1 still > 0.5; two different
+        planes that touch overlap by a few boundary pixels only. Without the shift, a narrow
+        plane (a cabinet side seen at a grazing angle) falls below 0.3 across a missed frame
+        while the camera pans.
     angle_deg : float
         Largest angle between the two planes' normals from estimation noise alone: the
         detector's own tolerance for coplanar patches (``DetectorConfig.min_angle_deg``).
     max_speed : float
         Without poses: the largest camera speed, m/s, allowed for between the two frames (the
-        planes' distances from the camera may differ by ``max_speed * dt`` more). 0.5 m/s:
+        planes' distances from the camera may differ by ``max_speed * dt`` more, and their
+        masks may be shifted by what such a move does to the image). 0.5 m/s:
         TUM RGB-D's hand-held sequences stay below about 0.4 m/s (Sturm et al. 2012, Table 1).
     max_turn_deg : float
         Without poses: the largest camera rotation rate, degrees per second (normals may differ
-        by ``max_turn_deg * dt`` more). 60 deg/s: above the hand-held TUM fr1 sequences' mean
-        rates (fr1_rpy: ~50 deg/s).
+        by ``max_turn_deg * dt`` more, masks may be shifted by ``f tan(max_turn_deg * dt)``
+        pixels more). 60 deg/s: above the hand-held TUM fr1 sequences' mean rates (fr1_rpy:
+        ~50 deg/s).
     pose_error : float
         With poses: metres added to the offset tolerance for trajectory error (TUM's
         motion-capture ground truth: ~1 cm; SLAM trajectories: a few cm).
