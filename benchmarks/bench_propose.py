@@ -128,7 +128,7 @@ def main() -> None:
     written = len(list((out / "posed" / "masks").iterdir()))
     print(f"{args.frames} rendered frames 640x480 (seed {args.seed}; {written} with an RGB frame), {args.jobs} worker(s), "
           f"best of {args.rounds} rounds\n")
-    print(f"| run | ms per frame | vs cvat2mask | mean IoU | P@0.8 | R@0.8 | colour |")
+    print("| run | ms per frame | vs cvat2mask | mean IoU | P@0.8 | R@0.8 | colour |")
     print("|---|---|---|---|---|---|---|")
     scores = {"propose --poses": score(sequence, out / "posed" / "masks"),
               "propose": score(sequence, out / "plain" / "masks"),
