@@ -62,12 +62,16 @@ class LiftedKeyframe:
         The fitted plane in world coordinates.
     z_order : int
         The shape's drawing order.
+    beyond : tuple of ndarray, shape (4, 3)
+        World quads that carry the outline past the keyframe image's border, where it was cut by
+        the edge of the view rather than by the plane's end (:func:`beyond_the_border`).
     """
 
     frame: int
     world: np.ndarray
     plane: np.ndarray
     z_order: int
+    beyond: tuple = ()
 
 
 @dataclass
@@ -142,7 +146,7 @@ def keyframe_planes(
     depth_path: Path,
     depth_pose: tuple[np.ndarray, np.ndarray],
     config: Config,
-) -> dict[int, tuple[np.ndarray, int] | str]:
+) -> tuple[dict[int, tuple[np.ndarray, int] | str], tuple[int, int]]:
     """Fit the planes under the keyframe shapes of one frame, in world coordinates.
 
     The frame's shapes are drawn in ``z_order`` as refinement draws them, so that each plane is
@@ -164,9 +168,11 @@ def keyframe_planes(
 
     Returns
     -------
-    dict of int to ((ndarray (4,), int) or str)
+    planes : dict of int to ((ndarray (4,), int) or str)
         For each wanted key: the world plane and the number of valid depth pixels it was
         fitted to, or why there is none.
+    size : (int, int)
+        (width, height) of the depth frame.
 
     Raises
     ------
@@ -185,7 +191,7 @@ def keyframe_planes(
         rows, cols = grid_pixels(on_valid, key, valid, config.ransac.max_points)
         fit = fit_plane(backproject(cols, rows, depth_m[rows, cols], config.camera), config.ransac, config.inlier_band())
         planes[key] = (plane_to_world(fit.equation, *depth_pose), valid)
-    return planes
+    return planes, (depth_m.shape[1], depth_m.shape[0])
 
 
 def outline_of(shape: Shape) -> np.ndarray | None:
@@ -265,7 +271,74 @@ def propagated_shapes(lift: TrackLift, frame: int, config: Config, pose: tuple[n
         polygon = project_polygon(keyframe.world, config.camera, *pose)
         if len(polygon) >= 3 and np.isfinite(polygon).all():
             shapes.append(Shape("polygon", polygon, z_order=keyframe.z_order))
+    if not own:
+        # Where a keyframe's view ended, the plane went on: below every drawn shape, so that
+        # these only take pixels no other shape claims (and refinement keeps the plane's own).
+        for keyframe in lift.keyframes:
+            for quad in keyframe.beyond:
+                polygon = project_polygon(quad, config.camera, *pose)
+                if len(polygon) >= 3 and np.isfinite(polygon).all():
+                    shapes.append(Shape("polygon", polygon, z_order=BEYOND_Z_ORDER))
     return shapes
+
+
+#: Vertices this close to the keyframe image's edge (px) lie on it (CVAT clamps drawn vertices
+#: to the image; a labeller's few pixels of slack).
+BORDER_MARGIN = 4.0
+#: How far past the border (as a share of the image's size) an outline is carried, at most.
+BEYOND_REACH = 0.5
+#: The drawing order of what lies beyond a keyframe's border: below any drawn shape.
+BEYOND_Z_ORDER = -(2**31)
+
+
+def beyond_the_border(outline: np.ndarray, image_size: tuple[int, int]) -> list[np.ndarray]:
+    """Quads that extend an outline's edges lying on the image border outward, off the image.
+
+    Parameters
+    ----------
+    outline : ndarray, shape (V, 2)
+        Polygon in CVAT image coordinates.
+    image_size : (int, int)
+        (width, height) of the keyframe image.
+
+    Returns
+    -------
+    list of ndarray, shape (4, 2)
+        For every edge whose two ends lie within :data:`BORDER_MARGIN` of the same image side:
+        the edge and its copy moved :data:`BEYOND_REACH` of the image's size straight out.
+    """
+    width, height = image_size
+    outline = np.asarray(outline, dtype=np.float64)
+    following = np.roll(outline, -1, axis=0)
+    sides = (
+        (lambda p: p[:, 0] <= BORDER_MARGIN, (-BEYOND_REACH * width, 0.0)),
+        (lambda p: p[:, 0] >= width - BORDER_MARGIN, (BEYOND_REACH * width, 0.0)),
+        (lambda p: p[:, 1] <= BORDER_MARGIN, (0.0, -BEYOND_REACH * height)),
+        (lambda p: p[:, 1] >= height - BORDER_MARGIN, (0.0, BEYOND_REACH * height)),
+    )
+    quads = []
+    for on_side, out in sides:
+        along = on_side(outline) & on_side(following)
+        for start, end in zip(outline[along], following[along]):
+            if np.hypot(*(end - start)) >= 1.0:
+                quads.append(np.array([start, end, end + out, start + out]))
+    return quads
+
+
+def _lift_beyond(outline: np.ndarray, image_size, plane_camera: np.ndarray, pose, config: Config) -> tuple:
+    """:func:`beyond_the_border` lifted onto the plane: each quad shortened (halved, a few times)
+    until its far corners meet the plane in front of the camera within the distance rule."""
+    farthest = 1.5 * config.filter.max_mean_distance
+    lifted = []
+    for quad in beyond_the_border(outline, image_size):
+        for _ in range(4):
+            world = lift_polygon(quad, plane_camera, config.camera, *pose)
+            depth = (world.world - pose[1]) @ pose[0][:, 2] if world.ok else None
+            if world.ok and (depth <= farthest).all():
+                lifted.append(world.world)
+                break
+            quad = np.array([quad[0], quad[1], (quad[1] + quad[2]) / 2, (quad[0] + quad[3]) / 2])
+    return tuple(lifted)
 
 
 def lift_tracks(
@@ -310,6 +383,7 @@ def lift_tracks(
         # (track index) -> list of (frame, outline px, rgb pose, fitted (plane, pixels) or reason)
         fitted: dict[int, list] = {i: [] for i in range(len(tracks))}
         keyframes_at: dict[int, list[int]] = {}
+        sizes: dict[int, tuple[int, int]] = {}  # CVAT frame -> image size, from the depth frame
         for i, track in enumerate(tracks):
             for frame in keyframe_frames(track):
                 keyframes_at.setdefault(frame, []).append(i)
@@ -331,19 +405,21 @@ def lift_tracks(
             rgb_pose = (rgb_poses.rotations[rgb], rgb_poses.translations[rgb]) if rgb_poses.ok[rgb] else depth_pose
             shapes = [(i + 1, t.shapes[frame]) for i, t in enumerate(tracks) if frame in t.shapes]
             try:
-                planes = keyframe_planes(shapes, [i + 1 for i in wanted], depth_files[depth], depth_pose, config)
+                planes, sizes[frame] = keyframe_planes(shapes, [i + 1 for i in wanted], depth_files[depth], depth_pose, config)
             except InputError as exc:
                 planes = {i + 1: f"unreadable depth ({exc.message})" for i in wanted}
             for i in wanted:
                 fitted[i].append((frame, outline_of(tracks[i].shapes[frame]), rgb_pose, planes[i + 1]))
         for i, track in enumerate(tracks):
-            _lift_onto_planes(part_lifts[i], track, fitted[i], config)
+            _lift_onto_planes(part_lifts[i], track, fitted[i], config, sizes)
         lifts += part_lifts
     return lifts
 
 
-def _lift_onto_planes(lift: TrackLift, track: Track, fitted: list, config: Config) -> None:
-    """Lift a track's fitted keyframes onto their own plane, or the track's consensus plane."""
+def _lift_onto_planes(lift: TrackLift, track: Track, fitted: list, config: Config, sizes: dict | None = None) -> None:
+    """Lift a track's fitted keyframes onto their own plane, or the track's consensus plane
+    (``sizes``: CVAT frame -> (width, height) of the keyframe image, to carry outlines past it)."""
+    sizes = sizes or {}
     own = [(frame, outline, pose, result) for frame, outline, pose, result in fitted if not isinstance(result, str)]
     lifted_own = [lift_polygon(o, plane_to_camera(r[0], *p), config.camera, *p) for _, o, p, r in own]
     usable = [(entry, lifted) for entry, lifted in zip(own, lifted_own) if lifted.ok]
@@ -364,7 +440,8 @@ def _lift_onto_planes(lift: TrackLift, track: Track, fitted: list, config: Confi
         if not lifted.ok:
             lift.failed.append((frame, f"the outline cannot be lifted onto its plane ({lifted.reason})"))
             continue
-        lift.keyframes.append(LiftedKeyframe(frame, lifted.world, target, track.shapes[frame].z_order))
+        beyond = _lift_beyond(outline, sizes[frame], plane_to_camera(target, *pose), pose, config) if frame in sizes else ()
+        lift.keyframes.append(LiftedKeyframe(frame, lifted.world, target, track.shapes[frame].z_order, beyond))
         if plane is not None and target is consensus and not agrees.get(frame, False):
             lift.off_plane.append(frame)
             if weight[frame] >= MIN_KEYFRAME_WEIGHT * largest:

@@ -219,3 +219,48 @@ def test_review_of_a_run_with_poses_segments_every_frame_as_the_run_did(rendered
                   poses=rendered["poses"])
     result = review_run(out)
     assert result.overlays and result.warnings == []
+
+
+def test_outline_edges_on_the_image_border_are_carried_past_it():
+    from annotate_rgbd.propagate import BEYOND_REACH, beyond_the_border
+
+    # A floor seen to the bottom-left corner: its left and bottom edges are the view's, the
+    # diagonal is the floor's own edge (against a wall).
+    outline = np.array([[1.0, 200.0], [400.0, 478.5], [2.5, 479.0]])
+    quads = beyond_the_border(outline, (640, 480))
+    assert len(quads) == 2
+    left = next(q for q in quads if q[2, 0] < 0)
+    bottom = next(q for q in quads if q[2, 1] > 480)
+    np.testing.assert_allclose(left, [[2.5, 479.0], [1.0, 200.0], [1.0 - BEYOND_REACH * 640, 200.0],
+                                      [2.5 - BEYOND_REACH * 640, 479.0]])
+    np.testing.assert_allclose(bottom, [[400.0, 478.5], [2.5, 479.0], [2.5, 479.0 + BEYOND_REACH * 480],
+                                        [400.0, 478.5 + BEYOND_REACH * 480]])
+    # Inside the image, or crossing from one side to another: the plane's own edges.
+    assert beyond_the_border(np.array([[10.0, 10.0], [100.0, 10.0], [100.0, 90.0]]), (640, 480)) == []
+    assert beyond_the_border(np.array([[0.0, 100.0], [200.0, 480.0], [200.0, 100.0]]), (640, 480)) == []
+
+
+def test_planes_cut_by_the_keyframes_view_are_carried_past_it(tmp_path):
+    # The contact scene's walk turns from the back wall to the table: the floor and walls come
+    # into view past where the keyframes (every 10th frame) saw them end at the image border.
+    from annotate_rgbd import propagate
+    from annotate_rgbd.synthetic.contact import contact_scene, contact_trajectory
+
+    frames = 30
+    annotation = make_sequence(tmp_path / "sequence", n_frames=frames, width=320, height=240, camera=CAMERA, seed=12,
+                               scene=contact_scene(), poses=contact_trajectory(frames), dropped_rgb_frames=(),
+                               write_trajectory=True)
+    keyframes = tmp_path / "keyframes.xml"
+    write_cvat_video(annotation, keyframes, width=320, height=240, keyframe_step=10, keyframes_only=True)
+    config = load_config(None, {"camera.fx": 262.5, "camera.fy": 262.5, "camera.cx": 159.5, "camera.cy": 119.5})
+    sequence, poses, truth = tmp_path / "sequence", tmp_path / "sequence" / "groundtruth.txt", tmp_path / "sequence" / "ground_truth"
+    beyond = run_cvat2mask(sequence, [keyframes], tmp_path / "beyond", config, poses=poses)
+    assert any(k.beyond for lift in beyond.plan.propagation.lifts.values() for k in lift.keyframes)
+    saved = propagate.BEYOND_REACH
+    propagate.BEYOND_REACH = 0.0
+    try:
+        run_cvat2mask(sequence, [keyframes], tmp_path / "cut", config, poses=poses)
+    finally:
+        propagate.BEYOND_REACH = saved
+    with_beyond, without = _mean_iou(tmp_path / "beyond", truth), _mean_iou(tmp_path / "cut", truth)
+    assert with_beyond > without + 0.005, (with_beyond, without)
