@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import os
 import signal
 import sys
 import threading
@@ -21,10 +22,18 @@ app = typer.Typer(
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
+    context_settings={"help_option_names": ["-h", "--help"]},
     # Plain help, like a Unix tool's: rich mode (typer >= 0.29) prints '--force <bool>' and
     # '<list[Path]>'. Every parameter that takes a value names it with a metavar below.
     rich_markup_mode=None,
 )
+
+
+class _LowerCaseLevel(logging.Formatter):
+    """``warning: ...``, ``info: ...``: the level in lower case, like the ``error:`` lines."""
+
+    def format(self, record: logging.LogRecord) -> str:
+        return f"{record.levelname.lower()}: {record.getMessage()}"
 
 
 @contextmanager
@@ -35,18 +44,19 @@ def user_errors() -> Iterator[None]:
     ``finally`` clauses have removed temporary files: finished outputs stay, a re-run goes on.
     """
     handler = logging.StreamHandler(sys.stderr)
-    handler.setFormatter(logging.Formatter("%(levelname)s: %(message)s"))
+    handler.setFormatter(_LowerCaseLevel())
     logger = logging.getLogger("annotate_rgbd")
     logger.addHandler(handler)
     logger.setLevel(logging.INFO)
-    logging.addLevelName(logging.WARNING, "warning")
+    received: list[int] = []
 
-    def terminate(signum, frame):
-        # Unwind like Ctrl-C, so that no temporary file is left behind.
-        raise KeyboardInterrupt("SIGTERM")
+    def interrupt(signum, frame):
+        # SIGTERM unwinds like Ctrl-C, so that no temporary file is left behind.
+        received.append(signum)
+        raise KeyboardInterrupt("SIGTERM") if signum == signal.SIGTERM else KeyboardInterrupt
 
     in_main_thread = threading.current_thread() is threading.main_thread()
-    previous = signal.signal(signal.SIGTERM, terminate) if in_main_thread else None
+    previous = {s: signal.signal(s, interrupt) for s in (signal.SIGINT, signal.SIGTERM)} if in_main_thread else {}
     try:
         yield
     except InputError as exc:
@@ -56,38 +66,27 @@ def user_errors() -> Iterator[None]:
         where = f"{exc.filename}: " if exc.filename else ""
         typer.echo(f"error: {where}{exc.strerror or exc}", err=True)
         raise typer.Exit(1) from None
-    except KeyboardInterrupt as exc:
-        terminated = exc.args == ("SIGTERM",)
+    except (KeyboardInterrupt, ImportError) as exc:
+        if isinstance(exc, ImportError) and not received:
+            raise
+        terminated = received[-1] == signal.SIGTERM if received else exc.args == ("SIGTERM",)
         typer.echo(
             f"error: {'terminated' if terminated else 'interrupted'}; finished files are complete, "
             "nothing partial was left; run the same command again to continue",
             err=True,
         )
-        raise typer.Exit(143 if terminated else 130) from None
+        status = 143 if terminated else 130
+        if isinstance(exc, ImportError):
+            # Interrupted while Open3D initialised (it turns the interrupt into this error): its
+            # half-made state prints a memory report when the process exits normally.
+            sys.stdout.flush()
+            sys.stderr.flush()
+            os._exit(status)
+        raise typer.Exit(status) from None
     finally:
-        if in_main_thread:
-            signal.signal(signal.SIGTERM, signal.SIG_DFL if previous is None else previous)
+        for signum, handler_before in previous.items():
+            signal.signal(signum, signal.SIG_DFL if handler_before is None else handler_before)
         logger.removeHandler(handler)
-
-
-@contextmanager
-def interrupts_deferred() -> Iterator[None]:
-    """Hold Ctrl-C back until the block ends, then raise it.
-
-    For importing the pipeline: Open3D's compiled module turns a KeyboardInterrupt during its
-    initialisation into ``ImportError: initialization failed`` and a memory report at exit.
-    """
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    received = []
-    previous = signal.signal(signal.SIGINT, lambda signum, frame: received.append(signum))
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGINT, previous)
-    if received:
-        raise KeyboardInterrupt
 
 
 def _version(value: bool) -> None:
@@ -144,10 +143,9 @@ def cvat2mask(
         workers = jobs or default_workers()
         prepare_process(workers)  # the helpers' server imports Open3D while this process does
 
-        with interrupts_deferred():
-            from .config import load_config, parse_part_offsets, parse_settings
-            from .pipeline import run_cvat2mask
-            from .progress import Progress
+        from .config import load_config, parse_part_offsets, parse_settings
+        from .pipeline import run_cvat2mask
+        from .progress import Progress
 
         overrides = parse_settings(set_)
         named = {
@@ -166,11 +164,11 @@ def cvat2mask(
             progress=progress.callback(sequence_dir.name), job_timeout=job_timeout, poses=poses,
         )
         progress.finish()
+        page = None
         if overlays:
             from .review import review_run
 
             page = review_run(out, overlays=False).page
-            typer.echo(f"review page: {page}")
         from .records import summarize
         from .stats import drop_hint
 
@@ -193,6 +191,8 @@ def cvat2mask(
         typer.echo(summary)
         for line in failures:
             typer.echo(f"  failed: {line}")
+        if page is not None:
+            typer.echo(f"review page: {page}")
         if failures:
             raise typer.Exit(1)  # every mask that could be made is written
 
@@ -215,9 +215,8 @@ def batch(
         workers = jobs or manifest_jobs or default_workers()
         prepare_process(workers)  # the helpers' server imports Open3D while this process does
 
-        with interrupts_deferred():
-            from .batch import run_batch, summary_lines
-            from .progress import Progress
+        from .batch import run_batch, summary_lines
+        from .progress import Progress
 
         progress = Progress({scene.name: 0 for scene in scenes})
         outcomes = run_batch(scenes, workers, force, progress.callback, job_timeout=job_timeout)
@@ -279,9 +278,8 @@ def review(
 
         workers = jobs or default_workers()
         prepare_process(workers if overlays else 1)
-        with interrupts_deferred():
-            from .progress import Progress
-            from .review import review_run
+        from .progress import Progress
+        from .review import review_run
 
         scene = out_dir.resolve().name
         progress = Progress({scene: 0})
@@ -333,10 +331,9 @@ def propose(
         prepare_helpers(workers, ["annotate_rgbd.propose.detect_job"])
         reuse_freed_memory()
 
-        with interrupts_deferred():
-            from .config import load_config, parse_settings
-            from .progress import Progress
-            from .propose import ProposeConfig, run_propose
+        from .config import load_config, parse_settings
+        from .progress import Progress
+        from .propose import ProposeConfig, run_propose
 
         settings = ProposeConfig(every=every)
         if label is not None:

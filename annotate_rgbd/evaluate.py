@@ -117,8 +117,8 @@ def evaluate_paths(
     unlikely = [path for frame in frames for path in frame.unlikely_masks]
     if unlikely:
         log.warning(
-            "%s: %d label file%s made mostly of tiny labels (every shade a plane): photographs rather than "
-            "masks?", unlikely[0], len(unlikely), "s" if len(unlikely) > 1 else "",
+            "%s: made mostly of tiny labels (every shade a plane): a photograph rather than a mask?%s",
+            unlikely[0], f" (and {len(unlikely) - 1} more label files)" if len(unlikely) > 1 else "",
         )
     return EvaluationResult(frames=frames, full=full, part=part, predictions_unmatched=tuple(unmatched))
 
@@ -208,7 +208,7 @@ def format_table(result: EvaluationResult) -> str:
     width = max(len(name) for name in METRIC_NAMES)
     lines = [f"{'metric':<{width}}  mean", f"{'-' * width}  ------"]
     lines += [f"{name:<{width}}  {value:.4f}" for name, value in result.means.items()]
-    lines.append(f"frames: {len(result.frames)} (full IoU >= {result.full}, part IoU >= {result.part})")
+    lines.append(f"frames: {len(result.frames)} (full IoU >= {result.full}, partial IoU >= {result.part})")
     missing = result.frames_missing
     if missing:
         shown = ", ".join(missing[:10]) + (", ..." if len(missing) > 10 else "")

@@ -126,14 +126,18 @@ def prepare_helpers(workers: int, preload: Sequence[str] = ()) -> None:
         if threading.current_thread() is not threading.main_thread():
             forkserver.ensure_running()
             return
-        # The server inherits an ignored SIGINT (Python then installs no KeyboardInterrupt
-        # handler): Ctrl-C during its ~2 s of imports would otherwise print its own traceback.
-        # Helpers ignore Ctrl-C in any case; the main process stops them.
-        previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+        # The server inherits SIGINT blocked (a process's signal mask survives exec): Ctrl-C
+        # during its ~2 s of imports would otherwise print its own traceback. Helpers ignore
+        # Ctrl-C in any case; the main process stops them. Here, a Ctrl-C that arrives while
+        # the server starts stays pending and is delivered when the mask is restored.
+        from multiprocessing import resource_tracker
+
+        resource_tracker.ensure_running()  # first: it unblocks SIGINT after starting its own process
+        signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
         try:
             forkserver.ensure_running()
         finally:
-            signal.signal(signal.SIGINT, previous)
+            signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
 
 
 class HelperPool:

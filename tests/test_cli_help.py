@@ -36,3 +36,8 @@ def test_cvat2mask_help_names_every_value():
         assert shown in text
     # Square brackets in help text are printed, not taken for markup.
     assert "[noise]" in text
+
+
+def test_h_is_short_for_help():
+    short = CliRunner().invoke(app, ["cvat2mask", "-h"], prog_name="annotate-rgbd", env={"COLUMNS": "100"})
+    assert short.exit_code == 0 and short.output == _help("cvat2mask")
