@@ -758,7 +758,7 @@ def test_outputs_are_readable_like_any_file_the_user_makes(tmp_path):
     assert (tmp_path / "m.png").stat().st_mode & 0o777 == 0o644
 
 
-@pytest.mark.parametrize("delay", [0.3, 1.0, 1.6])
+@pytest.mark.parametrize("delay", [0.3, 0.8, 1.3])
 @pytest.mark.parametrize(("signum", "status", "word"), [(signal.SIGINT, 130, "interrupted"), (signal.SIGTERM, 143, "terminated")])
 def test_interrupt_while_starting_prints_one_line(tmp_path, delay, signum, status, word):
     """Ctrl-C (or SIGTERM) reaches the whole process group, the helpers' server too, while Open3D
@@ -770,8 +770,8 @@ def test_interrupt_while_starting_prints_one_line(tmp_path, delay, signum, statu
     time.sleep(delay)
     os.killpg(process.pid, signum)
     stdout, stderr = process.communicate(timeout=60)
-    if process.returncode == 0:
-        pytest.skip("the run finished before the signal")
+    if " masks in " in stdout:
+        pytest.skip("the run had finished before the signal")  # its exit status is then the signal's
     assert process.returncode == status, stderr
     assert "Traceback" not in stderr + stdout and "Open3D" not in stderr + stdout, stderr + stdout
     assert stderr.splitlines()[-1].startswith(f"error: {word}; "), stderr
