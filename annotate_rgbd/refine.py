@@ -174,7 +174,11 @@ def refine_planes(
     Each plane is fitted (:func:`fit_plane`) to its valid pixels on a regular grid (every
     pixel, or every s-th row and column so that at most ``config.max_points`` remain); whether
     a pixel is an inlier is then decided for every pixel of every plane at once: its distance
-    to its own plane within the band ``noise.band(z)`` at its own depth.
+    to its own plane within the band ``noise.band(z)`` at its own depth. With a noise model (not
+    a fixed band), surfaces inside the band but off the plane are then found by the window test
+    (:func:`window_scores`): each plane is re-fitted to the windows around its dominant surface,
+    and inliers whose window score lies beyond :data:`COHERENCE_LIMIT` spreads, or whose window
+    holds under :data:`MIN_INLIER_DENSITY` inliers, are dropped.
 
     Parameters
     ----------
@@ -219,7 +223,10 @@ def refine_planes(
     band = band_image(depth_m, noise)
     if not isinstance(band, float) and (scales != 1).any():  # widened where a plane's noise is larger
         band = np.clip(band * _lookup(scales, on_valid), np.float32(noise.floor), np.float32(noise.cap))
-    coherence = not isinstance(band, float) and COHERENCE_WINDOW > 0
+    # The window test needs the noise, which a fixed band (distance_threshold) does not give.
+    coherence = noise.floor < noise.cap and COHERENCE_WINDOW > 0
+    if coherence and isinstance(band, float):  # a constant noise model
+        band = np.where(np.isfinite(depth_m), np.float32(band), np.float32(np.nan))
     if coherence:
         # Surfaces within the band but off the plane (a whiteboard on a wall) pull the
         # least-squares plane towards them, and so does an inlier test that cannot tell them

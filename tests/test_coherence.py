@@ -145,3 +145,16 @@ def test_inlier_density_is_the_share_of_inliers_among_labelled_pixels_of_the_win
     corner[:11, :11] = True
     assert inlier_density(corner, np.ones((21, 21), bool))[10, 10] == pytest.approx(16 / 49)
     assert 16 / 49 > refine.MIN_INLIER_DENSITY  # corners are kept
+
+
+def test_a_constant_noise_model_gets_the_window_test_too():
+    from annotate_rgbd.noise import ConstantNoise
+
+    rng = np.random.default_rng(8)
+    sigma = kinect_sigma(2.5)
+    depth, board, _ = wall_with_board(2.5, 1.3, rng)
+    constant = NoiseSettings(ConstantNoise(sigma))
+    refined, _ = refine_planes(np.ones(SHAPE, np.uint8), depth, np.array([1]), CAMERA, RansacConfig(), constant)
+    interior = cv2.erode(board.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
+    # (The wall's true noise varies over its 2.2-2.9 m; the model's is that of 2.5 m.)
+    assert refined[interior].mean() < 0.02 and refined[~board].mean() > 0.98
