@@ -61,14 +61,37 @@ def plane_statistics(labels: np.ndarray, depth_m: np.ndarray, camera: Camera) ->
     -------
     PlaneStats
     """
-    ray = ray_lengths(camera, *labels.shape)
+    return statistics_of_distances(labels, camera_distances(depth_m, camera), ~np.isnan(depth_m))
+
+
+def camera_distances(depth_m: np.ndarray, camera: Camera) -> np.ndarray:
+    """Each pixel's distance from the camera centre (float64 metres), 0 where the depth is invalid.
+
+    ``fmax`` turns the NaN of invalid pixels into 0, so they add nothing to a sum; bincount sums
+    in float64 and takes float64 weights several times faster than float32 ones.
+    """
+    return np.fmax(depth_m * ray_lengths(camera, *depth_m.shape), 0).astype(np.float64)
+
+
+def statistics_of_distances(labels: np.ndarray, distance: np.ndarray, valid: np.ndarray) -> PlaneStats:
+    """:func:`plane_statistics` from a frame's :func:`camera_distances` and valid-depth pixels
+    (computed once for several label images of one frame).
+
+    Parameters
+    ----------
+    labels : ndarray of int, shape (H, W)
+    distance : ndarray of float64, shape (H, W)
+        Distance of each pixel from the camera centre, metres, 0 where the depth is invalid.
+    valid : ndarray of bool, shape (H, W)
+        Pixels with valid depth.
+
+    Returns
+    -------
+    PlaneStats
+    """
     n = int(labels.max(initial=0)) + 1
-    valid = ~np.isnan(depth_m)
     pixels = label_histogram(labels, n)
     valid_pixels = label_histogram(labels, n, where=valid)
-    # fmax turns the NaN of invalid pixels into 0, so they add nothing to the sum. bincount
-    # sums in float64 and takes float64 weights several times faster than float32 ones.
-    distance = np.fmax(depth_m * ray, 0).astype(np.float64)
     distance_sum = np.bincount(labels.ravel(), weights=distance.ravel(), minlength=n)
     plane_ids = np.flatnonzero(pixels[1:]) + 1
     pixels, valid_pixels, distance_sum = pixels[plane_ids], valid_pixels[plane_ids], distance_sum[plane_ids]

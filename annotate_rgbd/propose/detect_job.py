@@ -17,7 +17,7 @@ from ..config import FilterConfig
 from ..detect import detect_planes
 from ..detect.refine import relabel
 from ..errors import InputError
-from ..filters import PlaneStats, drop_reasons, label_histogram, ray_lengths
+from ..filters import camera_distances, drop_reasons, statistics_of_distances
 from ..noise import NoiseSettings
 from ..sequence import read_depth
 from .outlines import fill_window, piece_outlines
@@ -139,14 +139,14 @@ def propose_planes(
         raise InputError(None, "a proposed plane has no outline")
     polygons = [outlines[k] for k in range(1, len(areas) + 1)]
     # What plane_statistics computes, with the distance image shared by its two uses.
-    ray_distance = np.fmax(depth * ray_lengths(camera, *depth.shape), 0).astype(np.float64)  # NaN -> 0
+    ray_distance = camera_distances(depth, camera)
     valid = ~np.isnan(depth)
     # Every pixel of the detector's labels has valid depth: the mean needs only the sums.
     distance = np.bincount(labels.ravel(), weights=ray_distance.ravel(), minlength=len(areas) + 1)[1:] / areas
     windows = [fill_window(p, *labels.shape) for p in polygons]
     z_order = draw_order(labels, windows, distance)
     drawn = paint(windows, z_order, labels.shape)
-    stats = depth_statistics(drawn, ray_distance, valid)
+    stats = statistics_of_distances(drawn, ray_distance, valid)
     reasons = dict(zip(stats.plane_ids.tolist(), drop_reasons(stats, rules)))
     drawn_distance = dict(zip(stats.plane_ids.tolist(), stats.mean_distance.tolist()))
     drawn_invalid = dict(zip(stats.plane_ids.tolist(), stats.invalid_ratio.tolist()))
@@ -172,33 +172,6 @@ def propose_planes(
         z_order=np.argsort(np.argsort(z_order[keep], kind="stable"), kind="stable").astype(np.int64),
         dropped=dropped,
     )
-
-
-def depth_statistics(labels: np.ndarray, distance: np.ndarray, valid: np.ndarray) -> PlaneStats:
-    """:func:`annotate_rgbd.filters.plane_statistics` of a label image, from the frame's
-    distances (computed once for the two label images of a frame).
-
-    Parameters
-    ----------
-    labels : ndarray of uint8 or uint16, shape (H, W)
-    distance : ndarray of float64, shape (H, W)
-        Distance of each pixel from the camera centre, metres, 0 where the depth is invalid.
-    valid : ndarray of bool, shape (H, W)
-        Pixels with valid depth.
-
-    Returns
-    -------
-    PlaneStats
-    """
-    n = int(labels.max(initial=0)) + 1
-    pixels = label_histogram(labels, n)
-    valid_pixels = label_histogram(labels, n, where=valid)
-    distance_sum = np.bincount(labels.ravel(), weights=distance.ravel(), minlength=n)
-    plane_ids = np.flatnonzero(pixels[1:]) + 1
-    pixels, valid_pixels, distance_sum = pixels[plane_ids], valid_pixels[plane_ids], distance_sum[plane_ids]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        mean_distance = np.where(valid_pixels > 0, distance_sum / np.maximum(valid_pixels, 1), np.nan)
-    return PlaneStats(plane_ids.astype(np.int32), pixels, valid_pixels, mean_distance)
 
 
 @dataclass(frozen=True)
