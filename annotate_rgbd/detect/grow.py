@@ -106,27 +106,6 @@ def fit_planes(moments: Moments) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return planes, mean, centred
 
 
-def residual_ms(plane: np.ndarray, mean: np.ndarray, centred: np.ndarray, count: np.ndarray) -> np.ndarray:
-    """Mean squared distance of point sets to one plane, from their moments.
-
-    Parameters
-    ----------
-    plane : ndarray, shape (4,)
-    mean : ndarray, shape (K, 3)
-    centred : ndarray, shape (K, 3, 3)
-        Scatter matrices about the centroids.
-    count : ndarray, shape (K,)
-
-    Returns
-    -------
-    ndarray of float64, shape (K,)
-        ``n^T S n / N + (n . m + d) ** 2`` per set.
-    """
-    normal = plane[:3]
-    spread = np.einsum("i,kij,j->k", normal, centred, normal) / np.maximum(count, 1)
-    return spread + (mean @ normal + plane[3]) ** 2
-
-
 def angle_limit(sigma: np.ndarray, half_width: np.ndarray, config: DetectorConfig) -> np.ndarray:
     """Largest tilt of a patch's normal (radians) that its noise band explains.
 
@@ -235,7 +214,8 @@ def grow_regions(cells: CloudCells, config: DetectorConfig) -> np.ndarray:
                     queue.append(other)
             if len(members) >= next_refit:
                 next_refit = 2 * len(members)
-                plane = _fit_one(packed[members].sum(axis=0))
+                total = packed[members].sum(axis=0)
+                plane = fit_planes(Moments(total[:1], total[None, 1:4], total[4:13].reshape(1, 3, 3), total[13:]))[0][0]
                 fits = fits_plane(plane)
                 queue.extend(members)  # the new plane may admit cells the old one refused
     return np.array(region, dtype=np.int32)
@@ -243,7 +223,8 @@ def grow_regions(cells: CloudCells, config: DetectorConfig) -> np.ndarray:
 
 def _plane_test(cells: CloudCells, config: DetectorConfig):
     """``fits(plane)``: which cells (a list of bool) are planar, lie within the band of
-    ``plane`` (:func:`residual_ms` at most ``(band_k * sigma) ** 2``) and face its way (normal
+    ``plane`` (mean squared distance ``n^T S n / N + (n . m + d) ** 2`` at most
+    ``(band_k * sigma) ** 2``) and face its way (normal
     within the cell's angle limit)."""
     cos_limit = np.cos(cell_angle_limits(cells, config))
     band2 = (config.band_k * cells.cell_sigma) ** 2
@@ -259,18 +240,6 @@ def _plane_test(cells: CloudCells, config: DetectorConfig):
         return ok.tolist()
 
     return fits
-
-
-def _fit_one(total: np.ndarray) -> np.ndarray:
-    """The plane of one set of points from its packed sums (count, first, second, noise), as
-    :func:`fit_planes` fits it."""
-    count = max(total[0], 1.0)
-    mean = total[1:4] / count
-    centred = total[4:13].reshape(3, 3) - (count * mean[:, None]) * mean[None, :]
-    normal = np.linalg.eigh(centred)[1][:, 0]
-    if normal @ mean > 0:
-        normal = -normal
-    return np.append(normal, -(normal @ mean))
 
 
 def merge_segments(region: np.ndarray, cells: CloudCells, config: DetectorConfig) -> np.ndarray:
@@ -376,7 +345,8 @@ def merge_costs(a: Moments, b: Moments, config: DetectorConfig) -> np.ndarray:
 
 
 def _residual_ms_many(planes, mean, centred, count) -> np.ndarray:
-    """:func:`residual_ms` of set ``k`` against plane ``k``."""
+    """Mean squared distance of point set ``k`` to plane ``k``, from its moments:
+    ``n^T S n / N + (n . m + d) ** 2`` (``S`` the scatter about the centroid ``m``)."""
     normal = planes[:, :3]
     spread = np.einsum("ki,kij,kj->k", normal, centred, normal) / np.maximum(count, 1)
     return spread + (np.einsum("ki,ki->k", mean, normal) + planes[:, 3]) ** 2
