@@ -13,13 +13,48 @@ from annotate_rgbd.cvat import read_cvat, write_cvat_video
 from annotate_rgbd.propose.outlines import piece_outlines
 from annotate_rgbd.noise import NoiseSettings
 from annotate_rgbd.propose import FrameProposal, LinkConfig, link_proposals
-from annotate_rgbd.propose.detect_job import draw_order, label_moments, merge_groups, paint
+from annotate_rgbd.propose.detect_job import Moments, draw_order, merge_groups, paint
 from annotate_rgbd.propose.link import shifted_iou
 from annotate_rgbd.rasterize import rasterize_frame, shape_mask
 
 CAMERA = Camera(fx=525.0, fy=525.0, cx=319.5, cy=239.5, depth_scale=5000.0)
 H, W = 480, 640
 NOISE = NoiseSettings()
+
+
+def label_moments(labels: np.ndarray, depth: np.ndarray, camera: Camera, stride: int = 2) -> Moments:
+    """Moments of the back-projected valid pixels of every label 1..K, computed here from the
+    pixels (the job takes the detector's own), every ``stride``-th pixel along rows and columns.
+
+    Parameters
+    ----------
+    labels : ndarray of int, shape (H, W)
+    depth : ndarray of float, shape (H, W)
+        Metres, NaN where invalid.
+    camera : Camera
+    stride : int
+
+    Returns
+    -------
+    Moments
+        ``count`` counts the sampled pixels.
+    """
+    n = int(labels.max(initial=0))
+    sub_labels, sub_depth = labels[::stride, ::stride], depth[::stride, ::stride]
+    rows, cols = np.nonzero((sub_labels > 0) & np.isfinite(sub_depth))
+    z = sub_depth[rows, cols].astype(np.float64)
+    which = sub_labels[rows, cols].astype(np.intp) - 1
+    rows, cols = rows * stride, cols * stride
+    points = np.stack([(cols - camera.cx) / camera.fx * z, (rows - camera.cy) / camera.fy * z, z], axis=1)
+    count = np.bincount(which, minlength=n).astype(np.float64)[:n]
+    total = np.stack([np.bincount(which, weights=points[:, i], minlength=n)[:n] for i in range(3)], axis=1)
+    mean = total / np.maximum(count, 1)[:, None]
+    centred = points - mean[which]
+    scatter = np.empty((n, 3, 3))
+    for i in range(3):
+        for j in range(i, 3):
+            scatter[:, i, j] = scatter[:, j, i] = np.bincount(which, weights=centred[:, i] * centred[:, j], minlength=n)[:n]
+    return Moments(count, mean, scatter)
 
 
 def plane_depth(normal, d, shape=(H, W), camera=CAMERA):

@@ -191,44 +191,6 @@ class Moments:
     scatter: np.ndarray
 
 
-def label_moments(labels: np.ndarray, depth: np.ndarray, camera: Camera, stride: int = 2) -> Moments:
-    """Moments of the back-projected valid pixels of every label 1..K.
-
-    Every ``stride``-th pixel along rows and columns: the moments are only compared between
-    planes of thousands of pixels (4x faster at 2, the means and residuals agree to well
-    within the noise).
-
-    Parameters
-    ----------
-    labels : ndarray of int, shape (H, W)
-    depth : ndarray of float, shape (H, W)
-        Metres, NaN where invalid.
-    camera : Camera
-    stride : int
-
-    Returns
-    -------
-    Moments
-        ``count`` counts the sampled pixels.
-    """
-    n = int(labels.max(initial=0))
-    sub_labels, sub_depth = labels[::stride, ::stride], depth[::stride, ::stride]
-    rows, cols = np.nonzero((sub_labels > 0) & np.isfinite(sub_depth))
-    z = sub_depth[rows, cols].astype(np.float64)
-    which = sub_labels[rows, cols].astype(np.intp) - 1
-    rows, cols = rows * stride, cols * stride
-    points = np.stack([(cols - camera.cx) / camera.fx * z, (rows - camera.cy) / camera.fy * z, z], axis=1)
-    count = np.bincount(which, minlength=n).astype(np.float64)[:n]
-    total = np.stack([np.bincount(which, weights=points[:, i], minlength=n)[:n] for i in range(3)], axis=1)
-    mean = total / np.maximum(count, 1)[:, None]
-    centred = points - mean[which]
-    scatter = np.empty((n, 3, 3))
-    for i in range(3):
-        for j in range(i, 3):
-            scatter[:, i, j] = scatter[:, j, i] = np.bincount(which, weights=centred[:, i] * centred[:, j], minlength=n)[:n]
-    return Moments(count, mean, scatter)
-
-
 def fit(count: np.ndarray, mean: np.ndarray, scatter: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Least-squares planes of moments: ``(K, 4)`` planes (unit normal towards the camera,
     ``d > 0``) and the mean squared residual ``(K,)``."""
