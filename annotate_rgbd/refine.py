@@ -237,7 +237,7 @@ def refine_planes(
         labels_s, depth_s, band_s = on_valid[small], depth_m[small], band[small]
         camera_s = replace(camera, fx=camera.fx / 2, fy=camera.fy / 2, cx=camera.cx / 2, cy=camera.cy / 2)
         window = COHERENCE_WINDOW // 2 + 1
-        on_plane_s, residual_s = _inlier_test(table, fits, labels_s, depth_s, camera_s, band_s, noise.k)
+        on_plane_s, residual_s = _inlier_test(table, labels_s, depth_s, camera_s, band_s, noise.k)
         for _ in range(CORE_REFITS):
             score, usable = window_scores(residual_s, on_plane_s, window)
             centre, _ = _score_statistics(score, usable, labels_s, n_labels)
@@ -246,8 +246,8 @@ def refine_planes(
             _refit_to(core, labels_s, depth_s, band_s, noise.k, camera_s, config.max_points, fits, table)
             if np.abs(table - before).max(initial=0.0) < SETTLED:
                 break
-            on_plane_s, residual_s = _inlier_test(table, fits, labels_s, depth_s, camera_s, band_s, noise.k)
-    on_plane, residual = _inlier_test(table, fits, on_valid, depth_m, camera, band, noise.k)
+            on_plane_s, residual_s = _inlier_test(table, labels_s, depth_s, camera_s, band_s, noise.k)
+    on_plane, residual = _inlier_test(table, on_valid, depth_m, camera, band, noise.k)
     if coherence:
         score, usable = window_scores(residual, on_plane)
         centre, spread = _score_statistics(score, usable, on_valid, n_labels, step=4)
@@ -398,19 +398,18 @@ def _score_statistics(
 
 
 def _inlier_test(
-    table: np.ndarray, fits: dict, labels: np.ndarray, depth_m: np.ndarray, camera: Camera,
-    band: np.ndarray | float, k: float,
+    table: np.ndarray, labels: np.ndarray, depth_m: np.ndarray, camera: Camera, band: np.ndarray | float, k: float,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Pixels within their plane's band, and every pixel's signed distance to its plane in
-    noise units (``k`` times distance over band)."""
+    noise units (``k`` times distance over band); ``table`` holds each label's plane, zeros for
+    a label without one."""
     # Distance of every pixel to its own label's plane: z (a x_n + b y_n + c) + d with
     # x_n = (col - cx) / fx, y_n = (row - cy) / fy the pixel's ray at z = 1.
     # float32 is ample here: depth has 0.2 mm steps, and the band is millimetres or more.
     a, b, c, d = (_lookup(table[:, i], labels) for i in range(4))
     x_n = ((np.arange(labels.shape[1], dtype=np.float32) - np.float32(camera.cx)) / np.float32(camera.fx))[None, :]
     y_n = ((np.arange(labels.shape[0], dtype=np.float32) - np.float32(camera.cy)) / np.float32(camera.fy))[:, None]
-    fitted = np.zeros(len(table), dtype=np.float32)
-    fitted[list(fits)] = 1
+    fitted = table[:, :3].any(axis=1).astype(np.float32)  # a plane has a unit normal
     with np.errstate(invalid="ignore"):
         signed = depth_m * (a * x_n + b * y_n + c) + d
         on_plane = (np.abs(signed) < band) & (_lookup(fitted, labels) > 0)
