@@ -19,7 +19,6 @@ from .manifest import SceneSpec
 from .pipeline import finish_scene
 from .plan import plan_run
 from .records import summarize
-from .review import review_run
 
 
 @dataclass
@@ -30,7 +29,6 @@ class SceneOutcome:
     out: Path
     run: SceneRun | None = None
     error: str | None = None
-    review_page: Path | None = None  # with overlays
 
     @property
     def failed_frames(self) -> list[str]:
@@ -66,7 +64,6 @@ def run_batch(
         One per scene, in manifest order.
     """
     outcomes = [SceneOutcome(spec.name, spec.out) for spec in scenes]
-    overlays = {id(outcome): spec.overlays for spec, outcome in zip(scenes, outcomes)}
     runs: list[tuple[SceneOutcome, SceneRun]] = []
     helpers = start_frame_helpers(workers)  # they start while the scenes are planned
     try:
@@ -92,9 +89,7 @@ def run_batch(
             try:
                 with scene_warnings(outcome.name):
                     finish_scene(run)
-                    outcome.run = run
-                    if overlays[id(outcome)]:
-                        outcome.review_page = review_run(outcome.out, overlays=False).page
+                outcome.run = run
             except InputError as exc:
                 outcome.error = str(exc)
     finally:
@@ -118,7 +113,7 @@ def summary_lines(outcomes: list[SceneOutcome]) -> list[str]:
             f"{summary.skipped} skipped, {counts.failed} failed; {summary.planes_kept} planes kept, "
             f"{summary.planes_dropped} dropped"
         )
-        if outcome.review_page is not None:
-            lines.append(f"  review page: {outcome.review_page}")
+        if outcome.run.review_page is not None:
+            lines.append(f"  review page: {outcome.run.review_page}")
         lines.extend(f"  failed: {line}" for line in outcome.failed_frames)
     return lines

@@ -164,11 +164,6 @@ def cvat2mask(
             progress=progress.callback(sequence_dir.name), job_timeout=job_timeout, poses=poses,
         )
         progress.finish()
-        page = None
-        if overlays:
-            from .review import review_run
-
-            page = review_run(out, overlays=False).page
         from .records import summarize
         from .stats import drop_hint
 
@@ -191,8 +186,8 @@ def cvat2mask(
         typer.echo(summary)
         for line in failures:
             typer.echo(f"  failed: {line}")
-        if page is not None:
-            typer.echo(f"review page: {page}")
+        if report.review_page is not None:
+            typer.echo(f"review page: {report.review_page}")
         if failures:
             raise typer.Exit(1)  # every mask that could be made is written
 

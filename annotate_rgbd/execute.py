@@ -81,6 +81,8 @@ class SceneRun:
         Set when a fatal problem stopped the scene (its other frames are then not made).
     previous : Previous
         What earlier runs in ``out_dir`` recorded (read when the scene starts).
+    review_page : Path, optional
+        ``review.html``, written by :func:`annotate_rgbd.pipeline.finish_scene` with overlays.
     """
 
     name: str
@@ -91,6 +93,7 @@ class SceneRun:
     counts: FrameCounts = field(default_factory=FrameCounts)
     error: InputError | None = None
     previous: Previous = field(default_factory=Previous)
+    review_page: Path | None = None
     _lock: OutputLock | None = field(default=None, repr=False)
 
     def open(self, force: bool) -> None:

@@ -62,7 +62,8 @@ def run_cvat2mask(
     raw_masks : bool
         Also write ``masks_raw/``: the labeller's shapes as drawn, before any depth check.
     overlays : bool
-        Also write ``overlays/``: the review overlays (:mod:`annotate_rgbd.overlay`).
+        Also write ``overlays/``: the review overlays (:mod:`annotate_rgbd.overlay`), then
+        ``review.html`` and ``contact_sheet.png`` (``review_page`` of the returned run).
     progress : callable, optional
         Called as ``progress(done, total)`` after each frame that gets a mask.
     job_timeout : float
@@ -108,12 +109,17 @@ def run_cvat2mask(
 
 
 def finish_scene(scene: SceneRun) -> None:
-    """Remove stale outputs, write a scene's tables and report, then remove the journal."""
+    """Remove stale outputs, write a scene's tables and report, then remove the journal; with
+    overlays (drawn by the frames' jobs) also the review page and contact sheet."""
     plan = scene.plan
     remove_stale_outputs(scene)
     write_tables(scene.out_dir, plan.tracks, plan.colours)
     write_json(scene.out_dir / REPORT, run_record(plan, scene.config).to_json())
     remove_journal(scene.out_dir)
+    if any(job.overlay_path is not None for _, job in plan.jobs):
+        from .review import review_run  # only with overlays (SciPy is slow to import)
+
+        scene.review_page = review_run(scene.out_dir, overlays=False).page
 
 
 def remove_stale_outputs(scene: SceneRun) -> None:
