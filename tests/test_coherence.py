@@ -40,15 +40,23 @@ def wall_with_board(z0, board_sigmas, rng, share=0.3, noise=None):
     return depth.astype(np.float32), board, np.array([*normal, d])
 
 
+def refine_wall(depth, noise=KINECT):
+    """The whole image drawn as one plane, refined."""
+    return refine_planes(np.ones(SHAPE, np.uint8), depth, np.array([1]), CAMERA, RansacConfig(), noise)
+
+
+def interior(board):
+    """The board without its rim (windows there are half on the wall)."""
+    return cv2.erode(board.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
+
+
 def test_a_board_within_the_band_is_dropped_and_the_wall_is_kept_and_fitted_to_itself():
     rng = np.random.default_rng(1)
     # 1.3 sigma proud at 2.5 m (sigma 9.6 mm: a 1.25 cm whiteboard), over 30 % of the wall:
     # each pixel of it is inside the 3 sigma band.
     depth, board, wall = wall_with_board(2.5, 1.3, rng)
-    labels = np.ones(SHAPE, np.uint8)
-    refined, fits = refine_planes(labels, depth, np.array([1]), CAMERA, RansacConfig(), KINECT)
-    interior = cv2.erode(board.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
-    assert refined[interior].mean() < 0.005 and refined[board].mean() < 0.06  # its rim: windows half on the wall
+    refined, fits = refine_wall(depth)
+    assert refined[interior(board)].mean() < 0.005 and refined[board].mean() < 0.06  # its rim: windows half on the wall
     assert refined[~board].mean() > 0.985
     # The plane is the wall's, not one leaning towards the board (offset within 0.1 sigma).
     equation = fits[1].equation
@@ -57,7 +65,7 @@ def test_a_board_within_the_band_is_dropped_and_the_wall_is_kept_and_fitted_to_i
     # Without the test (as before it), the board stays in and the plane leans towards it.
     refine.COHERENCE_WINDOW, saved = 0, refine.COHERENCE_WINDOW
     try:
-        plain, plain_fits = refine_planes(labels, depth, np.array([1]), CAMERA, RansacConfig(), KINECT)
+        plain, plain_fits = refine_wall(depth)
     finally:
         refine.COHERENCE_WINDOW = saved
     assert plain[board].mean() > 0.8
@@ -71,17 +79,14 @@ def test_correlated_sensor_noise_does_not_punch_holes_in_a_plane():
     smooth = cv2.GaussianBlur(rng.standard_normal(SHAPE).astype(np.float32), (0, 0), 1.5)
     smooth /= smooth.std()
     depth, board, _ = wall_with_board(2.0, 0.0, rng, noise=smooth)
-    labels = np.ones(SHAPE, np.uint8)
-    refined, _ = refine_planes(labels, depth, np.array([1]), CAMERA, RansacConfig(), KINECT)
+    refined, _ = refine_wall(depth)
     assert refined.mean() > 0.98
 
 
 def test_a_fixed_band_is_left_as_it_is():
     rng = np.random.default_rng(3)
     depth, board, _ = wall_with_board(2.5, 1.3, rng)
-    labels = np.ones(SHAPE, np.uint8)
-    fixed = NoiseSettings.fixed(0.05)
-    refined, _ = refine_planes(labels, depth, np.array([1]), CAMERA, RansacConfig(), fixed)
+    refined, _ = refine_wall(depth, NoiseSettings.fixed(0.05))
     assert refined.all()  # every pixel within 5 cm: a fixed band means what it says
 
 
@@ -119,10 +124,8 @@ def test_a_surface_just_beyond_the_band_leaves_no_scattered_pixels():
     # 3.3 sigma proud: the noise puts about a third of its pixels inside the 3 sigma band, scattered.
     rng = np.random.default_rng(6)
     depth, board, _ = wall_with_board(2.5, 3.3, rng)
-    labels = np.ones(SHAPE, np.uint8)
-    refined, _ = refine_planes(labels, depth, np.array([1]), CAMERA, RansacConfig(), KINECT)
-    interior = cv2.erode(board.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
-    assert refined[interior].mean() < 0.005 and refined[board].mean() < 0.05
+    refined, _ = refine_wall(depth)
+    assert refined[interior(board)].mean() < 0.005 and refined[board].mean() < 0.05
     # The wall loses a rim along the board (windows half on it), nothing elsewhere.
     near = cv2.dilate(board.astype(np.uint8), np.ones((9, 9), np.uint8)).astype(bool)
     assert refined[~near].mean() > 0.995 and refined[~board].mean() > 0.975
@@ -154,7 +157,6 @@ def test_a_constant_noise_model_gets_the_window_test_too():
     sigma = kinect_sigma(2.5)
     depth, board, _ = wall_with_board(2.5, 1.3, rng)
     constant = NoiseSettings(ConstantNoise(sigma))
-    refined, _ = refine_planes(np.ones(SHAPE, np.uint8), depth, np.array([1]), CAMERA, RansacConfig(), constant)
-    interior = cv2.erode(board.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
+    refined, _ = refine_wall(depth, constant)
     # (The wall's true noise varies over its 2.2-2.9 m; the model's is that of 2.5 m.)
-    assert refined[interior].mean() < 0.02 and refined[~board].mean() > 0.98
+    assert refined[interior(board)].mean() < 0.02 and refined[~board].mean() > 0.98
