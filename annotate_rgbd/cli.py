@@ -271,15 +271,15 @@ def review(
     with user_errors():
         from .execute import default_workers, prepare_process
 
-        workers = jobs or default_workers()
-        prepare_process(workers if overlays else 1)
+        workers = (jobs or default_workers()) if overlays else 1  # only overlays take helpers
+        prepare_process(workers)
         from .progress import Progress
         from .review import review_run
 
         scene = out_dir.resolve().name
         progress = Progress({scene: 0})
         output = review_run(out_dir, overlays=overlays, page=page, sheet=sheet, progress=progress.callback(scene),
-                            workers=workers if overlays else 1)
+                            workers=workers)
         progress.finish()
         lines = [f"{len(output.overlays)} overlays in {out_dir / 'overlays'}"] if overlays else []
         lines += [str(path) for path in (output.page, output.sheet) if path is not None]
