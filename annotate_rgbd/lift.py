@@ -220,19 +220,20 @@ def plane_to_world(equation: np.ndarray, rotation: np.ndarray, translation: np.n
 
     Parameters
     ----------
-    equation : ndarray, shape (4,)
-        ``(a, b, c, d)`` in the camera frame.
+    equation : ndarray, shape (4,) or (K, 4)
+        ``(a, b, c, d)`` in the camera frame (or K such planes).
     rotation, translation : ndarray, shapes (3, 3) and (3,)
         Camera-to-world pose.
 
     Returns
     -------
-    ndarray of float64, shape (4,)
+    ndarray of float64, shape of ``equation``
         The same plane in the world frame, same scale: normal ``R n``, offset ``d - (R n) . t``.
     """
     equation = np.asarray(equation, dtype=np.float64)
-    normal = np.asarray(rotation, dtype=np.float64) @ equation[:3]
-    return np.append(normal, equation[3] - normal @ np.asarray(translation, dtype=np.float64))
+    normal = equation[..., :3] @ np.asarray(rotation, dtype=np.float64).T
+    offset = equation[..., 3] - normal @ np.asarray(translation, dtype=np.float64)
+    return np.concatenate([normal, np.asarray(offset)[..., None]], axis=-1)
 
 
 def plane_to_camera(equation: np.ndarray, rotation: np.ndarray, translation: np.ndarray) -> np.ndarray:
@@ -267,31 +268,35 @@ def plane_agreement(
 
     Parameters
     ----------
-    first, second : ndarray, shape (4,)
-        Planes in one frame (e.g. the world planes lifted from two keyframes of a track), any
-        scale.
-    at : ndarray, shape (3,), optional
+    first : ndarray, shape (4,)
+        A plane (e.g. the world plane lifted from a keyframe of a track), any scale.
+    second : ndarray, shape (4,) or (K, 4)
+        A plane in the same frame, or K of them (each compared with ``first``).
+    at : ndarray, shape (3,) or (K, 3), optional
         Where to compare the offsets: the difference of the two planes' signed distances from
-        this point. Give a point of the surface (e.g. the lifted polygon's centroid): for planes
-        that are not quite parallel the gap between them grows with the distance from where
-        they cross, so the origin (the default) can be metres away from the surface.
+        this point (one per plane of ``second``). Give a point of the surface (e.g. the lifted
+        polygon's centroid): for planes that are not quite parallel the gap between them grows
+        with the distance from where they cross, so the origin (the default) can be metres
+        away from the surface.
 
     Returns
     -------
-    angle : float
+    angle : float, or ndarray of float64 of shape (K,)
         Angle between the normals, degrees, in [0, 90].
-    offset : float
+    offset : float, or ndarray of float64 of shape (K,)
         Difference of the signed distances of ``at`` from the two planes, metres (for parallel
         planes, the distance between them).
     """
     first = np.asarray(first, dtype=np.float64)
     second = np.asarray(second, dtype=np.float64)
     first = first / np.linalg.norm(first[:3])
-    second = second / np.linalg.norm(second[:3])
-    if first[:3] @ second[:3] < 0:
-        second = -second
+    second = second / np.linalg.norm(second[..., :3], axis=-1, keepdims=True)
+    second = second * np.where(second[..., :3] @ first[:3] < 0, -1.0, 1.0)[..., None]
     # atan2 of cross and dot keeps tiny angles accurate (arccos of a dot near 1 does not).
-    angle = np.degrees(np.arctan2(np.linalg.norm(np.cross(first[:3], second[:3])), first[:3] @ second[:3]))
+    cross = np.linalg.norm(np.cross(first[:3], second[..., :3]), axis=-1)
+    angle = np.degrees(np.arctan2(cross, second[..., :3] @ first[:3]))
     point = np.zeros(3) if at is None else np.asarray(at, dtype=np.float64)
-    offset = abs((point @ first[:3] + first[3]) - (point @ second[:3] + second[3]))
-    return float(angle), float(offset)
+    offset = np.abs((point @ first[:3] + first[3]) - (np.sum(point * second[..., :3], axis=-1) + second[..., 3]))
+    if second.ndim == 1:
+        return float(angle), float(offset)
+    return angle, offset

@@ -251,3 +251,16 @@ def test_plane_agreement():
     angle, at_origin = plane_agreement(first, second)
     assert angle == pytest.approx(2.0) and at_origin == pytest.approx(4 - 4 * np.cos(np.radians(2)))
     assert plane_agreement(first, second, at=point)[1] == pytest.approx(0.0, abs=1e-12)
+
+
+def test_plane_agreement_and_plane_to_world_take_many_planes_at_once():
+    rng = np.random.default_rng(3)
+    planes = np.concatenate([rng.normal(size=(5, 3)), rng.uniform(-2, 2, (5, 1))], axis=1)
+    points = rng.normal(size=(5, 3))
+    first = np.array([0.2, -0.1, 1.0, -1.5])
+    angles, offsets = plane_agreement(first, planes, at=points)
+    for k in range(5):
+        assert (angles[k], offsets[k]) == pytest.approx(plane_agreement(first, planes[k], at=points[k]))
+    rotation, translation = np.linalg.qr(rng.normal(size=(3, 3)))[0], rng.normal(size=3)
+    together = plane_to_world(planes, rotation, translation)
+    np.testing.assert_allclose(together, [plane_to_world(p, rotation, translation) for p in planes])

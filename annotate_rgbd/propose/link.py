@@ -3,8 +3,8 @@
 Two detections are candidates for one plane when their planes agree within the noise band and
 their masks overlap (see :class:`~annotate_rgbd.propose.settings.LinkConfig`):
 
-- **with poses**, by world plane (:func:`world_agreement`: :func:`annotate_rgbd.lift.plane_agreement`
-  for all of a frame's planes at once, at the later detection's centroid) and by the IoU of
+- **with poses**, by world plane (:func:`annotate_rgbd.lift.plane_agreement` for all of a
+  frame's planes at once, at the later detection's centroid) and by the IoU of
   the later mask with the earlier polygon lifted onto its plane and reprojected into the later
   frame (:mod:`annotate_rgbd.lift`);
 - **without poses** (or where a frame has none), by the camera-frame planes, allowing for what
@@ -27,7 +27,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from ..camera import Camera
-from ..lift import lift_polygon, plane_to_world, project_polygon
+from ..lift import lift_polygon, plane_agreement, plane_to_world, project_polygon
 from ..noise import NoiseSettings
 from .detect_job import FrameProposal
 from .outlines import fill_window
@@ -131,7 +131,9 @@ class TrackLinker:
         band = self.noise.band(proposal.centroids[:, 2]) + band_last
         if pose is not None and last.pose is not None:
             world_last = plane_to_world(last.plane, *last.pose)
-            angle, offset = world_agreement(world_last, proposal.planes, proposal.centroids, pose)
+            rotation, centre = pose
+            angle, offset = plane_agreement(world_last, plane_to_world(proposal.planes, *pose),
+                                            at=proposal.centroids @ np.asarray(rotation).T + centre)
             agree = (angle <= config.angle_deg) & (offset <= band + config.pose_error)
             if not agree.any():
                 return np.zeros(k)
@@ -170,42 +172,6 @@ class TrackLinker:
         inter = np.bincount(covered, minlength=k + 1)[1 : k + 1]
         union = np.count_nonzero(window) + counts - inter
         return inter / np.maximum(union, 1)
-
-
-def world_agreement(
-    world: np.ndarray, planes: np.ndarray, centroids: np.ndarray, pose: tuple[np.ndarray, np.ndarray]
-) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`annotate_rgbd.lift.plane_agreement` of a world plane with each of a frame's
-    camera-frame planes, taken to the world by ``pose`` and compared at their centroids.
-
-    Parameters
-    ----------
-    world : ndarray, shape (4,)
-    planes : ndarray, shape (K, 4)
-        Camera frame, unit normals.
-    centroids : ndarray, shape (K, 3)
-        Camera frame.
-    pose : (ndarray (3, 3), ndarray (3,))
-        Camera-to-world rotation and camera centre.
-
-    Returns
-    -------
-    angle : ndarray of float64, shape (K,)
-        Degrees, in [0, 90].
-    offset : ndarray of float64, shape (K,)
-        Metres.
-    """
-    rotation, centre = (np.asarray(x, dtype=np.float64) for x in pose)
-    first = np.asarray(world, dtype=np.float64) / np.linalg.norm(world[:3])
-    normals = planes[:, :3] @ rotation.T
-    second = np.concatenate([normals, (planes[:, 3] - normals @ centre)[:, None]], axis=1)
-    second /= np.linalg.norm(normals, axis=1)[:, None]
-    second *= np.where(second[:, :3] @ first[:3] < 0, -1.0, 1.0)[:, None]
-    cross = np.linalg.norm(np.cross(first[:3], second[:, :3]), axis=1)
-    angle = np.degrees(np.arctan2(cross, second[:, :3] @ first[:3]))
-    at = centroids @ rotation.T + centre
-    offset = np.abs((at @ first[:3] + first[3]) - (np.einsum("ki,ki->k", at, second[:, :3]) + second[:, 3]))
-    return angle, offset
 
 
 def motion_px(camera: Camera, dt: float, max_turn_deg: float, max_speed: float, depth: float) -> float:
