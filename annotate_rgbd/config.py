@@ -29,6 +29,7 @@ that is not listed is an error, so a typo never goes unnoticed::
     cap = 0.1
     [refine]
     grow_pixels = 3
+    rim_pixels = 2
     [stitch]            # several annotation parts of one sequence
     min_iou = 0.5
     [[parts]]           # where a part starts in the RGB list (repeat per part)
@@ -46,8 +47,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import re
-import sys
 import types
 import typing
 from dataclasses import dataclass, field
@@ -59,11 +58,7 @@ from .camera import Camera
 from .errors import InputError
 from .noise import NoiseSettings, noise_settings_from_mapping
 from .poses import DEFAULT_MAX_POSE_GAP
-
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover - exercised on Python 3.10 only
-    import tomli as tomllib
+from .toml_input import read_toml
 
 
 @dataclass(frozen=True)
@@ -167,9 +162,14 @@ class RefineConfig:
         whose depth lies on the plane and that no other plane's shape or inliers claim
         (:func:`annotate_rgbd.grow.grow_planes`): a labeller's outline is a pixel or two off the
         real edge (this project's measurement on rendered scenes: +-2 px). 0: no growing.
+    rim_pixels : int
+        Drop a plane's pixels this close to a surface standing in front of it inside its shape
+        (:func:`annotate_rgbd.refine.near_surfaces_in_front`; README, *Refinement and sensor
+        noise*, for the measurement behind 2). 0: keep them.
     """
 
     grow_pixels: int = 3
+    rim_pixels: int = 2
 
 
 @dataclass(frozen=True)
@@ -363,44 +363,6 @@ def parse_settings(settings: Iterable[str]) -> dict[str, Any]:
     return overrides
 
 
-#: Deepest nesting of tables and arrays accepted in a configuration, manifest or ``--set``
-#: value (ours need 3 levels; tomllib itself recurses and would fail at ~1000 with a traceback).
-MAX_TOML_NESTING = 16
-
-
-def read_toml(text: str, origin: str | Path | None) -> dict[str, Any]:
-    """Parse TOML text (a configuration, a manifest, a ``--set`` value).
-
-    Raises
-    ------
-    InputError
-        Invalid TOML, or tables and arrays nested more than :data:`MAX_TOML_NESTING` deep.
-    """
-    # Arrays and inline tables opened before any is closed bound the depth tomllib recurses to.
-    if _bracket_depth(text) > MAX_TOML_NESTING:
-        raise InputError(origin, f"invalid TOML: values nested more than {MAX_TOML_NESTING} levels deep")
-    try:
-        return tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise InputError(origin, f"invalid TOML: {exc}") from None
-    except RecursionError:
-        raise InputError(origin, f"invalid TOML: values nested more than {MAX_TOML_NESTING} levels deep") from None
-
-
-def _bracket_depth(text: str) -> int:
-    """The deepest nesting of ``[``/``{`` in ``text``, outside strings and comments (roughly:
-    an over-estimate only ever rejects a pathological file)."""
-    depth = deepest = 0
-    for bracket in _BRACKETS.findall(_STRINGS_AND_COMMENTS.sub("", text)):
-        depth += 1 if bracket in "[{" else -1
-        deepest = max(deepest, depth)
-    return deepest
-
-
-_STRINGS_AND_COMMENTS = re.compile(r'"(?:[^"\\\n]|\\.)*"|\'[^\'\n]*\'|#[^\n]*')
-_BRACKETS = re.compile(r"[\[\]{}]")
-
-
 def parse_part_offsets(parts: Iterable[str]) -> dict[str, int]:
     """Read ``--part FILE:OFFSET`` texts (also a manifest's ``parts`` list), the command-line
     form of a ``[[parts]]`` entry (:class:`PartConfig`).
@@ -587,6 +549,7 @@ def _check_ranges(config: Config, origin: str | Path | None) -> None:
         ("filter.min_valid_pixels", config.filter.min_valid_pixels >= 3, "must be >= 3"),
         ("ransac.distance_threshold", config.ransac.distance_threshold >= 0, "must be >= 0 (0: the [noise] band)"),
         ("refine.grow_pixels", 0 <= config.refine.grow_pixels <= 50, "must be in [0, 50]"),
+        ("refine.rim_pixels", 0 <= config.refine.rim_pixels <= 50, "must be in [0, 50]"),
         ("ransac.num_iterations", config.ransac.num_iterations >= 1, "must be >= 1"),
         ("ransac.seed", config.ransac.seed >= 0, "must be >= 0"),
         ("ransac.max_points", config.ransac.max_points == 0 or config.ransac.max_points >= 3, "must be 0 or >= 3"),

@@ -155,7 +155,7 @@ def segment_job(job: FrameJob, config: Config, depth_file: np.ndarray | None = N
     """
     depth_raw = read_depth(job.depth_path, depth_file)
     check_size(job, depth_raw.shape)
-    return segment_frame(depth_raw, job.shapes, config)
+    return segment_frame(depth_raw, job.shapes, config, job.propagated or ())
 
 
 def check_size(job: FrameJob, shape: tuple[int, ...]) -> None:

@@ -27,7 +27,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from .config import parse_part_offsets, parse_settings, read_toml
+from .config import parse_part_offsets, parse_settings
+from .toml_input import read_toml
 from .errors import InputError
 
 SCENE_KEYS = {"name", "sequence", "annotations", "config", "out", "parts", "set", "raw_masks", "overlays",

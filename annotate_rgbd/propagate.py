@@ -30,7 +30,8 @@ from .errors import InputError
 from .lift import lift_polygon, plane_agreement, plane_to_camera, plane_to_world, project_polygon
 from .poses import FramePoses
 from .rasterize import rasterize_frame
-from .refine import fit_plane, grid_pixels
+from .ransac import fit_plane
+from .refine import grid_pixels
 from .sequence import read_depth
 
 #: Largest angle (degrees) and offset (m, at the keyframes' centroid) between the planes lifted

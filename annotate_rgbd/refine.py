@@ -1,163 +1,19 @@
-"""Depth refinement: keep only the pixels that lie on each plane (Open3D RANSAC)."""
+"""Depth refinement: keep only the pixels that lie on each plane (each found by
+:func:`annotate_rgbd.ransac.fit_plane`)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import replace
+from typing import Collection
 
 import cv2
 import numpy as np
-import open3d as o3d
 
 from .camera import Camera, backproject
 from .config import RansacConfig
 from .noise import ConstantNoise, NoiseSettings
-from .planefit import refit_plane, weighted_plane_fit
-
-#: Least-squares re-fits of a RANSAC plane to its inliers (the second settles the inlier set).
-REFITS = 2
-#: RANSAC's distance threshold, as a share of the inlier band (k = 3 sigma: 1.5 sigma). With
-#: the full band a plane tilted between two surfaces a few sigma apart (a whiteboard on a wall,
-#: books on a table) can gather more points than either surface's own plane; within 1.5 sigma
-#: the dominant surface wins. Measured on benchmarks/bench_refine.py: the wall behind a
-#: whiteboard went from mean IoU 0.86 to 0.94 (0.34 of the band gave the same).
-RANSAC_SHARE = 0.5
-#: Real sensors are noisier than their published axial noise: depth distortion (TUM fr1),
-#: stereo ripples (RealSense), lateral noise on tilted planes. Each plane's own residuals tell
-#: by how much: the noise is scaled by ``1.4826 median(|d| / sigma(z))`` of its fit's inliers
-#: (the MAD estimate of a standard deviation, robust to the clutter in the band), never below 1
-#: and at most this much. On TUM fr1_rpy and the RealSense office frames the planes' residuals
-#: are about 1.5 sigma of the published models; on renders with exactly the model's noise the
-#: factor stays about 1.
-MAX_NOISE_SCALE = 2.5
-#: A plane's noise is scaled only when its residuals say it is this much larger than the model:
-#: below, the difference is within the spread of the estimate (a median of about a thousand
-#: grid points varies by a few per cent).
-MIN_NOISE_SCALE = 1.15
-
-
-@dataclass(frozen=True)
-class PlaneFit:
-    """The result of fitting one plane.
-
-    Parameters
-    ----------
-    equation : ndarray of float64, shape (4,)
-        ``(a, b, c, d)`` with ``a x + b y + c z + d = 0`` in the camera frame (metres), unit
-        normal, oriented towards the camera (``d > 0``).
-    inliers : ndarray of bool, shape (N,)
-        For each input point, whether it lies within the inlier band of the plane at its depth.
-    band : float
-        The inlier band (m) at the median depth of the inliers.
-    rms_sigma : float
-        Root mean square distance of the inliers to the plane, in units of the noise the band
-        stands for (``band / k``); about 1 when the noise model fits the sensor. NaN without
-        inliers.
-    inliers_ransac, inliers_refit : int
-        Inliers among the input points of RANSAC's plane and of the re-fitted plane.
-    noise_scale : float
-        How much noisier than the model the plane's points are (:data:`MAX_NOISE_SCALE`);
-        the band, the re-fit's weights and the inlier test use the scaled noise.
-    """
-
-    equation: np.ndarray
-    inliers: np.ndarray
-    band: float = float("nan")
-    rms_sigma: float = float("nan")
-    inliers_ransac: int = 0
-    inliers_refit: int = 0
-    noise_scale: float = 1.0
-
-
-def fit_plane(points: np.ndarray, config: RansacConfig, noise: NoiseSettings) -> PlaneFit:
-    """Find a plane among 3-D points with Open3D's RANSAC, then re-fit it to its inliers.
-
-    RANSAC searches for the plane among at most ``config.max_points`` of the points, taken
-    evenly through the input (for a plane's pixels in row-major order: a regular grid over the
-    plane), with half the inlier band of the noise model at the points' median depth as its one
-    distance threshold (:data:`RANSAC_SHARE`). A 3-point RANSAC plane is noisier than the data, so the plane is then
-    re-fitted by least squares to its inliers, each weighted by ``1 / sigma(z)^2``
-    (:func:`annotate_rgbd.planefit.refit_plane`: every point tested against the band at its own
-    depth). Open3D runs single-threaded with its generator seeded before every call: its
-    multi-threaded RANSAC gives different planes from run to run, and frames are parallelised
-    across processes instead.
-
-    Parameters
-    ----------
-    points : ndarray of float64, shape (N, 3)
-        N >= 3 points in metres.
-    config : RansacConfig
-    noise : NoiseSettings
-        The inlier band (:meth:`annotate_rgbd.config.Config.noise_settings`).
-
-    Returns
-    -------
-    PlaneFit
-    """
-    points = np.ascontiguousarray(points, dtype=np.float64)
-    sample = points
-    if config.max_points and len(points) > config.max_points:
-        sample = points[:: -(-len(points) // config.max_points)]
-        if len(sample) < 3:  # a stride over very few points (max_points = 3) can leave two
-            sample = points[: max(config.max_points, 3)]
-    threshold = RANSAC_SHARE * float(noise.band(np.median(sample[:, 2])))
-    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(sample))
-    threads = o3d.utility.get_max_threads()
-    o3d.utility.set_max_threads(1)
-    try:
-        o3d.utility.random.seed(config.seed)
-        model, _ = cloud.segment_plane(distance_threshold=threshold, ransac_n=3, num_iterations=config.num_iterations)
-    finally:
-        o3d.utility.set_max_threads(threads)
-    equation = np.asarray(model, dtype=np.float64)
-    equation = equation / np.linalg.norm(equation[:3])
-    if equation[3] < 0:
-        equation = -equation
-    refit = refit_plane(points, equation, noise.model, noise.k, noise.floor, noise.cap, iterations=REFITS, fit_points=0)
-    rms_sigma, before, scale = refit.rms_sigma, refit.inliers_before, 1.0
-    for _ in range(2):  # the first estimate sees a band truncated at the model's k sigma
-        found = noise_scale(points, refit.equation, noise.scaled(scale))
-        if found < (MIN_NOISE_SCALE if scale == 1.0 else 1.02):
-            break
-        scale = min(scale * found, MAX_NOISE_SCALE)
-        scaled = noise.scaled(scale)
-        refit = refit_plane(points, refit.equation, scaled.model, scaled.k, scaled.floor, scaled.cap, iterations=1,
-                            fit_points=0)
-    equation = refit.equation / np.linalg.norm(refit.equation[:3])
-    if equation[3] < 0:
-        equation = -equation
-    return PlaneFit(equation, refit.inliers, refit.band_at_median, rms_sigma, before, refit.inliers_after, scale)
-
-
-def noise_scale(points: np.ndarray, equation: np.ndarray, noise: NoiseSettings) -> float:
-    """How much noisier than ``noise`` a plane's points are: ``1.4826 median(|d| / sigma(z))``
-    over the points within its band on the side of the plane where that is smaller (``d`` the
-    signed distance to the plane, ``z`` the depth), at least 1; 1 for a fixed band or fewer than
-    5 points on either side.
-
-    Parameters
-    ----------
-    points : ndarray of float64, shape (N, 3)
-    equation : ndarray, shape (4,)
-    noise : NoiseSettings
-
-    Returns
-    -------
-    float
-    """
-    if noise.floor >= noise.cap:
-        return 1.0  # a fixed band: nothing to adapt
-    z = points[:, 2]
-    sigma = noise.model.sigma(z)
-    signed = np.einsum("ij,j->i", points, equation[:3]) + equation[3]
-    with np.errstate(invalid="ignore"):
-        inside = np.abs(signed) <= np.clip(noise.k * sigma, noise.floor, noise.cap)
-    residual = signed[inside] / np.maximum(sigma[inside], 1e-9)
-    front, behind = residual[residual > 0], -residual[residual < 0]
-    if min(front.size, behind.size) < 5:
-        return 1.0
-    # Each side of the plane on its own: a surface in the band on one side (a whiteboard on a
-    # wall, a book on a table) widens that side only; the narrower side is the plane's noise.
-    return max(1.0, 1.4826 * float(min(np.median(front), np.median(behind))))
+from .planefit import weighted_plane_fit
+from .ransac import PlaneFit, fit_plane
 
 
 def refine_planes(
@@ -168,6 +24,8 @@ def refine_planes(
     config: RansacConfig,
     noise: NoiseSettings,
     valid_pixels: np.ndarray | None = None,
+    rim_pixels: int = 0,
+    propagated: Collection[int] = (),
 ) -> tuple[np.ndarray, dict[int, PlaneFit]]:
     """Keep, for each plane, only its pixels with valid depth that lie on its fitted plane.
 
@@ -178,7 +36,9 @@ def refine_planes(
     a fixed band), surfaces inside the band but off the plane are then found by the window test
     (:func:`window_scores`): each plane is re-fitted to the windows around its dominant surface,
     and inliers whose window score lies beyond :data:`COHERENCE_LIMIT` spreads, or whose window
-    holds under :data:`MIN_INLIER_DENSITY` inliers, are dropped.
+    holds under :data:`MIN_INLIER_DENSITY` inliers, are dropped. Last, inliers within
+    ``rim_pixels`` of a surface in front of their plane inside its shape are dropped
+    (:func:`near_surfaces_in_front`).
 
     Parameters
     ----------
@@ -195,6 +55,11 @@ def refine_planes(
     valid_pixels : ndarray of int, optional
         Number of valid-depth pixels of each plane of ``plane_ids`` (as counted by
         :func:`annotate_rgbd.filters.plane_statistics`); counted here when not given.
+    rim_pixels : int
+        Drop inliers this close (px) to a surface in front of their plane; 0: none.
+    propagated : collection of int
+        Planes whose shapes no labeller drew on this frame (carried here by camera poses): their
+        fits do not look behind RANSAC's plane (:func:`fit_plane`).
 
     Returns
     -------
@@ -216,7 +81,8 @@ def refine_planes(
         rows, cols = grid_pixels(on_valid, plane_id, count, config.max_points)
         if rows.size < 3:
             continue
-        fit = fit_plane(backproject(cols, rows, depth_m[rows, cols], camera), config, noise)
+        fit = fit_plane(backproject(cols, rows, depth_m[rows, cols], camera), config, noise,
+                        look_behind=plane_id not in propagated)
         fits[plane_id] = fit
         table[plane_id] = fit.equation
         scales[plane_id] = fit.noise_scale
@@ -253,7 +119,54 @@ def refine_planes(
         centre, spread = _score_statistics(score, usable, on_valid, n_labels, step=4)
         on_plane &= ~(usable & (np.abs(score - _lookup(centre, on_valid)) > COHERENCE_LIMIT * _lookup(spread, on_valid)))
         on_plane &= inlier_density(on_plane, on_valid > 0) >= MIN_INLIER_DENSITY
+    if rim_pixels:
+        with np.errstate(invalid="ignore"):
+            in_front = (on_valid > 0) & ~on_plane & (residual > 0)
+        on_plane &= ~near_surfaces_in_front(in_front, on_valid, rim_pixels)
     return np.where(on_plane, labels, 0).astype(labels.dtype), fits
+
+
+def near_surfaces_in_front(in_front: np.ndarray, labels: np.ndarray, rim_pixels: int) -> np.ndarray:
+    """The pixels of each plane's shape within ``rim_pixels`` of a surface in front of the plane.
+
+    Where an object stands on a plane (a book on a table, a whiteboard on a wall), the foot of
+    its sides lies within the plane's noise band: depth cannot tell those pixels from the plane,
+    and a 7x7 window (:func:`window_scores`) straddling both surfaces cannot either. And depth
+    sensors smear depth across the edge of a nearer surface (Kinect v1's correlation window,
+    stereo matching): the plane's pixels next to it are the least reliable ones. So a plane
+    gives up a thin rim around whatever stands in front of it inside its shape. Specks of noise
+    beyond the band are not surfaces: only pixels in front of the plane that fill a 3x3 square
+    (a morphological opening) count. A surface in front of one plane takes no rim from another
+    plane's pixels: where two planes' shapes meet, each is judged against its own plane.
+
+    Parameters
+    ----------
+    in_front : ndarray of bool, shape (H, W)
+        Pixels with depth in a plane's shape whose 3-D point lies in front of that plane (on
+        the camera's side) and off it.
+    labels : ndarray of non-negative int, shape (H, W)
+        The plane id of each pixel's shape (0 = none).
+    rim_pixels : int
+        Width of the rim (px, Euclidean; 0: nothing).
+
+    Returns
+    -------
+    ndarray of bool, shape (H, W)
+        Pixels of a shape within ``rim_pixels`` of a surface in front of the same shape's plane.
+    """
+    if rim_pixels <= 0:
+        return np.zeros(labels.shape, dtype=bool)
+    surfaces = cv2.morphologyEx(in_front.astype(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)) > 0
+    if not surfaces.any():
+        return surfaces
+    offsets = np.arange(-rim_pixels, rim_pixels + 1)
+    disk = (offsets[:, None] ** 2 + offsets[None, :] ** 2 <= rim_pixels**2).astype(np.uint8)
+    # The highest and the lowest plane id of the surfaces nearby (two dilations, whatever the
+    # number of planes; where three planes' surfaces meet within a rim, the middle one is missed).
+    ids = labels.astype(np.float32)  # exact up to 2^24 plane ids
+    highest = cv2.dilate(np.where(surfaces, ids, np.float32(0)), disk)
+    lowest = -cv2.dilate(np.where(surfaces, -ids, np.float32(-np.inf)), disk)
+    return (labels > 0) & ((highest == ids) | (lowest == ids))
 
 
 #: Side (px) of the window in which a plane's residuals are averaged to find surfaces that stand

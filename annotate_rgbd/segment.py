@@ -7,7 +7,7 @@ RANSAC. A pure function of the depth image, the shapes and the configuration.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Sequence
+from typing import Collection, Sequence
 
 import numpy as np
 
@@ -42,7 +42,9 @@ class FrameResult:
     dropped: list[PlaneRecord] = field(default_factory=list)
 
 
-def segment_frame(depth_raw: np.ndarray, shapes: Sequence[tuple[int, Shape]], config: Config) -> FrameResult:
+def segment_frame(
+    depth_raw: np.ndarray, shapes: Sequence[tuple[int, Shape]], config: Config, propagated: Collection[int] = ()
+) -> FrameResult:
     """Rasterise, filter and refine the planes of one depth frame.
 
     Parameters
@@ -52,6 +54,10 @@ def segment_frame(depth_raw: np.ndarray, shapes: Sequence[tuple[int, Shape]], co
     shapes : sequence of (int, Shape)
         ``(plane id, shape)`` of the frame, in track order.
     config : Config
+    propagated : collection of int
+        Planes whose shapes camera poses carried here from keyframes on other frames: no
+        labeller drew them over this frame (:func:`annotate_rgbd.ransac.fit_plane`'s
+        ``look_behind``).
 
     Returns
     -------
@@ -67,7 +73,8 @@ def segment_frame(depth_raw: np.ndarray, shapes: Sequence[tuple[int, Shape]], co
     kept = np.array([r is None for r in reasons], dtype=bool)
     band = config.inlier_band()
     refined, fits = refine_planes(
-        drawn, depth_m, stats.plane_ids[kept], config.camera, config.ransac, band, stats.valid_pixels[kept]
+        drawn, depth_m, stats.plane_ids[kept], config.camera, config.ransac, band, stats.valid_pixels[kept],
+        config.refine.rim_pixels, propagated,
     )
     inlier_count = label_histogram(refined, int(drawn.max(initial=0)) + 1)
     equations = {plane_id: fit.equation for plane_id, fit in fits.items()}
