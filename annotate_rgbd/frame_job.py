@@ -54,6 +54,9 @@ class FrameJob:
         With camera poses: the planes whose shapes the poses carried here from keyframes on
         other frames (:mod:`annotate_rgbd.propagate`); every plane record says whether it is
         one of them. None without poses.
+    expected_planes : tuple of (int, (float, float, float, float))
+        Where the poses put each of those planes in this depth frame's camera frame (metres):
+        refinement looks for it behind what RANSAC finds (:func:`annotate_rgbd.ransac.fit_plane`).
     """
 
     depth_path: Path
@@ -66,6 +69,7 @@ class FrameJob:
     rgb_path: Path | None = None
     id_mask_path: Path | None = None
     propagated: frozenset[int] | None = None
+    expected_planes: tuple[tuple[int, tuple[float, float, float, float]], ...] = ()
 
     @property
     def outputs(self) -> list[Path]:
@@ -155,7 +159,8 @@ def segment_job(job: FrameJob, config: Config, depth_file: np.ndarray | None = N
     """
     depth_raw = read_depth(job.depth_path, depth_file)
     check_size(job, depth_raw.shape)
-    return segment_frame(depth_raw, job.shapes, config, job.propagated or ())
+    expected = {plane: np.array(equation) for plane, equation in job.expected_planes}
+    return segment_frame(depth_raw, job.shapes, config, job.propagated or (), expected)
 
 
 def check_size(job: FrameJob, shape: tuple[int, ...]) -> None:
@@ -188,7 +193,7 @@ def run_frame_job(task: FrameTask) -> FrameOutcome:
     """
     job, colours = task.job, task.colours
     depth_file = read_bytes(job.depth_path)
-    made_from = fingerprint(job.shapes, job.image_size, task.config, depth_file)
+    made_from = fingerprint(job.shapes, job.image_size, task.config, depth_file, job.propagated, job.expected_planes)
     if up_to_date(job, made_from, task.recorded):
         return FrameOutcome(made_from)
     result = segment_job(job, task.config, depth_file)

@@ -15,6 +15,7 @@ import numpy as np
 
 from .camera import Camera, backproject
 from .noise import NoiseModel, inlier_band
+from .refine import COHERENCE_LIMIT, window_scores
 
 
 def grow_planes(
@@ -120,4 +121,100 @@ def grow_planes(
     counts = np.bincount(best_id[taken], minlength=top + 1)
     for plane_id in grown:
         grown[plane_id] = int(counts[plane_id])
+    return labels, grown
+
+
+def grow_connected(
+    labels: np.ndarray,
+    drawn: np.ndarray,
+    claimed: np.ndarray,
+    depth_m: np.ndarray,
+    equations: Mapping[int, np.ndarray],
+    camera: Camera,
+    model: NoiseModel,
+    k: float,
+    floor: float,
+    cap: float,
+) -> tuple[np.ndarray, dict[int, int]]:
+    """Grow each plane of ``equations``, without a distance limit, over the pixels that lie on it
+    and connect to it: for planes whose shapes camera poses carried from keyframes, where the
+    plane went on beyond every keyframe's view (the labeller never outlined that part).
+
+    Plane ``p`` takes a pixel outside its own shape when it is not ``claimed`` and no plane
+    holds it (``labels == 0``), its depth is valid, its 3-D point lies within ``clip(k sigma(z), floor,
+    cap)`` of ``p``'s plane, its window of such pixels passes refinement's window test
+    (:func:`annotate_rgbd.refine.window_scores` within :data:`annotate_rgbd.refine.COHERENCE_LIMIT`
+    of 0: a doormat on a floor lies within its band), and a chain of such pixels (8-connected)
+    links it to ``p``'s own pixels. Planes grow in increasing id order; a pixel one has taken is no longer free.
+
+    Parameters
+    ----------
+    labels : ndarray of non-negative int, shape (H, W)
+        Plane ids after refinement and edge growing (0 = none).
+    drawn : ndarray of non-negative int, shape (H, W)
+        The rasterised shapes.
+    claimed : ndarray of bool, shape (H, W)
+        Pixels that only their own shape's plane may take (those of shapes a labeller drew on
+        this frame; a shape carried by poses claims only the pixels its plane keeps).
+    depth_m : ndarray of float, shape (H, W)
+        Depth in metres, NaN where invalid.
+    equations : mapping of int to ndarray, shape (4,)
+        The planes to grow (unit normal, camera frame).
+    camera : Camera
+    model : ConstantNoise or QuadraticNoise
+    k, floor, cap : float
+        The band, as in :func:`annotate_rgbd.noise.inlier_band`.
+
+    Returns
+    -------
+    labels : ndarray, shape (H, W), of the type of ``labels``
+        A new array with the grown pixels set to their plane's id.
+    grown : dict of int to int
+        Pixels each plane gained.
+    """
+    labels = labels.copy()
+    grown = {int(plane_id): 0 for plane_id in equations}
+    if not grown:
+        return labels, grown
+    depth = np.asarray(depth_m, dtype=np.float32)
+    with np.errstate(invalid="ignore"):
+        free = np.isfinite(depth) & (depth > 0) & ~np.asarray(claimed, dtype=bool) & (labels == 0)
+    if not free.any():
+        return labels, grown
+    drawn = np.asarray(drawn)
+    band = np.asarray(inlier_band(depth, model, k, floor, cap), dtype=np.float32)
+    # Distances of every pixel to each plane, image-wide in float32 (as refinement's inlier test):
+    # z (a x_n + b y_n + c) + d, with (x_n, y_n) the pixel's ray at z = 1.
+    x_n = ((np.arange(depth.shape[1], dtype=np.float32) - np.float32(camera.cx)) / np.float32(camera.fx))[None, :]
+    y_n = ((np.arange(depth.shape[0], dtype=np.float32) - np.float32(camera.cy)) / np.float32(camera.fy))[:, None]
+    ids = sorted(grown)
+    candidate = np.zeros(labels.shape, dtype=np.int64)
+    best = np.full(labels.shape, np.inf, dtype=np.float32)
+    residual = np.zeros(labels.shape, dtype=np.float32)
+    # Each free pixel goes to the nearest plane it lies on (a tie: the lowest id), but never to a
+    # plane whose own shape covers it: those pixels refinement left out (a whiteboard on a wall).
+    for plane_id in ids:
+        a, b, c, d = (np.float32(v) for v in equations[plane_id])
+        with np.errstate(invalid="ignore"):
+            signed = depth * (a * x_n + b * y_n + c) + d
+            closer = free & (np.abs(signed) <= band) & (np.abs(signed) < best) & (drawn != plane_id)
+        candidate[closer] = plane_id
+        best[closer] = np.abs(signed[closer])
+        residual[closer] = signed[closer] * np.float32(k) / band[closer]
+    # The window test of refinement (a doormat on the floor lies within its band): residuals in
+    # noise units, averaged over each candidate's window, must look like the plane's noise.
+    own = np.isin(labels, ids)
+    score, usable = window_scores(residual, own | (candidate > 0))
+    candidate[~(usable & (np.abs(score) <= COHERENCE_LIMIT))] = 0
+    for plane_id in ids:
+        mine = labels == plane_id
+        if not mine.any():
+            continue
+        reach = mine | (candidate == plane_id)
+        count, components = cv2.connectedComponents(reach.astype(np.uint8), connectivity=8)
+        linked = np.bincount(components[mine], minlength=count) > 0
+        linked[0] = False
+        take = linked[components] & ~mine
+        labels[take] = plane_id
+        grown[plane_id] = int(np.count_nonzero(take))
     return labels, grown

@@ -22,6 +22,7 @@ from .config import Config
 from .cvat import read_cvat
 from .errors import InputError
 from .frame_job import OVERLAY_DIR, FrameJob, check_size
+from .lift import plane_to_camera
 from .outdir import ID_MASKS, RAW_MASKS
 from .palette import plane_colours
 from .part_overlap import part_pair_iou
@@ -326,19 +327,20 @@ def plan_frames(
             part = parts[owners[rgb]]
             frame = part.frame_of_rgb[rgb]
             record.part, record.cvat_frame = part.name, frame
-            shapes, propagated = _frame_shapes(part, frame, plane_of, propagation, config, d)
+            shapes, propagated, expected = _frame_shapes(part, frame, plane_of, propagation, config, d)
             if propagation is not None:
                 record.pose = "ok" if propagation.depth_poses.ok[d] else str(propagation.depth_poses.reasons[d])
-            jobs.append((d, _frame_job(sequence, part, frame, rgb, depth_file, shapes, propagated, output)))
+            jobs.append((d, _frame_job(sequence, part, frame, rgb, depth_file, shapes, propagated, expected, output)))
     return frames, jobs, warnings
 
 
 def _frame_shapes(
     part: Part, frame: int, plane_of: dict, propagation: Propagation | None, config: Config | None, depth: int
-) -> tuple[tuple, frozenset[int] | None]:
-    """The ``(plane id, shape)`` pairs of one frame, in track order, and the planes whose shapes
-    the poses carried there from other frames."""
-    shapes, propagated = [], set()
+) -> tuple[tuple, frozenset[int] | None, tuple]:
+    """The ``(plane id, shape)`` pairs of one frame, in track order, the planes whose shapes the
+    poses carried there from other frames, and ``(plane id, (a, b, c, d))`` where the poses put
+    each of those (its nearest keyframe's plane, in the depth frame's camera frame)."""
+    shapes, propagated, expected = [], set(), []
     has_pose = propagation is not None and bool(propagation.depth_poses.ok[depth])
     for track in part.annotation.tracks:
         if frame not in track.shapes:
@@ -352,12 +354,14 @@ def _frame_shapes(
         shapes += [(plane, shape) for shape in propagated_shapes(lift, frame, config, pose)]
         if frame not in {k.frame for k in lift.keyframes}:
             propagated.add(plane)
-    return tuple(shapes), (frozenset(propagated) if propagation is not None else None)
+            nearest = min(lift.keyframes, key=lambda k: (abs(k.frame - frame), k.frame))
+            expected.append((plane, tuple(float(v) for v in plane_to_camera(nearest.plane, *pose))))
+    return tuple(shapes), (frozenset(propagated) if propagation is not None else None), tuple(expected)
 
 
 def _frame_job(
     sequence: Sequence, part: Part, frame: int, rgb: int, depth_file: str, shapes: tuple,
-    propagated: frozenset[int] | None, output: OutputOptions,
+    propagated: frozenset[int] | None, expected: tuple, output: OutputOptions,
 ) -> FrameJob:
     name = Path(depth_file).name
     return FrameJob(
@@ -365,6 +369,7 @@ def _frame_job(
         mask_path=output.out_dir / "masks" / name,
         shapes=shapes,
         propagated=propagated,
+        expected_planes=expected,
         image_size=part.annotation.image_size.get(frame),
         part_path=part.annotation.path,
         raw_mask_path=output.out_dir / RAW_MASKS / name if output.raw_masks else None,

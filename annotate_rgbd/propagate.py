@@ -27,7 +27,10 @@ from .annotation import Shape, Track
 from .camera import backproject, depth_to_metres
 from .config import Config
 from .errors import InputError
-from .lift import lift_polygon, plane_agreement, plane_to_camera, plane_to_world, project_polygon
+from .lift import (
+    SAME_SURFACE_ANGLE, SAME_SURFACE_OFFSET, lift_polygon, plane_agreement, plane_to_camera, plane_to_world,
+    project_polygon,
+)
 from .poses import FramePoses
 from .rasterize import rasterize_frame
 from .ransac import fit_plane
@@ -35,13 +38,9 @@ from .refine import grid_pixels
 from .sequence import read_depth
 
 #: Largest angle (degrees) and offset (m, at the keyframes' centroid) between the planes lifted
-#: from two keyframes of one track for them to be one surface. Real poses reproject depth with
-#: errors of 0.4-2 cm over tens of frames (7-Scenes, TUM fr1_rpy), and a plane fitted to a few
-#: thousand pixels has an orientation error of a fraction of a degree: 5 degrees and 5 cm are
-#: well above both and well below two surfaces a labeller might confuse (a table top and the
-#: floor: 0.7 m; a wall and the door in it: a few cm, flagged when the poses are good).
-MAX_KEYFRAME_ANGLE = 5.0
-MAX_KEYFRAME_OFFSET = 0.05
+#: from two keyframes of one track for them to be one surface (see :data:`annotate_rgbd.lift.SAME_SURFACE_ANGLE`).
+MAX_KEYFRAME_ANGLE = SAME_SURFACE_ANGLE
+MAX_KEYFRAME_OFFSET = SAME_SURFACE_OFFSET
 #: A keyframe off its track's agreed plane makes the track "inconsistent" (a warning, the
 #: review queue) only when its shape holds at least this share of the valid depth pixels of
 #: the track's largest keyframe: a sliver of a plane leaving the view is mostly another

@@ -9,6 +9,7 @@ import numpy as np
 import open3d as o3d
 
 from .config import RansacConfig
+from .lift import SAME_SURFACE_ANGLE, SAME_SURFACE_OFFSET, plane_agreement
 from .noise import NoiseSettings
 from .planefit import refit_plane
 
@@ -39,6 +40,11 @@ BEHIND_SHARE = 0.3
 MAX_BEHIND = 2
 #: Planes tried among the points behind, largest first.
 BEHIND_CANDIDATES = 3
+#: Open3D's default confidence for stopping RANSAC early.
+DEFAULT_PROBABILITY = 0.99999999
+#: For a shape carried by poses, RANSAC runs again through all its iterations when its plane
+#: holds under this share of the points (a wall half covered by a whiteboard).
+EXHAUSTIVE_BELOW = 0.6
 #: The share of a plane's points that may lie behind a plane that replaces it (noise, edges).
 IN_FRONT_SLACK = 0.02
 
@@ -76,7 +82,10 @@ class PlaneFit:
     noise_scale: float = 1.0
 
 
-def fit_plane(points: np.ndarray, config: RansacConfig, noise: NoiseSettings, look_behind: bool = True) -> PlaneFit:
+def fit_plane(
+    points: np.ndarray, config: RansacConfig, noise: NoiseSettings, look_behind: bool = True,
+    expected: np.ndarray | None = None,
+) -> PlaneFit:
     """Find a plane among 3-D points with Open3D's RANSAC, then re-fit it to its inliers.
 
     RANSAC searches for the plane among at most ``config.max_points`` of the points, taken
@@ -102,7 +111,12 @@ def fit_plane(points: np.ndarray, config: RansacConfig, noise: NoiseSettings, lo
         The inlier band (:meth:`annotate_rgbd.config.Config.noise_settings`).
     look_behind : bool
         False for points of a shape no labeller drew on this frame (projected from keyframes on
-        other frames, which may run past the plane's edge onto a surface behind it).
+        other frames, which may run past the plane's edge onto a surface behind it), unless
+        ``expected`` says which plane it is.
+    expected : ndarray, shape (4,), optional
+        Where camera poses put the plane in this frame (a track's keyframe plane): a surface
+        behind replaces RANSAC's plane only when it is that one (within
+        :data:`annotate_rgbd.lift.SAME_SURFACE_ANGLE` and ``SAME_SURFACE_OFFSET``).
 
     Returns
     -------
@@ -116,9 +130,14 @@ def fit_plane(points: np.ndarray, config: RansacConfig, noise: NoiseSettings, lo
             sample = points[: max(config.max_points, 3)]
     threshold = RANSAC_SHARE * float(noise.band(np.median(sample[:, 2])))
     equation, inliers = _ransac(sample, threshold, config)
+    if expected is not None and inliers < EXHAUSTIVE_BELOW * len(sample):
+        # Open3D stops searching once its plane is likely the best given the share of points it
+        # holds; with two surfaces of about half each it can stop on a plane leaning between them.
+        again = _ransac(sample, threshold, config, exhaustive=True)
+        equation, inliers = again if again[1] > inliers else (equation, inliers)
     band = noise.band(sample[:, 2])
-    for _ in range(MAX_BEHIND if look_behind else 0):
-        found = _surface_behind(sample, band, equation, inliers, threshold, config)
+    for _ in range(MAX_BEHIND if look_behind or expected is not None else 0):
+        found = _surface_behind(sample, band, equation, inliers, threshold, config, expected)
         if found is None:
             break
         equation, inliers = found
@@ -140,6 +159,7 @@ def fit_plane(points: np.ndarray, config: RansacConfig, noise: NoiseSettings, lo
 
 def _surface_behind(
     sample: np.ndarray, band: np.ndarray, equation: np.ndarray, inliers: int, threshold: float, config: RansacConfig,
+    expected: np.ndarray | None = None,
 ) -> tuple[np.ndarray, int] | None:
     """A plane behind ``equation`` that the polygon was drawn for, or None.
 
@@ -149,7 +169,8 @@ def _surface_behind(
     the plane's own points lie in front of that one, RANSAC took an object for the plane: the
     top of a carton on a floor that it mostly hides, a picture on a sliver of wall. Planes
     behind that the plane's points are not in front of (a carton's side seen behind its top:
-    the top is behind the side, too) are set aside, and the next one tried.
+    the top is behind the side, too) are set aside, and the next one tried; so are planes other
+    than the ``expected`` one, when given.
     """
     on_plane = np.abs(sample @ equation[:3] + equation[3]) <= threshold
     behind = sample @ equation[:3] + equation[3] < -band
@@ -160,13 +181,20 @@ def _surface_behind(
         if found < BEHIND_SHARE * inliers:
             return None
         signed = sample @ candidate[:3] + candidate[3]
-        if np.count_nonzero(on_plane & (signed < -band)) <= IN_FRONT_SLACK * np.count_nonzero(on_plane):
+        in_front = np.count_nonzero(on_plane & (signed < -band)) <= IN_FRONT_SLACK * np.count_nonzero(on_plane)
+        if in_front and (expected is None or _same_surface(candidate, expected, sample[np.abs(signed) <= threshold])):
             return candidate, found
         behind &= np.abs(signed) > threshold  # set that plane aside
     return None
 
 
-def _ransac(sample: np.ndarray, threshold: float, config: RansacConfig) -> tuple[np.ndarray, int]:
+def _same_surface(plane: np.ndarray, expected: np.ndarray, points: np.ndarray) -> bool:
+    """Whether ``plane`` is the ``expected`` one, compared at the centre of its ``points``."""
+    angle, offset = plane_agreement(expected, plane, at=points.mean(axis=0))
+    return angle <= SAME_SURFACE_ANGLE and offset <= SAME_SURFACE_OFFSET
+
+
+def _ransac(sample: np.ndarray, threshold: float, config: RansacConfig, exhaustive: bool = False) -> tuple[np.ndarray, int]:
     """Open3D's RANSAC plane through ``sample`` (unit normal towards the camera) and its number
     of inliers within ``threshold``."""
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.ascontiguousarray(sample)))
@@ -175,7 +203,8 @@ def _ransac(sample: np.ndarray, threshold: float, config: RansacConfig) -> tuple
     try:
         o3d.utility.random.seed(config.seed)
         model, inliers = cloud.segment_plane(distance_threshold=threshold, ransac_n=3,
-                                             num_iterations=config.num_iterations)
+                                             num_iterations=config.num_iterations,
+                                             probability=1.0 if exhaustive else DEFAULT_PROBABILITY)
     finally:
         o3d.utility.set_max_threads(threads)
     equation = np.asarray(model, dtype=np.float64)

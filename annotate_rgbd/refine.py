@@ -4,7 +4,7 @@
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import Collection
+from typing import Collection, Mapping
 
 import cv2
 import numpy as np
@@ -26,6 +26,7 @@ def refine_planes(
     valid_pixels: np.ndarray | None = None,
     rim_pixels: int = 0,
     propagated: Collection[int] = (),
+    expected: Mapping[int, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, dict[int, PlaneFit]]:
     """Keep, for each plane, only its pixels with valid depth that lie on its fitted plane.
 
@@ -59,7 +60,10 @@ def refine_planes(
         Drop inliers this close (px) to a surface in front of their plane; 0: none.
     propagated : collection of int
         Planes whose shapes no labeller drew on this frame (carried here by camera poses): their
-        fits do not look behind RANSAC's plane (:func:`fit_plane`).
+        fits look behind RANSAC's plane (:func:`annotate_rgbd.ransac.fit_plane`) only for the
+        plane ``expected`` says.
+    expected : mapping of int to ndarray, shape (4,), optional
+        Where camera poses put each of those planes in this frame.
 
     Returns
     -------
@@ -82,7 +86,7 @@ def refine_planes(
         if rows.size < 3:
             continue
         fit = fit_plane(backproject(cols, rows, depth_m[rows, cols], camera), config, noise,
-                        look_behind=plane_id not in propagated)
+                        look_behind=plane_id not in propagated, expected=(expected or {}).get(plane_id))
         fits[plane_id] = fit
         table[plane_id] = fit.equation
         scales[plane_id] = fit.noise_scale

@@ -22,7 +22,7 @@ import os
 from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
-from typing import IO, Iterator, Sequence
+from typing import IO, Collection, Iterator, Sequence
 
 import numpy as np
 
@@ -45,7 +45,8 @@ MAX_RECORDS_BYTES = 1 << 30
 
 
 def fingerprint(
-    shapes: Sequence[tuple[int, Shape]], image_size: tuple[int, int] | None, config: Config, depth: bytes | np.ndarray
+    shapes: Sequence[tuple[int, Shape]], image_size: tuple[int, int] | None, config: Config, depth: bytes | np.ndarray,
+    propagated: Collection[int] | None = None, expected_planes: Sequence[tuple[int, Sequence[float]]] = (),
 ) -> str:
     """Hash of everything one mask depends on.
 
@@ -58,6 +59,10 @@ def fingerprint(
     config : Config
     depth : bytes or ndarray of uint8
         The bytes of the job's depth image file.
+    propagated : collection of int, optional
+        The planes whose shapes camera poses carried to the frame.
+    expected_planes : sequence of (int, (a, b, c, d))
+        Where the poses put them (:class:`annotate_rgbd.frame_job.FrameJob`).
 
     Returns
     -------
@@ -73,6 +78,11 @@ def fingerprint(
         if shape.bitmap is not None:
             digest.update(f"{shape.bitmap.shape}".encode())
             digest.update(np.packbits(shape.bitmap).tobytes())
+    if propagated:
+        digest.update(f"propagated:{sorted(propagated)}".encode())
+    for plane_id, equation in expected_planes:
+        digest.update(f"expected:{plane_id}:".encode())
+        digest.update(np.asarray(equation, dtype=np.float64).tobytes())
     return digest.hexdigest()
 
 

@@ -7,7 +7,7 @@ RANSAC. A pure function of the depth image, the shapes and the configuration.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Collection, Sequence
+from typing import Collection, Mapping, Sequence
 
 import numpy as np
 
@@ -15,7 +15,7 @@ from .annotation import Shape
 from .camera import depth_to_metres
 from .config import Config
 from .filters import drop_reasons, label_histogram, plane_statistics
-from .grow import grow_planes
+from .grow import grow_connected, grow_planes
 from .rasterize import rasterize_frame
 from .records import PlaneRecord
 from .refine import refine_planes
@@ -43,7 +43,8 @@ class FrameResult:
 
 
 def segment_frame(
-    depth_raw: np.ndarray, shapes: Sequence[tuple[int, Shape]], config: Config, propagated: Collection[int] = ()
+    depth_raw: np.ndarray, shapes: Sequence[tuple[int, Shape]], config: Config, propagated: Collection[int] = (),
+    expected: Mapping[int, np.ndarray] | None = None,
 ) -> FrameResult:
     """Rasterise, filter and refine the planes of one depth frame.
 
@@ -58,6 +59,8 @@ def segment_frame(
         Planes whose shapes camera poses carried here from keyframes on other frames: no
         labeller drew them over this frame (:func:`annotate_rgbd.ransac.fit_plane`'s
         ``look_behind``).
+    expected : mapping of int to ndarray, shape (4,), optional
+        Where camera poses put those planes in this frame (camera frame, metres).
 
     Returns
     -------
@@ -74,12 +77,20 @@ def segment_frame(
     band = config.inlier_band()
     refined, fits = refine_planes(
         drawn, depth_m, stats.plane_ids[kept], config.camera, config.ransac, band, stats.valid_pixels[kept],
-        config.refine.rim_pixels, propagated,
+        config.refine.rim_pixels, propagated, expected,
     )
     inlier_count = label_histogram(refined, int(drawn.max(initial=0)) + 1)
     equations = {plane_id: fit.equation for plane_id, fit in fits.items()}
     labels, grown = grow_planes(refined, drawn, depth_m, equations, config.camera, band.model, band.k, band.floor,
                                 band.cap, config.refine.grow_pixels)
+    carried = {plane_id: equation for plane_id, equation in equations.items() if plane_id in propagated}
+    if carried and config.refine.grow_pixels:
+        # Where a plane went on beyond every keyframe's view, nobody outlined it; shapes carried
+        # by poses (an outline's extension past a keyframe's border above all) are guesses.
+        claimed = (drawn > 0) & ~np.isin(drawn, list(propagated))
+        labels, beyond = grow_connected(labels, drawn, claimed, depth_m, carried, config.camera, band.model, band.k,
+                                        band.floor, band.cap)
+        grown = {plane_id: count + beyond.get(plane_id, 0) for plane_id, count in grown.items()}
     result = FrameResult(labels=labels, drawn=drawn)
     for i, plane_id in enumerate(stats.plane_ids.tolist()):
         measured = dict(

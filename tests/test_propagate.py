@@ -240,10 +240,10 @@ def test_outline_edges_on_the_image_border_are_carried_past_it():
     assert beyond_the_border(np.array([[0.0, 100.0], [200.0, 480.0], [200.0, 100.0]]), (640, 480)) == []
 
 
-def test_planes_cut_by_the_keyframes_view_are_carried_past_it(tmp_path):
+def test_planes_cut_by_the_keyframes_view_are_carried_past_it(tmp_path, monkeypatch):
     # The contact scene's walk turns from the back wall to the table: the floor and walls come
     # into view past where the keyframes (every 10th frame) saw them end at the image border.
-    from annotate_rgbd import propagate
+    from annotate_rgbd import propagate, segment
     from annotate_rgbd.synthetic.contact import contact_scene, contact_trajectory
 
     frames = 30
@@ -254,13 +254,14 @@ def test_planes_cut_by_the_keyframes_view_are_carried_past_it(tmp_path):
     write_cvat_video(annotation, keyframes, width=320, height=240, keyframe_step=10, keyframes_only=True)
     config = load_config(None, {"camera.fx": 262.5, "camera.fy": 262.5, "camera.cx": 159.5, "camera.cy": 119.5})
     sequence, poses, truth = tmp_path / "sequence", tmp_path / "sequence" / "groundtruth.txt", tmp_path / "sequence" / "ground_truth"
-    beyond = run_cvat2mask(sequence, [keyframes], tmp_path / "beyond", config, poses=poses)
-    assert any(k.beyond for lift in beyond.plan.propagation.lifts.values() for k in lift.keyframes)
-    saved = propagate.BEYOND_REACH
-    propagate.BEYOND_REACH = 0.0
-    try:
-        run_cvat2mask(sequence, [keyframes], tmp_path / "cut", config, poses=poses)
-    finally:
-        propagate.BEYOND_REACH = saved
+    both = run_cvat2mask(sequence, [keyframes], tmp_path / "both", config, poses=poses)
+    assert any(k.beyond for lift in both.plan.propagation.lifts.values() for k in lift.keyframes)
+    # The outlines carried past the border, on their own: without growing past the shapes.
+    monkeypatch.setattr(segment, "grow_connected", lambda labels, *args: (labels.copy(), {}))
+    run_cvat2mask(sequence, [keyframes], tmp_path / "beyond", config, poses=poses)
+    monkeypatch.setattr(propagate, "BEYOND_REACH", 0.0)
+    run_cvat2mask(sequence, [keyframes], tmp_path / "cut", config, poses=poses)
     with_beyond, without = _mean_iou(tmp_path / "beyond", truth), _mean_iou(tmp_path / "cut", truth)
     assert with_beyond > without + 0.005, (with_beyond, without)
+    # Growing over the plane past every keyframe's view adds to that.
+    assert _mean_iou(tmp_path / "both", truth) > with_beyond, with_beyond
