@@ -116,7 +116,9 @@ def fit_plane(
     expected : ndarray, shape (4,), optional
         Where camera poses put the plane in this frame (a track's keyframe plane): a surface
         behind replaces RANSAC's plane only when it is that one (within
-        :data:`annotate_rgbd.lift.SAME_SURFACE_ANGLE` and ``SAME_SURFACE_OFFSET``).
+        :data:`annotate_rgbd.lift.SAME_SURFACE_ANGLE` and ``SAME_SURFACE_OFFSET``); and when
+        RANSAC's plane holds under :data:`EXHAUSTIVE_BELOW` of the points, RANSAC runs again
+        through all its iterations (the plane with more inliers is kept).
 
     Returns
     -------
