@@ -133,3 +133,31 @@ def test_only_planes_carried_by_poses_grow_past_their_shapes():
     off = load_config(None, {"camera.fx": CAMERA.fx, "camera.fy": CAMERA.fy, "camera.cx": CAMERA.cx,
                              "camera.cy": CAMERA.cy, "refine.grow_pixels": 0})
     assert not segment_frame(raw, [(1, shape)], off, propagated={1}).labels[beyond].any()
+
+
+def test_a_carried_shape_whose_ransac_plane_holds_few_points_gets_an_exhaustive_search(monkeypatch):
+    # Open3D stops early once its plane likely is the best given the share it holds; with two
+    # surfaces of about half each that can be a plane leaning between them. Stand-in RANSAC: the
+    # early stop returns a leaning plane, the exhaustive search the wall's own.
+    from annotate_rgbd import ransac
+
+    rng = np.random.default_rng(7)
+    wall = np.column_stack([rng.uniform(-1, 1, 600), rng.uniform(-1, 1, 600), np.full(600, 2.0)])
+    board = np.column_stack([rng.uniform(-0.5, 0.5, 400), rng.uniform(-0.5, 0.5, 400), np.full(400, 1.95)])
+    points = np.vstack([wall, board])
+    leaning = np.array([0.02, 0.0, -1.0, 1.99]) / np.linalg.norm([0.02, 0.0, -1.0])
+    calls = []
+
+    def stand_in(sample, threshold, config, exhaustive=False):
+        calls.append(exhaustive)
+        return (np.array([0.0, 0.0, -1.0, 2.0]), 550) if exhaustive else (leaning, 450)
+
+    monkeypatch.setattr(ransac, "_ransac", stand_in)
+    expected = np.array([0.0, 0.0, -1.0, 2.01])
+    fit = fit_plane(points, RansacConfig(max_points=0), KINECT, look_behind=False, expected=expected)
+    assert calls[:2] == [False, True]
+    assert abs(fit.equation[3] - 2.0) < 0.001 and abs(fit.equation[2]) > 0.9999
+    # Drawn shapes (no expected plane) keep Open3D's own stopping rule.
+    calls.clear()
+    fit_plane(points, RansacConfig(max_points=0), KINECT, look_behind=False)
+    assert calls == [False]
