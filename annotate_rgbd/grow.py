@@ -141,11 +141,14 @@ def grow_connected(
     plane went on beyond every keyframe's view (the labeller never outlined that part).
 
     Plane ``p`` takes a pixel outside its own shape when it is not ``claimed`` and no plane
-    holds it (``labels == 0``), its depth is valid, its 3-D point lies within ``clip(k sigma(z), floor,
-    cap)`` of ``p``'s plane, its window of such pixels passes refinement's window test
-    (:func:`annotate_rgbd.refine.window_scores` within :data:`annotate_rgbd.refine.COHERENCE_LIMIT`
-    of 0: a doormat on a floor lies within its band), and a chain of such pixels (8-connected)
-    links it to ``p``'s own pixels. Planes grow in increasing id order; a pixel one has taken is no longer free.
+    holds it (``labels == 0``), its depth is valid, its 3-D point lies within ``clip(k sigma(z),
+    floor, cap)`` of ``p``'s plane and of no other growing plane more closely (a tie: the lowest
+    id), the mean residual of its window (:func:`annotate_rgbd.refine.window_scores` over these
+    pixels and the planes' own, in units of the model's noise) lies within
+    :data:`annotate_rgbd.refine.COHERENCE_LIMIT` of 0 (a doormat on a floor lies within its band),
+    and a chain of such pixels (8-connected) links it to ``p``'s own pixels. Unlike refinement's
+    window test there is no per-plane centre and spread, and the band is the model's (not scaled
+    by the plane's noise): on a sensor noisier than its model it grows less, never more.
 
     Parameters
     ----------
@@ -191,6 +194,7 @@ def grow_connected(
     candidate = np.zeros(labels.shape, dtype=np.int64)
     best = np.full(labels.shape, np.inf, dtype=np.float32)
     residual = np.zeros(labels.shape, dtype=np.float32)
+    own = np.isin(labels, ids)
     # Each free pixel goes to the nearest plane it lies on (a tie: the lowest id), but never to a
     # plane whose own shape covers it: those pixels refinement left out (a whiteboard on a wall).
     for plane_id in ids:
@@ -200,10 +204,10 @@ def grow_connected(
             closer = free & (np.abs(signed) <= band) & (np.abs(signed) < best) & (drawn != plane_id)
         candidate[closer] = plane_id
         best[closer] = np.abs(signed[closer])
-        residual[closer] = signed[closer] * np.float32(k) / band[closer]
+        mine = (labels == plane_id) & np.isfinite(signed)
+        residual[closer | mine] = signed[closer | mine] * np.float32(k) / band[closer | mine]
     # The window test of refinement (a doormat on the floor lies within its band): residuals in
     # noise units, averaged over each candidate's window, must look like the plane's noise.
-    own = np.isin(labels, ids)
     score, usable = window_scores(residual, own | (candidate > 0))
     candidate[~(usable & (np.abs(score) <= COHERENCE_LIMIT))] = 0
     for plane_id in ids:

@@ -38,6 +38,13 @@ MIN_NOISE_SCALE = 1.15
 #: replaces it (see :func:`fit_plane`), at most MAX_BEHIND times in a row.
 BEHIND_SHARE = 0.3
 MAX_BEHIND = 2
+#: Fewest points a surface behind must hold (a few stray points always make a plane).
+MIN_BEHIND_POINTS = 10
+#: Farthest a surface behind may lie (m, at its own points): an object standing on a plane is
+#: rarely taller than this (the carton on the benchmark's floor: 0.3 m); a surface farther
+#: behind is seen through an opening in the plane (a doorway, a window), which labellers do
+#: draw over.
+MAX_BEHIND_DEPTH = 0.5
 #: Planes tried among the points behind, largest first.
 BEHIND_CANDIDATES = 3
 #: Open3D's default confidence for stopping RANSAC early.
@@ -67,7 +74,8 @@ class PlaneFit:
         stands for (``band / k``); about 1 when the noise model fits the sensor. NaN without
         inliers.
     inliers_ransac, inliers_refit : int
-        Inliers among the input points of RANSAC's plane and of the re-fitted plane.
+        Inliers among the input points of RANSAC's plane (or of the surface behind that replaced
+        it) and of the re-fitted plane.
     noise_scale : float
         How much noisier than the model the plane's points are (:data:`MAX_NOISE_SCALE`);
         the band, the re-fit's weights and the inlier test use the scaled noise.
@@ -166,9 +174,10 @@ def _surface_behind(
     """A plane behind ``equation`` that the polygon was drawn for, or None.
 
     A polygon is drawn over what lies on its plane and in front of it, never over a surface
-    behind it (but for a pixel or two along its edges). When the points behind RANSAC's plane
-    (beyond the band) hold a plane with at least :data:`BEHIND_SHARE` of its ``inliers``, and
-    the plane's own points lie in front of that one, RANSAC took an object for the plane: the
+    behind it (but for a pixel or two along its edges, and openings such as a doorway). When
+    the points behind RANSAC's plane (beyond the band, within :data:`MAX_BEHIND_DEPTH`) hold a
+    plane with at least :data:`BEHIND_SHARE` of its ``inliers`` (and :data:`MIN_BEHIND_POINTS`),
+    and the plane's own points lie in front of that one, RANSAC took an object for the plane: the
     top of a carton on a floor that it mostly hides, a picture on a sliver of wall. Planes
     behind that the plane's points are not in front of (a carton's side seen behind its top:
     the top is behind the side, too) are set aside, and the next one tried; so are planes other
@@ -177,14 +186,16 @@ def _surface_behind(
     on_plane = np.abs(sample @ equation[:3] + equation[3]) <= threshold
     behind = sample @ equation[:3] + equation[3] < -band
     for _ in range(BEHIND_CANDIDATES):
-        if np.count_nonzero(behind) < max(BEHIND_SHARE * inliers, 3):
+        if np.count_nonzero(behind) < max(BEHIND_SHARE * inliers, MIN_BEHIND_POINTS):
             return None
         candidate, found = _ransac(sample[behind], threshold, config)
-        if found < BEHIND_SHARE * inliers:
+        if found < max(BEHIND_SHARE * inliers, MIN_BEHIND_POINTS):
             return None
         signed = sample @ candidate[:3] + candidate[3]
+        on_candidate = np.abs(signed) <= threshold
         in_front = np.count_nonzero(on_plane & (signed < -band)) <= IN_FRONT_SLACK * np.count_nonzero(on_plane)
-        if in_front and (expected is None or _same_surface(candidate, expected, sample[np.abs(signed) <= threshold])):
+        near = -np.median(sample[on_candidate] @ equation[:3] + equation[3]) <= MAX_BEHIND_DEPTH
+        if in_front and near and (expected is None or _same_surface(candidate, expected, sample[on_candidate])):
             return candidate, found
         behind &= np.abs(signed) > threshold  # set that plane aside
     return None

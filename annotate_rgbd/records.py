@@ -61,7 +61,8 @@ class PlaneRecord:
         widened by it; 1 when the model fits, :data:`annotate_rgbd.ransac.MAX_NOISE_SCALE` at most).
     fit_points, fit_inliers_ransac, fit_inliers_refit : int, optional
         Kept planes: the grid points the plane was fitted to, and how many of them lie within
-        the band of RANSAC's plane and of the plane re-fitted to its inliers.
+        the band of RANSAC's plane (or of the surface behind that replaced it) and of the plane
+        re-fitted to its inliers.
     grown : int, optional
         Kept planes: pixels outside the drawn shape added by edge growing (the mask holds
         ``inliers + grown`` pixels of the plane).

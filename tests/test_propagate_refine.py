@@ -141,23 +141,24 @@ def test_a_carried_shape_whose_ransac_plane_holds_few_points_gets_an_exhaustive_
     # early stop returns a leaning plane, the exhaustive search the wall's own.
     from annotate_rgbd import ransac
 
+    # The early stop returns a recess 10 cm deep in the wall (nothing lies behind it to look for),
+    # the exhaustive search the wall.
     rng = np.random.default_rng(7)
     wall = np.column_stack([rng.uniform(-1, 1, 600), rng.uniform(-1, 1, 600), np.full(600, 2.0)])
-    board = np.column_stack([rng.uniform(-0.5, 0.5, 400), rng.uniform(-0.5, 0.5, 400), np.full(400, 1.95)])
-    points = np.vstack([wall, board])
-    leaning = np.array([0.02, 0.0, -1.0, 1.99]) / np.linalg.norm([0.02, 0.0, -1.0])
+    recess = np.column_stack([rng.uniform(-0.5, 0.5, 400), rng.uniform(-0.5, 0.5, 400), np.full(400, 2.10)])
+    points = np.vstack([wall, recess])
     calls = []
 
     def stand_in(sample, threshold, config, exhaustive=False):
         calls.append(exhaustive)
-        return (np.array([0.0, 0.0, -1.0, 2.0]), 550) if exhaustive else (leaning, 450)
+        return (np.array([0.0, 0.0, -1.0, 2.0]), 550) if exhaustive else (np.array([0.0, 0.0, -1.0, 2.10]), 450)
 
     monkeypatch.setattr(ransac, "_ransac", stand_in)
-    expected = np.array([0.0, 0.0, -1.0, 2.01])
+    expected = np.array([0.0, 0.0, -1.0, 2.0])
     fit = fit_plane(points, RansacConfig(max_points=0), KINECT, look_behind=False, expected=expected)
     assert calls[:2] == [False, True]
     assert abs(fit.equation[3] - 2.0) < 0.001 and abs(fit.equation[2]) > 0.9999
-    # Drawn shapes (no expected plane) keep Open3D's own stopping rule.
+    # Drawn shapes (no expected plane) keep Open3D's own stopping rule: the recess it stopped on.
     calls.clear()
-    fit_plane(points, RansacConfig(max_points=0), KINECT, look_behind=False)
-    assert calls == [False]
+    fit = fit_plane(points, RansacConfig(max_points=0), KINECT)
+    assert True not in calls and abs(fit.equation[3] - 2.10) < 0.001

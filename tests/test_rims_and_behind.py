@@ -153,6 +153,24 @@ def test_a_strip_behind_the_plane_smaller_than_the_share_is_not_taken():
     assert through(fit_plane(points, RansacConfig(max_points=0), KINECT).equation, floor_y)
 
 
+def test_what_shows_through_an_opening_or_a_few_stray_points_do_not_replace_the_plane():
+    rng = np.random.default_rng(8)
+    wall = np.column_stack([rng.uniform(-1, 1, 1000), rng.uniform(-1, 1, 1000), np.full(1000, 2.0)])
+    # A doorway in the wall drawn over, the next room's wall 1 m behind: not an object on it.
+    room = np.column_stack([rng.uniform(-0.3, 0.3, 400), rng.uniform(-0.3, 0.6, 400), np.full(400, 3.0)])
+    fit = fit_plane(np.vstack([wall, room]), RansacConfig(max_points=0), KINECT)
+    assert abs(fit.equation[3] - 2.0) < 0.01 and abs(fit.equation[2]) > 0.999
+    # 30 cm behind (a carton's height), the same points are the plane the shape was drawn for.
+    room[:, 2] = 2.3
+    fit = fit_plane(np.vstack([wall[:600], room]), RansacConfig(max_points=0), KINECT)
+    assert abs(fit.equation[3] - 2.3) < 0.01
+    # A tiny shape: three stray points behind ten on the wall always make a plane of their own.
+    for seed in range(20):
+        rng = np.random.default_rng(seed)
+        few = np.vstack([wall[:10], np.column_stack([rng.uniform(-1, 1, 3), rng.uniform(-1, 1, 3), rng.uniform(2.2, 2.4, 3)])])
+        assert abs(fit_plane(few, RansacConfig(max_points=0), KINECT).equation[3] - 2.0) < 0.01, seed
+
+
 def test_shapes_carried_by_poses_do_not_look_behind():
     # A floor seen at the bottom of the image, with a box standing on it that covers more of
     # the floor's shape than the floor does.
@@ -169,3 +187,11 @@ def test_shapes_carried_by_poses_do_not_look_behind():
     floor = (rows >= 80) & ~box & (ndimage.distance_transform_edt(~box) > 2)  # beyond the box's rim
     assert drawn.labels[floor].mean() > 0.95 and not drawn.labels[box].any()
     assert carried.labels[box].mean() > 0.9 and not carried.labels[floor].any()
+    # What poses carry always comes with the plane they expect: the floor is taken from behind
+    # when it is that plane, not when the box's top is (a table top's shape run past its edge).
+    floor_plane = {1: np.array([0.0, -1.0, 0.0, 0.5])}
+    top_plane = {1: np.array([0.0, -1.0, 0.0, 0.35])}
+    expect_floor = segment_frame(raw, [(1, shape)], config, propagated={1}, expected=floor_plane)
+    expect_top = segment_frame(raw, [(1, shape)], config, propagated={1}, expected=top_plane)
+    assert expect_floor.labels[floor].mean() > 0.95 and not expect_floor.labels[box].any()
+    assert expect_top.labels[box].mean() > 0.9 and not expect_top.labels[floor].any()
