@@ -79,6 +79,8 @@ class PlaneFit:
     noise_scale : float
         How much noisier than the model the plane's points are (:data:`MAX_NOISE_SCALE`);
         the band, the re-fit's weights and the inlier test use the scaled noise.
+    surface_behind : bool
+        Whether a surface behind RANSAC's plane replaced it (:func:`_surface_behind`).
     """
 
     equation: np.ndarray
@@ -88,6 +90,7 @@ class PlaneFit:
     inliers_ransac: int = 0
     inliers_refit: int = 0
     noise_scale: float = 1.0
+    surface_behind: bool = False
 
 
 def fit_plane(
@@ -146,11 +149,12 @@ def fit_plane(
         again = _ransac(sample, threshold, config, exhaustive=True)
         equation, inliers = again if again[1] > inliers else (equation, inliers)
     band = noise.band(sample[:, 2])
+    behind = False
     for _ in range(MAX_BEHIND if look_behind or expected is not None else 0):
         found = _surface_behind(sample, band, equation, inliers, threshold, config, expected)
         if found is None:
             break
-        equation, inliers = found
+        (equation, inliers), behind = found, True
     refit = refit_plane(points, equation, noise.model, noise.k, noise.floor, noise.cap, iterations=REFITS, fit_points=0)
     rms_sigma, before, scale = refit.rms_sigma, refit.inliers_before, 1.0
     for _ in range(2):  # the first estimate sees a band truncated at the model's k sigma
@@ -164,7 +168,8 @@ def fit_plane(
     equation = refit.equation / np.linalg.norm(refit.equation[:3])
     if equation[3] < 0:
         equation = -equation
-    return PlaneFit(equation, refit.inliers, refit.band_at_median, rms_sigma, before, refit.inliers_after, scale)
+    return PlaneFit(equation, refit.inliers, refit.band_at_median, rms_sigma, before, refit.inliers_after, scale,
+                    surface_behind=behind)
 
 
 def _surface_behind(

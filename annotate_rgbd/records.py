@@ -66,6 +66,9 @@ class PlaneRecord:
     grown : int, optional
         Kept planes: pixels outside the drawn shape added by edge growing (the mask holds
         ``inliers + grown`` pixels of the plane).
+    surface_behind : bool, optional
+        Kept planes: whether the plane is a surface behind RANSAC's first plane, which an object
+        covering most of the shape had won (worth a look).
     propagated : bool, optional
         With camera poses: whether the plane's shape was carried here by the poses from
         keyframes on other frames (False: drawn on this frame's keyframe). None without poses.
@@ -89,6 +92,7 @@ class PlaneRecord:
     fit_inliers_ransac: int | None = None
     fit_inliers_refit: int | None = None
     grown: int | None = None
+    surface_behind: bool | None = None
     reason: str | None = None
     invalid_ratio: float | None = None
     propagated: bool | None = None
@@ -112,7 +116,7 @@ class PlaneRecord:
                          band=self.band, rms_sigma=self.rms_sigma, noise_scale=self.noise_scale,
                          fit_points=self.fit_points,
                          fit_inliers_ransac=self.fit_inliers_ransac, fit_inliers_refit=self.fit_inliers_refit,
-                         grown=self.grown)
+                         grown=self.grown, surface_behind=self.surface_behind)
         else:
             entry.update(reason=self.reason, invalid_ratio=self.invalid_ratio)
         if self.propagated is not None:
@@ -145,6 +149,7 @@ class PlaneRecord:
             fit_inliers_ransac=_optional_int(entry, "fit_inliers_ransac"),
             fit_inliers_refit=_optional_int(entry, "fit_inliers_refit"),
             grown=_optional_int(entry, "grown"),
+            surface_behind=entry["surface_behind"] if isinstance(entry.get("surface_behind"), bool) else None,
             reason=_text(entry, "reason", optional=True),
             invalid_ratio=_number(entry, "invalid_ratio", optional=True),
             propagated=entry["propagated"] if isinstance(entry.get("propagated"), bool) else None,

@@ -111,6 +111,7 @@ def segment_frame(
                 noise_scale=round(fit.noise_scale, 4),
                 fit_points=len(fit.inliers),
                 fit_inliers_ransac=fit.inliers_ransac,
+                surface_behind=fit.surface_behind,
                 fit_inliers_refit=fit.inliers_refit,
                 grown=grown.get(plane_id, 0),
             ))

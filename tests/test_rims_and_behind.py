@@ -131,9 +131,11 @@ def through(equation, y, z=2.25):
 
 def test_a_floor_mostly_hidden_by_a_carton_is_found_behind_the_carton_top():
     points, floor_y, top_y = floor_under_carton(np.random.default_rng(4))
-    assert through(fit_plane(points, RansacConfig(max_points=0), KINECT).equation, floor_y)
+    fit = fit_plane(points, RansacConfig(max_points=0), KINECT)
+    assert through(fit.equation, floor_y) and fit.surface_behind
     # Without looking behind (a shape carried from other frames), RANSAC's larger surface.
-    assert through(fit_plane(points, RansacConfig(max_points=0), KINECT, look_behind=False).equation, top_y)
+    fit = fit_plane(points, RansacConfig(max_points=0), KINECT, look_behind=False)
+    assert through(fit.equation, top_y) and not fit.surface_behind
 
 
 def test_a_plane_whose_points_lie_behind_the_first_is_not_taken():
@@ -187,6 +189,10 @@ def test_shapes_carried_by_poses_do_not_look_behind():
     floor = (rows >= 80) & ~box & (ndimage.distance_transform_edt(~box) > 2)  # beyond the box's rim
     assert drawn.labels[floor].mean() > 0.95 and not drawn.labels[box].any()
     assert carried.labels[box].mean() > 0.9 and not carried.labels[floor].any()
+    # The report says which plane was found behind what RANSAC took first.
+    assert drawn.kept[0].surface_behind is True and carried.kept[0].surface_behind is False
+    assert drawn.kept[0].to_json()["surface_behind"] is True
+    assert type(drawn.kept[0]).from_json(drawn.kept[0].to_json()) == drawn.kept[0]
     # What poses carry always comes with the plane they expect: the floor is taken from behind
     # when it is that plane, not when the box's top is (a table top's shape run past its edge).
     floor_plane = {1: np.array([0.0, -1.0, 0.0, 0.5])}
