@@ -15,7 +15,7 @@ import numpy as np
 
 from .camera import Camera, backproject
 from .noise import NoiseModel, inlier_band
-from .refine import COHERENCE_LIMIT, window_scores
+from .refine import COHERENCE_LIMIT, ids_nearby, signed_distances, window_scores
 
 
 def grow_planes(
@@ -81,20 +81,13 @@ def grow_planes(
     if grow_pixels == 0 or not grown:
         return labels, grown
     drawn = np.asarray(drawn)
-    g = int(grow_pixels)
-    offsets = np.arange(-g, g + 1)
-    disk = (offsets[:, None] ** 2 + offsets[None, :] ** 2 <= g * g).astype(np.uint8)
-    # Two candidate planes per pixel, from two dilations of the growing planes' shapes over the
-    # whole image: the highest and the lowest id within g pixels (a pixel within g pixels of
-    # three or more growing planes at once, where three shapes meet, considers those two).
+    # Two candidate planes per pixel: the highest and the lowest id of the growing planes' shapes
+    # within grow_pixels (a pixel that near three or more of them, where three shapes meet,
+    # considers those two).
     top = max(grown)
     growing = np.zeros(max(top, int(drawn.max(initial=0))) + 1, dtype=bool)
     growing[list(grown)] = True
-    work = np.float32 if top >= 2**16 else (np.uint16 if top >= 2**8 else np.uint8)  # types cv2.dilate takes
-    shapes = np.where(growing[drawn], drawn, 0).astype(work)
-    highest = cv2.dilate(shapes, disk, borderValue=0)
-    ceiling = work(top + 1)
-    lowest = cv2.dilate(np.where(shapes > 0, ceiling - shapes, 0).astype(work), disk, borderValue=0)
+    lowest, highest = ids_nearby(np.where(growing[drawn], drawn, 0), int(grow_pixels))
     free = (highest > 0) & (drawn == 0) & (refined == 0)
     rows, cols = np.nonzero(free)
     z = depth_m[rows, cols].astype(np.float64)
@@ -110,8 +103,7 @@ def grow_planes(
     best_id = np.zeros(rows.size, dtype=np.int64)
     best_distance = np.full(rows.size, np.inf)
     # Lowest id first, so that an equal distance keeps the lower id.
-    for candidates in (top + 1 - lowest[rows, cols].astype(np.int64), highest[rows, cols].astype(np.int64)):
-        candidates = np.where(candidates > top, 0, candidates)
+    for candidates in (lowest[rows, cols], highest[rows, cols]):
         plane = table[candidates]
         distance = np.abs(np.einsum("ij,ij->i", points, plane[:, :3]) + plane[:, 3])
         better = (candidates > 0) & (distance <= band) & (distance < best_distance)
@@ -186,10 +178,6 @@ def grow_connected(
         return labels, grown
     drawn = np.asarray(drawn)
     band = np.asarray(inlier_band(depth, model, k, floor, cap), dtype=np.float32)
-    # Distances of every pixel to each plane, image-wide in float32 (as refinement's inlier test):
-    # z (a x_n + b y_n + c) + d, with (x_n, y_n) the pixel's ray at z = 1.
-    x_n = ((np.arange(depth.shape[1], dtype=np.float32) - np.float32(camera.cx)) / np.float32(camera.fx))[None, :]
-    y_n = ((np.arange(depth.shape[0], dtype=np.float32) - np.float32(camera.cy)) / np.float32(camera.fy))[:, None]
     ids = sorted(grown)
     candidate = np.zeros(labels.shape, dtype=np.int64)
     best = np.full(labels.shape, np.inf, dtype=np.float32)
@@ -198,14 +186,13 @@ def grow_connected(
     # Each free pixel goes to the nearest plane it lies on (a tie: the lowest id), but never to a
     # plane whose own shape covers it: those pixels refinement left out (a whiteboard on a wall).
     for plane_id in ids:
-        a, b, c, d = (np.float32(v) for v in equations[plane_id])
+        signed = signed_distances(depth, *(np.float32(v) for v in equations[plane_id]), camera)
         with np.errstate(invalid="ignore"):
-            signed = depth * (a * x_n + b * y_n + c) + d
             closer = free & (np.abs(signed) <= band) & (np.abs(signed) < best) & (drawn != plane_id)
         candidate[closer] = plane_id
         best[closer] = np.abs(signed[closer])
-        mine = (labels == plane_id) & np.isfinite(signed)
-        residual[closer | mine] = signed[closer | mine] * np.float32(k) / band[closer | mine]
+        scored = closer | ((labels == plane_id) & np.isfinite(signed))
+        residual[scored] = signed[scored] * np.float32(k) / band[scored]
     # The window test of refinement (a doormat on the floor lies within its band): residuals in
     # noise units, averaged over each candidate's window, must look like the plane's noise.
     score, usable = window_scores(residual, own | (candidate > 0))

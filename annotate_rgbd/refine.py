@@ -163,14 +163,53 @@ def near_surfaces_in_front(in_front: np.ndarray, labels: np.ndarray, rim_pixels:
     surfaces = cv2.morphologyEx(in_front.astype(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)) > 0
     if not surfaces.any():
         return surfaces
-    offsets = np.arange(-rim_pixels, rim_pixels + 1)
-    disk = (offsets[:, None] ** 2 + offsets[None, :] ** 2 <= rim_pixels**2).astype(np.uint8)
-    # The highest and the lowest plane id of the surfaces nearby (two dilations, whatever the
-    # number of planes; where three planes' surfaces meet within a rim, the middle one is missed).
-    ids = labels.astype(np.float32)  # exact up to 2^24 plane ids
-    highest = cv2.dilate(np.where(surfaces, ids, np.float32(0)), disk)
-    lowest = -cv2.dilate(np.where(surfaces, -ids, np.float32(-np.inf)), disk)
-    return (labels > 0) & ((highest == ids) | (lowest == ids))
+    # Where three planes' surfaces meet within a rim, the middle one is missed.
+    lowest, highest = ids_nearby(np.where(surfaces, labels, 0), rim_pixels)
+    return (labels > 0) & ((highest == labels) | (lowest == labels))
+
+
+def ids_nearby(ids: np.ndarray, radius: int) -> tuple[np.ndarray, np.ndarray]:
+    """The lowest and the highest non-zero id within ``radius`` pixels (Euclidean) of each pixel.
+
+    Two image-wide dilations, whatever the number of ids (a pixel near three or more ids sees
+    only these two).
+
+    Parameters
+    ----------
+    ids : ndarray of non-negative int, shape (H, W)
+        0 = none.
+    radius : int
+
+    Returns
+    -------
+    lowest, highest : ndarray of int64, shape (H, W)
+        0 where no id lies within ``radius``.
+    """
+    offsets = np.arange(-radius, radius + 1)
+    disk = (offsets[:, None] ** 2 + offsets[None, :] ** 2 <= radius * radius).astype(np.uint8)
+    top = int(ids.max(initial=0))
+    # The narrowest type cv2.dilate takes that holds every id and top + 1 (float32: exact to 2^24).
+    work = np.float32 if top + 1 >= 2**16 else (np.uint16 if top + 1 >= 2**8 else np.uint8)
+    shapes = ids.astype(work)
+    highest = cv2.dilate(shapes, disk, borderValue=0).astype(np.int64)
+    # The lowest id as the highest of top + 1 - id.
+    flipped = cv2.dilate(np.where(shapes > 0, work(top + 1) - shapes, 0).astype(work), disk, borderValue=0)
+    lowest = np.where(flipped > 0, top + 1 - flipped.astype(np.int64), 0)
+    return lowest, highest
+
+
+def signed_distances(
+    depth_m: np.ndarray, a: np.ndarray | float, b: np.ndarray | float, c: np.ndarray | float, d: np.ndarray | float,
+    camera: Camera,
+) -> np.ndarray:
+    """Every pixel's signed distance (m) to the plane ``a x + b y + c z + d = 0`` (unit normal;
+    one plane, or one per pixel as images): ``z (a x_n + b y_n + c) + d`` with ``x_n = (col -
+    cx) / fx``, ``y_n = (row - cy) / fy`` the pixel's ray at ``z = 1``. float32 is ample: depth
+    has 0.2 mm steps, and bands are millimetres or more. NaN where the depth is."""
+    x_n = ((np.arange(depth_m.shape[1], dtype=np.float32) - np.float32(camera.cx)) / np.float32(camera.fx))[None, :]
+    y_n = ((np.arange(depth_m.shape[0], dtype=np.float32) - np.float32(camera.cy)) / np.float32(camera.fy))[:, None]
+    with np.errstate(invalid="ignore"):
+        return depth_m * (a * x_n + b * y_n + c) + d
 
 
 #: Side (px) of the window in which a plane's residuals are averaged to find surfaces that stand
@@ -320,15 +359,10 @@ def _inlier_test(
     """Pixels within their plane's band, and every pixel's signed distance to its plane in
     noise units (``k`` times distance over band); ``table`` holds each label's plane, zeros for
     a label without one."""
-    # Distance of every pixel to its own label's plane: z (a x_n + b y_n + c) + d with
-    # x_n = (col - cx) / fx, y_n = (row - cy) / fy the pixel's ray at z = 1.
-    # float32 is ample here: depth has 0.2 mm steps, and the band is millimetres or more.
-    a, b, c, d = (_lookup(table[:, i], labels) for i in range(4))
-    x_n = ((np.arange(labels.shape[1], dtype=np.float32) - np.float32(camera.cx)) / np.float32(camera.fx))[None, :]
-    y_n = ((np.arange(labels.shape[0], dtype=np.float32) - np.float32(camera.cy)) / np.float32(camera.fy))[:, None]
+    # Distance of every pixel to its own label's plane.
+    signed = signed_distances(depth_m, *(_lookup(table[:, i], labels) for i in range(4)), camera)
     fitted = table[:, :3].any(axis=1).astype(np.float32)  # a plane has a unit normal
     with np.errstate(invalid="ignore"):
-        signed = depth_m * (a * x_n + b * y_n + c) + d
         on_plane = (np.abs(signed) < band) & (_lookup(fitted, labels) > 0)
         residual = signed * (np.float32(k) / band)
     return on_plane, residual

@@ -201,3 +201,19 @@ def test_shapes_carried_by_poses_do_not_look_behind():
     expect_top = segment_frame(raw, [(1, shape)], config, propagated={1}, expected=top_plane)
     assert expect_floor.labels[floor].mean() > 0.95 and not expect_floor.labels[box].any()
     assert expect_top.labels[box].mean() > 0.9 and not expect_top.labels[floor].any()
+
+
+@pytest.mark.parametrize("top", [7, 255, 256, 70_000])
+def test_ids_nearby_against_a_brute_force_search(top):
+    from annotate_rgbd.refine import ids_nearby
+
+    rng = np.random.default_rng(top)
+    ids = np.where(rng.random((30, 40)) < 0.03, rng.integers(1, top + 1, (30, 40)), 0)
+    ids[3, 4] = top
+    lowest, highest = ids_nearby(ids, 2)
+    rows, cols = np.nonzero(ids)
+    for r in range(30):
+        for c in range(40):
+            near = ids[rows, cols][(rows - r) ** 2 + (cols - c) ** 2 <= 4]
+            assert highest[r, c] == (near.max() if near.size else 0)
+            assert lowest[r, c] == (near.min() if near.size else 0)
