@@ -37,10 +37,6 @@ from .ransac import fit_plane
 from .refine import grid_pixels
 from .sequence import read_depth
 
-#: Largest angle (degrees) and offset (m, at the keyframes' centroid) between the planes lifted
-#: from two keyframes of one track for them to be one surface (see :data:`annotate_rgbd.lift.SAME_SURFACE_ANGLE`).
-MAX_KEYFRAME_ANGLE = SAME_SURFACE_ANGLE
-MAX_KEYFRAME_OFFSET = SAME_SURFACE_OFFSET
 #: A keyframe off its track's agreed plane makes the track "inconsistent" (a warning, the
 #: review queue) only when its shape holds at least this share of the valid depth pixels of
 #: the track's largest keyframe: a sliver of a plane leaving the view is mostly another
@@ -113,7 +109,7 @@ class TrackLift:
     @property
     def consistent(self) -> bool:
         """Whether every substantial keyframe's own plane agrees with the track's consensus plane
-        (within :data:`MAX_KEYFRAME_ANGLE` and :data:`MAX_KEYFRAME_OFFSET`)."""
+        (within :data:`annotate_rgbd.lift.SAME_SURFACE_ANGLE` and ``SAME_SURFACE_OFFSET``)."""
         return not self.substantial
 
     def to_json(self) -> dict:
@@ -210,9 +206,9 @@ def consensus_plane(
     """The plane most of a track's keyframes agree on, and which of them agree with it.
 
     Each fitted plane is a candidate; it is supported by the keyframes whose plane lies within
-    :data:`MAX_KEYFRAME_ANGLE` and :data:`MAX_KEYFRAME_OFFSET` of it (offset measured at that
-    keyframe's outline centroid), each with its weight; the best supported wins (ties: the
-    earliest).
+    :data:`annotate_rgbd.lift.SAME_SURFACE_ANGLE` and ``SAME_SURFACE_OFFSET`` of it (offset
+    measured at that keyframe's outline centroid), each with its weight; the best supported wins
+    (ties: the earliest).
 
     Parameters
     ----------
@@ -234,7 +230,7 @@ def consensus_plane(
         agree = []
         for plane, centroid in zip(planes, centroids):
             angle, offset = plane_agreement(candidate, plane, at=centroid)
-            agree.append(angle <= MAX_KEYFRAME_ANGLE and offset <= MAX_KEYFRAME_OFFSET)
+            agree.append(angle <= SAME_SURFACE_ANGLE and offset <= SAME_SURFACE_OFFSET)
         support.append(agree)
     weights = [1.0] * len(planes) if weights is None else weights
     best = max(range(len(planes)), key=lambda i: (sum(w for w, ok in zip(weights, support[i]) if ok), -i))
@@ -416,10 +412,9 @@ def lift_tracks(
     return lifts
 
 
-def _lift_onto_planes(lift: TrackLift, track: Track, fitted: list, config: Config, sizes: dict | None = None) -> None:
+def _lift_onto_planes(lift: TrackLift, track: Track, fitted: list, config: Config, sizes: dict) -> None:
     """Lift a track's fitted keyframes onto their own plane, or the track's consensus plane
     (``sizes``: CVAT frame -> (width, height) of the keyframe image, to carry outlines past it)."""
-    sizes = sizes or {}
     own = [(frame, outline, pose, result) for frame, outline, pose, result in fitted if not isinstance(result, str)]
     lifted_own = [lift_polygon(o, plane_to_camera(r[0], *p), config.camera, *p) for _, o, p, r in own]
     usable = [(entry, lifted) for entry, lifted in zip(own, lifted_own) if lifted.ok]

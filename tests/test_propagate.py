@@ -16,9 +16,9 @@ from annotate_rgbd.camera import Camera
 from annotate_rgbd.cli import app
 from annotate_rgbd.config import load_config
 from annotate_rgbd.cvat import read_cvat, write_cvat_video
-from annotate_rgbd.lift import plane_agreement
+from annotate_rgbd.lift import SAME_SURFACE_ANGLE, plane_agreement
 from annotate_rgbd.pipeline import run_cvat2mask
-from annotate_rgbd.propagate import MAX_KEYFRAME_ANGLE, consensus_plane
+from annotate_rgbd.propagate import consensus_plane
 from annotate_rgbd.synthetic import make_sequence
 
 CAMERA = Camera(fx=262.5, fy=262.5, cx=159.5, cy=119.5, depth_scale=5000.0)
@@ -155,7 +155,7 @@ def test_consensus_plane_is_the_best_supported_one():
     outline = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
     plane, agree = consensus_plane([wall, floor, tilted, floor], [outline + [2, 0, 0], outline, outline, outline])
     assert plane is floor and agree == [False, True, True, True]
-    assert plane_agreement(floor, tilted)[0] < MAX_KEYFRAME_ANGLE
+    assert plane_agreement(floor, tilted)[0] < SAME_SURFACE_ANGLE
 
 
 def test_cli_poses_option_and_a_bad_pose_file(rendered, tmp_path):
