@@ -58,7 +58,7 @@ from .camera import Camera
 from .errors import InputError
 from .noise import NoiseSettings, noise_settings_from_mapping
 from .poses import DEFAULT_MAX_POSE_GAP
-from .toml_input import read_toml
+from .toml_input import NestedTooDeep, read_toml
 
 
 @dataclass(frozen=True)
@@ -355,9 +355,9 @@ def parse_settings(settings: Iterable[str]) -> dict[str, Any]:
             raise InputError(None, f"--set {setting!r}: expected SECTION.KEY=VALUE, e.g. ransac.distance_threshold=0.01")
         try:
             value = read_toml(f"v = {text}", None)["v"]
-        except InputError as exc:
-            if "nested" in str(exc):
-                raise InputError(None, f"--set {key.strip()}: {exc.args[-1] if exc.args else exc}") from None
+        except NestedTooDeep as exc:
+            raise InputError(None, f"--set {key.strip()}: {exc.message}") from None
+        except InputError:
             value = text
         overrides[key.strip()] = value
     return overrides

@@ -208,9 +208,9 @@ def plan_run(
                          "keyframes are carried to every frame by the poses")
     frames, jobs, frame_warnings = plan_frames(sequence, parts, tracks, association, output,
                                                config.sequence.max_time_diff, propagation, config)
-    camera = check_first_frames(jobs, config)  # a size mismatch stops here, before any frame warning
+    first_frames = check_first_frames(jobs, config)  # a size mismatch stops here, before any frame warning
     _warn(warnings, frame_warnings)
-    _warn(warnings, camera)
+    _warn(warnings, first_frames)
     return RunPlan(sequence, parts, tracks, colours, frames, jobs, warnings, notes, propagation)
 
 

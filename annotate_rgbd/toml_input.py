@@ -20,23 +20,31 @@ else:  # pragma: no cover - exercised on Python 3.10 only
 MAX_TOML_NESTING = 16
 
 
+class NestedTooDeep(InputError):
+    """TOML text with tables and arrays nested more than :data:`MAX_TOML_NESTING` deep."""
+
+    def __init__(self, path: str | Path | None):
+        super().__init__(path, f"invalid TOML: values nested more than {MAX_TOML_NESTING} levels deep")
+
+
 def read_toml(text: str, origin: str | Path | None) -> dict[str, Any]:
     """Parse TOML text (a configuration, a manifest, a ``--set`` value).
 
     Raises
     ------
     InputError
-        Invalid TOML, or tables and arrays nested more than :data:`MAX_TOML_NESTING` deep.
+        Invalid TOML (:class:`NestedTooDeep`: tables and arrays nested more than
+        :data:`MAX_TOML_NESTING` deep).
     """
     # Arrays and inline tables opened before any is closed bound the depth tomllib recurses to.
     if _bracket_depth(text) > MAX_TOML_NESTING:
-        raise InputError(origin, f"invalid TOML: values nested more than {MAX_TOML_NESTING} levels deep")
+        raise NestedTooDeep(origin)
     try:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise InputError(origin, f"invalid TOML: {exc}") from None
     except RecursionError:
-        raise InputError(origin, f"invalid TOML: values nested more than {MAX_TOML_NESTING} levels deep") from None
+        raise NestedTooDeep(origin) from None
 
 
 def _bracket_depth(text: str) -> int:
