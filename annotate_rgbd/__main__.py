@@ -1,5 +1,5 @@
 """``python -m annotate_rgbd``: the same as the ``annotate-rgbd`` command."""
 
-from .cli import app
+from annotate_rgbd.cli import app
 
 app(prog_name="annotate-rgbd")

@@ -13,9 +13,9 @@ from typing import Iterator, List, Optional
 
 import typer
 
-from . import __version__
-from .errors import InputError
-from .pool import STALL_TIMEOUT
+from annotate_rgbd import __version__
+from annotate_rgbd.errors import InputError
+from annotate_rgbd.pool import STALL_TIMEOUT
 
 app = typer.Typer(
     help="Turn CVAT plane polygons on RGB-D sequences into depth-verified plane instance masks.",
@@ -138,14 +138,14 @@ def cvat2mask(
     Several exports are annotation parts of one sequence: their tracks are matched into one plane id per physical plane (see tracks.csv).
     """
     with user_errors():
-        from .execute import default_workers, prepare_process
+        from annotate_rgbd.pipeline.execute import default_workers, prepare_process
 
         workers = jobs or default_workers()
         prepare_process(workers)  # the helpers' server imports Open3D while this process does
 
-        from .config import load_config, parse_part_offsets, parse_settings
-        from .pipeline import run_cvat2mask
-        from .progress import Progress
+        from annotate_rgbd.config.settings import load_config, parse_part_offsets, parse_settings
+        from annotate_rgbd.pipeline.scene import run_cvat2mask
+        from annotate_rgbd.progress import Progress
 
         overrides = parse_settings(set_)
         named = {
@@ -164,8 +164,8 @@ def cvat2mask(
             progress=progress.callback(sequence_dir.name), job_timeout=job_timeout, poses=poses,
         )
         progress.finish()
-        from .records import summarize
-        from .stats import drop_hint
+        from annotate_rgbd.report.records import summarize
+        from annotate_rgbd.report.stats import drop_hint
 
         counts = summarize(report.frames)
         summary = (
@@ -203,15 +203,15 @@ def batch(
 ) -> None:
     """Relabel several scenes with one pool of workers; only changed frames are redone."""
     with user_errors():
-        from .execute import default_workers, prepare_process
-        from .manifest import read_manifest
+        from annotate_rgbd.pipeline.execute import default_workers, prepare_process
+        from annotate_rgbd.pipeline.manifest import read_manifest
 
         scenes, manifest_jobs = read_manifest(manifest)
         workers = jobs or manifest_jobs or default_workers()
         prepare_process(workers)  # the helpers' server imports Open3D while this process does
 
-        from .batch import run_batch, summary_lines
-        from .progress import Progress
+        from annotate_rgbd.pipeline.batch import run_batch, summary_lines
+        from annotate_rgbd.progress import Progress
 
         progress = Progress({scene.name: 0 for scene in scenes})
         outcomes = run_batch(scenes, workers, force, progress.callback, job_timeout=job_timeout)
@@ -225,7 +225,7 @@ def batch(
 @app.command()
 def presets() -> None:
     """List the scene presets that --config accepts."""
-    from .config import preset_names
+    from annotate_rgbd.config.settings import preset_names
 
     for name in preset_names():
         typer.echo(name)
@@ -244,7 +244,7 @@ def evaluate(
     part: Optional[float] = typer.Option(None, "--part", hidden=True),
 ) -> None:
     """Score plane masks against ground truth with the EVOPS metrics (sequence means)."""
-    from .evaluate import evaluate_paths, format_json, format_table, write_per_frame_csv
+    from annotate_rgbd.evaluate.evaluate import evaluate_paths, format_json, format_table, write_per_frame_csv
 
     with user_errors():
         if part is not None:
@@ -269,12 +269,12 @@ def review(
 ) -> None:
     """Write review overlays, the offline review page and a contact sheet for a finished run."""
     with user_errors():
-        from .execute import default_workers, prepare_process
+        from annotate_rgbd.pipeline.execute import default_workers, prepare_process
 
         workers = (jobs or default_workers()) if overlays else 1  # only overlays take helpers
         prepare_process(workers)
-        from .progress import Progress
-        from .review import review_run
+        from annotate_rgbd.progress import Progress
+        from annotate_rgbd.review.review import review_run
 
         scene = out_dir.resolve().name
         progress = Progress({scene: 0})
@@ -294,8 +294,8 @@ def stats(
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object instead of a table."),
 ) -> None:
     """Summarise a run: observations, planes per observation, dropped planes, inlier ratio."""
-    from .review import read_report
-    from .stats import format_stats, format_stats_json, run_stats
+    from annotate_rgbd.review.review import read_report
+    from annotate_rgbd.report.stats import format_stats, format_stats_json, run_stats
 
     with user_errors():
         summary = run_stats(read_report(out_dir))
@@ -320,15 +320,15 @@ def propose(
     from dataclasses import replace
 
     with user_errors():
-        from .pool import default_workers, prepare_helpers, reuse_freed_memory
+        from annotate_rgbd.pool import default_workers, prepare_helpers, reuse_freed_memory
 
         workers = jobs or default_workers()
         prepare_helpers(workers, ["annotate_rgbd.propose.detect_job"])
         reuse_freed_memory()
 
-        from .config import load_config, parse_settings
-        from .progress import Progress
-        from .propose import ProposeConfig, run_propose
+        from annotate_rgbd.config.settings import load_config, parse_settings
+        from annotate_rgbd.progress import Progress
+        from annotate_rgbd.propose import ProposeConfig, run_propose
 
         settings = ProposeConfig(every=every)
         if label is not None:
@@ -355,7 +355,7 @@ def export_cvat_command(
     xml: Path = typer.Argument(..., metavar="FILE.xml", help="The CVAT for video 1.1 XML file to write."),
 ) -> None:
     """Write a run's refined masks as CVAT polygon tracks, for a correction round."""
-    from .exportcvat import export_cvat
+    from annotate_rgbd.export.cvat import export_cvat
 
     with user_errors():
         count = export_cvat(run_dir, xml)

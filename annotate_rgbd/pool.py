@@ -23,7 +23,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any, Callable, Iterator, Sequence
 
-from .errors import InputError
+from annotate_rgbd.errors import InputError
 
 log = logging.getLogger("annotate_rgbd")
 

@@ -34,15 +34,15 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from annotate_rgbd.camera import Camera
-from annotate_rgbd.config import Config
+from annotate_rgbd.geometry.camera import Camera
+from annotate_rgbd.config.settings import Config
 from annotate_rgbd.cvat import write_cvat_video
-from annotate_rgbd.execute import default_workers, prepare_process
-from annotate_rgbd.palette import colourize, plane_colours
-from annotate_rgbd.pipeline import run_cvat2mask
-from annotate_rgbd.sequence import read_sequence
+from annotate_rgbd.pipeline.execute import default_workers, prepare_process
+from annotate_rgbd.report.palette import colourize, plane_colours
+from annotate_rgbd.pipeline.scene import run_cvat2mask
+from annotate_rgbd.io.sequence import read_sequence
 from annotate_rgbd.synthetic import make_sequence
-from annotate_rgbd.writer import write_png
+from annotate_rgbd.io.writer import write_png
 
 
 def make_benchmark_sequence(folder: Path, frames: int, width: int, height: int) -> tuple[Path, Path, Camera]:

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from annotate_rgbd.metrics import METRIC_NAMES, frame_statistics
+from annotate_rgbd.evaluate.metrics import METRIC_NAMES, frame_statistics
 
 DEFAULT_EVOPS_PYTHON = Path("/work/venv-evops/bin/python")
 SHAPE = (480, 640)

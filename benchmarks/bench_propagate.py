@@ -29,10 +29,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_refine import make_contact_sequence, score  # noqa: E402
 
-from annotate_rgbd.config import load_config  # noqa: E402
+from annotate_rgbd.config.settings import load_config  # noqa: E402
 from annotate_rgbd.cvat import read_cvat, write_cvat_video  # noqa: E402
-from annotate_rgbd.execute import prepare_process  # noqa: E402
-from annotate_rgbd.pipeline import run_cvat2mask  # noqa: E402
+from annotate_rgbd.pipeline.execute import prepare_process  # noqa: E402
+from annotate_rgbd.pipeline.scene import run_cvat2mask  # noqa: E402
 
 FIGURES = ("mean IoU", "precision@0.8", "recall@0.8", "leak clutter %", "mask pixels on clutter or no depth %")
 

@@ -36,15 +36,15 @@ import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from annotate_rgbd.camera import Camera
-from annotate_rgbd.config import Config
+from annotate_rgbd.geometry.camera import Camera
+from annotate_rgbd.config.settings import Config
 from annotate_rgbd.cvat import write_cvat_video
-from annotate_rgbd.execute import prepare_process
-from annotate_rgbd.labelmaps import read_label_map
-from annotate_rgbd.metrics import frame_statistics
-from annotate_rgbd.pipeline import run_cvat2mask
+from annotate_rgbd.pipeline.execute import prepare_process
+from annotate_rgbd.io.labelmaps import read_label_map
+from annotate_rgbd.evaluate.metrics import frame_statistics
+from annotate_rgbd.pipeline.scene import run_cvat2mask
 from annotate_rgbd.propose import run_propose
-from annotate_rgbd.sequence import read_sequence
+from annotate_rgbd.io.sequence import read_sequence
 from annotate_rgbd.synthetic import make_sequence, room_trajectory
 
 CAMERA = Camera(fx=525.0, fy=525.0, cx=319.5, cy=239.5, depth_scale=5000.0)

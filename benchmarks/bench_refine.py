@@ -49,14 +49,14 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from annotate_rgbd.camera import Camera
-from annotate_rgbd.config import parse_settings
-from annotate_rgbd.config import load_config
+from annotate_rgbd.geometry.camera import Camera
+from annotate_rgbd.config.settings import parse_settings
+from annotate_rgbd.config.settings import load_config
 from annotate_rgbd.cvat import read_cvat, write_cvat_video
-from annotate_rgbd.execute import prepare_process
-from annotate_rgbd.metrics import frame_statistics, plane_overlaps
-from annotate_rgbd.pipeline import run_cvat2mask
-from annotate_rgbd.rasterize import rasterize_frame
+from annotate_rgbd.pipeline.execute import prepare_process
+from annotate_rgbd.evaluate.metrics import frame_statistics, plane_overlaps
+from annotate_rgbd.pipeline.scene import run_cvat2mask
+from annotate_rgbd.segment.rasterize import rasterize_frame
 from annotate_rgbd.synthetic import kinect_noise_sigma, make_sequence
 from annotate_rgbd.synthetic.contact import contact_scene, contact_trajectory
 

@@ -27,10 +27,10 @@ ROOT = Path(__file__).resolve().parent.parent
 TIMED_RUN = """
 import json, sys, time
 from pathlib import Path
-from annotate_rgbd.camera import Camera
-from annotate_rgbd.config import Config
-from annotate_rgbd.execute import prepare_process
-from annotate_rgbd.pipeline import run_cvat2mask
+from annotate_rgbd.geometry.camera import Camera
+from annotate_rgbd.config.settings import Config
+from annotate_rgbd.pipeline.execute import prepare_process
+from annotate_rgbd.pipeline.scene import run_cvat2mask
 
 sequence, annotations, out, camera, workers = sys.argv[1:6]
 workers = int(workers)

@@ -20,12 +20,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from annotate_rgbd.annotation import Shape
-from annotate_rgbd.config import load_config
-from annotate_rgbd.overlay import overlay_for_frame
-from annotate_rgbd.palette import plane_colours
-from annotate_rgbd.segment import segment_frame
-from annotate_rgbd.sequence import read_depth, read_sequence
+from annotate_rgbd.annotation.model import Shape
+from annotate_rgbd.config.settings import load_config
+from annotate_rgbd.review.overlay import overlay_for_frame
+from annotate_rgbd.report.palette import plane_colours
+from annotate_rgbd.segment.frame import segment_frame
+from annotate_rgbd.io.sequence import read_depth, read_sequence
 
 ROOT = Path(__file__).resolve().parent.parent
 DATA = ROOT.parent / "shared" / "data"

@@ -21,8 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
-from annotate_rgbd.annotation import Annotation, Track
-from annotate_rgbd.camera import Camera
+from annotate_rgbd.annotation.model import Annotation, Track
+from annotate_rgbd.geometry.camera import Camera
 from annotate_rgbd.cvat import write_cvat_video
 from annotate_rgbd.synthetic import make_sequence
 

@@ -12,10 +12,10 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from annotate_rgbd.manifest import read_manifest
+from annotate_rgbd.pipeline.manifest import read_manifest
 from annotate_rgbd.cli import app
 from annotate_rgbd.errors import InputError
-from annotate_rgbd.resume import JOURNAL
+from annotate_rgbd.pipeline.resume import JOURNAL
 
 from conftest import REPO_ROOT, SAMPLE_DATA
 

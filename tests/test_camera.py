@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from annotate_rgbd.camera import Camera, backproject, depth_to_metres, project
+from annotate_rgbd.geometry.camera import Camera, backproject, depth_to_metres, project
 
 TUM = Camera(fx=517.3, fy=516.5, cx=318.6, cy=255.3, depth_scale=5000.0)
 ICL = Camera(fx=481.2, fy=-480.0, cx=319.5, cy=239.5, depth_scale=5000.0)

@@ -5,11 +5,11 @@ import cv2
 import numpy as np
 import pytest
 
-from annotate_rgbd.camera import Camera
-from annotate_rgbd.config import RansacConfig
-from annotate_rgbd import refine
-from annotate_rgbd.noise import SENSOR_MODELS, NoiseSettings
-from annotate_rgbd.refine import _score_statistics, inlier_density, refine_planes, window_scores
+from annotate_rgbd.geometry.camera import Camera
+from annotate_rgbd.config.settings import RansacConfig
+from annotate_rgbd.segment import refine
+from annotate_rgbd.geometry.noise import SENSOR_MODELS, NoiseSettings
+from annotate_rgbd.segment.refine import _score_statistics, inlier_density, refine_planes, window_scores
 
 KINECT = NoiseSettings(SENSOR_MODELS["kinect_v1"])
 CAMERA = Camera(fx=150.0, fy=150.0, cx=79.5, cy=59.5, depth_scale=5000.0)
@@ -151,7 +151,7 @@ def test_inlier_density_is_the_share_of_inliers_among_labelled_pixels_of_the_win
 
 
 def test_a_constant_noise_model_gets_the_window_test_too():
-    from annotate_rgbd.noise import ConstantNoise
+    from annotate_rgbd.geometry.noise import ConstantNoise
 
     rng = np.random.default_rng(8)
     sigma = kinect_sigma(2.5)

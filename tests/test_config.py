@@ -6,7 +6,7 @@ from typing import Optional
 import numpy as np
 import pytest
 
-from annotate_rgbd.config import (
+from annotate_rgbd.config.settings import (
     Config,
     _build_list,
     config_from_dict,
@@ -16,7 +16,7 @@ from annotate_rgbd.config import (
     parse_settings,
     preset_names,
 )
-from annotate_rgbd.noise import SENSOR_MODELS, NoiseSettings, QuadraticNoise
+from annotate_rgbd.geometry.noise import SENSOR_MODELS, NoiseSettings, QuadraticNoise
 from annotate_rgbd.errors import InputError
 
 ISSUE_EXAMPLE = """
@@ -222,7 +222,7 @@ def test_numbers_must_be_finite_and_fit_their_use(tmp_path, text, message):
 
 
 def test_max_points_3_is_valid_and_runs(tmp_path):
-    from annotate_rgbd.pipeline import run_cvat2mask
+    from annotate_rgbd.pipeline.scene import run_cvat2mask
 
     from conftest import SAMPLE_DATA
 
@@ -233,7 +233,7 @@ def test_max_points_3_is_valid_and_runs(tmp_path):
 
 @pytest.mark.parametrize("depth", [17, 100_000])
 def test_values_nested_absurdly_deep_are_one_error_everywhere(tmp_path, depth):
-    from annotate_rgbd.manifest import read_manifest
+    from annotate_rgbd.pipeline.manifest import read_manifest
 
     deep = "[" * depth + "]" * depth
     config = tmp_path / "deep.toml"

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from annotate_rgbd.annotation import Annotation, Shape, Track
+from annotate_rgbd.annotation.model import Annotation, Shape, Track
 from annotate_rgbd.cvat import (
     decode_rle,
     encode_rle,

@@ -14,9 +14,9 @@ import pytest
 from typer.testing import CliRunner
 
 from annotate_rgbd.cli import app
-from annotate_rgbd.config import load_config
-from annotate_rgbd.execute import FrameCounts
-from annotate_rgbd.pipeline import run_cvat2mask
+from annotate_rgbd.config.settings import load_config
+from annotate_rgbd.pipeline.execute import FrameCounts
+from annotate_rgbd.pipeline.scene import run_cvat2mask
 
 from conftest import SAMPLE_DATA
 

@@ -11,10 +11,10 @@ import pytest
 from typer.testing import CliRunner
 
 from annotate_rgbd.cli import app
-from annotate_rgbd.config import load_config
+from annotate_rgbd.config.settings import load_config
 from annotate_rgbd.cvat import archive, read_cvat
 from annotate_rgbd.errors import InputError
-from annotate_rgbd.pipeline import run_cvat2mask
+from annotate_rgbd.pipeline.scene import run_cvat2mask
 
 from conftest import SAMPLE_DATA
 

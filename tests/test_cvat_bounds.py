@@ -8,7 +8,7 @@ import pytest
 from annotate_rgbd.cvat import MAX_POLYGON_VERTICES, read_cvat, tracks
 from annotate_rgbd.cvat.geometry import crosses_itself
 from annotate_rgbd.errors import InputError
-from annotate_rgbd.interpolate import match_outlines
+from annotate_rgbd.cvat.interpolate import match_outlines
 
 
 def all_pairs_cross(points: np.ndarray) -> bool:

@@ -15,10 +15,10 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from annotate_rgbd.camera import Camera, backproject, depth_to_metres
+from annotate_rgbd.geometry.camera import Camera, backproject, depth_to_metres
 from annotate_rgbd.detect import DetectorConfig, detect_planes, plane_outlines
 from annotate_rgbd.detect.cells import cloud_cells
-from annotate_rgbd.rasterize import polygon_window
+from annotate_rgbd.segment.rasterize import polygon_window
 
 KINECT = Camera(525.0, 525.0, 319.5, 239.5, 5000.0)
 ICL_LIKE = Camera(481.2, -480.0, 319.5, 239.5, 5000.0)  # fy < 0: y-up camera frame

@@ -12,9 +12,9 @@ from typer.testing import CliRunner
 
 from annotate_rgbd.cli import app
 from annotate_rgbd.errors import InputError
-from annotate_rgbd.evaluate import evaluate_paths, looks_like_a_photograph, match_frames
-from annotate_rgbd.labelmaps import colours_to_labels, read_cape_csv, read_label_map
-from annotate_rgbd.metrics import METRIC_NAMES, frame_statistics
+from annotate_rgbd.evaluate.evaluate import evaluate_paths, looks_like_a_photograph, match_frames
+from annotate_rgbd.io.labelmaps import colours_to_labels, read_cape_csv, read_label_map
+from annotate_rgbd.evaluate.metrics import METRIC_NAMES, frame_statistics
 
 COLOURS = np.array([[0, 0, 0], [255, 0, 0], [0, 255, 0], [0, 0, 255], [255, 255, 0]], np.uint8)
 

@@ -16,7 +16,7 @@ import numpy as np
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from annotate_rgbd.annotation import Annotation
+from annotate_rgbd.annotation.model import Annotation
 from annotate_rgbd.cvat import read_cvat
 from annotate_rgbd.errors import InputError
 

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from annotate_rgbd.camera import Camera
-from annotate_rgbd.grow import grow_planes
-from annotate_rgbd.noise import SENSOR_MODELS, ConstantNoise
+from annotate_rgbd.geometry.camera import Camera
+from annotate_rgbd.segment.grow import grow_planes
+from annotate_rgbd.geometry.noise import SENSOR_MODELS, ConstantNoise
 
 KINECT = SENSOR_MODELS["kinect_v1"]
 K, FLOOR, CAP = 3.0, 0.002, 0.10

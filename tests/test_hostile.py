@@ -28,12 +28,12 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from annotate_rgbd import writer
+from annotate_rgbd.io import writer
 from conftest import SAMPLE_DATA
 from annotate_rgbd.cli import app
 from annotate_rgbd.cvat import encode_rle, read_cvat
 from annotate_rgbd.errors import InputError, OutputError
-from annotate_rgbd.sequence import camera_problem, read_sequence
+from annotate_rgbd.io.sequence import camera_problem, read_sequence
 
 W, H = 40, 30
 CAMERA = "[camera]\nfx = 40.0\nfy = 40.0\ncx = 19.5\ncy = 14.5\ndepth_scale = 5000.0\n"

@@ -28,10 +28,10 @@ from typer.testing import CliRunner
 
 from annotate_rgbd.cli import app
 from annotate_rgbd.errors import InputError, OutputError
-from annotate_rgbd.palette import MAX_PLANES, MIN_LIGHTNESS, plane_colours
-from annotate_rgbd.review import review_run
-from annotate_rgbd.sequence import MAX_FRAMES, MAX_IMAGE_PIXELS, MAX_LIST_BYTES, MAX_LIST_LINES, png_size, read_depth, read_sequence
-from annotate_rgbd.writer import write_csv, write_json
+from annotate_rgbd.report.palette import MAX_PLANES, MIN_LIGHTNESS, plane_colours
+from annotate_rgbd.review.review import review_run
+from annotate_rgbd.io.sequence import MAX_FRAMES, MAX_IMAGE_PIXELS, MAX_LIST_BYTES, MAX_LIST_LINES, png_size, read_depth, read_sequence
+from annotate_rgbd.io.writer import write_csv, write_json
 
 W, H = 40, 30
 CAMERA = "[camera]\nfx = 40.0\nfy = 40.0\ncx = 19.5\ncy = 14.5\ndepth_scale = 5000.0\n"

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from annotate_rgbd.interpolate import (
+from annotate_rgbd.cvat.interpolate import (
     interpolate_angle,
     interpolate_box,
     interpolate_polygon,

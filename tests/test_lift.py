@@ -7,8 +7,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 from skimage.measure import points_in_poly
 
-from annotate_rgbd.camera import Camera
-from annotate_rgbd.lift import (
+from annotate_rgbd.geometry.camera import Camera
+from annotate_rgbd.geometry.lift import (
     BEHIND_CAMERA,
     RAY_PARALLEL,
     clip_near,
@@ -18,7 +18,7 @@ from annotate_rgbd.lift import (
     plane_to_world,
     project_polygon,
 )
-from annotate_rgbd.rasterize import polygon_window
+from annotate_rgbd.segment.rasterize import polygon_window
 from annotate_rgbd.synthetic import Plane, Scene, look_at, render
 
 TUM = Camera(fx=517.306408, fy=516.469215, cx=318.643040, cy=255.313989, depth_scale=5000)

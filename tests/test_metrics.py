@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from annotate_rgbd.metrics import (
+from annotate_rgbd.evaluate.metrics import (
     METRIC_NAMES,
     FrameStatistics,
     frame_statistics,

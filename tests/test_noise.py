@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from annotate_rgbd.noise import (
+from annotate_rgbd.geometry.noise import (
     DEFAULT_CAP,
     DEFAULT_FLOOR,
     DEFAULT_K,

@@ -24,12 +24,12 @@ import pytest
 from typer.testing import CliRunner
 
 from annotate_rgbd.cli import app
-from annotate_rgbd.config import load_config
+from annotate_rgbd.config.settings import load_config
 from annotate_rgbd.errors import OutputError
-from annotate_rgbd.outdir import OWNER, OutputLock
-from annotate_rgbd.pipeline import run_cvat2mask
+from annotate_rgbd.io.outdir import OWNER, OutputLock
+from annotate_rgbd.pipeline.scene import run_cvat2mask
 from annotate_rgbd.pool import JobOutcome, JobTimeout, run_jobs, start_helpers
-from annotate_rgbd.resume import JOURNAL, MAX_RECORDS_BYTES, previous_results
+from annotate_rgbd.pipeline.resume import JOURNAL, MAX_RECORDS_BYTES, previous_results
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 SAMPLE = REPO_ROOT / "sample_data"
@@ -143,7 +143,7 @@ def test_a_second_run_into_a_locked_folder_stops_with_one_line(tmp_path):
     holder = subprocess.Popen(
         [sys.executable, "-c", textwrap.dedent(f"""
             import sys, time
-            from annotate_rgbd.outdir import OutputLock
+            from annotate_rgbd.io.outdir import OutputLock
             lock = OutputLock({str(out)!r}); lock.acquire(); print("locked", flush=True); time.sleep(60)
         """)],
         stdout=subprocess.PIPE, text=True,

@@ -8,7 +8,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from annotate_rgbd.overlay import (
+from annotate_rgbd.review.overlay import (
     REMOVED_DARKEN,
     TINT_ALPHA,
     contact_sheet,
@@ -18,9 +18,9 @@ from annotate_rgbd.overlay import (
     render_overlay,
     stripes,
 )
-from annotate_rgbd.records import PlaneRecord
-from annotate_rgbd.palette import plane_colours
-from annotate_rgbd.segment import FrameResult
+from annotate_rgbd.report.records import PlaneRecord
+from annotate_rgbd.report.palette import plane_colours
+from annotate_rgbd.segment.frame import FrameResult
 
 H, W = 120, 200
 GREY = 100

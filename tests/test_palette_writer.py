@@ -7,8 +7,8 @@ import pytest
 from skimage.color import rgb2lab
 
 from annotate_rgbd.errors import InputError
-from annotate_rgbd.palette import colour_hex, colourize, id_image, plane_colours
-from annotate_rgbd.writer import write_csv, write_json, write_png
+from annotate_rgbd.report.palette import colour_hex, colourize, id_image, plane_colours
+from annotate_rgbd.io.writer import write_csv, write_json, write_png
 
 
 def test_palette_is_fixed_distinct_and_never_dark():

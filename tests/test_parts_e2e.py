@@ -27,9 +27,9 @@ from conftest import SAMPLE_DATA
 from lxml import etree
 from typer.testing import CliRunner
 
-from annotate_rgbd.camera import Camera
+from annotate_rgbd.geometry.camera import Camera
 from annotate_rgbd.cli import app
-from annotate_rgbd.config import (
+from annotate_rgbd.config.settings import (
     Config,
     MatchConfig,
     RansacConfig,
@@ -38,7 +38,7 @@ from annotate_rgbd.config import (
 )
 from annotate_rgbd.cvat import write_cvat_images, write_cvat_video
 from annotate_rgbd.errors import InputError
-from annotate_rgbd.pipeline import run_cvat2mask
+from annotate_rgbd.pipeline.scene import run_cvat2mask
 from annotate_rgbd.synthetic import make_sequence
 
 WIDTH, HEIGHT = 160, 120

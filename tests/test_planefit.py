@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from annotate_rgbd.noise import SENSOR_MODELS, ConstantNoise, inlier_band
-from annotate_rgbd.planefit import Refit, point_plane_distance, refit_plane, weighted_plane_fit
+from annotate_rgbd.geometry.noise import SENSOR_MODELS, ConstantNoise, inlier_band
+from annotate_rgbd.geometry.planes import Refit, point_plane_distance, refit_plane, weighted_plane_fit
 
 KINECT = SENSOR_MODELS["kinect_v1"]
 K, FLOOR, CAP = 3.0, 0.002, 0.10

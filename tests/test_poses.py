@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation, Slerp
 
-from annotate_rgbd import poses
+from annotate_rgbd.io import poses
 from annotate_rgbd.errors import InputError
-from annotate_rgbd.poses import (
+from annotate_rgbd.io.poses import (
     DEFAULT_MAX_POSE_GAP,
     OUTSIDE_TRAJECTORY,
     POSE_GAP,

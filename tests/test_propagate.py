@@ -12,13 +12,13 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from annotate_rgbd.camera import Camera
+from annotate_rgbd.geometry.camera import Camera
 from annotate_rgbd.cli import app
-from annotate_rgbd.config import load_config
+from annotate_rgbd.config.settings import load_config
 from annotate_rgbd.cvat import read_cvat, write_cvat_video
-from annotate_rgbd.lift import SAME_SURFACE_ANGLE, plane_agreement
-from annotate_rgbd.pipeline import run_cvat2mask
-from annotate_rgbd.propagate import consensus_plane
+from annotate_rgbd.geometry.lift import SAME_SURFACE_ANGLE, plane_agreement
+from annotate_rgbd.pipeline.scene import run_cvat2mask
+from annotate_rgbd.propagate.carry import consensus_plane
 from annotate_rgbd.synthetic import make_sequence
 
 CAMERA = Camera(fx=262.5, fy=262.5, cx=159.5, cy=119.5, depth_scale=5000.0)
@@ -212,7 +212,7 @@ def test_review_and_stats_show_drawn_and_propagated_planes_and_tracks_to_review(
 
 
 def test_review_of_a_run_with_poses_segments_every_frame_as_the_run_did(rendered, tmp_path):
-    from annotate_rgbd.review import review_run
+    from annotate_rgbd.review.review import review_run
 
     out = tmp_path / "out"
     run_cvat2mask(rendered["sequence"], [rendered["keyframes"]], out, load_config(rendered["config"]),
@@ -222,7 +222,7 @@ def test_review_of_a_run_with_poses_segments_every_frame_as_the_run_did(rendered
 
 
 def test_outline_edges_on_the_image_border_are_carried_past_it():
-    from annotate_rgbd.propagate import BEYOND_REACH, beyond_the_border
+    from annotate_rgbd.propagate.carry import BEYOND_REACH, beyond_the_border
 
     # A floor seen to the bottom-left corner: its left and bottom edges are the view's, the
     # diagonal is the floor's own edge (against a wall).
@@ -243,7 +243,8 @@ def test_outline_edges_on_the_image_border_are_carried_past_it():
 def test_planes_cut_by_the_keyframes_view_are_carried_past_it(tmp_path, monkeypatch):
     # The contact scene's walk turns from the back wall to the table: the floor and walls come
     # into view past where the keyframes (every 10th frame) saw them end at the image border.
-    from annotate_rgbd import propagate, segment
+    from annotate_rgbd.propagate import carry as propagate
+    from annotate_rgbd.segment import frame as segment
     from annotate_rgbd.synthetic.contact import contact_scene, contact_trajectory
 
     frames = 30

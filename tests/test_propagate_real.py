@@ -13,13 +13,13 @@ import cv2
 import numpy as np
 import pytest
 
-from annotate_rgbd.annotation import Annotation, Shape, Track
-from annotate_rgbd.config import load_config
+from annotate_rgbd.annotation.model import Annotation, Shape, Track
+from annotate_rgbd.config.settings import load_config
 from annotate_rgbd.cvat import write_cvat_video
-from annotate_rgbd.lift import plane_agreement, plane_to_world
-from annotate_rgbd.pipeline import run_cvat2mask
-from annotate_rgbd.poses import poses_at, read_trajectory
-from annotate_rgbd.rasterize import rasterize_frame
+from annotate_rgbd.geometry.lift import plane_agreement, plane_to_world
+from annotate_rgbd.pipeline.scene import run_cvat2mask
+from annotate_rgbd.io.poses import poses_at, read_trajectory
+from annotate_rgbd.segment.rasterize import rasterize_frame
 
 from conftest import SHARED_DATA
 

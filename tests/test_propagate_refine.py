@@ -5,14 +5,14 @@ it, past every keyframe's view."""
 import numpy as np
 import pytest
 
-from annotate_rgbd.annotation import Shape
-from annotate_rgbd.camera import Camera
-from annotate_rgbd.config import Config, RansacConfig, load_config
-from annotate_rgbd.grow import grow_connected
-from annotate_rgbd.noise import SENSOR_MODELS, NoiseSettings
-from annotate_rgbd.ransac import fit_plane
-from annotate_rgbd.resume import fingerprint
-from annotate_rgbd.segment import segment_frame
+from annotate_rgbd.annotation.model import Shape
+from annotate_rgbd.geometry.camera import Camera
+from annotate_rgbd.config.settings import Config, RansacConfig, load_config
+from annotate_rgbd.segment.grow import grow_connected
+from annotate_rgbd.geometry.noise import SENSOR_MODELS, NoiseSettings
+from annotate_rgbd.segment.ransac import fit_plane
+from annotate_rgbd.pipeline.resume import fingerprint
+from annotate_rgbd.segment.frame import segment_frame
 
 from test_rims_and_behind import floor_under_carton, through
 
@@ -139,7 +139,7 @@ def test_a_carried_shape_whose_ransac_plane_holds_few_points_gets_an_exhaustive_
     # Open3D stops early once its plane likely is the best given the share it holds; with two
     # surfaces of about half each that can be a plane leaning between them. Stand-in RANSAC: the
     # early stop returns a leaning plane, the exhaustive search the wall's own.
-    from annotate_rgbd import ransac
+    from annotate_rgbd.segment import ransac
 
     # The early stop returns a recess 10 cm deep in the wall (nothing lies behind it to look for),
     # the exhaustive search the wall.

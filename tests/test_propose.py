@@ -7,15 +7,15 @@ import numpy as np
 import pytest
 from lxml import etree
 
-from annotate_rgbd.annotation import Annotation, Shape, Track
-from annotate_rgbd.camera import Camera
+from annotate_rgbd.annotation.model import Annotation, Shape, Track
+from annotate_rgbd.geometry.camera import Camera
 from annotate_rgbd.cvat import read_cvat, write_cvat_video
 from annotate_rgbd.propose.outlines import piece_outlines
-from annotate_rgbd.noise import NoiseSettings
+from annotate_rgbd.geometry.noise import NoiseSettings
 from annotate_rgbd.propose import FrameProposal, LinkConfig, link_proposals
 from annotate_rgbd.propose.detect_job import Moments, draw_order, merge_groups, paint
 from annotate_rgbd.propose.link import shifted_iou
-from annotate_rgbd.rasterize import rasterize_frame, shape_mask
+from annotate_rgbd.segment.rasterize import rasterize_frame, shape_mask
 
 CAMERA = Camera(fx=525.0, fy=525.0, cx=319.5, cy=239.5, depth_scale=5000.0)
 H, W = 480, 640

@@ -12,14 +12,14 @@ from lxml import etree
 from scipy.spatial.transform import Rotation
 from typer.testing import CliRunner
 
-from annotate_rgbd.camera import Camera
+from annotate_rgbd.geometry.camera import Camera
 from annotate_rgbd.cli import app
-from annotate_rgbd.config import Config, load_config
-from annotate_rgbd.labelmaps import read_label_map
-from annotate_rgbd.metrics import frame_statistics
-from annotate_rgbd.pipeline import run_cvat2mask
+from annotate_rgbd.config.settings import Config, load_config
+from annotate_rgbd.io.labelmaps import read_label_map
+from annotate_rgbd.evaluate.metrics import frame_statistics
+from annotate_rgbd.pipeline.scene import run_cvat2mask
 from annotate_rgbd.propose import run_propose
-from annotate_rgbd.sequence import read_sequence
+from annotate_rgbd.io.sequence import read_sequence
 from annotate_rgbd.synthetic import make_sequence, room_trajectory
 
 SAMPLE_DATA = Path(__file__).resolve().parents[1] / "sample_data"

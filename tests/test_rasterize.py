@@ -2,8 +2,8 @@ import numpy as np
 import pytest
 from skimage.draw import polygon as skimage_polygon
 
-from annotate_rgbd.annotation import Shape
-from annotate_rgbd.rasterize import rasterize_frame, shape_mask
+from annotate_rgbd.annotation.model import Shape
+from annotate_rgbd.segment.rasterize import rasterize_frame, shape_mask
 
 
 def polygon(points, z=0):

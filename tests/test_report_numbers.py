@@ -16,10 +16,10 @@ import cv2
 import numpy as np
 import pytest
 
-from annotate_rgbd.config import load_config
-from annotate_rgbd.pipeline import run_cvat2mask
-from annotate_rgbd.plan import Association
-from annotate_rgbd.sequence import associate
+from annotate_rgbd.config.settings import load_config
+from annotate_rgbd.pipeline.scene import run_cvat2mask
+from annotate_rgbd.pipeline.plan import Association
+from annotate_rgbd.io.sequence import associate
 
 from conftest import SAMPLE_DATA
 
@@ -147,7 +147,7 @@ def test_the_fingerprint_holds_the_plane_ids(tmp_path):
 
 
 def test_the_fingerprint_holds_the_mask_bitmap_and_the_image_size(tmp_path):
-    from annotate_rgbd.annotation import Shape
+    from annotate_rgbd.annotation.model import Shape
     from annotate_rgbd.cvat import read_cvat, write_cvat_video
 
     annotation = read_cvat(ANNOTATIONS)

@@ -21,14 +21,14 @@ from conftest import SAMPLE_DATA
 from typer.testing import CliRunner
 
 from annotate_rgbd.cli import app
-from annotate_rgbd.config import load_config
+from annotate_rgbd.config.settings import load_config
 from annotate_rgbd.errors import InputError
-from annotate_rgbd.pipeline import run_cvat2mask
+from annotate_rgbd.pipeline.scene import run_cvat2mask
 from annotate_rgbd.progress import Progress
-from annotate_rgbd.records import PlaneInfo, RunRecord
-from annotate_rgbd.review import review_run
-from annotate_rgbd.review_page import page_data, render_review_page
-from annotate_rgbd.sequence import read_rgb
+from annotate_rgbd.report.records import PlaneInfo, RunRecord
+from annotate_rgbd.review.review import review_run
+from annotate_rgbd.review.page import page_data, render_review_page
+from annotate_rgbd.io.sequence import read_rgb
 
 #: Set to a path to keep a copy of the browser test's screenshot (the README's sample_data/review.png).
 SCREENSHOT_COPY = "ANNOTATE_RGBD_REVIEW_SCREENSHOT"

@@ -3,7 +3,7 @@ import cv2
 import pytest
 
 from annotate_rgbd.errors import InputError
-from annotate_rgbd.sequence import associate, read_depth, read_rgb, read_sequence
+from annotate_rgbd.io.sequence import associate, read_depth, read_rgb, read_sequence
 
 HEADER = "# color images\n# file: 'rgbd_dataset_freiburg1_rpy.bag'\n# timestamp filename\n"
 

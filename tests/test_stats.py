@@ -7,8 +7,8 @@ import json
 from typer.testing import CliRunner
 
 from annotate_rgbd.cli import app
-from annotate_rgbd.records import RunRecord
-from annotate_rgbd.stats import format_stats, run_stats
+from annotate_rgbd.report.records import RunRecord
+from annotate_rgbd.report.stats import format_stats, run_stats
 
 
 def _kept(plane: int, ratio: float) -> dict:

@@ -1,12 +1,12 @@
 import numpy as np
 import pytest
 
-from annotate_rgbd.annotation import Annotation
-from annotate_rgbd.config import MatchConfig
+from annotate_rgbd.annotation.model import Annotation
+from annotate_rgbd.config.settings import MatchConfig
 from annotate_rgbd.errors import InputError
-from annotate_rgbd.parts import frame_owners, place_parts
-from annotate_rgbd.sequence import FrameList
-from annotate_rgbd.stitch import AUTOMATIC, FIRST_PART, MANUAL, NEW, PartTracks, assign_planes, match_tracks, track_ious
+from annotate_rgbd.annotation.parts import frame_owners, place_parts
+from annotate_rgbd.io.sequence import FrameList
+from annotate_rgbd.annotation.stitch import AUTOMATIC, FIRST_PART, MANUAL, NEW, PartTracks, assign_planes, match_tracks, track_ious
 
 RGB = FrameList(np.arange(100) / 30.0, tuple(f"rgb/{i}.png" for i in range(100)))
 

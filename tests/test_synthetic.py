@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 from skimage.measure import points_in_poly
 
-from annotate_rgbd.camera import Camera, depth_to_metres
-from annotate_rgbd.config import FilterConfig, load_config
-from annotate_rgbd.filters import drop_reasons, plane_statistics
-from annotate_rgbd.rasterize import rasterize_frame
+from annotate_rgbd.geometry.camera import Camera, depth_to_metres
+from annotate_rgbd.config.settings import FilterConfig, load_config
+from annotate_rgbd.segment.filters import drop_reasons, plane_statistics
+from annotate_rgbd.segment.rasterize import rasterize_frame
 from annotate_rgbd.synthetic import (
     MAX_DEPTH,
     kinect_noise_sigma,

@@ -10,7 +10,7 @@ import cv2
 import numpy as np
 import pytest
 
-from annotate_rgbd.camera import Camera
+from annotate_rgbd.geometry.camera import Camera
 from annotate_rgbd.cvat import write_cvat_video
 from annotate_rgbd.synthetic import (
     Box,

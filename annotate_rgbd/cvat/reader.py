@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 from lxml import etree
 
-from annotate_rgbd.annotation import AREA_KINDS, Annotation
+from annotate_rgbd.annotation.model import AREA_KINDS, Annotation
 from annotate_rgbd.errors import InputError
 
 from .archive import xml_source

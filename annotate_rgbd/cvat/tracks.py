@@ -15,9 +15,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from annotate_rgbd.annotation import Annotation, Shape, Track
+from annotate_rgbd.annotation.model import Annotation, Shape, Track
 from annotate_rgbd.errors import InputError
-from annotate_rgbd.interpolate import (
+from annotate_rgbd.cvat.interpolate import (
     interpolate_angle,
     interpolate_box,
     interpolate_polygon_series,

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 from lxml import etree
 
-from annotate_rgbd.annotation import AREA_KINDS, Annotation, Shape, Track
+from annotate_rgbd.annotation.model import AREA_KINDS, Annotation, Shape, Track
 
 from .codecs import encode_rle
 from .format import SUPPORTED_VERSION

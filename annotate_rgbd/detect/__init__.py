@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..camera import Camera
+from annotate_rgbd.geometry.camera import Camera
 from .cells import NoiseModel, cloud_cells
 from .config import DetectorConfig
 from .grow import cell_moments, fit_planes, grow_regions, merge_segments, sum_moments

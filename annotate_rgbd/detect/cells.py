@@ -14,7 +14,7 @@ from typing import Callable
 
 import numpy as np
 
-from ..camera import Camera, backproject
+from annotate_rgbd.geometry.camera import Camera, backproject
 
 NoiseModel = Callable[[np.ndarray], np.ndarray]
 

@@ -12,14 +12,14 @@ from pathlib import Path
 
 import numpy as np
 
-from ..camera import Camera, depth_to_metres
-from ..config import FilterConfig
-from ..detect import detect_planes
-from ..detect.refine import relabel
-from ..errors import InputError
-from ..filters import camera_distances, drop_reasons, statistics_of_distances
-from ..noise import NoiseSettings
-from ..sequence import read_depth
+from annotate_rgbd.geometry.camera import Camera, depth_to_metres
+from annotate_rgbd.config.settings import FilterConfig
+from annotate_rgbd.detect import detect_planes
+from annotate_rgbd.detect.refine import relabel
+from annotate_rgbd.errors import InputError
+from annotate_rgbd.segment.filters import camera_distances, drop_reasons, statistics_of_distances
+from annotate_rgbd.geometry.noise import NoiseSettings
+from annotate_rgbd.io.sequence import read_depth
 from .outlines import fill_window, piece_outlines
 from .settings import ProposeConfig
 

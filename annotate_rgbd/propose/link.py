@@ -26,9 +26,9 @@ import cv2
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from ..camera import Camera
-from ..lift import lift_polygon, plane_agreement, plane_to_world, project_polygon
-from ..noise import NoiseSettings
+from annotate_rgbd.geometry.camera import Camera
+from annotate_rgbd.geometry.lift import lift_polygon, plane_agreement, plane_to_world, project_polygon
+from annotate_rgbd.geometry.noise import NoiseSettings
 from .detect_job import FrameProposal
 from .outlines import fill_window
 from .settings import LinkConfig

@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 from scipy import ndimage
 
-from ..detect.outline import simplify, trace_pieces
+from annotate_rgbd.detect.outline import simplify, trace_pieces
 
 #: Pieces of a plane's mask smaller than this are left out of its polygon (speckle, not area).
 MIN_PIECE_PX = 20

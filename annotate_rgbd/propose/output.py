@@ -10,11 +10,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..annotation import Annotation, Shape, Track
-from ..cvat import write_cvat_video
-from ..errors import OutputError
-from ..palette import colour_hex, colourize, plane_colours
-from ..writer import write_png
+from annotate_rgbd.annotation.model import Annotation, Shape, Track
+from annotate_rgbd.cvat import write_cvat_video
+from annotate_rgbd.errors import OutputError
+from annotate_rgbd.report.palette import colour_hex, colourize, plane_colours
+from annotate_rgbd.io.writer import write_png
 
 
 @dataclass

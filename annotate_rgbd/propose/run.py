@@ -10,15 +10,15 @@ from typing import Callable
 
 import numpy as np
 
-from .. import __version__
-from ..annotation import Shape
-from ..config import Config, config_to_dict
-from ..errors import InputError
-from ..lift import plane_to_world
-from ..pool import default_workers, run_jobs, start_helpers
-from ..poses import poses_at, read_trajectory
-from ..sequence import associate, read_sequence
-from ..writer import prepare_output, write_json
+from annotate_rgbd import __version__
+from annotate_rgbd.annotation.model import Shape
+from annotate_rgbd.config.settings import Config, config_to_dict
+from annotate_rgbd.errors import InputError
+from annotate_rgbd.geometry.lift import plane_to_world
+from annotate_rgbd.pool import default_workers, run_jobs, start_helpers
+from annotate_rgbd.io.poses import poses_at, read_trajectory
+from annotate_rgbd.io.sequence import associate, read_sequence
+from annotate_rgbd.io.writer import prepare_output, write_json
 from .detect_job import DetectJob, FrameProposal, propose_frame
 from .link import TrackLinker
 from .output import TrackShapes, equation_text, track_colour, write_colour_mask, write_polygon_tracks

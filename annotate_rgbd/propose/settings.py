@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from ..detect import DetectorConfig
+from annotate_rgbd.detect import DetectorConfig
 
 #: CVAT label of the proposed tracks.
 DEFAULT_LABEL = "plane"

@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..camera import Camera
+from annotate_rgbd.geometry.camera import Camera
 from .polygons import plane_polygon
 from .raycast import render
 from .scene import Pose, Scene

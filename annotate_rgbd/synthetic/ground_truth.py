@@ -47,8 +47,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..config import FilterConfig
-from ..filters import INVALID_DEPTH, TOO_FAR
+from annotate_rgbd.config.settings import FilterConfig
+from annotate_rgbd.segment.filters import INVALID_DEPTH, TOO_FAR
 from .frame import Frame
 
 #: The pipeline's default thresholds (EVOPS paper; see :class:`annotate_rgbd.config.FilterConfig`).

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..camera import Camera, project
+from annotate_rgbd.geometry.camera import Camera, project
 from .scene import NEAR, Plane, Pose
 
 

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..camera import Camera, project
+from annotate_rgbd.geometry.camera import Camera, project
 from .polygons import plane_polygon
 from .scene import NEAR, Box, Clutter, Cylinder, Plane, Pose, Scene, Sphere
 

@@ -9,8 +9,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from ..annotation import Annotation, Shape, Track
-from ..camera import Camera
+from annotate_rgbd.annotation.model import Annotation, Shape, Track
+from annotate_rgbd.geometry.camera import Camera
 from .frame import render_frame
 from .ground_truth import depth_statistics, plane_record
 from .scene import Pose, Scene, room_scene, room_trajectory

@@ -1,0 +1,560 @@
+"""Run configuration: defaults, TOML files, scene presets and command-line overrides.
+
+Every default lives here, with its source. A configuration file has the sections below; a key
+that is not listed is an error, so a typo never goes unnoticed::
+
+    [camera]            # pinhole intrinsics of the depth camera
+    fx = 517.3
+    fy = 516.5
+    cx = 318.6
+    cy = 255.3
+    depth_scale = 5000.0
+    [sequence]
+    max_time_diff = 0.02
+    [annotation]
+    labels = []         # CVAT labels to use; empty: all
+    [filter]
+    max_invalid_ratio = 0.8
+    max_mean_distance = 3.5
+    min_valid_pixels = 50
+    [ransac]
+    distance_threshold = 0.0   # > 0: a fixed inlier band instead of [noise]
+    num_iterations = 1000
+    seed = 0
+    max_points = 1000
+    [noise]             # the inlier band: clip(k sigma(z), floor, cap) (annotate_rgbd.noise)
+    model = "kinect_v1" # or icl_nuim, realsense_d435, quadratic (a, b, c), constant (sigma)
+    k = 3.0
+    floor = 0.002
+    cap = 0.1
+    [refine]
+    grow_pixels = 3
+    rim_pixels = 2
+    [stitch]            # several annotation parts of one sequence
+    min_iou = 0.5
+    [[parts]]           # where a part starts in the RGB list (repeat per part)
+    file = "950-1900.xml"
+    offset = 950
+    [[matches]]         # manual fix of the automatic track matching (repeat per fix)
+    part = "950-1900.xml"
+    track = 3
+    plane = 7           # or: with_part = "0-953.xml" and with_track = 5, or: new = true
+
+``--config`` takes a file path or the name of a preset in ``configs/`` (``fr1_desk``, ...).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import types
+import typing
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any, Iterable, Mapping
+
+from annotate_rgbd.geometry.camera import Camera
+from annotate_rgbd.errors import InputError
+from annotate_rgbd.geometry.noise import NoiseSettings, noise_settings_from_mapping
+from annotate_rgbd.io.poses import DEFAULT_MAX_POSE_GAP
+from .toml_input import NestedTooDeep, read_toml
+
+
+@dataclass(frozen=True)
+class SequenceConfig:
+    """How depth frames are matched to RGB frames.
+
+    Parameters
+    ----------
+    max_time_diff : float
+        Largest |t_depth - t_rgb| in seconds for a depth frame to use an RGB frame's
+        annotation. 0.02 s is the default of TUM RGB-D's ``associate.py``.
+    poses : str
+        A camera trajectory in TUM format (``timestamp tx ty tz qx qy qz qw``, camera to world):
+        keyframe shapes are then carried to every frame by the poses
+        (:mod:`annotate_rgbd.propagate`). Relative to the configuration file's folder. Empty:
+        no poses (shapes between keyframes are interpolated in 2-D, as CVAT does).
+    max_pose_gap : float
+        A frame gets a pose only when trajectory samples on both sides lie within this many
+        seconds (:data:`annotate_rgbd.poses.DEFAULT_MAX_POSE_GAP`: TUM's motion capture runs at
+        100 Hz and has drop-outs).
+    """
+
+    max_time_diff: float = 0.02
+    poses: str = ""
+    max_pose_gap: float = DEFAULT_MAX_POSE_GAP
+
+
+@dataclass(frozen=True)
+class AnnotationConfig:
+    """Which CVAT shapes become planes.
+
+    Parameters
+    ----------
+    labels : tuple of str
+        CVAT labels to use; empty means every label.
+    """
+
+    labels: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class FilterConfig:
+    """When a plane is dropped from a frame before refinement.
+
+    Parameters
+    ----------
+    max_invalid_ratio : float
+        Drop a plane whose share of pixels without valid depth exceeds this (EVOPS paper: 0.8;
+        0.75 for fr2_pioneer_slam in the original annotation).
+    max_mean_distance : float
+        Drop a plane whose valid pixels lie farther than this from the camera on average, in
+        metres (EVOPS paper: 3.5 m, where Kinect depth noise grows beyond a few centimetres).
+    min_valid_pixels : int
+        Drop a plane with fewer valid pixels than this: RANSAC needs 3 points, and a patch
+        smaller than about 7x7 pixels says nothing reliable about a plane (this project's choice).
+    """
+
+    max_invalid_ratio: float = 0.8
+    max_mean_distance: float = 3.5
+    min_valid_pixels: int = 50
+
+
+@dataclass(frozen=True)
+class RansacConfig:
+    """Open3D ``segment_plane`` settings.
+
+    Parameters
+    ----------
+    distance_threshold : float
+        A fixed inlier band: the largest point-to-plane distance of an inlier, in metres, at
+        every depth (EVOPS set it by hand per sequence: 0.02 m for TUM long_office; 0.005 m for
+        ICL-NUIM, 0.01 m fr1_desk, 0.03 m fr2_pioneer_slam). 0 (the default): the band follows
+        the sensor's noise, ``[noise]`` (:class:`annotate_rgbd.noise.NoiseSettings`). A value
+        > 0 replaces the noise model, whatever ``[noise]`` says.
+    num_iterations : int
+        RANSAC iterations (Open3D stops earlier once the inlier set is certain).
+    seed : int
+        Seed of Open3D's random generator, set before every fit so that a re-run gives
+        identical masks.
+    max_points : int
+        RANSAC looks for the plane among at most this many of a plane's points, spread evenly
+        over it (a regular pixel grid); every pixel is then tested against that plane. On the
+        benchmark sequence (benchmarks/bench_cvat2mask.py) 1,000 points change 0.04 % of the
+        mask pixels against a search among all points, at a third of the time. 0: every point.
+    """
+
+    distance_threshold: float = 0.0
+    num_iterations: int = 1000
+    seed: int = 0
+    max_points: int = 1000
+
+
+@dataclass(frozen=True)
+class RefineConfig:
+    """What refinement does besides the inlier test.
+
+    Parameters
+    ----------
+    grow_pixels : int
+        Grow each kept plane by up to this many pixels beyond its drawn shape, into pixels
+        whose depth lies on the plane and that no other plane's shape or inliers claim
+        (:func:`annotate_rgbd.grow.grow_planes`): a labeller's outline is a pixel or two off the
+        real edge (this project's measurement on rendered scenes: +-2 px). 0: no growing.
+    rim_pixels : int
+        Drop a plane's pixels this close to a surface standing in front of it inside its shape
+        (:func:`annotate_rgbd.refine.near_surfaces_in_front`; README, *Refinement and sensor
+        noise*, for the measurement behind 2). 0: keep them.
+    """
+
+    grow_pixels: int = 3
+    rim_pixels: int = 2
+
+
+@dataclass(frozen=True)
+class StitchConfig:
+    """How tracks of consecutive annotation parts are matched into one plane.
+
+    Parameters
+    ----------
+    min_iou : float
+        Smallest IoU of two tracks' depth-refined masks on the frames the parts share (or on the
+        last frame of one part and the first of the next) for them to be the same plane. 0.5 is
+        the usual threshold for "the same object" (PASCAL VOC) and the one CVAT uses to merge
+        overlapping job segments.
+    """
+
+    min_iou: float = 0.5
+
+
+@dataclass(frozen=True)
+class PartConfig:
+    """Where one annotation part starts in the RGB sequence (``[[parts]]`` in a config file).
+
+    Parameters
+    ----------
+    file : str
+        The export's file name (as given on the command line, or its base name).
+    offset : int
+        RGB index of the part's frame 0.
+    """
+
+    file: str
+    offset: int
+
+
+@dataclass(frozen=True)
+class MatchConfig:
+    """A manual correction of the automatic track matching (``[[matches]]`` in a config file).
+
+    Exactly one of ``plane``, ``with_part`` + ``with_track`` or ``new`` is given.
+
+    Parameters
+    ----------
+    part : str
+        File name of the part the track is in.
+    track : int
+        The CVAT track id in that part.
+    plane : int, optional
+        Pin the track to this global plane id (a plane that an earlier part introduced).
+    with_part, with_track : str and int, optional
+        The track is the same plane as this track of another part.
+    new : bool
+        The track is a new plane, whatever the automatic matching says.
+    """
+
+    part: str
+    track: int
+    plane: int | None = None
+    with_part: str | None = None
+    with_track: int | None = None
+    new: bool = False
+
+
+#: Default camera: the ROS default calibration that TUM RGB-D recommends for its registered
+#: depth images (fx = fy = 525, cx = 319.5, cy = 239.5), depth in units of 1/5000 m.
+DEFAULT_CAMERA = Camera(fx=525.0, fy=525.0, cx=319.5, cy=239.5, depth_scale=5000.0)
+
+
+@dataclass(frozen=True)
+class Config:
+    """Everything a ``cvat2mask`` run depends on besides its input files."""
+
+    camera: Camera = DEFAULT_CAMERA
+    sequence: SequenceConfig = field(default_factory=SequenceConfig)
+    annotation: AnnotationConfig = field(default_factory=AnnotationConfig)
+    filter: FilterConfig = field(default_factory=FilterConfig)
+    ransac: RansacConfig = field(default_factory=RansacConfig)
+    noise: NoiseSettings = field(default_factory=NoiseSettings)
+    refine: RefineConfig = field(default_factory=RefineConfig)
+    stitch: StitchConfig = field(default_factory=StitchConfig)
+    parts: tuple[PartConfig, ...] = ()
+    matches: tuple[MatchConfig, ...] = ()
+
+    def inlier_band(self) -> NoiseSettings:
+        """The inlier band refinement uses: a fixed ``ransac.distance_threshold`` when one is
+        set, else the ``[noise]`` model's."""
+        if self.ransac.distance_threshold > 0:
+            return NoiseSettings.fixed(self.ransac.distance_threshold)
+        return self.noise
+
+
+def preset_names() -> list[str]:
+    """Names of the scene presets shipped in ``configs/``."""
+    folder = resources.files("annotate_rgbd.configs")
+    return sorted(p.name[: -len(".toml")] for p in folder.iterdir() if p.name.endswith(".toml"))
+
+
+#: Sections that hold a list of tables (``[[parts]]``) rather than one table.
+LIST_SECTIONS = {"parts": PartConfig, "matches": MatchConfig}
+
+
+def config_to_dict(config: Config) -> dict[str, Any]:
+    """The configuration as nested plain values (for reports: tuples become lists)."""
+
+    def plain(value: Any) -> Any:
+        if isinstance(value, NoiseSettings):
+            return value.to_mapping()
+        if isinstance(value, (tuple, list)):
+            return [plain(v) for v in value]
+        if isinstance(value, dict):
+            return {k: plain(v) for k, v in value.items() if v is not None}
+        return value
+
+    return {f.name: plain(getattr(config, f.name) if f.name == "noise" else dataclasses.asdict(config)[f.name])
+            for f in dataclasses.fields(config)}
+
+
+def load_config(source: str | Path | None = None, overrides: Mapping[str, Any] | None = None) -> Config:
+    """Build the run configuration.
+
+    Parameters
+    ----------
+    source : str or Path, optional
+        A TOML file, or the name of a preset in ``configs/``. ``None``: defaults only.
+    overrides : mapping of str to value, optional
+        ``"section.key" -> value`` pairs (from command-line options) applied after the file.
+
+    Returns
+    -------
+    Config
+
+    Raises
+    ------
+    InputError
+        Unknown file or preset, invalid TOML, unknown section or key, or a value of the wrong
+        type or range.
+    """
+    values: dict[str, dict[str, Any]] = {}
+    origin: str | Path | None = None
+    if source is not None:
+        origin, text = _read_source(source)
+        values = read_toml(text, origin)
+    poses = values.get("sequence", {}).get("poses") if isinstance(values.get("sequence"), Mapping) else None
+    if isinstance(poses, str) and poses and isinstance(origin, Path):
+        values["sequence"]["poses"] = str(origin.parent / poses)  # relative to the file
+    config = _build(values, origin)
+    if not overrides:
+        return config
+    for dotted, value in overrides.items():
+        section, _, key = dotted.partition(".")
+        values.setdefault(section, {})[key] = value
+    # The file alone was valid: what fails now comes from the command line.
+    return _build(values, "command-line option")
+
+
+def config_from_dict(values: Mapping[str, Any], origin: str | Path | None = None) -> Config:
+    """The inverse of :func:`config_to_dict` (e.g. the ``config`` recorded in ``report.json``)."""
+    return _build(values, origin)
+
+
+def parse_settings(settings: Iterable[str]) -> dict[str, Any]:
+    """Read ``--set SECTION.KEY=VALUE`` overrides (also a manifest's ``set`` list).
+
+    Parameters
+    ----------
+    settings : iterable of str
+        ``"section.key=value"`` texts. A value is read as a TOML value (numbers, booleans,
+        lists, quoted strings); one that is not valid TOML is kept as the plain text.
+
+    Returns
+    -------
+    dict of str to value
+        ``"section.key" -> value``, the ``overrides`` of :func:`load_config`.
+
+    Raises
+    ------
+    InputError
+        A text without ``=`` or without a ``.`` in its key.
+    """
+    overrides = {}
+    for setting in settings:
+        key, sep, text = setting.partition("=")
+        if not sep or "." not in key:
+            raise InputError(None, f"--set {setting!r}: expected SECTION.KEY=VALUE, e.g. ransac.distance_threshold=0.01")
+        try:
+            value = read_toml(f"v = {text}", None)["v"]
+        except NestedTooDeep as exc:
+            raise InputError(None, f"--set {key.strip()}: {exc.message}") from None
+        except InputError:
+            value = text
+        overrides[key.strip()] = value
+    return overrides
+
+
+def parse_part_offsets(parts: Iterable[str]) -> dict[str, int]:
+    """Read ``--part FILE:OFFSET`` texts (also a manifest's ``parts`` list), the command-line
+    form of a ``[[parts]]`` entry (:class:`PartConfig`).
+
+    Parameters
+    ----------
+    parts : iterable of str
+        ``"file:offset"`` texts; the file name may itself contain ``:``, the offset is what
+        follows the last one.
+
+    Returns
+    -------
+    dict of str to int
+        File -> RGB index of the part's frame 0.
+
+    Raises
+    ------
+    InputError
+        A text without a file name or without a non-negative integer offset.
+    """
+    offsets = {}
+    for text in parts:
+        file, sep, offset = text.rpartition(":")
+        if not sep or not file or not offset.strip().isdigit():
+            raise InputError(None, f"--part {text!r}: expected FILE:OFFSET, e.g. --part 950-1900.xml:950")
+        offsets[file] = int(offset)
+    return offsets
+
+
+def _read_source(source: str | Path) -> tuple[Path | str, str]:
+    path = Path(source)
+    if path.is_file():
+        try:
+            return path, path.read_text(encoding="utf-8")
+        except (OSError, UnicodeDecodeError) as exc:
+            raise InputError(path, f"cannot read configuration: {exc}") from None
+    names = preset_names()
+    if str(source) in names:
+        preset = resources.files("annotate_rgbd.configs") / f"{source}.toml"
+        return f"preset {source}", preset.read_text(encoding="utf-8")
+    raise InputError(source, f"no such configuration file or preset (presets: {', '.join(names)})")
+
+
+def _build(values: Mapping[str, Any], origin: str | Path | None) -> Config:
+    defaults = Config()
+    sections = {f.name: getattr(defaults, f.name) for f in dataclasses.fields(Config)}
+    built = {}
+    for name, table in values.items():
+        if name in LIST_SECTIONS:
+            built[name] = _build_list(name, LIST_SECTIONS[name], table, origin)
+            continue
+        if name == "noise" and isinstance(table, Mapping):
+            try:
+                built[name] = noise_settings_from_mapping(table)
+            except ValueError as exc:
+                raise InputError(origin, str(exc)) from None
+            continue
+        if name not in sections:
+            raise InputError(origin, f"unknown section [{name}] (known: {', '.join(sections)})")
+        if not isinstance(table, Mapping):
+            raise InputError(origin, f"[{name}] must be a table of keys")
+        built[name] = _build_section(name, sections[name], table, origin)
+    config = dataclasses.replace(defaults, **built)
+    _check_ranges(config, origin)
+    return config
+
+
+def _build_list(name: str, entry_type: type, tables: Any, origin: str | Path | None) -> tuple:
+    """Read a ``[[name]]`` list of tables into a tuple of ``entry_type``."""
+    if not isinstance(tables, list) or not all(isinstance(t, Mapping) for t in tables):
+        raise InputError(origin, f"'{name}' must be a list of tables: write each entry as [[{name}]]")
+    fields = {f.name: f for f in dataclasses.fields(entry_type)}
+    kinds = _entry_types(entry_type)
+    required = [f.name for f in fields.values() if f.default is dataclasses.MISSING]
+    entries = []
+    for number, table in enumerate(tables, start=1):
+        where = f"[[{name}]] entry {number}"
+        for key in table:
+            if key not in fields:
+                raise InputError(origin, f"{where}: unknown key '{key}' (known: {', '.join(fields)})")
+        for key in required:
+            if key not in table:
+                raise InputError(origin, f"{where}: '{key}' is missing")
+        values = {}
+        for key, value in table.items():
+            accepted = [kind for kind in kinds[key] if _is_a(value, kind)]
+            if not accepted:
+                raise InputError(origin, f"{where}: '{key}' has the wrong type ({value!r})")
+            values[key] = float(value) if accepted[0] is float else value
+        entries.append(entry_type(**values))
+    return tuple(entries)
+
+
+#: The types a ``[[list]]`` entry's field may have (alone, or in a union such as ``int | None``).
+ENTRY_VALUE_TYPES = (str, bool, int, float)
+
+
+def _entry_types(entry_type: type) -> dict[str, tuple[type, ...]]:
+    """Field name -> the types its value may have, read from the dataclass's type hints.
+
+    ``int | None`` gives ``(int,)``: TOML has no null, leaving a key out gives its default.
+    A field of any other type is a programming error (TOML cannot say what it means).
+    """
+    hints = typing.get_type_hints(entry_type)
+    kinds = {}
+    for f in dataclasses.fields(entry_type):
+        hint = hints[f.name]
+        members = typing.get_args(hint) if typing.get_origin(hint) in (typing.Union, types.UnionType) else (hint,)
+        members = tuple(m for m in members if m is not type(None))
+        if not members or not all(m in ENTRY_VALUE_TYPES for m in members):
+            raise TypeError(f"{entry_type.__name__}.{f.name}: a [[list]] entry cannot hold a {hint}")
+        kinds[f.name] = members
+    return kinds
+
+
+def _is_a(value: Any, kind: type) -> bool:
+    """Whether a TOML value fits ``kind``: booleans are no numbers, integers are floats."""
+    if isinstance(value, bool):
+        return kind is bool
+    if kind is float:
+        return isinstance(value, (int, float))
+    return isinstance(value, kind)
+
+
+def _build_section(name: str, default: Any, table: Mapping[str, Any], origin: str | Path | None) -> Any:
+    fields = {f.name: f for f in dataclasses.fields(default)}
+    changes = {}
+    for key, value in table.items():
+        if key not in fields:
+            raise InputError(
+                origin, f"unknown key '{name}.{key}' (known in [{name}]: {', '.join(fields)})"
+            )
+        changes[key] = _coerce(f"{name}.{key}", getattr(default, key), value, origin)
+    return dataclasses.replace(default, **changes)
+
+
+def _coerce(key: str, default: Any, value: Any, origin: str | Path | None) -> Any:
+    """Check ``value`` against the type of the default and convert ints to floats where needed."""
+    if isinstance(default, str):
+        if not isinstance(value, str):
+            raise InputError(origin, f"'{key}' must be a string, got {value!r}")
+        return value
+    if isinstance(default, tuple):
+        if isinstance(value, str):
+            value = [value]
+        if not isinstance(value, (list, tuple)) or not all(isinstance(v, str) for v in value):
+            raise InputError(origin, f"'{key}' must be a list of strings")
+        return tuple(value)
+    if isinstance(default, bool) or isinstance(value, bool):
+        raise InputError(origin, f"'{key}' must be a number, got {value!r}")
+    if isinstance(default, int):
+        if isinstance(value, float) and value.is_integer():
+            value = int(value)
+        if not isinstance(value, int):
+            raise InputError(origin, f"'{key}' must be an integer, got {value!r}")
+        return value
+    if not isinstance(value, (int, float)):
+        raise InputError(origin, f"'{key}' must be a number, got {value!r}")
+    return float(value)
+
+
+#: Largest integer setting: Open3D takes its RANSAC iterations and seed as a C int.
+MAX_INT_SETTING = 2**31 - 1
+
+
+def _check_ranges(config: Config, origin: str | Path | None) -> None:
+    for section in dataclasses.fields(config):
+        value = getattr(config, section.name)
+        if not dataclasses.is_dataclass(value) or isinstance(value, NoiseSettings):
+            continue  # lists of tables are checked per entry; the noise section by its reader
+        for key, number in dataclasses.asdict(value).items():
+            if isinstance(number, float) and not math.isfinite(number):
+                raise InputError(origin, f"'{section.name}.{key}' must be a finite number, got {number!r}")
+            if isinstance(number, int) and not isinstance(number, bool) and abs(number) > MAX_INT_SETTING:
+                raise InputError(origin, f"'{section.name}.{key}' must be at most {MAX_INT_SETTING}, got {number}")
+    checks = [
+        ("camera.fx", config.camera.fx != 0, "must not be 0"),
+        ("camera.fy", config.camera.fy != 0, "must not be 0"),
+        ("camera.depth_scale", config.camera.depth_scale > 0, "must be > 0"),
+        ("sequence.max_time_diff", config.sequence.max_time_diff >= 0, "must be >= 0"),
+        ("sequence.max_pose_gap", config.sequence.max_pose_gap > 0, "must be > 0"),
+        ("filter.max_invalid_ratio", 0 <= config.filter.max_invalid_ratio <= 1, "must be in [0, 1]"),
+        ("filter.max_mean_distance", config.filter.max_mean_distance > 0, "must be > 0"),
+        ("filter.min_valid_pixels", config.filter.min_valid_pixels >= 3, "must be >= 3"),
+        ("ransac.distance_threshold", config.ransac.distance_threshold >= 0, "must be >= 0 (0: the [noise] band)"),
+        ("refine.grow_pixels", 0 <= config.refine.grow_pixels <= 50, "must be in [0, 50]"),
+        ("refine.rim_pixels", 0 <= config.refine.rim_pixels <= 50, "must be in [0, 50]"),
+        ("ransac.num_iterations", config.ransac.num_iterations >= 1, "must be >= 1"),
+        ("ransac.seed", config.ransac.seed >= 0, "must be >= 0"),
+        ("ransac.max_points", config.ransac.max_points == 0 or config.ransac.max_points >= 3, "must be 0 or >= 3"),
+        ("stitch.min_iou", 0 < config.stitch.min_iou <= 1, "must be in (0, 1]"),
+    ]
+    for key, ok, rule in checks:
+        if not ok:
+            raise InputError(origin, f"'{key}' {rule}")

@@ -1,0 +1,1 @@
+"""Scoring plane masks against ground truth with the EVOPS metrics."""

@@ -1,0 +1,247 @@
+"""Score predicted plane masks against ground-truth masks over a sequence (``annotate-rgbd evaluate``).
+
+Ground truth (GT) and prediction (PRED) are two folders of per-frame label files, or two single files.
+Frames are matched by file name without its suffix, so ``1305031102.175304.png`` in GT pairs with
+``1305031102.175304.png``, ``.npy`` or ``.csv`` in PRED. A GT frame without a PRED file counts as an
+empty prediction (every plane missed) and is listed in ``frames_missing``; PRED files without a GT
+frame are ignored and listed in ``predictions_unmatched``. The sequence score of each statistic is
+its mean over the GT frames.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from annotate_rgbd.errors import InputError
+from annotate_rgbd.io.writer import write_csv
+from annotate_rgbd.io.labelmaps import LABEL_SUFFIXES, read_label_map
+from .metrics import METRIC_NAMES, FrameStatistics, frame_statistics
+
+log = logging.getLogger("annotate_rgbd")
+
+
+@dataclass(frozen=True)
+class FramePair:
+    """One GT frame and the PRED file scored against it (``None`` when PRED has none)."""
+
+    name: str
+    gt: Path
+    pred: Path | None
+
+
+@dataclass(frozen=True)
+class FrameScore:
+    """The statistics of one frame; ``missing`` when PRED had no file for it."""
+
+    name: str
+    statistics: FrameStatistics
+    missing: bool
+    #: Its label files that look like photographs (:func:`looks_like_a_photograph`).
+    unlikely_masks: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class EvaluationResult:
+    """Per-frame statistics of a sequence and their means.
+
+    Attributes
+    ----------
+    frames : tuple of FrameScore
+        One per GT frame, in file name order.
+    full, part : float
+        The IoU thresholds used.
+    predictions_unmatched : tuple of str
+        Names of PRED files that have no GT frame (not scored).
+    """
+
+    frames: tuple[FrameScore, ...]
+    full: float
+    part: float
+    predictions_unmatched: tuple[str, ...] = ()
+
+    @property
+    def means(self) -> dict[str, float]:
+        """Sequence mean of each statistic, in :data:`~annotate_rgbd.metrics.METRIC_NAMES` order."""
+        table = np.array([[getattr(f.statistics, name) for name in METRIC_NAMES] for f in self.frames])
+        return dict(zip(METRIC_NAMES, table.mean(axis=0).tolist()))
+
+    @property
+    def frames_missing(self) -> list[str]:
+        """Names of the GT frames that PRED has no file for."""
+        return [f.name for f in self.frames if f.missing]
+
+    def to_dict(self) -> dict:
+        """The means plus ``frames`` (the frame count) and ``frames_missing`` (their names)."""
+        return {**self.means, "frames": len(self.frames), "frames_missing": self.frames_missing}
+
+
+def evaluate_paths(
+    gt: str | Path,
+    pred: str | Path,
+    full: float = 0.75,
+    part: float = 0.2,
+    measure: str = "iou",
+) -> EvaluationResult:
+    """Score a prediction against the ground truth, frame by frame.
+
+    Parameters
+    ----------
+    gt, pred : str or Path
+        Two folders of label files matched by name (see the module docstring), or two label files.
+    full, part : float, optional
+        IoU thresholds for a full match and a partial overlap, in ``(0, 1]``.
+    measure : {"iou", "dice"}, optional
+        What ``mean`` and ``panoptic`` average over the matched planes.
+
+    Returns
+    -------
+    EvaluationResult
+        Per-frame statistics and their sequence means.
+
+    Raises
+    ------
+    InputError
+        For a missing path, a GT folder without label files, an unreadable label file, or a PRED
+        frame whose size differs from its GT frame.
+    """
+    for value, name in ((full, "full"), (part, "part")):
+        if not 0.0 < value <= 1.0:
+            raise InputError(None, f"--{name} must be in (0, 1], not {value}")
+    pairs, unmatched = match_frames(gt, pred)
+    frames = tuple(score_frame(pair, full=full, part=part, measure=measure) for pair in pairs)
+    unlikely = [path for frame in frames for path in frame.unlikely_masks]
+    if unlikely:
+        log.warning(
+            "%s: made mostly of tiny labels (every shade a plane): a photograph rather than a mask?%s",
+            unlikely[0], f" (and {len(unlikely) - 1} more label files)" if len(unlikely) > 1 else "",
+        )
+    return EvaluationResult(frames=frames, full=full, part=part, predictions_unmatched=tuple(unmatched))
+
+
+def match_frames(gt: str | Path, pred: str | Path) -> tuple[list[FramePair], list[str]]:
+    """Pair GT frames with PRED files by name.
+
+    Parameters
+    ----------
+    gt, pred : str or Path
+        Two folders, or two files (paired whatever their names).
+
+    Returns
+    -------
+    pairs : list of FramePair
+        One per GT label file, sorted by name.
+    unmatched : list of str
+        PRED file names without a GT frame.
+    """
+    gt, pred = Path(gt), Path(pred)
+    for path in (gt, pred):
+        if not path.exists():
+            raise InputError(path, "not found")
+    if gt.is_file() and pred.is_file():
+        return [FramePair(gt.stem, gt, pred)], []
+    if gt.is_file() or pred.is_file():
+        raise InputError(pred if gt.is_dir() else gt, "GT and PRED must both be folders or both be files")
+    gt_files = _label_files(gt)
+    if not gt_files:
+        raise InputError(gt, f"no label files ({', '.join(LABEL_SUFFIXES)}) in the ground-truth folder")
+    pred_files = _label_files(pred)
+    if not pred_files:
+        raise InputError(pred, f"no label files ({', '.join(LABEL_SUFFIXES)}) in the prediction folder")
+    if not pred_files.keys() & gt_files.keys():
+        raise InputError(
+            pred,
+            f"no file name in common with the ground truth (PRED has e.g. {min(pred_files)}, GT "
+            f"{min(gt_files)}): frames are matched by file name without its suffix",
+        )
+    pairs = [FramePair(name, path, pred_files.get(name)) for name, path in sorted(gt_files.items())]
+    unmatched = sorted(pred_files[name].name for name in pred_files.keys() - gt_files.keys())
+    return pairs, unmatched
+
+
+#: A label covering less than this share of the image is a speck, not a plane (0.05 %: 38 pixels
+#: at 320x240). In a plane mask specks hold almost no pixels; in a photograph, whose every shade
+#: is a "label", they hold most (82 % on a TUM RGB frame, 4.7 % on the flat-shaded sample frames).
+SPECK_SHARE = 0.0005
+#: Share of pixels in specks above which a label file is taken for an image rather than a mask.
+MAX_SPECK_PIXELS = 0.02
+
+
+def looks_like_a_photograph(labels: np.ndarray) -> bool:
+    """Whether a label map is more likely an image given by mistake than a plane mask.
+
+    Parameters
+    ----------
+    labels : ndarray of int, shape (height, width)
+
+    Returns
+    -------
+    bool
+        True when more than :data:`MAX_SPECK_PIXELS` of the pixels carry labels that each cover
+        less than :data:`SPECK_SHARE` of the image.
+    """
+    _, inverse, counts = np.unique(labels.ravel(), return_inverse=True, return_counts=True)
+    return bool((counts[inverse] < SPECK_SHARE * labels.size).mean() > MAX_SPECK_PIXELS)
+
+
+def score_frame(pair: FramePair, *, full: float, part: float, measure: str = "iou") -> FrameScore:
+    """Read one frame pair and compute its statistics (an absent PRED file is an empty prediction)."""
+    gt = read_label_map(pair.gt)
+    pred = np.zeros_like(gt) if pair.pred is None else read_label_map(pair.pred)
+    unlikely = tuple(str(path) for path, labels in ((pair.gt, gt), (pair.pred, pred)) if looks_like_a_photograph(labels))
+    if pred.shape != gt.shape:
+        raise InputError(
+            pair.pred,
+            f"frame is {pred.shape[1]}x{pred.shape[0]} "
+            f"but ground truth {pair.gt.name} is {gt.shape[1]}x{gt.shape[0]}",
+        )
+    statistics = frame_statistics(gt, pred, full=full, part=part, measure=measure)
+    return FrameScore(pair.name, statistics, missing=pair.pred is None, unlikely_masks=unlikely)
+
+
+def format_table(result: EvaluationResult) -> str:
+    """The sequence means as a two-column text table, with the frame counts below."""
+    width = max(len(name) for name in METRIC_NAMES)
+    lines = [f"{'metric':<{width}}  mean", f"{'-' * width}  ------"]
+    lines += [f"{name:<{width}}  {value:.4f}" for name, value in result.means.items()]
+    lines.append(f"frames: {len(result.frames)} (full IoU >= {result.full}, partial IoU >= {result.part})")
+    missing = result.frames_missing
+    if missing:
+        shown = ", ".join(missing[:10]) + (", ..." if len(missing) > 10 else "")
+        lines.append(f"missing in PRED (scored as empty): {len(missing)}: {shown}")
+    if result.predictions_unmatched:
+        lines.append(f"PRED files without a GT frame (ignored): {len(result.predictions_unmatched)}")
+    return "\n".join(lines)
+
+
+def format_json(result: EvaluationResult) -> str:
+    """The result as one JSON object (see :meth:`EvaluationResult.to_dict`)."""
+    return json.dumps(result.to_dict(), indent=2)
+
+
+def write_per_frame_csv(result: EvaluationResult, path: str | Path) -> None:
+    """Write one CSV row per frame (atomically): its name, the statistics, and whether PRED was missing."""
+    write_csv(
+        Path(path),
+        ("frame", *METRIC_NAMES, "missing"),
+        [
+            (frame.name, *(repr(getattr(frame.statistics, name)) for name in METRIC_NAMES), int(frame.missing))
+            for frame in result.frames
+        ],
+    )
+
+
+def _label_files(folder: Path) -> dict[str, Path]:
+    """Label files of a folder by name without suffix; two files of one name are ambiguous."""
+    files: dict[str, Path] = {}
+    for path in sorted(folder.iterdir()):
+        if not path.is_file() or path.suffix.lower() not in LABEL_SUFFIXES:
+            continue
+        if path.stem in files:
+            raise InputError(path, f"same frame name as {files[path.stem].name}: which to score is ambiguous")
+        files[path.stem] = path
+    return files

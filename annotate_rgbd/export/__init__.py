@@ -1,0 +1,1 @@
+"""Exports of a finished run for other tools (CVAT for corrections)."""

@@ -1,0 +1,1 @@
+"""Files at the edges: RGB-D sequences, camera trajectories, label maps, atomic writes, the output folder."""

@@ -1,0 +1,143 @@
+"""Per-frame plane label files: read any supported format into one integer label array.
+
+Supported formats, chosen by file suffix (0 is always "no plane"):
+
+- ``.png`` with three or four channels: a colour mask as ``cvat2mask`` writes it, black = 0 and one
+  plane per distinct colour (an alpha channel is ignored).
+- ``.png`` with one channel, 8 or 16 bit: the pixel value is the plane label.
+- ``.npy``: a 2-D integer (or boolean) label array.
+- ``.csv``: CAPE's label output, one line per image row, comma-separated integer labels, usually
+  with a trailing comma on every line.
+
+Plane ids are only meaningful within one file: the metrics never assume that two files number the
+same plane alike.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from annotate_rgbd.errors import InputError
+from .sequence import read_image
+
+#: File suffixes that :func:`read_label_map` understands.
+LABEL_SUFFIXES = (".png", ".npy", ".csv")
+
+
+def read_label_map(path: str | Path) -> np.ndarray:
+    """Read one frame's plane labels.
+
+    Parameters
+    ----------
+    path : str or Path
+        A label file in one of the formats of :data:`LABEL_SUFFIXES` (see the module docstring).
+
+    Returns
+    -------
+    ndarray of int, shape (height, width)
+        Plane label per pixel, 0 where there is no plane.
+
+    Raises
+    ------
+    InputError
+        When the file is missing, unreadable, or not a 2-D integer label image.
+    """
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in LABEL_SUFFIXES:
+        supported = ", ".join(LABEL_SUFFIXES)
+        raise InputError(path, f"unsupported label file type {path.suffix!r} (use {supported})")
+    if not path.is_file():
+        raise InputError(path, "label file not found")
+    if suffix == ".png":
+        return _read_png(path)
+    if suffix == ".npy":
+        return _read_npy(path)
+    return read_cape_csv(path)
+
+
+def colours_to_labels(image: np.ndarray) -> np.ndarray:
+    """Turn a colour mask into labels: 0 for black, 1..N for the other distinct colours.
+
+    Parameters
+    ----------
+    image : ndarray of uint8, shape (height, width, 3)
+        The colour mask, in any channel order (the numbering only needs to be consistent in a file).
+
+    Returns
+    -------
+    ndarray of int32, shape (height, width)
+        The label of each pixel; colours are numbered in order of their packed 24-bit value.
+    """
+    channels = image.astype(np.int32)
+    packed = (channels[..., 0] << 16) | (channels[..., 1] << 8) | channels[..., 2]
+    colours, labels = np.unique(packed, return_inverse=True)
+    labels = labels.reshape(packed.shape).astype(np.int32)
+    if colours[0] != 0:  # no black pixel: every colour is a plane
+        labels += 1
+    return labels
+
+
+def read_cape_csv(path: str | Path) -> np.ndarray:
+    """Read a CAPE label CSV: one line per image row, comma-separated integers.
+
+    Parameters
+    ----------
+    path : str or Path
+        The CSV file. A trailing comma on a line (as CAPE writes it) and blank lines are ignored.
+
+    Returns
+    -------
+    ndarray of int64, shape (height, width)
+        The labels as written.
+
+    Raises
+    ------
+    InputError
+        When a line is not all integers or the lines differ in length.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="ascii")
+    except (OSError, UnicodeDecodeError) as error:
+        raise InputError(path, f"cannot read label CSV: {error}") from None
+    rows = [line.strip().rstrip(",") for line in text.splitlines() if line.strip()]
+    if not rows:
+        raise InputError(path, "label CSV is empty")
+    widths = {row.count(",") + 1 for row in rows}
+    if len(widths) != 1:
+        raise InputError(path, f"label CSV rows differ in length ({min(widths)} to {max(widths)} values)")
+    try:
+        values = np.array(",".join(rows).split(","), dtype=np.int64)
+    except ValueError:
+        raise InputError(path, "label CSV holds a value that is not an integer") from None
+    return values.reshape(len(rows), widths.pop())
+
+
+def _read_png(path: Path) -> np.ndarray:
+    try:
+        image = read_image(path, cv2.IMREAD_UNCHANGED)
+    except InputError as exc:
+        raise InputError(path, f"cannot read PNG image: {exc.message}") from None
+    if image.ndim == 2:
+        if image.dtype not in (np.uint8, np.uint16):
+            raise InputError(path, f"single-channel label PNG must be 8 or 16 bit, not {image.dtype}")
+        return image
+    if image.shape[2] not in (3, 4) or image.dtype != np.uint8:
+        raise InputError(path, f"colour mask PNG must be 8-bit RGB, not {image.shape[2]} x {image.dtype}")
+    return colours_to_labels(image[..., :3])
+
+
+def _read_npy(path: Path) -> np.ndarray:
+    try:
+        labels = np.load(path, allow_pickle=False)
+    except (OSError, ValueError) as error:
+        raise InputError(path, f"cannot read .npy label array: {error}") from None
+    if labels.ndim != 2:
+        raise InputError(path, f"label array must be 2-D, not of shape {labels.shape}")
+    if labels.dtype != bool and labels.dtype.kind not in "ui":
+        raise InputError(path, f"label array must hold integers, not {labels.dtype}")
+    return labels

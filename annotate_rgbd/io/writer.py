@@ -1,0 +1,158 @@
+"""Output files, each written atomically: a temporary file in the same folder, then a rename.
+
+An interrupted run therefore leaves either the previous file or the complete new one, never a
+truncated PNG or JSON.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+import os
+import re
+import secrets
+import tempfile
+from pathlib import Path
+from typing import Any, Iterable, Sequence
+
+import cv2
+import numpy as np
+
+from annotate_rgbd.errors import InputError, OutputError
+
+
+def prepare_output(folder: Path) -> None:
+    """Create the output folder if needed and check that files can be created in it.
+
+    Called before any work, so that an unusable folder is reported at once rather than after
+    the first mask has been computed.
+
+    Raises
+    ------
+    OutputError
+        The folder cannot be created (a file is in the way, no permission) or written.
+    """
+    folder = Path(folder)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=folder):
+            pass
+    except FileExistsError:
+        raise OutputError(folder, "cannot create the output folder: a file of that name is in the way") from None
+    except OSError as exc:
+        raise OutputError(folder, f"cannot write to the output folder: {exc.strerror or exc}") from None
+
+
+def write_bytes_atomic(path: Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` through a temporary file and an atomic rename.
+
+    Raises
+    ------
+    OutputError
+        The folder cannot be written (permissions, full disk, ...); no partial file remains.
+    """
+    path = Path(path)
+    # Named before it exists, so that an interrupt at any point (even inside the open call)
+    # leaves nothing behind: the finally clause removes whatever was created.
+    tmp = path.parent / f".{path.name}.{secrets.token_hex(4)}.tmp"
+    done = False
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        # Mode 0o666 minus the umask, like any file the user creates (mkstemp's 0o600 is not).
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+        with os.fdopen(fd, "wb") as handle:
+            handle.write(data)
+            handle.flush()
+            os.fsync(handle.fileno())
+        os.replace(tmp, path)
+        done = True
+    except OSError as exc:
+        raise OutputError(path, f"cannot write output: {exc.strerror or exc}") from None
+    finally:
+        if not done:
+            try:
+                tmp.unlink()
+            except OSError:  # never created (no folder, no permission): nothing to remove
+                pass
+
+
+def write_png(path: Path, image: np.ndarray) -> bytes:
+    """Write an image as PNG atomically (``(H, W, 3)`` arrays are taken as RGB); returns the
+    bytes written."""
+    if image.ndim == 3:
+        image = cv2.cvtColor(image, cv2.COLOR_RGB2BGR)
+    ok, encoded = cv2.imencode(".png", image)
+    if not ok:  # pragma: no cover - cv2 encodes any uint8/uint16 array
+        raise InputError(path, "PNG encoding failed")
+    data = encoded.tobytes()
+    write_bytes_atomic(path, data)
+    return data
+
+
+def write_json(path: Path, data: Any) -> None:
+    """Write strict JSON (indented, UTF-8) atomically.
+
+    NaN and infinity are not JSON (Python writes them as ``NaN`` / ``Infinity``, which most
+    readers refuse): the producers turn undefined numbers into ``None`` (``null``), and one that
+    slips through stops the write rather than leave an invalid file.
+
+    Raises
+    ------
+    OutputError
+        ``data`` holds NaN or infinity (the message says where), or the file cannot be written.
+    """
+    try:
+        text = json.dumps(data, indent=1, ensure_ascii=False, allow_nan=False)
+    except ValueError as exc:
+        if "float" not in str(exc):  # not a NaN ("Out of range float values ..."): a circular structure
+            raise
+        where = _non_finite(data, "") or ("", math.nan)
+        raise OutputError(path, f"{where[0] or 'the value'} is {where[1]}, which JSON cannot hold (a bug: please report it)") from None
+    write_bytes_atomic(path, (text + "\n").encode("utf-8"))
+
+
+def _non_finite(data: Any, where: str) -> tuple[str, float] | None:
+    """Where in ``data`` (as ``frames[3].time_offset``) the first NaN or infinity is, and its value."""
+    if isinstance(data, float):
+        return None if math.isfinite(data) else (where, data)
+    if isinstance(data, dict):
+        items = ((f"{where}.{k}" if where else str(k), v) for k, v in data.items())
+    elif isinstance(data, (list, tuple)):
+        items = ((f"{where}[{i}]", v) for i, v in enumerate(data))
+    else:
+        return None
+    return next((found for key, value in items if (found := _non_finite(value, key)) is not None), None)
+
+
+#: First characters that make a spreadsheet read a cell as a formula (OWASP, "CSV Injection").
+FORMULA_STARTS = ("=", "+", "-", "@", "\t", "\r")
+#: A number as written in a cell (``-0.5``, ``+1e-3``, ``-inf``): no formula, left as it is.
+_NUMBER = re.compile(r"[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?|[+-]?(inf|nan)", re.IGNORECASE)
+
+
+def write_csv(path: Path, header: Sequence[str], rows: Iterable[Sequence[Any]]) -> None:
+    """Write a CSV table atomically, with text cells made safe for spreadsheets.
+
+    A text cell starting with ``=``, ``+``, ``-``, ``@``, a tab or a carriage return (a label
+    such as ``=HYPERLINK(...)``) would run as a formula when the file is opened in a
+    spreadsheet; it is written with a leading ``'``, which spreadsheets show as text (OWASP's
+    advice). Numbers, and text that is a number (``-0.5``), are written unchanged.
+    """
+    buffer = io.StringIO()
+    table = csv.writer(buffer, lineterminator="\n")
+    # The csv module quotes a cell with a line break only if the break is in lineterminator:
+    # a row with a carriage return in a cell is written with every cell quoted.
+    quoted = csv.writer(buffer, lineterminator="\n", quoting=csv.QUOTE_ALL)
+    for row in [header, *rows]:
+        cells = [safe_cell(cell) for cell in row]
+        (quoted if any(isinstance(c, str) and "\r" in c for c in cells) else table).writerow(cells)
+    write_bytes_atomic(path, buffer.getvalue().encode("utf-8"))
+
+
+def safe_cell(cell: Any) -> Any:
+    """``cell``, or ``"'" + cell`` for text a spreadsheet would read as a formula."""
+    if isinstance(cell, str) and cell.startswith(FORMULA_STARTS) and not _NUMBER.fullmatch(cell):
+        return "'" + cell
+    return cell

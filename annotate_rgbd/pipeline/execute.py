@@ -1,0 +1,242 @@
+"""Making the masks of one or more planned scenes: frame jobs shared between this process and
+helper processes (:mod:`annotate_rgbd.pool`), unchanged masks reused (:mod:`annotate_rgbd.resume`),
+every outcome recorded in the scene's frame records and journal as it arrives.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Callable, Sequence
+
+from annotate_rgbd.config.settings import Config
+from annotate_rgbd.errors import InputError, OutputError
+from annotate_rgbd.io.outdir import OutputLock, check_output_names
+from annotate_rgbd.logs import scene_warnings
+from annotate_rgbd.pool import (
+    STALL_TIMEOUT, HelperPool, JobTimeout, default_workers, prepare_helpers, reuse_freed_memory, run_jobs, start_helpers,
+)
+from annotate_rgbd.report.records import FAILED, TIMED_OUT, UNREADABLE_DEPTH, FrameRecord, MaskRecord
+from .resume import Journal, Previous, previous_results
+
+if TYPE_CHECKING:  # the plan's modules import Open3D, which this module leaves to the helpers' server
+    from .plan import RunPlan
+
+__all__ = ["FRAME_JOB_MODULE", "FrameCounts", "SceneRun", "default_workers", "execute_scenes", "prepare_process",
+           "start_frame_helpers"]
+
+log = logging.getLogger("annotate_rgbd")
+
+#: What helper processes import before their first frame job (Open3D, OpenCV: ~2 s).
+FRAME_JOB_MODULE = "annotate_rgbd.pipeline.frame_job"
+
+
+def prepare_process(workers: int) -> None:
+    """What the command line does first, before its heavy imports: start the server that frame
+    helpers are forked from (:func:`annotate_rgbd.pool.prepare_helpers`) and keep freed image
+    buffers for reuse (:func:`annotate_rgbd.pool.reuse_freed_memory`)."""
+    prepare_helpers(workers, [FRAME_JOB_MODULE])
+    reuse_freed_memory()
+
+
+def start_frame_helpers(workers: int) -> HelperPool | None:
+    """Start the ``workers - 1`` helper processes for frame jobs, in the background (None when
+    ``workers`` <= 1); see :func:`annotate_rgbd.pool.start_helpers`."""
+    return start_helpers(workers, [FRAME_JOB_MODULE])
+
+
+@dataclass
+class FrameCounts:
+    """Frames of a scene ``made``, ``reused`` from an earlier run and ``failed``."""
+
+    made: int = 0
+    reused: int = 0
+    failed: int = 0
+
+    @property
+    def done(self) -> int:
+        """Frames finished, whatever the outcome."""
+        return self.made + self.reused + self.failed
+
+
+@dataclass
+class SceneRun:
+    """One scene on its way through :func:`execute_scenes` (and
+    :func:`annotate_rgbd.pipeline.finish_scene`): its plan, whose frame records get filled in,
+    and how its frames ended.
+
+    Parameters
+    ----------
+    name : str
+        For progress and summaries.
+    plan : RunPlan
+    out_dir : Path
+    config : Config
+    progress : callable, optional
+        ``progress(done, total)`` after each of the scene's frames.
+    counts : FrameCounts
+        Filled in.
+    error : InputError, optional
+        Set when a fatal problem stopped the scene (its other frames are then not made).
+    previous : Previous
+        What earlier runs in ``out_dir`` recorded (read when the scene starts).
+    review_page : Path, optional
+        ``review.html``, written by :func:`annotate_rgbd.pipeline.finish_scene` with overlays.
+    """
+
+    name: str
+    plan: RunPlan
+    out_dir: Path
+    config: Config
+    progress: Callable[[int, int], None] | None = None
+    counts: FrameCounts = field(default_factory=FrameCounts)
+    error: InputError | None = None
+    previous: Previous = field(default_factory=Previous)
+    review_page: Path | None = None
+    _lock: OutputLock | None = field(default=None, repr=False)
+
+    def open(self, force: bool) -> None:
+        """Take the output folder for this run: create it, check it holds no links where the
+        run writes, lock it, and read what earlier runs recorded there (unless ``force``).
+
+        Raises
+        ------
+        OutputError
+        """
+        from annotate_rgbd.io.writer import prepare_output  # OpenCV: not for the command line's start
+
+        prepare_output(self.out_dir)
+        check_output_names(self.out_dir)
+        lock = OutputLock(self.out_dir)
+        lock.acquire()
+        self._lock = lock
+        recorded = previous_results(self.out_dir)
+        self.previous = Previous(files=recorded.files) if force else recorded
+
+    def release(self) -> None:
+        """Release the output folder (idempotent)."""
+        if self._lock is not None:
+            self._lock.release()
+            self._lock = None
+
+    @property
+    def frames(self) -> list[FrameRecord]:
+        """One record per depth frame."""
+        return self.plan.frames
+
+    @property
+    def tracks(self) -> list:
+        """The global plane of every track."""
+        return self.plan.tracks
+
+    @property
+    def n_planes(self) -> int:
+        """Number of global planes."""
+        return self.plan.n_planes
+
+    @property
+    def warnings(self) -> list[str]:
+        """Warnings of the run, one line each."""
+        return self.plan.warnings
+
+    @property
+    def notes(self) -> list[str]:
+        """What the exports held that was not used."""
+        return self.plan.notes
+
+    @property
+    def written(self) -> int:
+        """Number of masks written."""
+        return sum(1 for f in self.frames if f.written)
+
+    def failures(self) -> list[str]:
+        """One line per failed depth frame: the file and why."""
+        return [f"{f.depth}: {f.error or f.reason}" for f in self.frames if f.status == FAILED]
+
+    def _step(self) -> None:
+        if self.progress:
+            self.progress(self.counts.done, len(self.plan.jobs))
+
+
+def execute_scenes(
+    scenes: Sequence[SceneRun], helpers: HelperPool | None = None, force: bool = False, job_timeout: float = STALL_TIMEOUT
+) -> None:
+    """Make the masks of several scenes with one pool of workers, reusing unchanged masks.
+
+    Fills in every frame's record. Each finished frame is appended to its scene's journal
+    at once, so that an interrupted run loses no finished work. A fatal problem in one scene
+    (a depth image of the wrong size, an output that cannot be written) stops that scene only.
+
+    Parameters
+    ----------
+    scenes : sequence of SceneRun
+    helpers : HelperPool, optional
+        Helper processes (:func:`start_frame_helpers`) working beside this one.
+    force : bool
+        Redo every frame, even those unchanged since an earlier run.
+    job_timeout : float
+        Seconds without any frame finished by a helper after which the helpers are taken to hang
+        and are replaced (:func:`annotate_rgbd.pool.run_jobs`); a frame that hangs twice fails.
+    """
+    # Not at the top: Open3D and OpenCV would slow the command line's start (see prepare_process).
+    from .frame_job import FrameTask, SizeMismatch, run_frame_job
+
+    tasks: list[FrameTask] = []
+    owners: list[tuple[SceneRun, int, MaskRecord | None]] = []
+    for scene in scenes:
+        try:
+            scene.open(force)
+        except OutputError as exc:
+            scene.error = exc  # this scene only: the others may write elsewhere
+            continue
+        for index, job in scene.plan.jobs:
+            recorded = scene.previous.masks.get(job.mask_path.name)
+            tasks.append(FrameTask(job, scene.config, scene.plan.colours, recorded))
+            owners.append((scene, index, recorded))
+    for scene in scenes:
+        scene._step()
+    journals = {}
+    for scene in scenes:
+        if scene.error is None:
+            try:
+                journals[id(scene)] = Journal(scene.out_dir)
+            except OutputError as exc:
+                scene.error = exc
+    try:
+        for outcome in run_jobs(tasks, run_frame_job, helpers, job_timeout):
+            scene, index, recorded = owners[outcome.index]
+            if scene.error is not None:
+                continue
+            job, frame = tasks[outcome.index].job, scene.plan.frames[index]
+            mask = f"masks/{job.mask_path.name}"
+            if isinstance(outcome.error, (SizeMismatch, OutputError)):
+                scene.error = outcome.error
+            elif isinstance(outcome.error, JobTimeout):
+                frame.fail(TIMED_OUT, f"{job.depth_path}: {outcome.error}")
+                scene.counts.failed += 1
+            elif outcome.error is not None:
+                frame.fail(UNREADABLE_DEPTH, str(outcome.error))
+                scene.counts.failed += 1
+            elif outcome.value.reused:
+                frame.write(recorded.only(job.output_names), mask)
+                scene.counts.reused += 1
+            else:
+                frame.write(outcome.value.made, mask)
+                scene.counts.made += 1
+                try:
+                    journals[id(scene)].record(job.mask_path.name, outcome.value.made)
+                except OutputError as exc:
+                    scene.error = exc
+            scene._step()
+    finally:
+        for journal in journals.values():
+            journal.close()
+    for scene in scenes:
+        # In frame order, whatever order the workers finished in.
+        with scene_warnings(scene.name if len(scenes) > 1 else None):
+            for frame in scene.plan.frames:
+                if frame.status == FAILED:
+                    message = f"{frame.error}; skipped"
+                    scene.plan.warnings.append(message)
+                    log.warning(message)

@@ -1,0 +1,415 @@
+"""Planning a run: what each depth frame gets, and from where, before any mask is made.
+
+:func:`plan_run` reads the inputs (the sequence lists and the CVAT exports), places the parts,
+measures how the tracks of consecutive parts overlap (:mod:`annotate_rgbd.part_overlap`) and
+gives every track its global plane (:mod:`annotate_rgbd.stitch`); :func:`plan_frames`, a pure
+function, then decides for every depth frame whether it gets a mask, and builds its
+:class:`~annotate_rgbd.records.FrameRecord` and, for a mask, its
+:class:`~annotate_rgbd.frame_job.FrameJob`.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Mapping, Sequence as SequenceType
+
+import numpy as np
+
+from annotate_rgbd.annotation.model import Annotation
+from annotate_rgbd.config.settings import Config
+from annotate_rgbd.cvat import read_cvat
+from annotate_rgbd.errors import InputError
+from .frame_job import OVERLAY_DIR, FrameJob, check_size
+from annotate_rgbd.geometry.lift import plane_to_camera
+from annotate_rgbd.io.outdir import ID_MASKS, RAW_MASKS
+from annotate_rgbd.report.palette import plane_colours
+from .part_overlap import part_pair_iou
+from annotate_rgbd.annotation.parts import Part, frame_owners, place_parts
+from annotate_rgbd.io.poses import FramePoses, poses_at, read_trajectory
+from annotate_rgbd.propagate.carry import TrackLift, lift_tracks, propagated_shapes
+from annotate_rgbd.report.records import NO_RGB_FRAME, OUTSIDE_ANNOTATION, RGB_NOT_ANNOTATED, FrameRecord
+from annotate_rgbd.io.sequence import Sequence, associate, camera_problem, read_depth, read_sequence
+from annotate_rgbd.annotation.stitch import PartTracks, TrackPlane, assign_planes, label_conflicts
+
+log = logging.getLogger("annotate_rgbd")
+
+
+@dataclass(frozen=True)
+class Association:
+    """Each depth frame's RGB frame nearest in time.
+
+    Parameters
+    ----------
+    nearest : ndarray of int, shape (n_depth,)
+        Index of the nearest RGB frame.
+    time_diff : ndarray of float64, shape (n_depth,)
+        RGB minus depth timestamp (s).
+    matched : ndarray of bool, shape (n_depth,)
+        Whether that RGB frame is within ``max_time_diff``.
+    """
+
+    nearest: np.ndarray
+    time_diff: np.ndarray
+    matched: np.ndarray
+
+    def depth_of_rgb(self) -> dict[int, int]:
+        """RGB index -> the matched depth frame closest to it in time (the earlier one of two
+        equally close)."""
+        best: dict[int, int] = {}
+        for d in np.flatnonzero(self.matched).tolist():
+            rgb = int(self.nearest[d])
+            if rgb not in best or abs(self.time_diff[d]) < abs(self.time_diff[best[rgb]]):
+                best[rgb] = d
+        return best
+
+
+@dataclass
+class RunPlan:
+    """Everything decided before any mask is made.
+
+    Parameters
+    ----------
+    sequence : Sequence
+    parts : list of Part
+        The annotation parts in sequence order.
+    tracks : list of TrackPlane
+        The global plane of every track.
+    colours : ndarray of uint8, shape (n_planes, 3)
+        Plane colours (row ``k - 1`` for plane id ``k``).
+    frames : list of FrameRecord
+        One per depth frame, in depth order; filled in as masks are made.
+    jobs : list of (int, FrameJob)
+        The frames that get a mask: index into ``frames`` and the job.
+    warnings, notes : list of str
+    """
+
+    sequence: Sequence
+    parts: list[Part]
+    tracks: list[TrackPlane]
+    colours: np.ndarray
+    frames: list[FrameRecord]
+    jobs: list[tuple[int, FrameJob]]
+    warnings: list[str]
+    notes: list[str]
+    propagation: Propagation | None = None
+
+    @property
+    def n_planes(self) -> int:
+        """Number of global planes."""
+        return len(self.colours)
+
+
+@dataclass
+class Propagation:
+    """What the camera poses give a run (:mod:`annotate_rgbd.propagate`).
+
+    Parameters
+    ----------
+    path : str
+        The trajectory file.
+    lifts : dict of (str, int) to TrackLift
+        (part, track id) -> its keyframes lifted onto their planes.
+    depth_poses : FramePoses
+        The pose of every depth frame (``ok`` False where the trajectory has none).
+    """
+
+    path: str
+    lifts: dict[tuple[str, int], TrackLift]
+    depth_poses: FramePoses
+
+    def to_json(self) -> dict:
+        """The report's ``propagation`` section."""
+        return {
+            "poses": self.path,
+            "frames_with_pose": int(np.count_nonzero(self.depth_poses.ok)),
+            "tracks": [lift.to_json() for lift in self.lifts.values()],
+            "inconsistent_tracks": [f"{lift.part}:{lift.track}" for lift in self.lifts.values() if not lift.consistent],
+        }
+
+
+@dataclass(frozen=True)
+class OutputOptions:
+    """Where a run's files go and which extras it writes.
+
+    Parameters
+    ----------
+    out_dir : Path
+    raw_masks : bool
+        Also write ``masks_raw/``.
+    overlays : bool
+        Also write ``overlays/``.
+    instance_ids : bool
+        Also write ``masks_id/``.
+    """
+
+    out_dir: Path
+    raw_masks: bool = False
+    overlays: bool = False
+    instance_ids: bool = False
+
+
+def plan_run(
+    sequence_dir: str | Path,
+    annotation_paths: SequenceType[str | Path],
+    out_dir: str | Path,
+    config: Config,
+    offsets: Mapping[str, int] | None = None,
+    raw_masks: bool = False,
+    overlays: bool = False,
+    poses: str | Path | None = None,
+    instance_ids: bool = False,
+) -> RunPlan:
+    """Read the inputs and decide, for every depth frame, whether and how it gets a mask.
+
+    Parameters are those of :func:`annotate_rgbd.pipeline.run_cvat2mask`; ``poses`` (else the
+    configuration's ``sequence.poses``) is a TUM trajectory that carries keyframe shapes to
+    every frame (:mod:`annotate_rgbd.propagate`).
+
+    Returns
+    -------
+    RunPlan
+
+    Raises
+    ------
+    InputError
+        A fatal problem with an input.
+    """
+    if not annotation_paths:
+        raise InputError(None, "no CVAT export given")
+    sequence = read_sequence(sequence_dir)
+    labels = config.annotation.labels or None
+    annotations = [read_cvat(path, labels=labels) for path in annotation_paths]
+    notes = [f"{Path(a.path).name}: {note}" for a in annotations for note in a.notes]
+    warnings: list[str] = []
+
+    all_offsets = {p.file: p.offset for p in config.parts}
+    all_offsets.update(offsets or {})
+    parts, missing = place_parts(annotations, sequence.rgb, all_offsets)
+    _warn(warnings, missing)
+    association = Association(*associate(sequence.depth.timestamps, sequence.rgb.timestamps, config.sequence.max_time_diff))
+    depth_of_rgb = association.depth_of_rgb()
+    pair_iou = [part_pair_iou(sequence, depth_of_rgb, a, b, config) for a, b in zip(parts, parts[1:])]
+    tracks = assign_planes(
+        [PartTracks.of(p) for p in parts], pair_iou, config.matches, config.stitch.min_iou, "configuration"
+    )
+    _warn(warnings, label_warnings(annotations, config.annotation.labels))
+    _warn(warnings, label_conflicts(tracks))
+    colours = plane_colours(max((t.plane for t in tracks), default=0))
+    output = OutputOptions(Path(out_dir), raw_masks, overlays, instance_ids)
+    propagation = None
+    poses = poses or config.sequence.poses
+    if poses:
+        propagation = plan_propagation(Path(poses), sequence, parts, tracks, depth_of_rgb, config)
+        _warn(warnings, propagation_warnings(propagation))
+        if any(a.format == "video" for a in annotations):
+            notes.append("with poses, the interpolated shapes of the exports (keyframe=\"0\") are not used: "
+                         "keyframes are carried to every frame by the poses")
+    frames, jobs, frame_warnings = plan_frames(sequence, parts, tracks, association, output,
+                                               config.sequence.max_time_diff, propagation, config)
+    first_frames = check_first_frames(jobs, config)  # a size mismatch stops here, before any frame warning
+    _warn(warnings, frame_warnings)
+    _warn(warnings, first_frames)
+    return RunPlan(sequence, parts, tracks, colours, frames, jobs, warnings, notes, propagation)
+
+
+def plan_propagation(
+    path: Path, sequence: Sequence, parts: SequenceType[Part], tracks: SequenceType[TrackPlane],
+    depth_of_rgb: dict[int, int], config: Config,
+) -> Propagation:
+    """Read the trajectory, give every depth and RGB frame its pose and lift every track's
+    keyframes (reads the depth frames nearest the keyframes)."""
+    trajectory = read_trajectory(path)
+    gap = config.sequence.max_pose_gap
+    depth_poses = poses_at(trajectory, sequence.depth.timestamps, gap)
+    rgb_poses = poses_at(trajectory, sequence.rgb.timestamps, gap)
+    plane_of = {(t.part, t.track): t.plane for t in tracks}
+    wanted = [
+        (p.name, p.annotation.tracks, [plane_of[(p.name, t.track_id)] for t in p.annotation.tracks], p.rgb_of_frame)
+        for p in parts
+    ]
+    lifts = lift_tracks(wanted, depth_of_rgb, [sequence.root / f for f in sequence.depth.files], depth_poses,
+                        rgb_poses, config)
+    return Propagation(str(path), {(lift.part, lift.track): lift for lift in lifts}, depth_poses)
+
+
+def propagation_warnings(propagation: Propagation) -> list[str]:
+    """A warning per track whose lifted keyframes disagree, and one for frames without a pose."""
+    lines = [
+        f"{lift.part} track {lift.track} (plane {lift.plane}): keyframes {', '.join(map(str, lift.substantial))} lie off "
+        f"the plane its other keyframes agree on (up to {lift.angle:.1f} degrees, {100 * lift.offset:.1f} cm): "
+        "a shape over another surface or clutter, two surfaces under one track, or poses that are off; "
+        "they were lifted onto the agreed plane"
+        for lift in propagation.lifts.values() if not lift.consistent
+    ]
+    missing = int(np.count_nonzero(~propagation.depth_poses.ok))
+    if missing:
+        lines.append(f"{propagation.path}: {missing} depth frames have no pose; their shapes are interpolated in 2-D")
+    return lines
+
+
+def label_warnings(annotations: SequenceType[Annotation], labels: SequenceType[str]) -> list[str]:
+    """A warning for every wanted label that no track of the exports has."""
+    present = {track.label for a in annotations for track in a.tracks}
+    known = sorted({label for a in annotations for label in a.labels} | present)
+    return [
+        f"no shape in the exports has the label {label!r} (--label / [annotation] labels); "
+        f"their labels: {', '.join(known) if known else 'none'}"
+        for label in sorted(set(labels) - present)
+    ]
+
+
+def plan_frames(
+    sequence: Sequence,
+    parts: SequenceType[Part],
+    tracks: SequenceType[TrackPlane],
+    association: Association,
+    output: OutputOptions,
+    max_time_diff: float,
+    propagation: Propagation | None = None,
+    config: Config | None = None,
+) -> tuple[list[FrameRecord], list[tuple[int, FrameJob]], list[str]]:
+    """Decide, for every depth frame, whether it gets a mask and from which part's shapes.
+
+    A pure function: it reads no file.
+
+    Parameters
+    ----------
+    sequence : Sequence
+    parts : sequence of Part
+        Placed, in sequence order.
+    tracks : sequence of TrackPlane
+        The global plane of every track.
+    association : Association
+    output : OutputOptions
+    max_time_diff : float
+        For the warning about a depth frame without RGB frame.
+    propagation : Propagation, optional
+        With poses: tracks with lifted keyframes get their shapes projected with the depth
+        frame's pose (frames without a pose keep the 2-D shapes; their record says why).
+    config : Config, optional
+        The camera, for projecting (needed with ``propagation``).
+
+    Returns
+    -------
+    frames : list of FrameRecord
+        One per depth frame; ``skipped`` with a reason, or (for now) without one for the frames
+        that get a mask.
+    jobs : list of (int, FrameJob)
+        Index into ``frames`` and the job, for the frames that get a mask.
+    warnings : list of str
+    """
+    plane_of = {(t.part, t.track): t.plane for t in tracks}
+    owners = frame_owners(parts)
+    first, last = min(owners), max(owners)
+    frames: list[FrameRecord] = []
+    jobs: list[tuple[int, FrameJob]] = []
+    warnings: list[str] = []
+    for d, depth_file in enumerate(sequence.depth.files):
+        rgb = int(association.nearest[d])
+        record = FrameRecord(
+            depth=depth_file,
+            depth_timestamp=float(sequence.depth.timestamps[d]),
+            rgb=sequence.rgb.files[rgb],
+            rgb_index=rgb,
+            time_offset=round(float(association.time_diff[d]), 6),
+        )
+        frames.append(record)
+        if rgb < first or rgb > last:
+            record.reason = OUTSIDE_ANNOTATION
+        elif not association.matched[d]:
+            record.reason = NO_RGB_FRAME
+            warnings.append(f"{sequence.root / depth_file}: no RGB frame within {max_time_diff} s; skipped")
+        elif rgb not in owners:
+            record.reason = RGB_NOT_ANNOTATED
+        else:
+            part = parts[owners[rgb]]
+            frame = part.frame_of_rgb[rgb]
+            record.part, record.cvat_frame = part.name, frame
+            shapes, propagated, expected = _frame_shapes(part, frame, plane_of, propagation, config, d)
+            if propagation is not None:
+                record.pose = "ok" if propagation.depth_poses.ok[d] else str(propagation.depth_poses.reasons[d])
+            jobs.append((d, _frame_job(sequence, part, frame, rgb, depth_file, shapes, propagated, expected, output)))
+    return frames, jobs, warnings
+
+
+def _frame_shapes(
+    part: Part, frame: int, plane_of: dict, propagation: Propagation | None, config: Config | None, depth: int
+) -> tuple[tuple, frozenset[int] | None, tuple]:
+    """The ``(plane id, shape)`` pairs of one frame, in track order, the planes whose shapes the
+    poses carried there from other frames, and ``(plane id, (a, b, c, d))`` where the poses put
+    each of those (its nearest keyframe's plane, in the depth frame's camera frame)."""
+    shapes, propagated, expected = [], set(), []
+    has_pose = propagation is not None and bool(propagation.depth_poses.ok[depth])
+    for track in part.annotation.tracks:
+        if frame not in track.shapes:
+            continue  # outside the track's life
+        plane = plane_of[(part.name, track.track_id)]
+        lift = propagation.lifts.get((part.name, track.track_id)) if has_pose else None
+        if lift is None or not lift.keyframes:
+            shapes.append((plane, track.shapes[frame]))  # 2-D, as drawn or interpolated
+            continue
+        pose = (propagation.depth_poses.rotations[depth], propagation.depth_poses.translations[depth])
+        shapes += [(plane, shape) for shape in propagated_shapes(lift, frame, config, pose)]
+        if frame not in {k.frame for k in lift.keyframes}:
+            propagated.add(plane)
+            nearest = min(lift.keyframes, key=lambda k: (abs(k.frame - frame), k.frame))
+            expected.append((plane, tuple(float(v) for v in plane_to_camera(nearest.plane, *pose))))
+    return tuple(shapes), (frozenset(propagated) if propagation is not None else None), tuple(expected)
+
+
+def _frame_job(
+    sequence: Sequence, part: Part, frame: int, rgb: int, depth_file: str, shapes: tuple,
+    propagated: frozenset[int] | None, expected: tuple, output: OutputOptions,
+) -> FrameJob:
+    name = Path(depth_file).name
+    return FrameJob(
+        depth_path=sequence.root / depth_file,
+        mask_path=output.out_dir / "masks" / name,
+        shapes=shapes,
+        propagated=propagated,
+        expected_planes=expected,
+        image_size=part.annotation.image_size.get(frame),
+        part_path=part.annotation.path,
+        raw_mask_path=output.out_dir / RAW_MASKS / name if output.raw_masks else None,
+        id_mask_path=output.out_dir / ID_MASKS / name if output.instance_ids else None,
+        overlay_path=output.out_dir / OVERLAY_DIR / name if output.overlays else None,
+        rgb_path=sequence.root / sequence.rgb.files[rgb],
+    )
+
+
+def check_first_frames(jobs: SequenceType[tuple[int, FrameJob]], config: Config) -> list[str]:
+    """Check the first masked depth frame of each annotation part before any work starts.
+
+    Returns
+    -------
+    list of str
+        A warning when the camera's principal point does not fit the first frame.
+
+    Raises
+    ------
+    SizeMismatch
+        A part's first depth frame does not have the size of the images it annotates (every
+        frame would fail, after the helpers had started and a page of warnings).
+    """
+    warnings = []
+    first_of_part = {}
+    for _, job in jobs:
+        first_of_part.setdefault(job.part_path, job)
+    for number, job in enumerate(first_of_part.values()):
+        try:
+            height, width = read_depth(job.depth_path).shape
+        except InputError:
+            continue  # reported with its frame
+        check_size(job, (height, width))
+        problem = camera_problem(config.camera.cx, config.camera.cy, width, height)
+        if number == 0 and problem is not None:
+            warnings.append(f"{job.depth_path}: {problem}")
+    return warnings
+
+
+def _warn(warnings: list[str], messages: SequenceType[str]) -> None:
+    for message in messages:
+        warnings.append(message)
+        log.warning(message)

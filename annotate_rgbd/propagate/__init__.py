@@ -1,0 +1,1 @@
+"""Pose-guided propagation: keyframe shapes lifted onto their planes and carried to every frame."""

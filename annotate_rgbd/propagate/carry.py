@@ -1,0 +1,446 @@
+"""Pose-guided propagation: a plane drawn on a few keyframes, carried to every frame by the poses.
+
+With camera poses (``--poses``, a TUM trajectory), each keyframe shape of a track is **lifted**
+onto its plane: the plane is fitted (as refinement fits it, noise-aware) to the shape's depth
+on the depth frame nearest the keyframe, taken to world coordinates with that depth frame's
+pose, and the outline's vertex rays from the RGB camera at the keyframe's own time are
+intersected with it: a 3-D polygon. On every depth frame of the track's life (CVAT semantics:
+the frames where the track is visible) the lifted polygons of its keyframes (on a keyframe,
+its own; elsewhere all of them: each outlines the part of the plane in view when it was drawn)
+are projected with the depth frame's own pose and drawn in place of the 2-D interpolation; refinement then keeps only the
+pixels whose depth lies on the plane in that frame, so occluders (nearer than the plane) fall
+out. The lifted planes of one track must agree: a track whose keyframes disagree (two surfaces
+under one track, or wrong poses) is listed for review.
+
+Reading depth for the fits is the only I/O here (:func:`lift_tracks`); projecting is pure
+(:func:`propagated_shapes`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from annotate_rgbd.annotation.model import Shape, Track
+from annotate_rgbd.geometry.camera import backproject, depth_to_metres
+from annotate_rgbd.config.settings import Config
+from annotate_rgbd.errors import InputError
+from annotate_rgbd.geometry.lift import (
+    SAME_SURFACE_ANGLE, SAME_SURFACE_OFFSET, lift_polygon, plane_agreement, plane_to_camera, plane_to_world,
+    project_polygon,
+)
+from annotate_rgbd.io.poses import FramePoses
+from annotate_rgbd.segment.rasterize import rasterize_frame
+from annotate_rgbd.segment.ransac import fit_plane
+from annotate_rgbd.segment.refine import grid_pixels
+from annotate_rgbd.io.sequence import read_depth
+
+#: A keyframe off its track's agreed plane makes the track "inconsistent" (a warning, the
+#: review queue) only when its shape holds at least this share of the valid depth pixels of
+#: the track's largest keyframe: a sliver of a plane leaving the view is mostly another
+#: surface, and its own fit says nothing about the track.
+MIN_KEYFRAME_WEIGHT = 0.25
+
+
+@dataclass(frozen=True)
+class LiftedKeyframe:
+    """One keyframe shape lifted onto its plane.
+
+    Parameters
+    ----------
+    frame : int
+        The keyframe's CVAT frame (of its part).
+    world : ndarray of float64, shape (V, 3)
+        The outline in world coordinates (m).
+    plane : ndarray of float64, shape (4,)
+        The fitted plane in world coordinates.
+    z_order : int
+        The shape's drawing order.
+    beyond : tuple of ndarray, shape (4, 3)
+        World quads that carry the outline past the keyframe image's border, where it was cut by
+        the edge of the view rather than by the plane's end (:func:`beyond_the_border`).
+    """
+
+    frame: int
+    world: np.ndarray
+    plane: np.ndarray
+    z_order: int
+    beyond: tuple = ()
+
+
+@dataclass
+class TrackLift:
+    """A track's keyframes lifted onto their planes.
+
+    Parameters
+    ----------
+    part : str
+        The annotation part's file name.
+    track : int
+        The CVAT track id.
+    plane : int
+        Its global plane id.
+    keyframes : list of LiftedKeyframe
+        In frame order.
+    failed : list of (int, str)
+        Keyframes that could not be lifted: CVAT frame and why.
+    off_plane : list of int
+        Keyframes whose own plane disagreed with the track's consensus plane (lifted onto the
+        consensus plane instead).
+    substantial : list of int
+        Those of them that hold a good share of the track's depth (:data:`MIN_KEYFRAME_WEIGHT`):
+        the track needs review.
+    angle, offset : float
+        The largest disagreement of those with the consensus plane (degrees, metres).
+    """
+
+    part: str
+    track: int
+    plane: int
+    keyframes: list[LiftedKeyframe] = field(default_factory=list)
+    failed: list[tuple[int, str]] = field(default_factory=list)
+    off_plane: list[int] = field(default_factory=list)
+    substantial: list[int] = field(default_factory=list)
+    angle: float = 0.0
+    offset: float = 0.0
+
+    @property
+    def consistent(self) -> bool:
+        """Whether every substantial keyframe's own plane agrees with the track's consensus plane
+        (within :data:`annotate_rgbd.lift.SAME_SURFACE_ANGLE` and ``SAME_SURFACE_OFFSET``)."""
+        return not self.substantial
+
+    def to_json(self) -> dict:
+        """The report's entry for the track."""
+        return {
+            "part": self.part,
+            "track": self.track,
+            "plane": self.plane,
+            "keyframes_lifted": [k.frame for k in self.keyframes],
+            "keyframes_failed": [{"frame": frame, "reason": reason} for frame, reason in self.failed],
+            "keyframes_off_plane": self.off_plane,
+            "keyframes_in_conflict": self.substantial,
+            "angle_deg": round(self.angle, 3),
+            "offset_m": round(self.offset, 4),
+            "consistent": self.consistent,
+        }
+
+
+def keyframe_frames(track: Track) -> list[int]:
+    """The frames where a track's shape was drawn (CVAT's keyframes; every shape of an images
+    export), in order."""
+    if track.keyframes is None:
+        return sorted(track.shapes)
+    return sorted(f for f in track.keyframes if f in track.shapes)
+
+
+def keyframe_planes(
+    shapes: list[tuple[int, Shape]],
+    wanted: list[int],
+    depth_path: Path,
+    depth_pose: tuple[np.ndarray, np.ndarray],
+    config: Config,
+) -> tuple[dict[int, tuple[np.ndarray, int] | str], tuple[int, int]]:
+    """Fit the planes under the keyframe shapes of one frame, in world coordinates.
+
+    The frame's shapes are drawn in ``z_order`` as refinement draws them, so that each plane is
+    fitted to the pixels where its shape is on top (a floor drawn under a table is fitted to the
+    floor, not to the table).
+
+    Parameters
+    ----------
+    shapes : list of (int, Shape)
+        Every shape of the frame, with a key, in track order.
+    wanted : list of int
+        The keys of the keyframe shapes to fit (polygons or boxes).
+    depth_path : Path
+        The depth frame nearest the keyframe.
+    depth_pose : (ndarray (3, 3), ndarray (3,))
+        That depth frame's camera-to-world pose.
+    config : Config
+        Camera, filter (``min_valid_pixels``) and the noise-aware fit of refinement.
+
+    Returns
+    -------
+    planes : dict of int to ((ndarray (4,), int) or str)
+        For each wanted key: the world plane and the number of valid depth pixels it was
+        fitted to, or why there is none.
+    size : (int, int)
+        (width, height) of the depth frame.
+
+    Raises
+    ------
+    InputError
+        The depth frame is unreadable.
+    """
+    depth_m = depth_to_metres(read_depth(depth_path), config.camera.depth_scale)
+    drawn = rasterize_frame(shapes, *depth_m.shape)
+    on_valid = np.where(np.isfinite(depth_m), drawn, 0)
+    planes: dict[int, tuple[np.ndarray, int] | str] = {}
+    for key in wanted:
+        valid = int(np.count_nonzero(on_valid == key))
+        if valid < config.filter.min_valid_pixels:
+            planes[key] = f"too little valid depth where the shape is on top ({valid} pixels)"
+            continue
+        rows, cols = grid_pixels(on_valid, key, valid, config.ransac.max_points)
+        fit = fit_plane(backproject(cols, rows, depth_m[rows, cols], config.camera), config.ransac, config.inlier_band())
+        planes[key] = (plane_to_world(fit.equation, *depth_pose), valid)
+    return planes, (depth_m.shape[1], depth_m.shape[0])
+
+
+def outline_of(shape: Shape) -> np.ndarray | None:
+    """A shape's outline as polygon vertices (a box's four corners); None for a mask."""
+    if shape.kind == "mask":
+        return None
+    if shape.kind == "box":
+        (x0, y0), (x1, y1) = shape.points
+        return np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]], dtype=np.float64)
+    return shape.points
+
+
+def consensus_plane(
+    planes: list[np.ndarray], outlines: list[np.ndarray], weights: list[float] | None = None
+) -> tuple[np.ndarray, list[bool]]:
+    """The plane most of a track's keyframes agree on, and which of them agree with it.
+
+    Each fitted plane is a candidate; it is supported by the keyframes whose plane lies within
+    :data:`annotate_rgbd.lift.SAME_SURFACE_ANGLE` and ``SAME_SURFACE_OFFSET`` of it (offset
+    measured at that keyframe's outline centroid), each with its weight; the best supported wins
+    (ties: the earliest).
+
+    Parameters
+    ----------
+    planes : list of ndarray, shape (4,)
+        World planes, one per keyframe.
+    outlines : list of ndarray, shape (V, 3)
+        The keyframes' outlines lifted onto their own planes (for the centroids).
+    weights : list of float, optional
+        How much each keyframe counts (the valid depth pixels it was fitted to); default 1 each.
+
+    Returns
+    -------
+    plane : ndarray, shape (4,)
+    agree : list of bool
+    """
+    centroids = [outline.mean(axis=0) for outline in outlines]
+    support = []
+    for candidate in planes:
+        agree = []
+        for plane, centroid in zip(planes, centroids):
+            angle, offset = plane_agreement(candidate, plane, at=centroid)
+            agree.append(angle <= SAME_SURFACE_ANGLE and offset <= SAME_SURFACE_OFFSET)
+        support.append(agree)
+    weights = [1.0] * len(planes) if weights is None else weights
+    best = max(range(len(planes)), key=lambda i: (sum(w for w, ok in zip(weights, support[i]) if ok), -i))
+    return planes[best], support[best]
+
+
+def propagated_shapes(lift: TrackLift, frame: int, config: Config, pose: tuple[np.ndarray, np.ndarray]) -> list[Shape]:
+    """The shapes a track gets on one frame from its neighbouring lifted keyframes.
+
+    Parameters
+    ----------
+    lift : TrackLift
+    frame : int
+        The CVAT frame (of the track's part) the depth frame shows.
+    config : Config
+        For the camera.
+    pose : (ndarray (3, 3), ndarray (3,))
+        The depth frame's camera-to-world pose.
+
+    Returns
+    -------
+    list of Shape
+        The keyframe's own polygon on a keyframe; on other frames the polygons of all the
+        track's keyframes (drawn as one plane: the region seen on any of them); empty when none
+        projects into the image.
+    """
+    own = [k for k in lift.keyframes if k.frame == frame]
+    shapes = []
+    # Drawn on this very frame: its own outline. Elsewhere every keyframe's: each outlines the
+    # part of the plane in view when it was drawn, and their union is the plane as the labeller
+    # saw it (measured on benchmarks/bench_propagate.py, keyframe every 30th frame: mean IoU
+    # 0.71 with the two neighbouring keyframes, 0.87 with all).
+    for keyframe in own or lift.keyframes:
+        polygon = project_polygon(keyframe.world, config.camera, *pose)
+        if len(polygon) >= 3 and np.isfinite(polygon).all():
+            shapes.append(Shape("polygon", polygon, z_order=keyframe.z_order))
+    if not own:
+        # Where a keyframe's view ended, the plane went on: below every drawn shape, so that
+        # these only take pixels no other shape claims (and refinement keeps the plane's own).
+        for keyframe in lift.keyframes:
+            for quad in keyframe.beyond:
+                polygon = project_polygon(quad, config.camera, *pose)
+                if len(polygon) >= 3 and np.isfinite(polygon).all():
+                    shapes.append(Shape("polygon", polygon, z_order=BEYOND_Z_ORDER))
+    return shapes
+
+
+#: Vertices this close to the keyframe image's edge (px) lie on it (CVAT clamps drawn vertices
+#: to the image; a labeller's few pixels of slack).
+BORDER_MARGIN = 4.0
+#: How far past the border (as a share of the image's size) an outline is carried, at most.
+BEYOND_REACH = 0.5
+#: The drawing order of what lies beyond a keyframe's border: below any drawn shape.
+BEYOND_Z_ORDER = -(2**31)
+
+
+def beyond_the_border(outline: np.ndarray, image_size: tuple[int, int]) -> list[np.ndarray]:
+    """Quads that extend an outline's edges lying on the image border outward, off the image.
+
+    Parameters
+    ----------
+    outline : ndarray, shape (V, 2)
+        Polygon in CVAT image coordinates.
+    image_size : (int, int)
+        (width, height) of the keyframe image.
+
+    Returns
+    -------
+    list of ndarray, shape (4, 2)
+        For every edge whose two ends lie within :data:`BORDER_MARGIN` of the same image side:
+        the edge and its copy moved :data:`BEYOND_REACH` of the image's size straight out.
+    """
+    width, height = image_size
+    outline = np.asarray(outline, dtype=np.float64)
+    following = np.roll(outline, -1, axis=0)
+    sides = (
+        (lambda p: p[:, 0] <= BORDER_MARGIN, (-BEYOND_REACH * width, 0.0)),
+        (lambda p: p[:, 0] >= width - BORDER_MARGIN, (BEYOND_REACH * width, 0.0)),
+        (lambda p: p[:, 1] <= BORDER_MARGIN, (0.0, -BEYOND_REACH * height)),
+        (lambda p: p[:, 1] >= height - BORDER_MARGIN, (0.0, BEYOND_REACH * height)),
+    )
+    quads = []
+    for on_side, out in sides:
+        along = on_side(outline) & on_side(following)
+        for start, end in zip(outline[along], following[along]):
+            if np.hypot(*(end - start)) >= 1.0:
+                quads.append(np.array([start, end, end + out, start + out]))
+    return quads
+
+
+def _lift_beyond(outline: np.ndarray, image_size, plane_camera: np.ndarray, pose, config: Config) -> tuple:
+    """:func:`beyond_the_border` lifted onto the plane: each quad shortened (halved, a few times)
+    until its far corners meet the plane in front of the camera within the distance rule."""
+    farthest = 1.5 * config.filter.max_mean_distance
+    lifted = []
+    for quad in beyond_the_border(outline, image_size):
+        for _ in range(4):
+            world = lift_polygon(quad, plane_camera, config.camera, *pose)
+            depth = (world.world - pose[1]) @ pose[0][:, 2] if world.ok else None
+            if world.ok and (depth <= farthest).all():
+                lifted.append(world.world)
+                break
+            quad = np.array([quad[0], quad[1], (quad[1] + quad[2]) / 2, (quad[0] + quad[3]) / 2])
+    return tuple(lifted)
+
+
+def lift_tracks(
+    parts: list[tuple[str, list[Track], list[int], dict[int, int]]],
+    depth_of_rgb: dict[int, int],
+    depth_files: list[Path],
+    depth_poses: FramePoses,
+    rgb_poses: FramePoses,
+    config: Config,
+) -> list[TrackLift]:
+    """Lift the keyframes of every track (reads the depth frames nearest the keyframes).
+
+    Each keyframe's plane is fitted to the depth where its shape is on top
+    (:func:`keyframe_planes`) and its outline lifted onto it with the RGB camera's pose at the
+    keyframe's time. A plane is rigid and static, so a keyframe whose plane disagrees with the
+    one the track's keyframes agree on (:func:`consensus_plane`, weighted by their depth
+    pixels: the shape lay mostly over clutter or another surface) is lifted onto that
+    consensus plane instead, and listed; the track is flagged (``consistent`` False) when such
+    a keyframe holds a good share of the track's depth (:data:`MIN_KEYFRAME_WEIGHT`).
+
+    Parameters
+    ----------
+    parts : list of (str, list of Track, list of int, dict of int to int)
+        Each annotation part: its name, its tracks in export order, their global plane ids and
+        its CVAT frame -> RGB index map.
+    depth_of_rgb : dict of int to int
+        RGB index -> the depth frame that shows it.
+    depth_files : list of Path
+        The sequence's depth files, in depth order.
+    depth_poses, rgb_poses : FramePoses
+        The poses of every depth and every RGB frame.
+    config : Config
+
+    Returns
+    -------
+    list of TrackLift
+        Part by part, in track order.
+    """
+    lifts = []
+    for part, tracks, plane_ids, rgb_of_frame in parts:
+        part_lifts = [TrackLift(part, track.track_id, plane) for track, plane in zip(tracks, plane_ids)]
+        # (track index) -> list of (frame, outline px, rgb pose, fitted (plane, pixels) or reason)
+        fitted: dict[int, list] = {i: [] for i in range(len(tracks))}
+        keyframes_at: dict[int, list[int]] = {}
+        sizes: dict[int, tuple[int, int]] = {}  # CVAT frame -> image size, from the depth frame
+        for i, track in enumerate(tracks):
+            for frame in keyframe_frames(track):
+                keyframes_at.setdefault(frame, []).append(i)
+        for frame in sorted(keyframes_at):
+            wanted = []
+            rgb = rgb_of_frame.get(frame)
+            depth = depth_of_rgb.get(rgb) if rgb is not None else None
+            for i in keyframes_at[frame]:
+                if outline_of(tracks[i].shapes[frame]) is None:
+                    part_lifts[i].failed.append((frame, "mask shapes are not propagated"))
+                elif depth is None or not depth_poses.ok[depth]:
+                    why = "no depth frame near the keyframe" if depth is None else depth_poses.reasons[depth]
+                    part_lifts[i].failed.append((frame, f"no pose ({why})"))
+                else:
+                    wanted.append(i)
+            if not wanted:
+                continue
+            depth_pose = (depth_poses.rotations[depth], depth_poses.translations[depth])
+            rgb_pose = (rgb_poses.rotations[rgb], rgb_poses.translations[rgb]) if rgb_poses.ok[rgb] else depth_pose
+            shapes = [(i + 1, t.shapes[frame]) for i, t in enumerate(tracks) if frame in t.shapes]
+            try:
+                planes, sizes[frame] = keyframe_planes(shapes, [i + 1 for i in wanted], depth_files[depth], depth_pose, config)
+            except InputError as exc:
+                planes = {i + 1: f"unreadable depth ({exc.message})" for i in wanted}
+            for i in wanted:
+                fitted[i].append((frame, outline_of(tracks[i].shapes[frame]), rgb_pose, planes[i + 1]))
+        for i, track in enumerate(tracks):
+            _lift_onto_planes(part_lifts[i], track, fitted[i], config, sizes)
+        lifts += part_lifts
+    return lifts
+
+
+def _lift_onto_planes(lift: TrackLift, track: Track, fitted: list, config: Config, sizes: dict) -> None:
+    """Lift a track's fitted keyframes onto their own plane, or the track's consensus plane
+    (``sizes``: CVAT frame -> (width, height) of the keyframe image, to carry outlines past it)."""
+    own = [(frame, outline, pose, result) for frame, outline, pose, result in fitted if not isinstance(result, str)]
+    lifted_own = [lift_polygon(o, plane_to_camera(r[0], *p), config.camera, *p) for _, o, p, r in own]
+    usable = [(entry, lifted) for entry, lifted in zip(own, lifted_own) if lifted.ok]
+    consensus, agree = None, []
+    if usable:
+        consensus, agree = consensus_plane([e[3][0] for e, _ in usable], [lifted.world for _, lifted in usable],
+                                           [e[3][1] for e, _ in usable])
+    agrees = {e[0]: ok for (e, _), ok in zip(usable, agree)}
+    weight = {frame: result[1] for frame, _, _, result in own}
+    largest = max(weight.values(), default=0)
+    for frame, outline, pose, result in fitted:
+        plane = None if isinstance(result, str) else result[0]
+        target = plane if plane is not None and agrees.get(frame, False) else consensus
+        if target is None:
+            lift.failed.append((frame, result if isinstance(result, str) else "the outline cannot be lifted onto its plane"))
+            continue
+        lifted = lift_polygon(outline, plane_to_camera(target, *pose), config.camera, *pose)
+        if not lifted.ok:
+            lift.failed.append((frame, f"the outline cannot be lifted onto its plane ({lifted.reason})"))
+            continue
+        beyond = _lift_beyond(outline, sizes[frame], plane_to_camera(target, *pose), pose, config) if frame in sizes else ()
+        lift.keyframes.append(LiftedKeyframe(frame, lifted.world, target, track.shapes[frame].z_order, beyond))
+        if plane is not None and target is consensus and not agrees.get(frame, False):
+            lift.off_plane.append(frame)
+            if weight[frame] >= MIN_KEYFRAME_WEIGHT * largest:
+                angle, offset = plane_agreement(consensus, plane, at=lifted.world.mean(axis=0))
+                lift.angle, lift.offset = max(lift.angle, angle), max(lift.offset, offset)
+                lift.substantial.append(frame)
+    lift.keyframes.sort(key=lambda k: k.frame)

@@ -1,0 +1,1 @@
+"""Reviewing a run: overlays, the offline review page, the contact sheet."""

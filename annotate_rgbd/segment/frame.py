@@ -1,0 +1,126 @@
+"""One depth frame: the labeller's shapes -> the pixels that really lie on each plane.
+
+Rasterise the shapes in z-order, drop planes the depth cannot support, refine the rest with
+RANSAC. A pure function of the depth image, the shapes and the configuration.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Collection, Mapping, Sequence
+
+import numpy as np
+
+from annotate_rgbd.annotation.model import Shape
+from annotate_rgbd.geometry.camera import depth_to_metres
+from annotate_rgbd.config.settings import Config
+from .filters import drop_reasons, label_histogram, plane_statistics
+from .grow import grow_connected, grow_planes
+from .rasterize import rasterize_frame
+from annotate_rgbd.report.records import PlaneRecord
+from .refine import refine_planes
+
+
+@dataclass
+class FrameResult:
+    """What :func:`segment_frame` did on one depth frame.
+
+    Parameters
+    ----------
+    labels : ndarray of uint8, uint16 or int32, shape (H, W)
+        The mask: plane ids where a pixel lies on its plane (grown edges, outside every drawn
+        shape, included), 0 elsewhere.
+    drawn : ndarray of the same type, shape (H, W)
+        The labeller's shapes as rasterised, before any depth check (for review overlays).
+    kept, dropped : list of PlaneRecord
+        One record per plane drawn on the frame.
+    """
+
+    labels: np.ndarray
+    drawn: np.ndarray
+    kept: list[PlaneRecord] = field(default_factory=list)
+    dropped: list[PlaneRecord] = field(default_factory=list)
+
+
+def segment_frame(
+    depth_raw: np.ndarray, shapes: Sequence[tuple[int, Shape]], config: Config, propagated: Collection[int] = (),
+    expected: Mapping[int, np.ndarray] | None = None,
+) -> FrameResult:
+    """Rasterise, filter and refine the planes of one depth frame.
+
+    Parameters
+    ----------
+    depth_raw : ndarray, shape (H, W)
+        Raw depth image.
+    shapes : sequence of (int, Shape)
+        ``(plane id, shape)`` of the frame, in track order.
+    config : Config
+    propagated : collection of int
+        Planes whose shapes camera poses carried here from keyframes on other frames: no
+        labeller drew them over this frame (:func:`annotate_rgbd.ransac.fit_plane`'s
+        ``look_behind``).
+    expected : mapping of int to ndarray, shape (4,), optional
+        Where camera poses put those planes in this frame (camera frame, metres).
+
+    Returns
+    -------
+    FrameResult
+        ``labels`` holds the plane id of every pixel that lies on its plane (0 elsewhere);
+        ``kept`` and ``dropped`` one record per plane drawn on the frame.
+    """
+    height, width = depth_raw.shape
+    drawn = rasterize_frame(shapes, height, width)
+    depth_m = depth_to_metres(depth_raw, config.camera.depth_scale)
+    stats = plane_statistics(drawn, depth_m, config.camera)
+    reasons = drop_reasons(stats, config.filter)
+    kept = np.array([r is None for r in reasons], dtype=bool)
+    band = config.inlier_band()
+    refined, fits = refine_planes(
+        drawn, depth_m, stats.plane_ids[kept], config.camera, config.ransac, band, stats.valid_pixels[kept],
+        config.refine.rim_pixels, propagated, expected,
+    )
+    inlier_count = label_histogram(refined, int(drawn.max(initial=0)) + 1)
+    equations = {plane_id: fit.equation for plane_id, fit in fits.items()}
+    labels, grown = grow_planes(refined, drawn, depth_m, equations, config.camera, band.model, band.k, band.floor,
+                                band.cap, config.refine.grow_pixels)
+    carried = {plane_id: equation for plane_id, equation in equations.items() if plane_id in propagated}
+    if carried and config.refine.grow_pixels:
+        # Where a plane went on beyond every keyframe's view, nobody outlined it; shapes carried
+        # by poses (an outline's extension past a keyframe's border above all) are guesses.
+        claimed = (drawn > 0) & ~np.isin(drawn, list(propagated))
+        labels, beyond = grow_connected(labels, drawn, claimed, depth_m, carried, config.camera, band.model, band.k,
+                                        band.floor, band.cap)
+        grown = {plane_id: count + beyond.get(plane_id, 0) for plane_id, count in grown.items()}
+    result = FrameResult(labels=labels, drawn=drawn)
+    for i, plane_id in enumerate(stats.plane_ids.tolist()):
+        measured = dict(
+            plane=plane_id,
+            pixels=int(stats.pixels[i]),
+            valid_pixels=int(stats.valid_pixels[i]),
+            mean_distance=_rounded(stats.mean_distance[i]),
+        )
+        if reasons[i] is None:
+            inliers, fit = int(inlier_count[plane_id]), fits[plane_id]
+            result.kept.append(PlaneRecord(
+                **measured,
+                inliers=inliers,
+                inlier_ratio=round(inliers / max(int(stats.valid_pixels[i]), 1), 6),
+                equation=tuple(round(float(v), 9) for v in fit.equation),
+                band=_rounded(fit.band),
+                rms_sigma=None if not np.isfinite(fit.rms_sigma) else round(fit.rms_sigma, 4),
+                noise_scale=round(fit.noise_scale, 4),
+                fit_points=len(fit.inliers),
+                fit_inliers_ransac=fit.inliers_ransac,
+                surface_behind=fit.surface_behind,
+                fit_inliers_refit=fit.inliers_refit,
+                grown=grown.get(plane_id, 0),
+            ))
+        else:
+            result.dropped.append(PlaneRecord(
+                **measured, reason=reasons[i], invalid_ratio=round(float(stats.invalid_ratio[i]), 6)
+            ))
+    return result
+
+
+def _rounded(value: float) -> float | None:
+    return None if not np.isfinite(value) else round(float(value), 6)

@@ -1,0 +1,211 @@
+"""Exact edges: grow each refined plane a few pixels beyond its drawn shape, where depth agrees.
+
+A labeller's polygon follows a plane's edge to within a few pixels. Refinement can only remove
+pixels from the drawn shape, so where the polygon was drawn inside the true edge the mask stays
+short of it. Growing adds back, in a thin band around the drawn shape, the pixels whose 3-D point
+lies on the plane within the noise band at its own depth, and that nothing else claims.
+"""
+
+from __future__ import annotations
+
+from typing import Mapping
+
+import cv2
+import numpy as np
+
+from annotate_rgbd.geometry.camera import Camera, backproject
+from annotate_rgbd.geometry.noise import NoiseModel, inlier_band
+from .refine import COHERENCE_LIMIT, ids_nearby, signed_distances, window_scores
+
+
+def grow_planes(
+    refined: np.ndarray,
+    drawn: np.ndarray,
+    depth_m: np.ndarray,
+    equations: Mapping[int, np.ndarray],
+    camera: Camera,
+    model: NoiseModel,
+    k: float,
+    floor: float,
+    cap: float,
+    grow_pixels: int,
+) -> tuple[np.ndarray, dict[int, int]]:
+    """Grow each plane into the pixels around its drawn shape that lie on it.
+
+    Plane ``p`` may take a pixel when all of these hold:
+
+    - its Euclidean distance to the nearest pixel of ``p``'s drawn shape is at most
+      ``grow_pixels`` (and it is not in that shape);
+    - no plane's drawn shape covers it (``drawn == 0``) and no plane holds it (``refined == 0``);
+    - its depth is valid (finite, > 0);
+    - its back-projected 3-D point lies within ``clip(k sigma(z), floor, cap)`` of ``p``'s plane,
+      ``z`` being the pixel's own depth.
+
+    A pixel that several planes may take goes to the plane it is nearest to in 3-D, a tie to
+    the lowest plane id, so the result does not depend on the order of ``equations``. The
+    candidates of a pixel are the lowest and the highest id among the planes whose shapes lie
+    within ``grow_pixels`` of it (where three or more shapes meet, the others are not
+    considered): two image-wide dilations find them, whatever the number of planes. Growth is
+    not required to be connected: within a band of a few pixels, a pixel on the plane's surface
+    is part of it even behind a one-pixel gap (an invalid-depth speck, a thin cable).
+
+    Parameters
+    ----------
+    refined : ndarray of uint8, uint16 or int32, shape (H, W)
+        Plane ids after refinement (0 = none).
+    drawn : ndarray of non-negative int, shape (H, W)
+        The rasterised polygons (plane ids, 0 = none), as refinement received them.
+    depth_m : ndarray of float, shape (H, W)
+        Depth in metres, NaN where invalid.
+    equations : mapping of int to ndarray, shape (4,)
+        The plane ``(a, b, c, d)`` of each plane to grow (unit normal), e.g. from refinement.
+    camera : Camera
+        Intrinsics (``fy`` may be negative).
+    model : ConstantNoise or QuadraticNoise
+    k, floor, cap : float
+        The band, as in :func:`annotate_rgbd.noise.inlier_band`.
+    grow_pixels : int
+        Largest distance in pixels from the drawn shape; 0 returns ``refined`` unchanged.
+
+    Returns
+    -------
+    labels : ndarray, shape (H, W), of the type of ``refined``
+        ``refined`` with the grown pixels set to their plane's id (a new array).
+    grown : dict of int to int
+        Number of pixels each plane of ``equations`` gained.
+    """
+    if grow_pixels < 0:
+        raise ValueError(f"grow_pixels must be >= 0, got {grow_pixels}")
+    labels = refined.copy()
+    grown = {int(plane_id): 0 for plane_id in equations}
+    if grow_pixels == 0 or not grown:
+        return labels, grown
+    drawn = np.asarray(drawn)
+    # Two candidate planes per pixel: the highest and the lowest id of the growing planes' shapes
+    # within grow_pixels (a pixel that near three or more of them, where three shapes meet,
+    # considers those two).
+    top = max(grown)
+    growing = np.zeros(max(top, int(drawn.max(initial=0))) + 1, dtype=bool)
+    growing[list(grown)] = True
+    lowest, highest = ids_nearby(np.where(growing[drawn], drawn, 0), int(grow_pixels))
+    free = (highest > 0) & (drawn == 0) & (refined == 0)
+    rows, cols = np.nonzero(free)
+    z = depth_m[rows, cols].astype(np.float64)
+    valid = np.isfinite(z) & (z > 0)
+    rows, cols, z = rows[valid], cols[valid], z[valid]
+    if rows.size == 0:
+        return labels, grown
+    points = backproject(cols, rows, z, camera)
+    band = inlier_band(z, model, k, floor, cap)
+    table = np.zeros((top + 1, 4))
+    for plane_id, equation in equations.items():
+        table[int(plane_id)] = equation
+    best_id = np.zeros(rows.size, dtype=np.int64)
+    best_distance = np.full(rows.size, np.inf)
+    # Lowest id first, so that an equal distance keeps the lower id.
+    for candidates in (lowest[rows, cols], highest[rows, cols]):
+        plane = table[candidates]
+        distance = np.abs(np.einsum("ij,ij->i", points, plane[:, :3]) + plane[:, 3])
+        better = (candidates > 0) & (distance <= band) & (distance < best_distance)
+        best_id[better], best_distance[better] = candidates[better], distance[better]
+    taken = best_id > 0
+    labels[rows[taken], cols[taken]] = best_id[taken]
+    counts = np.bincount(best_id[taken], minlength=top + 1)
+    for plane_id in grown:
+        grown[plane_id] = int(counts[plane_id])
+    return labels, grown
+
+
+def grow_connected(
+    labels: np.ndarray,
+    drawn: np.ndarray,
+    claimed: np.ndarray,
+    depth_m: np.ndarray,
+    equations: Mapping[int, np.ndarray],
+    camera: Camera,
+    model: NoiseModel,
+    k: float,
+    floor: float,
+    cap: float,
+) -> tuple[np.ndarray, dict[int, int]]:
+    """Grow each plane of ``equations``, without a distance limit, over the pixels that lie on it
+    and connect to it: for planes whose shapes camera poses carried from keyframes, where the
+    plane went on beyond every keyframe's view (the labeller never outlined that part).
+
+    Plane ``p`` takes a pixel outside its own shape when it is not ``claimed`` and no plane
+    holds it (``labels == 0``), its depth is valid, its 3-D point lies within ``clip(k sigma(z),
+    floor, cap)`` of ``p``'s plane and of no other growing plane more closely (a tie: the lowest
+    id), the mean residual of its window (:func:`annotate_rgbd.refine.window_scores` over these
+    pixels and the planes' own, in units of the model's noise) lies within
+    :data:`annotate_rgbd.refine.COHERENCE_LIMIT` of 0 (a doormat on a floor lies within its band),
+    and a chain of such pixels (8-connected) links it to ``p``'s own pixels. Unlike refinement's
+    window test there is no per-plane centre and spread, and the band is the model's (not scaled
+    by the plane's noise): on a sensor noisier than its model it grows less, never more.
+
+    Parameters
+    ----------
+    labels : ndarray of non-negative int, shape (H, W)
+        Plane ids after refinement and edge growing (0 = none).
+    drawn : ndarray of non-negative int, shape (H, W)
+        The rasterised shapes.
+    claimed : ndarray of bool, shape (H, W)
+        Pixels that only their own shape's plane may take (those of shapes a labeller drew on
+        this frame; a shape carried by poses claims only the pixels its plane keeps).
+    depth_m : ndarray of float, shape (H, W)
+        Depth in metres, NaN where invalid.
+    equations : mapping of int to ndarray, shape (4,)
+        The planes to grow (unit normal, camera frame).
+    camera : Camera
+    model : ConstantNoise or QuadraticNoise
+    k, floor, cap : float
+        The band, as in :func:`annotate_rgbd.noise.inlier_band`.
+
+    Returns
+    -------
+    labels : ndarray, shape (H, W), of the type of ``labels``
+        A new array with the grown pixels set to their plane's id.
+    grown : dict of int to int
+        Pixels each plane gained.
+    """
+    labels = labels.copy()
+    grown = {int(plane_id): 0 for plane_id in equations}
+    if not grown:
+        return labels, grown
+    depth = np.asarray(depth_m, dtype=np.float32)
+    with np.errstate(invalid="ignore"):
+        free = np.isfinite(depth) & (depth > 0) & ~np.asarray(claimed, dtype=bool) & (labels == 0)
+    if not free.any():
+        return labels, grown
+    drawn = np.asarray(drawn)
+    band = np.asarray(inlier_band(depth, model, k, floor, cap), dtype=np.float32)
+    ids = sorted(grown)
+    candidate = np.zeros(labels.shape, dtype=np.int64)
+    best = np.full(labels.shape, np.inf, dtype=np.float32)
+    residual = np.zeros(labels.shape, dtype=np.float32)
+    own = np.isin(labels, ids)
+    # Each free pixel goes to the nearest plane it lies on (a tie: the lowest id), but never to a
+    # plane whose own shape covers it: those pixels refinement left out (a whiteboard on a wall).
+    for plane_id in ids:
+        signed = signed_distances(depth, *(np.float32(v) for v in equations[plane_id]), camera)
+        with np.errstate(invalid="ignore"):
+            closer = free & (np.abs(signed) <= band) & (np.abs(signed) < best) & (drawn != plane_id)
+        candidate[closer] = plane_id
+        best[closer] = np.abs(signed[closer])
+        scored = closer | ((labels == plane_id) & np.isfinite(signed))
+        residual[scored] = signed[scored] * np.float32(k) / band[scored]
+    # The window test of refinement (a doormat on the floor lies within its band): residuals in
+    # noise units, averaged over each candidate's window, must look like the plane's noise.
+    score, usable = window_scores(residual, own | (candidate > 0))
+    candidate[~(usable & (np.abs(score) <= COHERENCE_LIMIT))] = 0
+    for plane_id in ids:
+        mine = labels == plane_id
+        if not mine.any():
+            continue
+        reach = mine | (candidate == plane_id)
+        count, components = cv2.connectedComponents(reach.astype(np.uint8), connectivity=8)
+        linked = np.bincount(components[mine], minlength=count) > 0
+        linked[0] = False
+        take = linked[components] & ~mine
+        labels[take] = plane_id
+        grown[plane_id] = int(np.count_nonzero(take))
+    return labels, grown

@@ -1,0 +1,262 @@
+"""Finding one plane among a shape's 3-D points: Open3D RANSAC, the surface behind it, the
+weighted re-fit and the plane's own noise scale (:func:`fit_plane`)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import open3d as o3d
+
+from annotate_rgbd.config.settings import RansacConfig
+from annotate_rgbd.geometry.lift import SAME_SURFACE_ANGLE, SAME_SURFACE_OFFSET, plane_agreement
+from annotate_rgbd.geometry.noise import NoiseSettings
+from annotate_rgbd.geometry.planes import refit_plane
+
+
+#: Least-squares re-fits of a RANSAC plane to its inliers (the second settles the inlier set).
+REFITS = 2
+#: RANSAC's distance threshold, as a share of the inlier band (k = 3 sigma: 1.5 sigma). With
+#: the full band a plane tilted between two surfaces a few sigma apart (a whiteboard on a wall,
+#: books on a table) can gather more points than either surface's own plane; within 1.5 sigma
+#: the dominant surface wins. Measured on benchmarks/bench_refine.py: the wall behind a
+#: whiteboard went from mean IoU 0.86 to 0.94 (0.34 of the band gave the same).
+RANSAC_SHARE = 0.5
+#: Real sensors are noisier than their published axial noise: depth distortion (TUM fr1),
+#: stereo ripples (RealSense), lateral noise on tilted planes. Each plane's own residuals tell
+#: by how much: the noise is scaled by ``1.4826 median(|d| / sigma(z))`` of its fit's inliers
+#: (the MAD estimate of a standard deviation, robust to the clutter in the band), never below 1
+#: and at most this much. On TUM fr1_rpy and the RealSense office frames the planes' residuals
+#: are about 1.5 sigma of the published models; on renders with exactly the model's noise the
+#: factor stays about 1.
+MAX_NOISE_SCALE = 2.5
+#: A plane's noise is scaled only when its residuals say it is this much larger than the model:
+#: below, the difference is within the spread of the estimate (a median of about a thousand
+#: grid points varies by a few per cent).
+MIN_NOISE_SCALE = 1.15
+#: A surface behind RANSAC's plane (beyond its band) with at least this share of its inliers
+#: replaces it (see :func:`fit_plane`), at most MAX_BEHIND times in a row.
+BEHIND_SHARE = 0.3
+MAX_BEHIND = 2
+#: Fewest points a surface behind must hold (a few stray points always make a plane).
+MIN_BEHIND_POINTS = 10
+#: Farthest a surface behind may lie (m, at its own points): an object standing on a plane is
+#: rarely taller than this (the carton on the benchmark's floor: 0.3 m); a surface farther
+#: behind is seen through an opening in the plane (a doorway, a window), which labellers do
+#: draw over.
+MAX_BEHIND_DEPTH = 0.5
+#: Planes tried among the points behind, largest first.
+BEHIND_CANDIDATES = 3
+#: Open3D's default confidence for stopping RANSAC early.
+DEFAULT_PROBABILITY = 0.99999999
+#: For a shape carried by poses, RANSAC runs again through all its iterations when its plane
+#: holds under this share of the points (a wall half covered by a whiteboard).
+EXHAUSTIVE_BELOW = 0.6
+#: The share of a plane's points that may lie behind a plane that replaces it (noise, edges).
+IN_FRONT_SLACK = 0.02
+
+
+@dataclass(frozen=True)
+class PlaneFit:
+    """The result of fitting one plane.
+
+    Parameters
+    ----------
+    equation : ndarray of float64, shape (4,)
+        ``(a, b, c, d)`` with ``a x + b y + c z + d = 0`` in the camera frame (metres), unit
+        normal, oriented towards the camera (``d > 0``).
+    inliers : ndarray of bool, shape (N,)
+        For each input point, whether it lies within the inlier band of the plane at its depth.
+    band : float
+        The inlier band (m) at the median depth of the inliers.
+    rms_sigma : float
+        Root mean square distance of the inliers to the plane, in units of the noise the band
+        stands for (``band / k``); about 1 when the noise model fits the sensor. NaN without
+        inliers.
+    inliers_ransac, inliers_refit : int
+        Inliers among the input points of RANSAC's plane (or of the surface behind that replaced
+        it) and of the re-fitted plane.
+    noise_scale : float
+        How much noisier than the model the plane's points are (:data:`MAX_NOISE_SCALE`);
+        the band, the re-fit's weights and the inlier test use the scaled noise.
+    surface_behind : bool
+        Whether a surface behind RANSAC's plane replaced it (:func:`_surface_behind`).
+    """
+
+    equation: np.ndarray
+    inliers: np.ndarray
+    band: float = float("nan")
+    rms_sigma: float = float("nan")
+    inliers_ransac: int = 0
+    inliers_refit: int = 0
+    noise_scale: float = 1.0
+    surface_behind: bool = False
+
+
+def fit_plane(
+    points: np.ndarray, config: RansacConfig, noise: NoiseSettings, look_behind: bool = True,
+    expected: np.ndarray | None = None,
+) -> PlaneFit:
+    """Find a plane among 3-D points with Open3D's RANSAC, then re-fit it to its inliers.
+
+    RANSAC searches for the plane among at most ``config.max_points`` of the points, taken
+    evenly through the input (for a plane's pixels in row-major order: a regular grid over the
+    plane), with half the inlier band of the noise model at the points' median depth as its one
+    distance threshold (:data:`RANSAC_SHARE`). A 3-point RANSAC plane is noisier than the data, so the plane is then
+    re-fitted by least squares to its inliers, each weighted by ``1 / sigma(z)^2``
+    (:func:`annotate_rgbd.planefit.refit_plane`: every point tested against the band at its own
+    depth). Open3D runs single-threaded with its generator seeded before every call: its
+    multi-threaded RANSAC gives different planes from run to run, and frames are parallelised
+    across processes instead.
+
+    With ``look_behind``, a large surface behind RANSAC's plane that the plane's points lie in
+    front of takes its place (:func:`_surface_behind`): the points are a labeller's drawn shape,
+    which runs over what stands on the plane but not over what lies behind it.
+
+    Parameters
+    ----------
+    points : ndarray of float64, shape (N, 3)
+        N >= 3 points in metres.
+    config : RansacConfig
+    noise : NoiseSettings
+        The inlier band (:meth:`annotate_rgbd.config.Config.noise_settings`).
+    look_behind : bool
+        False for points of a shape no labeller drew on this frame (projected from keyframes on
+        other frames, which may run past the plane's edge onto a surface behind it), unless
+        ``expected`` says which plane it is.
+    expected : ndarray, shape (4,), optional
+        Where camera poses put the plane in this frame (a track's keyframe plane): a surface
+        behind replaces RANSAC's plane only when it is that one (within
+        :data:`annotate_rgbd.lift.SAME_SURFACE_ANGLE` and ``SAME_SURFACE_OFFSET``); and when
+        RANSAC's plane holds under :data:`EXHAUSTIVE_BELOW` of the points, RANSAC runs again
+        through all its iterations (the plane with more inliers is kept).
+
+    Returns
+    -------
+    PlaneFit
+    """
+    points = np.ascontiguousarray(points, dtype=np.float64)
+    sample = points
+    if config.max_points and len(points) > config.max_points:
+        sample = points[:: -(-len(points) // config.max_points)]
+        if len(sample) < 3:  # a stride over very few points (max_points = 3) can leave two
+            sample = points[: max(config.max_points, 3)]
+    threshold = RANSAC_SHARE * float(noise.band(np.median(sample[:, 2])))
+    equation, inliers = _ransac(sample, threshold, config)
+    if expected is not None and inliers < EXHAUSTIVE_BELOW * len(sample):
+        # Open3D stops searching once its plane is likely the best given the share of points it
+        # holds; with two surfaces of about half each it can stop on a plane leaning between them.
+        again = _ransac(sample, threshold, config, exhaustive=True)
+        equation, inliers = again if again[1] > inliers else (equation, inliers)
+    band = noise.band(sample[:, 2])
+    behind = False
+    for _ in range(MAX_BEHIND if look_behind or expected is not None else 0):
+        found = _surface_behind(sample, band, equation, inliers, threshold, config, expected)
+        if found is None:
+            break
+        (equation, inliers), behind = found, True
+    refit = refit_plane(points, equation, noise.model, noise.k, noise.floor, noise.cap, iterations=REFITS, fit_points=0)
+    rms_sigma, before, scale = refit.rms_sigma, refit.inliers_before, 1.0
+    for _ in range(2):  # the first estimate sees a band truncated at the model's k sigma
+        found = noise_scale(points, refit.equation, noise.scaled(scale))
+        if found < (MIN_NOISE_SCALE if scale == 1.0 else 1.02):
+            break
+        scale = min(scale * found, MAX_NOISE_SCALE)
+        scaled = noise.scaled(scale)
+        refit = refit_plane(points, refit.equation, scaled.model, scaled.k, scaled.floor, scaled.cap, iterations=1,
+                            fit_points=0)
+    equation = refit.equation / np.linalg.norm(refit.equation[:3])
+    if equation[3] < 0:
+        equation = -equation
+    return PlaneFit(equation, refit.inliers, refit.band_at_median, rms_sigma, before, refit.inliers_after, scale,
+                    surface_behind=behind)
+
+
+def _surface_behind(
+    sample: np.ndarray, band: np.ndarray, equation: np.ndarray, inliers: int, threshold: float, config: RansacConfig,
+    expected: np.ndarray | None = None,
+) -> tuple[np.ndarray, int] | None:
+    """A plane behind ``equation`` that the polygon was drawn for, or None.
+
+    A polygon is drawn over what lies on its plane and in front of it, never over a surface
+    behind it (but for a pixel or two along its edges, and openings such as a doorway). When
+    the points behind RANSAC's plane (beyond the band, within :data:`MAX_BEHIND_DEPTH`) hold a
+    plane with at least :data:`BEHIND_SHARE` of its ``inliers`` (and :data:`MIN_BEHIND_POINTS`),
+    and the plane's own points lie in front of that one, RANSAC took an object for the plane: the
+    top of a carton on a floor that it mostly hides, a picture on a sliver of wall. Planes
+    behind that the plane's points are not in front of (a carton's side seen behind its top:
+    the top is behind the side, too) are set aside, and the next one tried; so are planes other
+    than the ``expected`` one, when given.
+    """
+    on_plane = np.abs(sample @ equation[:3] + equation[3]) <= threshold
+    behind = sample @ equation[:3] + equation[3] < -band
+    for _ in range(BEHIND_CANDIDATES):
+        if np.count_nonzero(behind) < max(BEHIND_SHARE * inliers, MIN_BEHIND_POINTS):
+            return None
+        candidate, found = _ransac(sample[behind], threshold, config)
+        if found < max(BEHIND_SHARE * inliers, MIN_BEHIND_POINTS):
+            return None
+        signed = sample @ candidate[:3] + candidate[3]
+        on_candidate = np.abs(signed) <= threshold
+        in_front = np.count_nonzero(on_plane & (signed < -band)) <= IN_FRONT_SLACK * np.count_nonzero(on_plane)
+        near = -np.median(sample[on_candidate] @ equation[:3] + equation[3]) <= MAX_BEHIND_DEPTH
+        if in_front and near and (expected is None or _same_surface(candidate, expected, sample[on_candidate])):
+            return candidate, found
+        behind &= np.abs(signed) > threshold  # set that plane aside
+    return None
+
+
+def _same_surface(plane: np.ndarray, expected: np.ndarray, points: np.ndarray) -> bool:
+    """Whether ``plane`` is the ``expected`` one, compared at the centre of its ``points``."""
+    angle, offset = plane_agreement(expected, plane, at=points.mean(axis=0))
+    return angle <= SAME_SURFACE_ANGLE and offset <= SAME_SURFACE_OFFSET
+
+
+def _ransac(sample: np.ndarray, threshold: float, config: RansacConfig, exhaustive: bool = False) -> tuple[np.ndarray, int]:
+    """Open3D's RANSAC plane through ``sample`` (unit normal towards the camera) and its number
+    of inliers within ``threshold``."""
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.ascontiguousarray(sample)))
+    threads = o3d.utility.get_max_threads()
+    o3d.utility.set_max_threads(1)
+    try:
+        o3d.utility.random.seed(config.seed)
+        model, inliers = cloud.segment_plane(distance_threshold=threshold, ransac_n=3,
+                                             num_iterations=config.num_iterations,
+                                             probability=1.0 if exhaustive else DEFAULT_PROBABILITY)
+    finally:
+        o3d.utility.set_max_threads(threads)
+    equation = np.asarray(model, dtype=np.float64)
+    equation = equation / np.linalg.norm(equation[:3])
+    return (-equation if equation[3] < 0 else equation), len(inliers)
+
+
+def noise_scale(points: np.ndarray, equation: np.ndarray, noise: NoiseSettings) -> float:
+    """How much noisier than ``noise`` a plane's points are: ``1.4826 median(|d| / sigma(z))``
+    over the points within its band on the side of the plane where that is smaller (``d`` the
+    signed distance to the plane, ``z`` the depth), at least 1; 1 for a fixed band or fewer than
+    5 points on either side.
+
+    Parameters
+    ----------
+    points : ndarray of float64, shape (N, 3)
+    equation : ndarray, shape (4,)
+    noise : NoiseSettings
+
+    Returns
+    -------
+    float
+    """
+    if noise.floor >= noise.cap:
+        return 1.0  # a fixed band: nothing to adapt
+    z = points[:, 2]
+    sigma = noise.model.sigma(z)
+    signed = np.einsum("ij,j->i", points, equation[:3]) + equation[3]
+    with np.errstate(invalid="ignore"):
+        inside = np.abs(signed) <= np.clip(noise.k * sigma, noise.floor, noise.cap)
+    residual = signed[inside] / np.maximum(sigma[inside], 1e-9)
+    front, behind = residual[residual > 0], -residual[residual < 0]
+    if min(front.size, behind.size) < 5:
+        return 1.0
+    # Each side of the plane on its own: a surface in the band on one side (a whiteboard on a
+    # wall, a book on a table) widens that side only; the narrower side is the plane's noise.
+    return max(1.0, 1.4826 * float(min(np.median(front), np.median(behind))))

@@ -1,0 +1,152 @@
+"""Shapes -> plane label image on the depth grid.
+
+A pixel belongs to a shape when its centre lies inside it. In CVAT coordinates the image's
+top-left corner is (0, 0), so the centre of pixel ``(col, row)`` is ``(col + 0.5, row + 0.5)``.
+A centre exactly on an outline belongs to the shape on the outline's top and left sides only
+(half-open spans, the usual rasterisation rule), so two polygons that share an edge never share
+a pixel. Polygons are filled with the even-odd rule, as CVAT draws them.
+
+TUM and ICL-NUIM depth images are registered to the RGB images, so the labeller's pixel
+coordinates carry over to the depth grid unchanged.
+"""
+
+from __future__ import annotations
+
+from typing import Iterable
+
+import numpy as np
+
+from annotate_rgbd.annotation.model import Shape
+
+
+def rasterize_frame(shapes: Iterable[tuple[int, Shape]], height: int, width: int) -> np.ndarray:
+    """Draw one frame's shapes into a label image.
+
+    Shapes are drawn in ascending ``z_order``; at equal ``z_order`` later shapes (later tracks in
+    the export) are drawn on top, as CVAT shows them.
+
+    Parameters
+    ----------
+    shapes : iterable of (int, Shape)
+        ``(plane id, shape)`` pairs in track order; plane ids are > 0.
+    height, width : int
+        Size of the depth image.
+
+    Returns
+    -------
+    ndarray of uint8, uint16 or int32, shape (height, width)
+        The plane id on top at each pixel, 0 where no shape covers it; the smallest of these
+        types that holds the largest id (uint8 for the usual < 256 planes: every later pass
+        over the image moves a quarter of the bytes).
+    """
+    shapes = list(shapes)
+    labels = np.zeros((height, width), dtype=label_dtype(max((pid for pid, _ in shapes), default=0)))
+    ordered = sorted(shapes, key=lambda item: item[1].z_order)  # stable: keeps track order
+    for plane_id, shape in ordered:
+        top, left, inside = shape_mask(shape, height, width)
+        rows, cols = inside.shape
+        np.copyto(labels[top : top + rows, left : left + cols], plane_id, where=inside)
+    return labels
+
+
+def label_dtype(largest: int) -> np.dtype:
+    """The smallest label image type for plane ids up to ``largest``."""
+    for dtype in (np.uint8, np.uint16):
+        if largest <= np.iinfo(dtype).max:
+            return np.dtype(dtype)
+    return np.dtype(np.int32)
+
+
+def shape_mask(shape: Shape, height: int, width: int) -> tuple[int, int, np.ndarray]:
+    """The pixels of a shape, as a boolean window of the image.
+
+    Parameters
+    ----------
+    shape : Shape
+        A polygon, box or mask.
+    height, width : int
+        Image size.
+
+    Returns
+    -------
+    top, left : int
+        Position of the window in the image.
+    inside : ndarray of bool, shape (rows, cols)
+        ``True`` for the pixels of the window whose centres lie inside the shape; the window
+        lies within the image (it may be empty).
+    """
+    if shape.kind == "polygon":
+        return polygon_window(shape.points, height, width)
+    if shape.kind == "box":
+        (xtl, ytl), (xbr, ybr) = shape.points
+        left, right = _span(xtl, xbr, width)
+        top, bottom = _span(ytl, ybr, height)
+        return top, left, np.ones((max(bottom - top, 0), max(right - left, 0)), dtype=bool)
+    if shape.kind == "mask":
+        left, top = (int(round(v)) for v in shape.points[0])
+        rows, cols = shape.bitmap.shape
+        row0, row1 = max(top, 0), min(top + rows, height)
+        col0, col1 = max(left, 0), min(left + cols, width)
+        if row1 <= row0 or col1 <= col0:
+            return 0, 0, np.zeros((0, 0), dtype=bool)
+        return row0, col0, shape.bitmap[row0 - top : row1 - top, col0 - left : col1 - left]
+    raise ValueError(f"unsupported shape kind {shape.kind!r}")
+
+
+def polygon_window(points: np.ndarray, height: int, width: int) -> tuple[int, int, np.ndarray]:
+    """Fill a polygon: the pixels whose centres are inside, in the window of the image it spans.
+
+    Scanline fill, vectorised over rows and edges: each row's pixel-centre line crosses the
+    edges at sorted x positions; pairs of crossings bound the inside spans.
+
+    Parameters
+    ----------
+    points : ndarray, shape (N, 2)
+        Vertices (x, y) in CVAT coordinates.
+    height, width : int
+        Image size.
+
+    Returns
+    -------
+    top, left : int
+        Position of the window in the image.
+    inside : ndarray of bool, shape (rows, cols)
+        The polygon's pixels in the window (which lies within the image; it may be empty).
+    """
+    x0, y0 = points[:, 0], points[:, 1]
+    x1, y1 = np.concatenate([x0[1:], x0[:1]]), np.concatenate([y0[1:], y0[:1]])  # each edge's end
+    top = max(int(np.floor(y0.min() - 0.5)), 0)
+    bottom = min(int(np.ceil(y0.max() - 0.5)), height - 1)
+    if bottom < top:
+        return 0, 0, np.zeros((0, 0), dtype=bool)
+    centre_y = (np.arange(top, bottom + 1) + 0.5)[:, None]
+    # Half-open in y: an edge counts for rows with centre in [min(y0, y1), max(y0, y1)).
+    crosses = ((y0 <= centre_y) & (centre_y < y1)) | ((y1 <= centre_y) & (centre_y < y0))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        xs = np.where(crosses, x0 + (centre_y - y0) * (x1 - x0) / (y1 - y0), np.inf)
+    xs.sort(axis=1)
+    starts, ends = xs[:, 0::2], xs[:, 1::2]
+    starts = starts[:, : ends.shape[1]]
+    missing = ~np.isfinite(ends)
+    # Pixels with centre c + 0.5 in [start, end): c from ceil(start - 0.5) to ceil(end - 0.5) - 1.
+    first = np.where(missing, 0, np.ceil(np.where(missing, 0, starts) - 0.5)).clip(0, width).astype(np.int32)
+    stop = np.where(missing, 0, np.ceil(np.where(missing, 0, ends) - 0.5)).clip(0, width).astype(np.int32)
+    filled = stop > first
+    if not filled.any():
+        return 0, 0, np.zeros((0, 0), dtype=bool)
+    # Only the columns the spans reach (most shapes cover a fraction of the image's width), and
+    # only as many spans per row as some row has (one for a convex polygon).
+    left, right = int(first[filled].min()), int(stop[filled].max())
+    k, *more = np.flatnonzero(filled.any(axis=0)).tolist()
+    cols = np.arange(left, right, dtype=np.int32)
+    inside = (cols >= first[:, k, None]) & (cols < stop[:, k, None])
+    for k in more:  # spans of a row are disjoint: one comparison per span
+        inside |= (cols >= first[:, k, None]) & (cols < stop[:, k, None])
+    return top, left, inside
+
+
+def _span(low: float, high: float, size: int) -> tuple[int, int]:
+    """Pixel range [first, stop) whose centres lie in [low, high), clipped to [0, size)."""
+    first = min(max(int(np.ceil(low - 0.5)), 0), size)
+    stop = min(max(int(np.ceil(high - 0.5)), 0), size)
+    return first, stop

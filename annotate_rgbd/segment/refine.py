@@ -1,0 +1,410 @@
+"""Depth refinement: keep only the pixels that lie on each plane (each found by
+:func:`annotate_rgbd.ransac.fit_plane`)."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import Collection, Mapping
+
+import cv2
+import numpy as np
+
+from annotate_rgbd.geometry.camera import Camera, backproject
+from annotate_rgbd.config.settings import RansacConfig
+from annotate_rgbd.geometry.noise import ConstantNoise, NoiseSettings
+from annotate_rgbd.geometry.planes import weighted_plane_fit
+from .ransac import PlaneFit, fit_plane
+
+
+def refine_planes(
+    labels: np.ndarray,
+    depth_m: np.ndarray,
+    plane_ids: np.ndarray,
+    camera: Camera,
+    config: RansacConfig,
+    noise: NoiseSettings,
+    valid_pixels: np.ndarray | None = None,
+    rim_pixels: int = 0,
+    propagated: Collection[int] = (),
+    expected: Mapping[int, np.ndarray] | None = None,
+) -> tuple[np.ndarray, dict[int, PlaneFit]]:
+    """Keep, for each plane, only its pixels with valid depth that lie on its fitted plane.
+
+    Each plane is fitted (:func:`fit_plane`) to its valid pixels on a regular grid (every
+    pixel, or every s-th row and column so that at most ``config.max_points`` remain); whether
+    a pixel is an inlier is then decided for every pixel of every plane at once: its distance
+    to its own plane within the band ``noise.band(z)`` at its own depth. With a noise model (not
+    a fixed band), surfaces inside the band but off the plane are then found by the window test
+    (:func:`window_scores`): each plane is re-fitted to the windows around its dominant surface,
+    and inliers whose window score lies beyond :data:`COHERENCE_LIMIT` spreads, or whose window
+    holds under :data:`MIN_INLIER_DENSITY` inliers, are dropped. Last, inliers within
+    ``rim_pixels`` of a surface in front of their plane inside its shape are dropped
+    (:func:`near_surfaces_in_front`).
+
+    Parameters
+    ----------
+    labels : ndarray of non-negative int, shape (H, W)
+        The rasterised polygons (plane ids, 0 = none).
+    depth_m : ndarray of float32, shape (H, W)
+        Depth in metres, NaN where invalid.
+    plane_ids : ndarray of int
+        The planes to refine; every other label becomes 0.
+    camera : Camera
+    config : RansacConfig
+    noise : NoiseSettings
+        The inlier band.
+    valid_pixels : ndarray of int, optional
+        Number of valid-depth pixels of each plane of ``plane_ids`` (as counted by
+        :func:`annotate_rgbd.filters.plane_statistics`); counted here when not given.
+    rim_pixels : int
+        Drop inliers this close (px) to a surface in front of their plane; 0: none.
+    propagated : collection of int
+        Planes whose shapes no labeller drew on this frame (carried here by camera poses): their
+        fits look behind RANSAC's plane (:func:`annotate_rgbd.ransac.fit_plane`) only for the
+        plane ``expected`` says.
+    expected : mapping of int to ndarray, shape (4,), optional
+        Where camera poses put each of those planes in this frame.
+
+    Returns
+    -------
+    refined : ndarray, shape (H, W), of the type of ``labels``
+        Plane ids on inlier pixels, 0 everywhere else (off-plane and invalid-depth pixels too).
+    fits : dict of int to PlaneFit
+        The fit of each refined plane id (its ``inliers`` are those of the grid points).
+    """
+    valid = np.isfinite(depth_m)
+    on_valid = np.where(valid, labels, 0)  # plane ids where the depth is valid
+    n_labels = int(labels.max(initial=0)) + 1
+    plane_ids = np.asarray(plane_ids)
+    if valid_pixels is None:
+        valid_pixels = np.bincount(on_valid.ravel(), minlength=n_labels)[plane_ids]
+    table = np.zeros((n_labels, 4), dtype=np.float32)  # (a, b, c, d) per label; 0 = no plane
+    scales = np.ones(n_labels, dtype=np.float32)  # each plane's noise scale
+    fits = {}
+    for plane_id, count in zip(plane_ids.tolist(), np.asarray(valid_pixels).tolist()):
+        rows, cols = grid_pixels(on_valid, plane_id, count, config.max_points)
+        if rows.size < 3:
+            continue
+        fit = fit_plane(backproject(cols, rows, depth_m[rows, cols], camera), config, noise,
+                        look_behind=plane_id not in propagated, expected=(expected or {}).get(plane_id))
+        fits[plane_id] = fit
+        table[plane_id] = fit.equation
+        scales[plane_id] = fit.noise_scale
+    band = band_image(depth_m, noise)
+    if not isinstance(band, float) and (scales != 1).any():  # widened where a plane's noise is larger
+        band = np.clip(band * _lookup(scales, on_valid), np.float32(noise.floor), np.float32(noise.cap))
+    # The window test needs the noise, which a fixed band (distance_threshold) does not give.
+    coherence = noise.floor < noise.cap and COHERENCE_WINDOW > 0
+    if coherence and isinstance(band, float):  # a constant noise model
+        band = np.where(np.isfinite(depth_m), np.float32(band), np.float32(np.nan))
+    if coherence:
+        # Surfaces within the band but off the plane (a whiteboard on a wall) pull the
+        # least-squares plane towards them, and so does an inlier test that cannot tell them
+        # apart: re-fit each plane to the windows around its dominant surface (the middle of the
+        # densest half of its window scores) until it settles, each time closer to that surface.
+        # On every other row and column (a quarter of the work; the windows cover the same area).
+        small = (slice(None, None, 2), slice(None, None, 2))
+        labels_s, depth_s, band_s = on_valid[small], depth_m[small], band[small]
+        camera_s = replace(camera, fx=camera.fx / 2, fy=camera.fy / 2, cx=camera.cx / 2, cy=camera.cy / 2)
+        window = COHERENCE_WINDOW // 2 + 1
+        on_plane_s, residual_s = _inlier_test(table, labels_s, depth_s, camera_s, band_s, noise.k)
+        for _ in range(CORE_REFITS):
+            score, usable = window_scores(residual_s, on_plane_s, window)
+            centre, _ = _score_statistics(score, usable, labels_s, n_labels)
+            core = usable & (np.abs(score - _lookup(centre, labels_s)) <= CORE_SCORE)
+            before = table.copy()
+            _refit_to(core, labels_s, depth_s, band_s, noise.k, camera_s, config.max_points, fits, table)
+            if np.abs(table - before).max(initial=0.0) < SETTLED:
+                break
+            on_plane_s, residual_s = _inlier_test(table, labels_s, depth_s, camera_s, band_s, noise.k)
+    on_plane, residual = _inlier_test(table, on_valid, depth_m, camera, band, noise.k)
+    if coherence:
+        score, usable = window_scores(residual, on_plane)
+        centre, spread = _score_statistics(score, usable, on_valid, n_labels, step=4)
+        on_plane &= ~(usable & (np.abs(score - _lookup(centre, on_valid)) > COHERENCE_LIMIT * _lookup(spread, on_valid)))
+        on_plane &= inlier_density(on_plane, on_valid > 0) >= MIN_INLIER_DENSITY
+    if rim_pixels:
+        with np.errstate(invalid="ignore"):
+            in_front = (on_valid > 0) & ~on_plane & (residual > 0)
+        on_plane &= ~near_surfaces_in_front(in_front, on_valid, rim_pixels)
+    return np.where(on_plane, labels, 0).astype(labels.dtype), fits
+
+
+def near_surfaces_in_front(in_front: np.ndarray, labels: np.ndarray, rim_pixels: int) -> np.ndarray:
+    """The pixels of each plane's shape within ``rim_pixels`` of a surface in front of the plane.
+
+    Where an object stands on a plane (a book on a table, a whiteboard on a wall), the foot of
+    its sides lies within the plane's noise band: depth cannot tell those pixels from the plane,
+    and a 7x7 window (:func:`window_scores`) straddling both surfaces cannot either. And depth
+    sensors smear depth across the edge of a nearer surface (Kinect v1's correlation window,
+    stereo matching): the plane's pixels next to it are the least reliable ones. So a plane
+    gives up a thin rim around whatever stands in front of it inside its shape. Specks of noise
+    beyond the band are not surfaces: only pixels in front of the plane that fill a 3x3 square
+    (a morphological opening) count. A surface in front of one plane takes no rim from another
+    plane's pixels: where two planes' shapes meet, each is judged against its own plane.
+
+    Parameters
+    ----------
+    in_front : ndarray of bool, shape (H, W)
+        Pixels with depth in a plane's shape whose 3-D point lies in front of that plane (on
+        the camera's side) and off it.
+    labels : ndarray of non-negative int, shape (H, W)
+        The plane id of each pixel's shape (0 = none).
+    rim_pixels : int
+        Width of the rim (px, Euclidean; 0: nothing).
+
+    Returns
+    -------
+    ndarray of bool, shape (H, W)
+        Pixels of a shape within ``rim_pixels`` of a surface in front of the same shape's plane.
+    """
+    if rim_pixels <= 0:
+        return np.zeros(labels.shape, dtype=bool)
+    surfaces = cv2.morphologyEx(in_front.astype(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)) > 0
+    if not surfaces.any():
+        return surfaces
+    # Where three planes' surfaces meet within a rim, the middle one is missed.
+    lowest, highest = ids_nearby(np.where(surfaces, labels, 0), rim_pixels)
+    return (labels > 0) & ((highest == labels) | (lowest == labels))
+
+
+def ids_nearby(ids: np.ndarray, radius: int) -> tuple[np.ndarray, np.ndarray]:
+    """The lowest and the highest non-zero id within ``radius`` pixels (Euclidean) of each pixel.
+
+    Two image-wide dilations, whatever the number of ids (a pixel near three or more ids sees
+    only these two).
+
+    Parameters
+    ----------
+    ids : ndarray of non-negative int, shape (H, W)
+        0 = none.
+    radius : int
+
+    Returns
+    -------
+    lowest, highest : ndarray of int64, shape (H, W)
+        0 where no id lies within ``radius``.
+    """
+    offsets = np.arange(-radius, radius + 1)
+    disk = (offsets[:, None] ** 2 + offsets[None, :] ** 2 <= radius * radius).astype(np.uint8)
+    top = int(ids.max(initial=0))
+    # The narrowest type cv2.dilate takes that holds every id and top + 1 (float32: exact to 2^24).
+    work = np.float32 if top + 1 >= 2**16 else (np.uint16 if top + 1 >= 2**8 else np.uint8)
+    shapes = ids.astype(work)
+    highest = cv2.dilate(shapes, disk, borderValue=0).astype(np.int64)
+    # The lowest id as the highest of top + 1 - id.
+    flipped = cv2.dilate(np.where(shapes > 0, work(top + 1) - shapes, 0).astype(work), disk, borderValue=0)
+    lowest = np.where(flipped > 0, top + 1 - flipped.astype(np.int64), 0)
+    return lowest, highest
+
+
+def signed_distances(
+    depth_m: np.ndarray, a: np.ndarray | float, b: np.ndarray | float, c: np.ndarray | float, d: np.ndarray | float,
+    camera: Camera,
+) -> np.ndarray:
+    """Every pixel's signed distance (m) to the plane ``a x + b y + c z + d = 0`` (unit normal;
+    one plane, or one per pixel as images): ``z (a x_n + b y_n + c) + d`` with ``x_n = (col -
+    cx) / fx``, ``y_n = (row - cy) / fy`` the pixel's ray at ``z = 1``. float32 is ample: depth
+    has 0.2 mm steps, and bands are millimetres or more. NaN where the depth is."""
+    x_n = ((np.arange(depth_m.shape[1], dtype=np.float32) - np.float32(camera.cx)) / np.float32(camera.fx))[None, :]
+    y_n = ((np.arange(depth_m.shape[0], dtype=np.float32) - np.float32(camera.cy)) / np.float32(camera.fy))[:, None]
+    with np.errstate(invalid="ignore"):
+        return depth_m * (a * x_n + b * y_n + c) + d
+
+
+#: Side (px) of the window in which a plane's residuals are averaged to find surfaces that stand
+#: off it by less than the inlier band (a whiteboard on a wall, a book on a table): their
+#: pixels' residuals are each within the noise, but share a sign and a size over an area.
+COHERENCE_WINDOW = 7
+#: How many standard deviations of a window mean (measured over the plane itself) mark the
+#: window's centre pixel as lying on another surface.
+COHERENCE_LIMIT = 5.0
+#: Fewest inliers in a window for its score to count: the score is normalised for any number,
+#: and a surface just beyond the band leaves only scattered inliers (its noise's tail).
+MIN_WINDOW_INLIERS = 4
+#: Inliers with fewer inliers than this share of their window's labelled pixels are dropped: a
+#: plane pixel's window holds about 99 % (a 3 sigma band), 57 % on an occluder's straight edge
+#: (4 of 7 columns), 33 % in a right-angled corner (16 of 49); a surface a little beyond the
+#: band, whose noise puts only its scattered pixels inside it, 5-40 %.
+MIN_INLIER_DENSITY = 0.3
+#: Re-fits of each plane to its core: the pixels whose window score lies within this many
+#: standard normal deviations of the plane's centre (on real sensors, whose noise is correlated,
+#: fewer than 95 % of the plane, but all of them on its dominant surface).
+CORE_SCORE = 2.0
+#: At most this many re-fits; they stop once no plane's normal or offset moved by SETTLED
+#: (unit normal components; metres), a small fraction of any band.
+CORE_REFITS = 2
+SETTLED = 5e-4
+#: Window scores are clipped to +-this for the statistics (far beyond any limit used).
+SCORE_CLIP = 1000.0
+
+
+def _refit_to(
+    core: np.ndarray, labels: np.ndarray, depth_m: np.ndarray, band: np.ndarray, k: float, camera: Camera,
+    max_points: int, fits: dict, table: np.ndarray,
+) -> None:
+    """Re-fit every plane of ``fits`` to its ``core`` pixels (weighted by 1 / sigma^2, on a grid of
+    at most about ``max_points``); updates ``fits`` and ``table`` in place."""
+    core_labels = np.where(core, labels, 0)
+    counts = np.bincount(core_labels.ravel(), minlength=len(table))
+    for plane_id, fit in list(fits.items()):
+        rows, cols = grid_pixels(core_labels, plane_id, int(counts[plane_id]), max_points)
+        if rows.size < 3:
+            continue
+        sigma = (band[rows, cols] / np.float32(k)).astype(np.float64)
+        try:
+            equation = weighted_plane_fit(backproject(cols, rows, depth_m[rows, cols], camera), 1.0 / np.square(sigma))
+        except ValueError:  # the core on one line
+            continue
+        fits[plane_id] = replace(fit, equation=equation)
+        table[plane_id] = equation
+
+
+def inlier_density(on_plane: np.ndarray, labelled: np.ndarray) -> np.ndarray:
+    """The share of inliers among the labelled pixels with depth of each pixel's window.
+
+    Parameters
+    ----------
+    on_plane : ndarray of bool, shape (H, W)
+        Pixels within their plane's band.
+    labelled : ndarray of bool, shape (H, W)
+        Pixels in a plane's shape with valid depth.
+
+    Returns
+    -------
+    ndarray of float32, shape (H, W)
+        About 1 on a plane (0.99 for a 3 sigma band), 0.57 on its straight edge against an
+        occluder, and low over a surface just beyond the band, whose noise puts only scattered
+        pixels inside it.
+    """
+    size = (COHERENCE_WINDOW, COHERENCE_WINDOW)
+    inliers = cv2.boxFilter(on_plane.astype(np.float32), -1, size, normalize=False, borderType=cv2.BORDER_CONSTANT)
+    total = cv2.boxFilter(labelled.astype(np.float32), -1, size, normalize=False, borderType=cv2.BORDER_CONSTANT)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return inliers / total
+
+
+def window_scores(
+    residual: np.ndarray, on_plane: np.ndarray, window: int = COHERENCE_WINDOW
+) -> tuple[np.ndarray, np.ndarray]:
+    """The mean residual of each pixel's window, scaled to a standard normal on a true plane.
+
+    Parameters
+    ----------
+    residual : ndarray of float32, shape (H, W)
+        Each pixel's signed distance to its plane in units of its noise (NaN without depth).
+    on_plane : ndarray of bool, shape (H, W)
+        The pixels within their plane's inlier band (the only ones averaged).
+    window : int
+        Side of the square window (px).
+
+    Returns
+    -------
+    score : ndarray of float32, shape (H, W)
+        The sum of the window's inlier residuals over the square root of their number: about
+        N(0, 1) where the noise is independent and the window lies on its plane, far from 0
+        over a surface that stands off the plane (its residuals share a sign).
+    usable : ndarray of bool, shape (H, W)
+        Inlier pixels whose window holds at least :data:`MIN_WINDOW_INLIERS` inliers.
+    """
+    values = np.where(on_plane, residual, np.float32(0))
+    size = (window, window)
+    total = cv2.boxFilter(values, -1, size, normalize=False, borderType=cv2.BORDER_CONSTANT)
+    count = cv2.boxFilter(on_plane.astype(np.float32), -1, size, normalize=False, borderType=cv2.BORDER_CONSTANT)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        score = total / np.sqrt(count)
+    return score, on_plane & (count >= MIN_WINDOW_INLIERS)
+
+
+def _score_statistics(
+    score: np.ndarray, usable: np.ndarray, labels: np.ndarray, n_labels: int, step: int = 2
+) -> tuple[np.ndarray, np.ndarray]:
+    """Each plane's centre and spread of window scores: the middle of the shortest interval that
+    holds half of them (robust to a surface in the band that covers almost half the plane's
+    pixels, which pulls a median or a mean), and the smaller of the spreads on either side of it
+    (the median distance to the centre over 0.6745, a standard deviation for a normal
+    distribution; the other surface widens one side only); at least 1 (real sensors' noise is
+    correlated between neighbouring pixels, which widens the spread). On every ``step``-th row
+    and column."""
+    centre = np.zeros(n_labels, dtype=np.float32)
+    spread = np.ones(n_labels, dtype=np.float32)
+    grid = (slice(None, None, step), slice(None, None, step))
+    sample = usable[grid]
+    ids = labels[grid][sample]
+    # One sort orders the samples by plane, then by score (scores clipped far beyond any limit).
+    values = np.sort(ids * np.float64(4 * SCORE_CLIP) + np.clip(score[grid][sample], -SCORE_CLIP, SCORE_CLIP))
+    ids = np.floor((values + SCORE_CLIP) / (4 * SCORE_CLIP)).astype(np.int64)
+    values -= ids * np.float64(4 * SCORE_CLIP)
+    starts = np.searchsorted(ids, np.arange(n_labels + 1))
+    for plane_id in range(1, n_labels):
+        v = values[starts[plane_id]:starts[plane_id + 1]]
+        if v.size < 10:
+            continue
+        half = v.size // 2
+        widths = v[half:] - v[: v.size - half]
+        first = int(np.argmin(widths))
+        middle = (v[first] + v[first + half]) / 2
+        # The spread on each side of the centre (the median distance of a normal's half is
+        # 0.6745 sigma): another surface lies on one side, the smaller one is the plane's.
+        split = int(np.searchsorted(v, middle))
+        sides = [middle - np.median(v[:split]), np.median(v[split:]) - middle] if 2 <= split <= v.size - 2 else [np.inf]
+        centre[plane_id] = middle
+        spread[plane_id] = max(1.0, min(sides) / 0.6745) if np.isfinite(min(sides)) else max(1.0, widths[first] / 2 / 0.6745)
+    return centre, spread
+
+
+def _inlier_test(
+    table: np.ndarray, labels: np.ndarray, depth_m: np.ndarray, camera: Camera, band: np.ndarray | float, k: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Pixels within their plane's band, and every pixel's signed distance to its plane in
+    noise units (``k`` times distance over band); ``table`` holds each label's plane, zeros for
+    a label without one."""
+    # Distance of every pixel to its own label's plane.
+    signed = signed_distances(depth_m, *(_lookup(table[:, i], labels) for i in range(4)), camera)
+    fitted = table[:, :3].any(axis=1).astype(np.float32)  # a plane has a unit normal
+    with np.errstate(invalid="ignore"):
+        on_plane = (np.abs(signed) < band) & (_lookup(fitted, labels) > 0)
+        residual = signed * (np.float32(k) / band)
+    return on_plane, residual
+
+
+def grid_pixels(labels: np.ndarray, plane_id: int, count: int, max_points: int) -> tuple[np.ndarray, np.ndarray]:
+    """A plane's pixels on a regular grid: every s-th row and column, so that at most about
+    ``max_points`` of its ``count`` pixels remain (all of them when ``max_points`` is 0 or the
+    grid would leave fewer than 3).
+
+    Returns
+    -------
+    rows, cols : ndarray of int
+        In row-major order.
+    """
+    step = max(1, int(np.ceil(np.sqrt(count / max_points)))) if max_points else 1
+    rows, cols = np.nonzero(labels[::step, ::step] == plane_id)
+    if rows.size < 3 and step > 1:
+        return np.nonzero(labels == plane_id)
+    return rows * step, cols * step
+
+
+def band_image(depth_m: np.ndarray, noise: NoiseSettings) -> np.ndarray | float:
+    """The inlier band at every pixel's depth (float32; NaN where the depth is), or one number
+    when the band does not depend on depth (a fixed ``distance_threshold``)."""
+    if noise.floor >= noise.cap:
+        return float(noise.floor)
+    model = noise.model
+    if isinstance(model, ConstantNoise):
+        return float(np.clip(noise.k * model.value, noise.floor, noise.cap))
+    # k (a + b (z - c)^2), clipped: a few passes of float32 arithmetic over the image.
+    z = depth_m - np.float32(model.c)
+    band = z * z
+    band *= np.float32(noise.k * model.b)
+    band += np.float32(noise.k * model.a)
+    return np.clip(band, np.float32(noise.floor), np.float32(noise.cap), out=band)
+
+
+def _lookup(table: np.ndarray, labels: np.ndarray) -> np.ndarray:
+    """``table[labels]`` for a float32 table (OpenCV's table look-up for 8-bit labels)."""
+    if labels.dtype == np.uint8:
+        padded = np.zeros(256, dtype=np.float32)
+        padded[: len(table)] = table
+        return cv2.LUT(labels, padded)
+    return np.take(table, labels)
