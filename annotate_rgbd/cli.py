@@ -283,8 +283,6 @@ def review(
         progress.finish()
         lines = [f"{len(output.overlays)} overlays in {out_dir / 'overlays'}"] if overlays else []
         lines += [str(path) for path in (output.page, output.sheet) if path is not None]
-        if output.warnings:
-            lines.append(f"{len(output.warnings)} frames segment differently from report.json (see the warnings above)")
         typer.echo("\n".join(lines))
 
 
@@ -294,11 +292,13 @@ def stats(
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object instead of a table."),
 ) -> None:
     """Summarise a run: observations, planes per observation, dropped planes, inlier ratio."""
-    from annotate_rgbd.review.review import read_report
+    from annotate_rgbd.io.outdir import reading
+    from annotate_rgbd.report.run_folder import read_report
     from annotate_rgbd.report.stats import format_stats, format_stats_json, run_stats
 
     with user_errors():
-        summary = run_stats(read_report(out_dir))
+        with reading(out_dir):
+            summary = run_stats(read_report(out_dir))
         typer.echo(format_stats_json(summary) if as_json else format_stats(summary))
 
 

@@ -201,7 +201,10 @@ def test_a_rerun_removes_outputs_it_did_not_make_and_leaves_the_users_files(tmp_
     (tmp_path / "masks" / "old_frame.png").write_bytes(b"the user's own file")
     with caplog.at_level(logging.INFO, logger="annotate_rgbd"):
         report = run_cvat2mask(SEQUENCE, [ANNOTATIONS], tmp_path, config)
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["masks", "planes.csv", "report.json", "review.html", "tracks.csv"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        ".annotate-rgbd-outputs.json", ".annotate-rgbd-shapes.jsonl",  # the run's records
+        "masks", "planes.csv", "report.json", "review.html", "tracks.csv",
+    ]
     assert len(list((tmp_path / "masks").iterdir())) == 20 and (tmp_path / "masks" / "old_frame.png").is_file()
     assert "removed 19 raw masks no longer asked for (masks_raw/)" in caplog.text
     assert ("left alone 2 file(s) in the output folder that annotate-rgbd did not write: masks/old_frame.png, "

@@ -225,7 +225,7 @@ def test_removed_files_are_those_of_earlier_runs_and_are_named(tmp_path, caplog)
     assert f"removed {19 - written} masks of frames that no longer get one (masks/)" in result.output
     assert "removed 19 raw masks no longer asked for (masks_raw/)" in result.output
     assert "removed 19 overlays no longer asked for (overlays/)" in result.output
-    assert sorted(p.name for p in out.iterdir()) == ["masks", "planes.csv", "report.json", "tracks.csv"]
+    assert sorted(p.name for p in out.iterdir() if not p.name.startswith(".")) == ["masks", "planes.csv", "report.json", "tracks.csv"]
 
 
 # --- 3. No endless wait on a stopped or killed helper --------------------------------------

@@ -90,7 +90,7 @@ def test_poses_carry_keyframes_to_the_frames_between(rendered, tmp_path):
 def test_lifted_planes_are_the_rendered_planes(rendered, tmp_path):
     config = load_config(rendered["config"])
     run = run_cvat2mask(rendered["sequence"], [rendered["keyframes"]], tmp_path / "out", config, poses=rendered["poses"])
-    lifts = run.plan.propagation.lifts
+    lifts = run.propagation.lifts
     assert lifts and all(lift.consistent for lift in lifts.values())
     # Independent: the scene's planes in world coordinates (point and normal from the scene).
     from annotate_rgbd.synthetic import room_scene
@@ -137,7 +137,7 @@ def test_a_keyframe_drawn_over_another_surface_is_listed_and_lifted_onto_the_agr
     write_cvat_video(annotation, export, width=320, height=240, keyframe_step=STEP, keyframes_only=True)
     run = run_cvat2mask(rendered["sequence"], [export], tmp_path / "out", load_config(rendered["config"]),
                         poses=rendered["poses"])
-    lift = run.plan.propagation.lifts[(export.name, floor.track_id)]
+    lift = run.propagation.lifts[(export.name, floor.track_id)]
     assert frame in lift.substantial and lift.angle < 2 and lift.offset > 0.6  # the table top, 0.74 m up
     floor_plane = np.array([0.0, 0.0, 1.0, 0.0])  # the rendered floor: z = 0 in the world
     for keyframe in lift.keyframes:  # the table's outline too was lifted onto the floor
@@ -177,7 +177,7 @@ def test_manifest_and_configuration_take_poses(rendered, tmp_path):
     config.write_text(rendered["config"].read_text() + '\n[sequence]\nposes = "trajectory.txt"\n')
     assert load_config(config).sequence.poses == str(tmp_path / "trajectory.txt")  # relative to the file
     run = run_cvat2mask(rendered["sequence"], [rendered["keyframes"]], tmp_path / "out", load_config(config))
-    assert run.plan.propagation is not None
+    assert run.propagation is not None
     manifest = tmp_path / "batch.toml"
     manifest.write_text(
         f'[[scene]]\nsequence = "{rendered["sequence"]}"\nannotations = ["{rendered["keyframes"]}"]\n'
@@ -256,7 +256,7 @@ def test_planes_cut_by_the_keyframes_view_are_carried_past_it(tmp_path, monkeypa
     config = load_config(None, {"camera.fx": 262.5, "camera.fy": 262.5, "camera.cx": 159.5, "camera.cy": 119.5})
     sequence, poses, truth = tmp_path / "sequence", tmp_path / "sequence" / "groundtruth.txt", tmp_path / "sequence" / "ground_truth"
     both = run_cvat2mask(sequence, [keyframes], tmp_path / "both", config, poses=poses)
-    assert any(k.beyond for lift in both.plan.propagation.lifts.values() for k in lift.keyframes)
+    assert any(k.beyond for lift in both.propagation.lifts.values() for k in lift.keyframes)
     # The outlines carried past the border, on their own: without growing past the shapes.
     monkeypatch.setattr(segment, "grow_connected", lambda labels, *args: (labels.copy(), {}))
     run_cvat2mask(sequence, [keyframes], tmp_path / "beyond", config, poses=poses)

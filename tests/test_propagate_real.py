@@ -52,7 +52,7 @@ def propagated(tmp_path_factory):
 def test_the_desk_is_carried_onto_the_desk_between_the_keyframes(propagated):
     sequence, run, out, config = propagated
     report = json.loads((out / "report.json").read_text())
-    lift = run.plan.propagation.lifts[("desk.xml", 0)]
+    lift = run.propagation.lifts[("desk.xml", 0)]
     assert [k.frame for k in lift.keyframes] == [14, 29] and lift.consistent
     written = [f for f in report["frames"] if f["status"] == "written" and f["cvat_frame"] >= 14]
     assert len(written) == 16 and all(f["pose"] == "ok" for f in written)

@@ -76,15 +76,38 @@ def test_review_needs_a_finished_run(tmp_path):
         review_run(tmp_path)
 
 
-def test_review_warns_when_a_frame_no_longer_matches_the_report(finished_run, tmp_path):
+def test_review_reads_the_run_not_its_inputs(tmp_path, monkeypatch):
+    """Review needs the run's folder and the RGB frames only: the CVAT export may be gone, the
+    working directory elsewhere, and no stage runs again; its overlays are the ones
+    ``cvat2mask --overlays`` draws while it segments."""
+    work = tmp_path / "work"
+    shutil.copytree(SAMPLE_DATA / "sequence", work / "sequence")
+    shutil.copy(SAMPLE_DATA / "annotations.xml", work / "annotations.xml")
+    config = load_config(SAMPLE_DATA / "camera.toml", {"ransac.num_iterations": 200})
+    monkeypatch.chdir(work)
+    run_cvat2mask(Path("sequence"), [Path("annotations.xml")], Path("with_overlays"), config, overlays=True)
+    run_cvat2mask(Path("sequence"), [Path("annotations.xml")], Path("plain"), config)
+    (work / "annotations.xml").unlink()
+    monkeypatch.chdir(tmp_path)
+
+    import annotate_rgbd.segment.frame as frame_stage
+
+    def no_segmenting(*args, **kwargs):
+        raise AssertionError("review segmented a frame again")
+
+    monkeypatch.setattr(frame_stage, "segment_frame", no_segmenting)
+    result = review_run(work / "plain", page=False, sheet=False)
+    assert result.overlays
+    for path in result.overlays:
+        assert path.read_bytes() == (work / "with_overlays" / "overlays" / path.name).read_bytes()
+
+
+def test_review_without_the_drawn_shapes_record_says_what_to_do(finished_run, tmp_path):
     out = tmp_path / "out"
-    shutil.copytree(finished_run, out)
-    report = _report(out)
-    frame = next(f for f in report["frames"] if f["status"] == "written")
-    frame["kept"][0]["pixels"] += 1
-    (out / "report.json").write_text(json.dumps(report), encoding="utf-8")
-    result = review_run(out, sheet=False, page=False)
-    assert len(result.warnings) == 1 and frame["depth"] in result.warnings[0]
+    shutil.copytree(finished_run, out, ignore=shutil.ignore_patterns("overlays"))
+    (out / ".annotate-rgbd-shapes.jsonl").unlink()
+    with pytest.raises(InputError, match="run cvat2mask again"):
+        review_run(out, page=False, sheet=False)
 
 
 def test_review_reports_progress_after_each_overlay(finished_run, tmp_path):
@@ -101,11 +124,7 @@ def test_review_with_helpers_writes_the_same_overlays(finished_run, tmp_path):
     out = tmp_path / "out"
     shutil.copytree(finished_run, out, ignore=shutil.ignore_patterns("overlays"))
     report = _report(out)
-    frame = next(f for f in report["frames"] if f["status"] == "written")
-    frame["kept"][0]["pixels"] += 1  # the helpers' results are checked against the report too
-    (out / "report.json").write_text(json.dumps(report), encoding="utf-8")
     result = review_run(out, page=False, sheet=False, workers=2)
-    assert len(result.warnings) == 1 and frame["depth"] in result.warnings[0]
     assert result.overlays == [out / "overlays" / Path(f["mask"]).name for f in report["frames"] if f["status"] == "written"]
     for path in result.overlays:
         assert path.read_bytes() == (finished_run / "overlays" / path.name).read_bytes()

@@ -22,9 +22,10 @@ from annotate_rgbd.propose.detect_job import draw_order
 from annotate_rgbd.propose.outlines import piece_outlines
 from annotate_rgbd.propose.output import TrackShapes, write_polygon_tracks
 from annotate_rgbd.segment.rasterize import shape_mask
-from annotate_rgbd.report.records import RunRecord
-from annotate_rgbd.review.review import read_report
+from annotate_rgbd.io.outdir import reading
 from annotate_rgbd.io.sequence import read_image
+from annotate_rgbd.report.records import RunRecord
+from annotate_rgbd.report.run_folder import colour_table, mask_plane_ids, read_report
 
 
 def export_cvat(run_dir: str | Path, xml_path: str | Path, tolerance_px: float = 0.5) -> int:
@@ -52,11 +53,13 @@ def export_cvat(run_dir: str | Path, xml_path: str | Path, tolerance_px: float =
         No report, a mask missing or unreadable, a mask colour that is no plane of the run.
     """
     run_dir = Path(run_dir)
-    report = read_report(run_dir)
-    packed_ids = {int(p.colour.lstrip("#"), 16): p.plane for p in report.planes}
+    with reading(run_dir):
+        return _export(run_dir, read_report(run_dir), Path(xml_path), tolerance_px)
+
+
+def _export(run_dir: Path, report: RunRecord, xml_path: Path, tolerance_px: float) -> int:
     labels_of = {p.plane: p.label for p in report.planes}
-    keys = np.array(sorted(packed_ids), dtype=np.int64)
-    values = np.array([packed_ids[k] for k in keys], dtype=np.int64)
+    keys, values = colour_table(report)
     tracks: dict[int, TrackShapes] = {}
     sampled: list[int] = []
     size = None
@@ -99,30 +102,3 @@ def _keyframes(report: RunRecord) -> list:
         if held is None or abs(frame.time_offset) < abs(held.time_offset):
             chosen[frame.rgb_index] = frame
     return [chosen[k] for k in sorted(chosen)]
-
-
-def mask_plane_ids(image_bgr: np.ndarray, keys: np.ndarray, values: np.ndarray, path: Path) -> np.ndarray:
-    """Plane id of every pixel of a colour mask.
-
-    Parameters
-    ----------
-    image_bgr : ndarray of uint8, shape (H, W, 3)
-        As OpenCV reads it.
-    keys, values : ndarray of int64
-        Packed ``0xRRGGBB`` colours, ascending, and their plane ids.
-    path : Path
-        For messages.
-
-    Returns
-    -------
-    ndarray of int64, shape (H, W)
-        0 for black.
-    """
-    channels = image_bgr.astype(np.int64)
-    packed = (channels[..., 2] << 16) | (channels[..., 1] << 8) | channels[..., 0]
-    index = np.clip(np.searchsorted(keys, packed), 0, max(len(keys) - 1, 0))
-    known = (keys[index] == packed) if len(keys) else np.zeros(packed.shape, dtype=bool)
-    unknown = (packed != 0) & ~known
-    if unknown.any():
-        raise InputError(path, f"colour #{int(packed[unknown][0]):06x} is no plane of the run (planes.csv)")
-    return np.where(known, values[index] if len(values) else 0, 0)

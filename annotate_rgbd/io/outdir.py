@@ -1,5 +1,9 @@
 """The output folder: one run at a time, no symbolic links, and only our own files removed.
 
+Every command that writes (``cvat2mask``, ``batch``, ``propose``, ``review``) holds its folder
+through one :class:`OutputFolder`; commands that only read a run (``stats``, ``export-cvat``,
+``export``) hold it with :func:`reading`, so that they never read a run half-way through.
+
 * **Lock**: a run holds an exclusive ``flock`` on the output folder itself for as long as it
   writes there; a second run into the same folder stops at once with one line naming the
   folder and the process that holds it (its id is in :data:`OWNER`, removed when the run ends).
@@ -10,6 +14,12 @@
 * **Only our files**: a run removes only files an earlier run of annotate-rgbd wrote into this
   folder, as its records (``report.json``, the journal, the review record) say; anything else
   is left alone, with a warning.
+* **Recorded before written**: before a run writes its first per-frame file it records every
+  file it may write (:data:`OUTPUTS_RECORD`), so that no crash, kill or fatal error half-way can
+  leave a file of ours that a later run takes for the user's.
+* **One command per folder**: the record names the command whose output the folder holds; a
+  ``propose`` into a ``cvat2mask`` folder (or the other way round) stops with one line instead
+  of replacing the other's ``report.json``.
 """
 
 from __future__ import annotations
@@ -32,6 +42,15 @@ log = logging.getLogger("annotate_rgbd")
 
 #: Written while a run holds the folder: the process id, for the message a second run gives.
 OWNER = ".annotate-rgbd.pid"
+#: The command whose output the folder holds, and every per-frame file a run of it may have
+#: written (written before those files; see :class:`OutputFolder`).
+OUTPUTS_RECORD = ".annotate-rgbd-outputs.json"
+#: The drawn shapes of every frame of a finished ``cvat2mask`` run (what ``review`` draws).
+SHAPES_RECORD = ".annotate-rgbd-shapes.jsonl"
+#: The run's record, the journal of finished frames, and the ``propose`` outputs.
+REPORT, JOURNAL, PROPOSALS = "report.json", ".annotate-rgbd-journal.jsonl", "proposals.xml"
+#: Commands whose output a folder can hold.
+COMMANDS = ("cvat2mask", "propose")
 #: What ``review`` wrote (file name -> digest), so that a later run removes only those files.
 REVIEW_RECORD = ".annotate-rgbd-review.json"
 #: Folders of per-frame outputs: colour masks, raw masks, overlays, instance-id masks.
@@ -39,9 +58,11 @@ MASKS, RAW_MASKS, OVERLAYS, ID_MASKS = "masks", "masks_raw", "overlays", "masks_
 OUTPUT_FOLDERS = (MASKS, RAW_MASKS, OVERLAYS, ID_MASKS)
 #: Every name a run may write or remove at the top of the output folder.
 TOP_LEVEL_NAMES = (
-    *OUTPUT_FOLDERS, "report.json", "planes.csv", "tracks.csv", "review.html", "contact_sheet.png",
-    ".annotate-rgbd-journal.jsonl", REVIEW_RECORD,
+    *OUTPUT_FOLDERS, REPORT, "planes.csv", "tracks.csv", "review.html", "contact_sheet.png", PROPOSALS,
+    JOURNAL, REVIEW_RECORD, OUTPUTS_RECORD, SHAPES_RECORD,
 )
+#: Bound on the outputs record (a 100,000-frame run with every kind of per-frame output: ~12 MiB).
+MAX_OUTPUTS_RECORD = 256 << 20
 #: A temporary file of :func:`annotate_rgbd.writer.write_bytes_atomic` (``.<name>.<8 hex>.tmp``).
 TEMPORARY = re.compile(r"^\..+\.[0-9a-f]{8}\.tmp$")
 
@@ -280,3 +301,173 @@ def remove_review_files(folder: Path) -> list[str]:
             foreign.append(name)
     (folder / REVIEW_RECORD).unlink(missing_ok=True)
     return foreign
+
+
+@dataclass
+class OutputFolder:
+    """One command's hold on its output folder, from :meth:`open` to :meth:`release`.
+
+    Parameters
+    ----------
+    path : Path
+        The output folder (created by :meth:`open` when missing).
+    command : {"cvat2mask", "propose"} or None
+        The command whose output the folder is to hold; None for ``review``, which adds to a
+        finished run of either.
+    """
+
+    path: Path
+    command: str | None
+    _lock: OutputLock | None = field(default=None, repr=False)
+    _expected: set[str] = field(default_factory=set, repr=False)
+
+    def open(self) -> None:
+        """Create the folder if needed, refuse links where the command writes, lock it, and
+        refuse a folder that holds another command's output.
+
+        Raises
+        ------
+        OutputError
+        """
+        from annotate_rgbd.io.writer import prepare_output  # OpenCV: not for the command line's start
+
+        self.path = Path(self.path)
+        prepare_output(self.path)
+        check_output_names(self.path)
+        lock = OutputLock(self.path)
+        lock.acquire()
+        self._lock = lock
+        try:
+            holder, self._expected = read_outputs_record(self.path)
+            holder = holder or _command_of_report(self.path)
+            if self.command is not None and holder is not None and holder != self.command:
+                raise OutputError(
+                    self.path, f"holds the output of `{holder}`, not of `{self.command}`: choose another --out "
+                    "(or remove this folder)"
+                )
+            self.command = self.command or holder
+        except BaseException:
+            self.release()
+            raise
+
+    def expect(self, files: Iterable[str]) -> None:
+        """Record that this run may write ``files`` (paths relative to the folder), before it
+        writes any of them; what earlier runs recorded stays recorded until :meth:`settle`.
+
+        Raises
+        ------
+        OutputError
+            The record cannot be written (nothing of the run is written then).
+        """
+        self._expected |= set(files)
+        self._write_record(self._expected)
+
+    @property
+    def expected(self) -> set[str]:
+        """Every per-frame file this run or an earlier unfinished one may have written."""
+        return set(self._expected)
+
+    def settle(self, files: Iterable[str]) -> None:
+        """After the run finished and removed its stale files: record exactly what it left."""
+        self._expected = set(files)
+        self._write_record(self._expected)
+
+    def _write_record(self, files: set[str]) -> None:
+        from annotate_rgbd.io.writer import write_bytes_atomic
+
+        record = {"command": self.command, "files": sorted(files)}
+        write_bytes_atomic(self.path / OUTPUTS_RECORD, json.dumps(record, indent=0).encode("utf-8"))
+
+    def release(self) -> None:
+        """Release the folder (idempotent)."""
+        if self._lock is not None:
+            self._lock.release()
+            self._lock = None
+
+    def __enter__(self) -> OutputFolder:
+        self.open()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.release()
+
+
+def read_outputs_record(folder: Path) -> tuple[str | None, set[str]]:
+    """The command and the per-frame files :data:`OUTPUTS_RECORD` names (None, empty: none).
+
+    Only names a run could write count: ``<one of OUTPUT_FOLDERS>/<file name>``.
+    """
+    try:
+        record = json.loads(read_bounded(Path(folder) / OUTPUTS_RECORD, MAX_OUTPUTS_RECORD))
+    except (OSError, ValueError, RecursionError):
+        return None, set()
+    if not isinstance(record, dict):
+        return None, set()
+    command = record.get("command") if record.get("command") in COMMANDS else None
+    files = record.get("files")
+    return command, {f for f in files if _is_output_name(f)} if isinstance(files, list) else set()
+
+
+def _is_output_name(name: object) -> bool:
+    if not isinstance(name, str):
+        return False
+    folder, _, leaf = name.partition("/")
+    return folder in OUTPUT_FOLDERS and leaf not in ("", ".", "..") and "/" not in leaf and "\\" not in leaf
+
+
+def _command_of_report(folder: Path) -> str | None:
+    """Which command wrote the folder's ``report.json`` (runs made before the outputs record)."""
+    try:
+        report = json.loads(read_bounded(Path(folder) / REPORT, 1 << 30))
+    except (OSError, ValueError, RecursionError):
+        return None
+    if not isinstance(report, dict):
+        return None
+    tool = report.get("tool")
+    if tool == "annotate-rgbd propose":
+        return "propose"
+    if isinstance(tool, dict) and tool.get("name") == "annotate-rgbd":
+        return "cvat2mask"
+    return None
+
+
+class reading:
+    """Hold a finished run's folder for reading (``stats``, ``export-cvat``): a shared lock, so
+    that a command that reads never sees a run half-way through.
+
+    Parameters
+    ----------
+    folder : Path
+
+    Raises
+    ------
+    OutputError
+        A run is writing to the folder.
+    """
+
+    def __init__(self, folder: Path):
+        self.folder = Path(folder)
+        self._fd: int | None = None
+
+    def __enter__(self) -> Path:
+        try:
+            fd = os.open(self.folder, os.O_RDONLY | os.O_DIRECTORY)
+        except OSError:
+            return self.folder  # missing: the reader's own check says so in its words
+        try:
+            fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+        except OSError:
+            os.close(fd)
+            holder = _owner(self.folder)
+            raise OutputError(
+                self.folder,
+                f"an annotate-rgbd run{f' (process {holder})' if holder else ''} is writing to this folder; "
+                "wait for it to end",
+            ) from None
+        self._fd = fd
+        return self.folder
+
+    def __exit__(self, *exc) -> None:
+        if self._fd is not None:
+            os.close(self._fd)
+            self._fd = None

@@ -7,8 +7,8 @@ from __future__ import annotations
 
 
 def __getattr__(name: str):
-    if name in ("run_cvat2mask", "finish_scene"):
-        from annotate_rgbd.pipeline import scene
+    if name == "run_cvat2mask":
+        from annotate_rgbd.pipeline.scene import run_cvat2mask
 
-        return getattr(scene, name)
+        return run_cvat2mask
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

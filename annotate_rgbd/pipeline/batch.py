@@ -7,33 +7,19 @@ the frames of all scenes are made by this process and one pool of helper process
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from pathlib import Path
 from typing import Callable
 
-from annotate_rgbd.config.settings import load_config
+from annotate_rgbd.config.settings import Config, load_config
 from annotate_rgbd.errors import InputError
-from .execute import STALL_TIMEOUT, SceneRun, execute_scenes, start_frame_helpers
 from annotate_rgbd.logs import scene_warnings
-from .manifest import SceneSpec
-from .scene import finish_scene
-from .plan import plan_run
 from annotate_rgbd.report.records import summarize
+from .execute import STALL_TIMEOUT, SceneResult, SceneRun, execute_scenes, start_frame_helpers
+from .manifest import SceneSpec
+from .plan import plan_run
+from .finish import finish_scene
 
-
-@dataclass
-class SceneOutcome:
-    """How one scene of a batch ended."""
-
-    name: str
-    out: Path
-    run: SceneRun | None = None
-    error: str | None = None
-
-    @property
-    def failed_frames(self) -> list[str]:
-        """Depth frames that failed, with the reason."""
-        return [] if self.run is None else self.run.failures()
+#: How one scene of a batch ended (the name batch callers know it by).
+SceneOutcome = SceneResult
 
 
 def run_batch(
@@ -42,12 +28,15 @@ def run_batch(
     force: bool = False,
     progress_for: Callable[[str], Callable[[int, int], None]] | None = None,
     job_timeout: float = STALL_TIMEOUT,
-) -> list[SceneOutcome]:
+    scene_names: bool = True,
+) -> list[SceneResult]:
     """Relabel every scene; a scene with broken input fails alone.
 
     Parameters
     ----------
     scenes : list of SceneSpec
+        A scene's ``config`` is a preset name or TOML file (with its ``overrides``), or a
+        :class:`~annotate_rgbd.config.settings.Config` already loaded.
     workers : int
         Worker processes shared by all scenes.
     force : bool
@@ -56,42 +45,46 @@ def run_batch(
         ``progress_for(scene name)`` returns that scene's ``progress(done, total)`` callback.
     job_timeout : float
         Seconds without a frame finished by the helpers before they are taken to hang
-        (:func:`annotate_rgbd.execute.execute_scenes`).
+        (:func:`annotate_rgbd.pipeline.execute.execute_scenes`).
+    scene_names : bool
+        Start warnings with the scene's name (``cvat2mask``, one scene, does not).
 
     Returns
     -------
-    list of SceneOutcome
+    list of SceneResult
         One per scene, in manifest order.
     """
-    outcomes = [SceneOutcome(spec.name, spec.out) for spec in scenes]
-    runs: list[tuple[SceneOutcome, SceneRun]] = []
+    outcomes: list[SceneResult] = [SceneResult(spec.name, spec.out) for spec in scenes]
+    runs: list[tuple[int, SceneRun]] = []
+    named = (lambda name: scene_warnings(name)) if scene_names else (lambda name: scene_warnings(None))
     helpers = start_frame_helpers(workers)  # they start while the scenes are planned
     try:
-        for spec, outcome in zip(scenes, outcomes):
+        for position, spec in enumerate(scenes):
             try:
-                with scene_warnings(spec.name):
-                    config = load_config(spec.config, spec.overrides)
+                with named(spec.name):
+                    config = spec.config if isinstance(spec.config, Config) else load_config(spec.config, spec.overrides)
                     plan = plan_run(spec.sequence, spec.annotations, spec.out, config, spec.offsets, spec.raw_masks,
                                     spec.overlays, poses=spec.poses, instance_ids=spec.instance_ids)
             except InputError as exc:
-                outcome.error = str(exc)
+                outcomes[position] = SceneResult(spec.name, spec.out, str(exc), exc)
                 continue
             progress = progress_for(spec.name) if progress_for else None
-            runs.append((outcome, SceneRun(spec.name, plan, spec.out, config, progress)))
-        execute_scenes([run for _, run in runs], helpers, force=force, job_timeout=job_timeout)
+            runs.append((position, SceneRun(spec.name, plan, spec.out, config, progress)))
+        execute_scenes([run for _, run in runs], helpers, force=force, job_timeout=job_timeout,
+                       scene_names=scene_names)
         if helpers is not None:
             helpers.shutdown(cancel_futures=True)
             helpers = None
-        for outcome, run in runs:
+        for position, run in runs:
             if run.error is not None:
-                outcome.error = str(run.error)
+                outcomes[position] = SceneResult(run.name, run.out_dir, str(run.error), run.error)
                 continue
             try:
-                with scene_warnings(outcome.name):
+                with named(run.name):
                     finish_scene(run)
-                outcome.run = run
+                outcomes[position] = run.result()
             except InputError as exc:
-                outcome.error = str(exc)
+                outcomes[position] = SceneResult(run.name, run.out_dir, str(exc), exc)
     finally:
         if helpers is not None:
             helpers.shutdown(cancel_futures=True)
@@ -100,20 +93,20 @@ def run_batch(
     return outcomes
 
 
-def summary_lines(outcomes: list[SceneOutcome]) -> list[str]:
+def summary_lines(outcomes: list[SceneResult]) -> list[str]:
     """A per-scene summary: frames written, unchanged, failed; planes kept and dropped."""
     lines = []
     for outcome in outcomes:
         if outcome.error is not None:
             lines.append(f"{outcome.name}: FAILED: {outcome.error}")
             continue
-        counts, summary = outcome.run.counts, summarize(outcome.run.frames)
+        counts, summary = outcome.counts, summarize(outcome.frames)
         lines.append(
             f"{outcome.name}: {summary.masks_written} masks ({counts.made} made, {counts.reused} unchanged), "
             f"{summary.skipped} skipped, {counts.failed} failed; {summary.planes_kept} planes kept, "
             f"{summary.planes_dropped} dropped"
         )
-        if outcome.run.review_page is not None:
-            lines.append(f"  review page: {outcome.run.review_page}")
+        if outcome.review_page is not None:
+            lines.append(f"  review page: {outcome.review_page}")
         lines.extend(f"  failed: {line}" for line in outcome.failed_frames)
     return lines

@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Callable, Sequence
 
 from annotate_rgbd.config.settings import Config
 from annotate_rgbd.errors import InputError, OutputError
-from annotate_rgbd.io.outdir import OutputLock, check_output_names
+from annotate_rgbd.io.outdir import OutputFolder
 from annotate_rgbd.logs import scene_warnings
 from annotate_rgbd.pool import (
     STALL_TIMEOUT, HelperPool, JobTimeout, default_workers, prepare_helpers, reuse_freed_memory, run_jobs, start_helpers,
@@ -23,8 +23,8 @@ from .resume import Journal, Previous, previous_results
 if TYPE_CHECKING:  # the plan's modules import Open3D, which this module leaves to the helpers' server
     from .plan import RunPlan
 
-__all__ = ["FRAME_JOB_MODULE", "FrameCounts", "SceneRun", "default_workers", "execute_scenes", "prepare_process",
-           "start_frame_helpers"]
+__all__ = ["FRAME_JOB_MODULE", "FrameCounts", "SceneResult", "SceneRun", "default_workers", "execute_scenes",
+           "prepare_process", "start_frame_helpers"]
 
 log = logging.getLogger("annotate_rgbd")
 
@@ -61,9 +61,65 @@ class FrameCounts:
 
 
 @dataclass
+class SceneResult:
+    """How one scene of ``cvat2mask`` or ``batch`` ended: a plain record, no open resources.
+
+    Parameters
+    ----------
+    name : str
+        The scene's name (the sequence folder's for ``cvat2mask``).
+    out : Path
+        Its output folder.
+    error : str, optional
+        Why the scene failed as a whole (then nothing below is filled in); ``exception`` is
+        the error itself.
+    frames : list of FrameRecord
+        One record per depth frame.
+    tracks : list
+        The global plane of every track (:class:`annotate_rgbd.annotation.stitch.TrackPlane`).
+    n_planes : int
+    counts : FrameCounts
+    warnings, notes : list of str
+    config : Config, optional
+    review_page : Path, optional
+        ``review.html``, written with overlays.
+    propagation : object, optional
+        With camera poses: what they gave the run (:class:`annotate_rgbd.pipeline.plan.Propagation`).
+    """
+
+    name: str
+    out: Path
+    error: str | None = None
+    exception: Exception | None = field(default=None, repr=False)
+    frames: list[FrameRecord] = field(default_factory=list)
+    tracks: list = field(default_factory=list)
+    n_planes: int = 0
+    counts: FrameCounts = field(default_factory=FrameCounts)
+    warnings: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+    config: Config | None = None
+    review_page: Path | None = None
+    propagation: object | None = None
+
+    @property
+    def written(self) -> int:
+        """Number of masks written."""
+        return sum(1 for f in self.frames if f.written)
+
+    def failures(self) -> list[str]:
+        """One line per failed depth frame: the file and why."""
+        return [f"{f.depth}: {f.error or f.reason}" for f in self.frames if f.status == FAILED]
+
+    @property
+    def failed_frames(self) -> list[str]:
+        """Depth frames that failed, with the reason (:meth:`failures`)."""
+        return self.failures()
+
+
+@dataclass
 class SceneRun:
     """One scene on its way through :func:`execute_scenes` (and
-    :func:`annotate_rgbd.pipeline.finish_scene`): its plan, whose frame records get filled in,
+    :func:`annotate_rgbd.pipeline.finish.finish_scene`): its plan, whose frame records get filled in,
     and how its frames ended.
 
     Parameters
@@ -82,7 +138,7 @@ class SceneRun:
     previous : Previous
         What earlier runs in ``out_dir`` recorded (read when the scene starts).
     review_page : Path, optional
-        ``review.html``, written by :func:`annotate_rgbd.pipeline.finish_scene` with overlays.
+        ``review.html``, written by :func:`annotate_rgbd.pipeline.finish.finish_scene` with overlays.
     """
 
     name: str
@@ -94,31 +150,31 @@ class SceneRun:
     error: InputError | None = None
     previous: Previous = field(default_factory=Previous)
     review_page: Path | None = None
-    _lock: OutputLock | None = field(default=None, repr=False)
+    folder: OutputFolder | None = field(default=None, repr=False)
 
     def open(self, force: bool) -> None:
-        """Take the output folder for this run: create it, check it holds no links where the
-        run writes, lock it, and read what earlier runs recorded there (unless ``force``).
+        """Take the output folder for this run (:class:`annotate_rgbd.io.outdir.OutputFolder`:
+        created, no links where the run writes, locked, not another command's), read what
+        earlier runs recorded there (unless ``force``), and record every file this run may
+        write before it writes any.
 
         Raises
         ------
         OutputError
         """
-        from annotate_rgbd.io.writer import prepare_output  # OpenCV: not for the command line's start
-
-        prepare_output(self.out_dir)
-        check_output_names(self.out_dir)
-        lock = OutputLock(self.out_dir)
-        lock.acquire()
-        self._lock = lock
+        folder = OutputFolder(self.out_dir, "cvat2mask")
+        folder.open()
+        self.folder = folder
         recorded = previous_results(self.out_dir)
-        self.previous = Previous(files=recorded.files) if force else recorded
+        self.previous = Previous(files=recorded.files | folder.expected) if force else recorded
+        self.previous.files |= folder.expected
+        folder.expect({name for _, job in self.plan.jobs for name in job.output_names})
 
     def release(self) -> None:
         """Release the output folder (idempotent)."""
-        if self._lock is not None:
-            self._lock.release()
-            self._lock = None
+        if self.folder is not None:
+            self.folder.release()
+            self.folder = None
 
     @property
     def frames(self) -> list[FrameRecord]:
@@ -154,13 +210,19 @@ class SceneRun:
         """One line per failed depth frame: the file and why."""
         return [f"{f.depth}: {f.error or f.reason}" for f in self.frames if f.status == FAILED]
 
+    def result(self) -> SceneResult:
+        """The finished scene as a plain record."""
+        return SceneResult(self.name, self.out_dir, None, None, self.frames, self.tracks, self.n_planes, self.counts,
+                           self.warnings, self.notes, self.config, self.review_page, self.plan.propagation)
+
     def _step(self) -> None:
         if self.progress:
             self.progress(self.counts.done, len(self.plan.jobs))
 
 
 def execute_scenes(
-    scenes: Sequence[SceneRun], helpers: HelperPool | None = None, force: bool = False, job_timeout: float = STALL_TIMEOUT
+    scenes: Sequence[SceneRun], helpers: HelperPool | None = None, force: bool = False,
+    job_timeout: float = STALL_TIMEOUT, scene_names: bool = True,
 ) -> None:
     """Make the masks of several scenes with one pool of workers, reusing unchanged masks.
 
@@ -178,6 +240,8 @@ def execute_scenes(
     job_timeout : float
         Seconds without any frame finished by a helper after which the helpers are taken to hang
         and are replaced (:func:`annotate_rgbd.pool.run_jobs`); a frame that hangs twice fails.
+    scene_names : bool
+        Start the failed frames' warnings with the scene's name.
     """
     # Not at the top: Open3D and OpenCV would slow the command line's start (see prepare_process).
     from .frame_job import FrameTask, SizeMismatch, run_frame_job
@@ -234,7 +298,7 @@ def execute_scenes(
             journal.close()
     for scene in scenes:
         # In frame order, whatever order the workers finished in.
-        with scene_warnings(scene.name if len(scenes) > 1 else None):
+        with scene_warnings(scene.name if scene_names else None):
             for frame in scene.plan.frames:
                 if frame.status == FAILED:
                     message = f"{frame.error}; skipped"

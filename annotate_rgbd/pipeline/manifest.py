@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from annotate_rgbd.config.settings import parse_part_offsets, parse_settings
+from annotate_rgbd.config.settings import Config, parse_part_offsets, parse_settings
 from annotate_rgbd.config.toml_input import read_toml
 from annotate_rgbd.errors import InputError
 
@@ -38,13 +38,14 @@ FLAGS = ("raw_masks", "overlays", "instance_ids")
 
 @dataclass(frozen=True)
 class SceneSpec:
-    """One ``[[scene]]`` of a manifest, with paths resolved against the manifest's folder."""
+    """One ``[[scene]]`` of a manifest, with paths resolved against the manifest's folder; also
+    what ``cvat2mask`` runs (one scene, its configuration already loaded as a ``Config``)."""
 
     name: str
     sequence: Path
     annotations: tuple[Path, ...]
     out: Path
-    config: str | None = None
+    config: str | Config | None = None
     offsets: dict[str, int] = field(default_factory=dict)
     overrides: dict[str, Any] = field(default_factory=dict)
     raw_masks: bool = False

@@ -231,7 +231,7 @@ def plan_propagation(
     ]
     lifts = lift_tracks(wanted, depth_of_rgb, [sequence.root / f for f in sequence.depth.files], depth_poses,
                         rgb_poses, config)
-    return Propagation(str(path), {(lift.part, lift.track): lift for lift in lifts}, depth_poses)
+    return Propagation(str(Path(path).absolute()), {(lift.part, lift.track): lift for lift in lifts}, depth_poses)
 
 
 def propagation_warnings(propagation: Propagation) -> list[str]:

@@ -30,12 +30,9 @@ from annotate_rgbd import __version__
 from annotate_rgbd.annotation.model import Shape
 from annotate_rgbd.config.settings import Config, config_to_dict
 from annotate_rgbd.errors import OutputError
-from annotate_rgbd.io.outdir import open_regular, read_bounded
+from annotate_rgbd.io.outdir import JOURNAL, REPORT, open_regular, read_bounded
 from annotate_rgbd.report.records import WRITTEN, MaskRecord, RecordError
 
-#: The journal of finished frames, in the output folder.
-JOURNAL = ".annotate-rgbd-journal.jsonl"
-REPORT = "report.json"
 #: Reading bounds: a journal line longer than this is not a record (a frame with thousands of
 #: planes has lines of a few hundred KiB) ...
 MAX_JOURNAL_LINE = 4 << 20

@@ -2,8 +2,9 @@
 
 :func:`run_cvat2mask` plans the run (:mod:`annotate_rgbd.plan`: inputs read, parts placed,
 tracks given their global planes, one frame job per depth frame that gets a mask), makes the
-masks (:mod:`annotate_rgbd.execute`) and finishes the output folder (:func:`finish_scene`:
-tables, report, stale files removed).
+masks (:mod:`annotate_rgbd.pipeline.execute`) and finishes the output folder
+(:func:`annotate_rgbd.pipeline.finish.finish_scene`: tables, report, stale files removed). It is
+the one-scene case of :func:`annotate_rgbd.pipeline.batch.run_batch`.
 """
 
 from __future__ import annotations
@@ -13,12 +14,9 @@ from pathlib import Path
 from typing import Callable, Mapping, Sequence as SequenceType
 
 from annotate_rgbd.config.settings import Config
-from .execute import STALL_TIMEOUT, SceneRun, execute_scenes, start_frame_helpers
-from annotate_rgbd.io.outdir import remove_review_files, remove_stale_files
-from .plan import plan_run
-from .tables import run_record, write_tables
-from .resume import REPORT, remove_journal
-from annotate_rgbd.io.writer import write_json
+from .batch import run_batch
+from .execute import STALL_TIMEOUT, SceneResult
+from .manifest import SceneSpec
 
 log = logging.getLogger("annotate_rgbd")
 
@@ -37,7 +35,7 @@ def run_cvat2mask(
     job_timeout: float = STALL_TIMEOUT,
     poses: str | Path | None = None,
     instance_ids: bool = False,
-) -> SceneRun:
+) -> SceneResult:
     """Run the whole job: ``masks/``, ``planes.csv``, ``tracks.csv`` and ``report.json`` in ``out_dir``.
 
     A re-run in the same ``out_dir`` redoes only the frames whose inputs changed
@@ -78,7 +76,7 @@ def run_cvat2mask(
 
     Returns
     -------
-    SceneRun
+    SceneResult
         The finished run: its frame records (``frames``), planes, counts and warnings.
 
     Raises
@@ -87,52 +85,11 @@ def run_cvat2mask(
         A fatal problem with an input (missing files, malformed export, parts that cannot be
         placed, sizes that do not match): nothing sensible can be produced.
     """
-    helpers = start_frame_helpers(workers)
-    scene = None
-    try:
-        plan = plan_run(sequence_dir, annotation_paths, out_dir, config, offsets, raw_masks, overlays, poses,
-                        instance_ids)
-        scene = SceneRun(Path(sequence_dir).name, plan, Path(out_dir), config, progress)
-        execute_scenes([scene], helpers, force=force, job_timeout=job_timeout)
-        if helpers is not None:
-            helpers.shutdown(cancel_futures=True)
-            helpers = None
-        if scene.error is not None:
-            raise scene.error
-        finish_scene(scene)
-    finally:
-        if helpers is not None:
-            helpers.shutdown(cancel_futures=True)
-        if scene is not None:
-            scene.release()
-    return scene
-
-
-def finish_scene(scene: SceneRun) -> None:
-    """Remove stale outputs, write a scene's tables and report, then remove the journal; with
-    overlays (drawn by the frames' jobs) also the review page and contact sheet."""
-    plan = scene.plan
-    remove_stale_outputs(scene)
-    write_tables(scene.out_dir, plan.tracks, plan.colours)
-    write_json(scene.out_dir / REPORT, run_record(plan, scene.config).to_json())
-    remove_journal(scene.out_dir)
-    if any(job.overlay_path is not None for _, job in plan.jobs):
-        from annotate_rgbd.review.review import review_run  # only with overlays (SciPy is slow to import)
-
-        scene.review_page = review_run(scene.out_dir, overlays=False).page
-
-
-def remove_stale_outputs(scene: SceneRun) -> None:
-    """Delete the files an earlier run wrote into the scene's folder that this run did not:
-    masks of frames now skipped or failed, raw masks and overlays not asked for, the review
-    page and contact sheet of an earlier run (they show its masks), and temporary files. Files
-    annotate-rgbd did not write are left alone, with a warning."""
-    keep = {path for f in scene.frames if f.written for path, _ in f.result.outputs}
-    keep |= {f.mask for f in scene.frames if f.written}  # records of earlier versions list no outputs
-    cleanup = remove_stale_files(scene.out_dir, scene.previous.files, keep)
-    cleanup.foreign += remove_review_files(scene.out_dir)
-    for line in cleanup.removals():
-        log.info(line)
-    for line in cleanup.warnings():
-        scene.plan.warnings.append(line)
-        log.warning(line)
+    spec = SceneSpec(Path(sequence_dir).name, Path(sequence_dir), tuple(Path(p) for p in annotation_paths),
+                     Path(out_dir), config, dict(offsets or {}), {}, raw_masks, overlays, instance_ids,
+                     None if poses is None else Path(poses))
+    (outcome,) = run_batch([spec], workers, force, (lambda _name: progress) if progress else None, job_timeout,
+                           scene_names=False)
+    if outcome.exception is not None:
+        raise outcome.exception
+    return outcome

@@ -3,6 +3,7 @@ order, then the outputs."""
 
 from __future__ import annotations
 
+import json
 import logging
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -18,7 +19,8 @@ from annotate_rgbd.geometry.lift import plane_to_world
 from annotate_rgbd.pool import default_workers, run_jobs, start_helpers
 from annotate_rgbd.io.poses import poses_at, read_trajectory
 from annotate_rgbd.io.sequence import associate, read_sequence
-from annotate_rgbd.io.writer import prepare_output, write_json
+from annotate_rgbd.io.outdir import MASKS, OutputFolder, read_bounded, remove_stale_files
+from annotate_rgbd.io.writer import write_json
 from .detect_job import DetectJob, FrameProposal, propose_frame
 from .link import TrackLinker
 from .output import TrackShapes, equation_text, track_colour, write_colour_mask, write_polygon_tracks
@@ -29,7 +31,7 @@ log = logging.getLogger("annotate_rgbd")
 #: What helper processes import before their first job.
 DETECT_JOB_MODULE = "annotate_rgbd.propose.detect_job"
 PROPOSALS_NAME = "proposals.xml"
-MASKS_DIR = "masks"
+MASKS_DIR = MASKS
 REPORT_NAME = "report.json"
 
 
@@ -90,20 +92,23 @@ def run_propose(
     ------
     InputError
         Unreadable sequence or trajectory, no frame to process; OutputError when ``out_dir``
-        cannot be written.
+        cannot be written, is busy, holds links where ``propose`` writes, or holds the output
+        of ``cvat2mask`` (:class:`annotate_rgbd.io.outdir.OutputFolder`).
     """
     sequence = read_sequence(sequence_dir)
     out_dir = Path(out_dir)
     workers = workers or default_workers()
-    helpers = start_helpers(workers, [DETECT_JOB_MODULE])
-    try:
-        return _run(sequence, out_dir, config, settings, poses, helpers, progress)
-    finally:
-        if helpers is not None:
-            helpers.shutdown()
+    with OutputFolder(out_dir, "propose") as folder:
+        helpers = start_helpers(workers, [DETECT_JOB_MODULE])
+        try:
+            return _run(sequence, folder, config, settings, poses, helpers, progress)
+        finally:
+            if helpers is not None:
+                helpers.shutdown()
 
 
-def _run(sequence, out_dir, config, settings, poses_path, helpers, progress) -> ProposeResult:
+def _run(sequence, folder: OutputFolder, config, settings, poses_path, helpers, progress) -> ProposeResult:
+    out_dir = folder.path
     result = ProposeResult()
     depth_times = sequence.depth.timestamps
     nearest, time_diff, matched = associate(depth_times, sequence.rgb.timestamps, config.sequence.max_time_diff)
@@ -125,7 +130,8 @@ def _run(sequence, out_dir, config, settings, poses_path, helpers, progress) -> 
         rgb = int(nearest[i])
         if rgb not in key_of_rgb or abs(time_diff[i]) < abs(time_diff[chosen[key_of_rgb[rgb]]]):
             key_of_rgb[rgb] = position
-    prepare_output(out_dir)
+    ours = folder.expected | _masks_of_report(out_dir)  # what earlier runs here wrote
+    folder.expect(f"{MASKS_DIR}/{Path(sequence.depth.files[i]).name}" for i in chosen.tolist())
     (out_dir / MASKS_DIR).mkdir(exist_ok=True)
 
     jobs = [
@@ -177,6 +183,14 @@ def _run(sequence, out_dir, config, settings, poses_path, helpers, progress) -> 
         write_polygon_tracks(ordered, out_dir / PROPOSALS_NAME, n_frames=len(sequence.rgb),
                              sampled_frames=sampled, width=width, height=height)
     result.tracks = len(ordered)
+    written = {f["mask"] for f in frames if f["status"] == "written"}
+    cleanup = remove_stale_files(out_dir, ours | folder.expected, written)
+    for line in cleanup.removals():
+        log.info(line)
+    for line in cleanup.warnings():
+        log.warning(line)
+    if not sampled:
+        (out_dir / PROPOSALS_NAME).unlink(missing_ok=True)  # an earlier run's: it shows none of these frames
     write_json(out_dir / REPORT_NAME, {
         "tool": "annotate-rgbd propose", "version": __version__,
         "inputs": {"sequence": str(sequence.root), "poses": None if poses_path is None else str(poses_path),
@@ -192,7 +206,19 @@ def _run(sequence, out_dir, config, settings, poses_path, helpers, progress) -> 
         "frames": frames,
         "skipped": result.skipped,
     })
+    folder.settle(written)
     return result
+
+
+def _masks_of_report(out_dir: Path) -> set[str]:
+    """The masks an earlier ``propose`` run's report says it wrote (runs made before the
+    output folder kept its own record)."""
+    try:
+        report = json.loads(read_bounded(out_dir / REPORT_NAME, 1 << 30))
+        frames = report.get("frames", []) if isinstance(report, dict) else []
+        return {f["mask"] for f in frames if isinstance(f, dict) and isinstance(f.get("mask"), str)}
+    except (OSError, ValueError, RecursionError, AttributeError):
+        return set()
 
 
 def _plane_records(item: FrameProposal, ids: np.ndarray) -> list[dict]:

@@ -1,12 +1,15 @@
 """Review a finished ``cvat2mask`` run: overlays, the review page and a contact sheet.
 
-:func:`review_run` reads ``OUT_DIR/report.json``, rebuilds the run's plan from the inputs and
-the configuration recorded there, segments every written frame again (the result is the same:
-RANSAC is seeded) to get what the labeller drew next to what was kept, and writes
+:func:`review_run` reads the run's own records (:mod:`annotate_rgbd.report.run_folder`:
+``report.json``, the masks, the shapes each frame drew) and the RGB frames, never runs a stage
+again, and writes
 
-* ``overlays/<mask name>``: one overlay per mask (:func:`annotate_rgbd.overlay.render_overlay`);
-* ``review.html``: the offline review page (:mod:`annotate_rgbd.review_page`);
+* ``overlays/<mask name>``: one overlay per mask (:func:`annotate_rgbd.review.overlay.render_overlay`);
+* ``review.html``: the offline review page (:mod:`annotate_rgbd.review.page`);
 * ``contact_sheet.png``: a grid of overlay thumbnails spread over the sequence.
+
+It holds the run's folder like any command that writes there
+(:class:`annotate_rgbd.io.outdir.OutputFolder`), so that it never draws a run half-way through.
 """
 
 from __future__ import annotations
@@ -18,20 +21,20 @@ from contextlib import nullcontext
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import cv2
 import numpy as np
 
-from annotate_rgbd.config.settings import Config, config_from_dict
 from annotate_rgbd.errors import InputError
-from annotate_rgbd.pipeline.frame_job import OVERLAY_DIR, FrameJob, segment_job
-from annotate_rgbd.io.outdir import REVIEW_RECORD, check_output_names, file_digest, read_bounded, read_review_record
-from .overlay import contact_sheet, overlay_for_frame
-from annotate_rgbd.pipeline.plan import RunPlan, plan_run
-from annotate_rgbd.pool import run_jobs, start_helpers
-from annotate_rgbd.report.records import FrameRecord, RecordError, RunRecord
-from annotate_rgbd.pipeline.resume import MAX_RECORDS_BYTES, REPORT as REPORT_NAME
-from .page import render_review_page
-from annotate_rgbd.io.sequence import read_rgb
+from annotate_rgbd.io.outdir import OVERLAYS, REVIEW_RECORD, OutputFolder, file_digest, read_review_record
+from annotate_rgbd.io.sequence import read_image, read_rgb
 from annotate_rgbd.io.writer import write_bytes_atomic, write_png
+from annotate_rgbd.pool import run_jobs, start_helpers
+from annotate_rgbd.report.records import FrameRecord, PlaneRecord, RunRecord
+from annotate_rgbd.report.run_folder import colour_table, mask_plane_ids, read_drawn_shapes, read_report
+from annotate_rgbd.segment.frame import FrameResult
+from annotate_rgbd.segment.rasterize import rasterize_frame
+from .overlay import contact_sheet, overlay_for_frame
+from .page import render_review_page
 
 log = logging.getLogger("annotate_rgbd")
 
@@ -39,8 +42,6 @@ PAGE_NAME = "review.html"
 SHEET_NAME = "contact_sheet.png"
 #: Thumbnails on the contact sheet, evenly spread over the written frames.
 SHEET_FRAMES = 12
-#: How parts were placed whose recorded offset must be passed again to place them the same way.
-OFFSET_SOURCES = ("explicit", "file name")
 
 
 @dataclass
@@ -53,72 +54,11 @@ class ReviewOutput:
         The overlay images written.
     page, sheet : Path or None
         ``review.html`` and ``contact_sheet.png``, where written.
-    warnings : list of str
-        Frames that did not segment as the report says (the inputs or the tool changed since
-        the run).
     """
 
     overlays: list[Path] = field(default_factory=list)
     page: Path | None = None
     sheet: Path | None = None
-    warnings: list[str] = field(default_factory=list)
-
-
-def read_report(out_dir: str | Path) -> RunRecord:
-    """Read ``report.json`` of a finished run.
-
-    Raises
-    ------
-    InputError
-        No report (the folder is not the output of a finished run) or not a report.
-    """
-    path = Path(out_dir) / REPORT_NAME
-    try:
-        report = json.loads(read_bounded(path, MAX_RECORDS_BYTES).decode("utf-8"))
-    except FileNotFoundError:
-        raise InputError(path, "no report: not the output folder of a finished cvat2mask run") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InputError(path, f"cannot read the report: {exc.strerror if isinstance(exc, OSError) else exc}") from None
-    except RecursionError:
-        raise InputError(path, "cannot read the report: nested too deeply") from None
-    if not isinstance(report, dict) or not {"inputs", "config", "frames", "planes"} <= report.keys():
-        raise InputError(path, "not a cvat2mask report (inputs, config, frames or planes missing)")
-    try:
-        return RunRecord.from_json(report)
-    except RecordError as exc:
-        raise InputError(path, f"not a cvat2mask report: {exc}") from None
-
-
-def replan(report: RunRecord, out_dir: str | Path, config: Config) -> RunPlan:
-    """Rebuild the plan of a finished run from its report.
-
-    Parameters
-    ----------
-    report : RunRecord
-        The run's ``report.json``.
-    out_dir : str or Path
-        The run's output folder.
-    config : Config
-        The run's configuration (``config_from_dict(report.config)``).
-
-    Returns
-    -------
-    RunPlan
-
-    Raises
-    ------
-    InputError
-        An input is gone or unreadable, or the inputs no longer give the run's frames and planes.
-    """
-    offsets = {p.name: p.offset for p in report.parts if p.placed_by in OFFSET_SOURCES}
-    poses = (report.propagation or {}).get("poses")  # the run's trajectory, however it was given
-    plan = plan_run(report.sequence, [p.file for p in report.parts], out_dir, config, offsets, poses=poses)
-    if [f.depth for f in plan.frames] != [f.depth for f in report.frames] or plan.n_planes != len(report.planes):
-        raise InputError(
-            Path(out_dir) / REPORT_NAME,
-            "the sequence or the annotation changed since this run: its frames or planes differ; run cvat2mask again",
-        )
-    return plan
 
 
 def review_run(
@@ -136,7 +76,7 @@ def review_run(
     out_dir : str or Path
         The output folder of a finished ``cvat2mask`` run.
     overlays : bool
-        Segment every written frame again and write ``overlays/``.
+        Write ``overlays/`` (one per written mask).
     page : bool
         Write ``review.html``.
     sheet : bool
@@ -154,92 +94,99 @@ def review_run(
     Raises
     ------
     InputError
-        No finished run in ``out_dir``, inputs gone or changed, or (for the sheet) no overlays.
+        No finished run in ``out_dir``, its records or RGB frames unreadable, or (for the sheet)
+        no overlays; OutputError when the folder is busy or cannot be written.
     """
     out_dir = Path(out_dir)
     report = read_report(out_dir)
-    check_output_names(out_dir)
+    with OutputFolder(out_dir, None) as folder:
+        return write_review(folder, report, overlays, page, sheet, progress, workers)
+
+
+def write_review(
+    folder: OutputFolder,
+    report: RunRecord,
+    overlays: bool = True,
+    page: bool = True,
+    sheet: bool = True,
+    progress: Callable[[int, int], None] | None = None,
+    workers: int = 1,
+) -> ReviewOutput:
+    """:func:`review_run` in a folder this process already holds (``cvat2mask --overlays``
+    calls it with the run's folder before letting it go)."""
+    out_dir = folder.path
     output = ReviewOutput()
     written = [f for f in report.frames if f.written]
     if overlays and written:
-        config = config_from_dict(report.config, origin=out_dir / REPORT_NAME)
-        plan = replan(report, out_dir, config)
-        jobs = {job.mask_path.name: job for _, job in plan.jobs}
-        tasks = []
-        for frame in written:
-            path = _overlay_path(out_dir, frame)
-            job = jobs.get(path.name)
-            if job is None:
-                raise InputError(out_dir / REPORT_NAME, f"{frame.depth}: no longer gets a mask from the inputs; run cvat2mask again")
-            tasks.append(OverlayTask(job, config, plan.sequence.root / frame.rgb, plan.colours, path))
+        shapes = read_drawn_shapes(out_dir, {f.mask for f in written})
+        keys, values = colour_table(report)
+        colours = plane_colour_rows(report)
+        tasks = [
+            OverlayTask(Path(report.sequence) / f.rgb, out_dir / f.mask, tuple(shapes[f.mask]),
+                        tuple(f.kept), tuple(f.dropped), keys, values, colours, _overlay_path(out_dir, f))
+            for f in written
+        ]
+        folder.expect(f"{OVERLAYS}/{task.path.name}" for task in tasks)
         with start_helpers(workers, [__name__]) or nullcontext() as helpers:
             for done, outcome in enumerate(run_jobs(tasks, write_overlay, helpers), start=1):
                 if outcome.error is not None:
                     raise outcome.error
-                _check_records(written[outcome.index], outcome.value, output.warnings)
                 if progress:
                     progress(done, len(written))
         output.overlays = [task.path for task in tasks]
     available = [f for f in written if _overlay_path(out_dir, f).is_file()]
     if page:
         output.page = out_dir / PAGE_NAME
-        relative = {f.mask: f"{OVERLAY_DIR}/{_overlay_path(out_dir, f).name}" for f in available}
+        relative = {f.mask: f"{OVERLAYS}/{_overlay_path(out_dir, f).name}" for f in available}
         html = render_review_page(report, relative, title=out_dir.resolve().name)
         write_bytes_atomic(output.page, html.encode("utf-8"))
     if sheet and written:
         if not available:
-            raise InputError(out_dir / OVERLAY_DIR, "no overlays for the contact sheet: run review with overlays")
+            raise InputError(out_dir / OVERLAYS, "no overlays for the contact sheet: run review with overlays")
         picks = np.unique(np.linspace(0, len(available) - 1, min(len(available), SHEET_FRAMES)).round().astype(int))
         frames = [available[i] for i in picks]
         images = [read_rgb(_overlay_path(out_dir, f)) for f in frames]
         output.sheet = out_dir / SHEET_NAME
         write_png(output.sheet, contact_sheet(images, [Path(f.depth).stem for f in frames]))
-    # So that a later cvat2mask run removes these files, and only these (annotate_rgbd.outdir).
+    # So that a later cvat2mask run removes these files, and only these (annotate_rgbd.io.outdir).
     written_files = {p.name: file_digest(p) for p in (output.page, output.sheet) if p is not None}
     record = {**read_review_record(out_dir), **written_files}
     write_bytes_atomic(out_dir / REVIEW_RECORD, json.dumps(record, indent=1).encode("utf-8"))
     return output
 
 
+def plane_colour_rows(report: RunRecord) -> np.ndarray:
+    """The run's plane colours as an ``(n_planes, 3)`` RGB array, row ``k - 1`` for plane ``k``."""
+    colours = np.zeros((max(report.n_planes, max((p.plane for p in report.planes), default=0)), 3), np.uint8)
+    for plane in report.planes:
+        value = int(plane.colour.lstrip("#"), 16)
+        colours[plane.plane - 1] = (value >> 16, (value >> 8) & 255, value & 255)
+    return colours
+
+
 @dataclass(frozen=True)
 class OverlayTask:
-    """One overlay to write: the frame's job as the run planned it, and where to write."""
+    """One overlay to draw: the frame's RGB image, mask and drawn shapes, its plane records and
+    the run's colours, and where to write it."""
 
-    job: FrameJob
-    config: Config
     rgb: Path
+    mask: Path
+    shapes: tuple
+    kept: tuple[PlaneRecord, ...]
+    dropped: tuple[PlaneRecord, ...]
+    keys: np.ndarray
+    values: np.ndarray
     colours: np.ndarray
     path: Path
 
 
-def write_overlay(task: OverlayTask) -> list[tuple]:
-    """Segment the task's frame again and write its overlay (run in a helper process).
-
-    Returns
-    -------
-    list of tuple
-        The frame's plane records as ``(plane, pixels, inliers, reason)``, sorted, to compare
-        with the report.
-    """
-    result = segment_job(task.job, task.config)
+def write_overlay(task: OverlayTask) -> None:
+    """Draw one frame's overlay from the run's records and write it (run in a helper process)."""
+    labels = mask_plane_ids(read_image(task.mask, cv2.IMREAD_COLOR), task.keys, task.values, task.mask)
+    drawn = rasterize_frame(task.shapes, *labels.shape)
+    result = FrameResult(labels=labels, drawn=drawn, kept=list(task.kept), dropped=list(task.dropped))
     write_png(task.path, overlay_for_frame(task.rgb, result, task.colours))
-    return _plane_summary([*result.kept, *result.dropped])
-
-
-def _plane_summary(planes) -> list[tuple]:
-    return sorted((r.plane, r.pixels, r.inliers, r.reason) for r in planes)
 
 
 def _overlay_path(out_dir: Path, frame: FrameRecord) -> Path:
-    return out_dir / OVERLAY_DIR / Path(frame.mask).name
-
-
-def _check_records(frame: FrameRecord, planes: list[tuple], warnings: list[str]) -> None:
-    """Warn when a frame no longer segments as the report says (its overlay would mislead)."""
-    if planes != _plane_summary([*frame.kept, *frame.dropped]):
-        message = (
-            f"{frame.depth}: segments differently from report.json (inputs or annotate-rgbd changed "
-            "since the run?); the overlay shows what a run would make now"
-        )
-        warnings.append(message)
-        log.warning(message)
+    return out_dir / OVERLAYS / Path(frame.mask).name

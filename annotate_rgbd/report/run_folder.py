@@ -1,0 +1,202 @@
+"""Reading a finished run's folder: its report, its masks as plane ids, the shapes it drew.
+
+Everything a command needs after ``cvat2mask`` (``review``, ``stats``, ``export-cvat``) is read
+here, from the run's own records, never by running any stage again:
+
+* ``report.json`` (:func:`read_report`);
+* the colour masks, decoded to plane ids through the run's plane colours (:func:`mask_plane_ids`);
+* the drawn shapes of every written frame (:data:`annotate_rgbd.io.outdir.SHAPES_RECORD`, one
+  JSON line per mask, written by :func:`write_drawn_shapes` when the run finishes and read by
+  :func:`read_drawn_shapes`): what the labeller drew, or the poses carried, exactly as the
+  frame's job rasterised it.
+"""
+
+from __future__ import annotations
+
+import base64
+import json
+from pathlib import Path
+from typing import Iterable, Sequence
+
+import numpy as np
+
+from annotate_rgbd.annotation.model import AREA_KINDS, Shape
+from annotate_rgbd.errors import InputError
+from annotate_rgbd.io.outdir import REPORT, SHAPES_RECORD, open_regular, read_bounded
+from annotate_rgbd.report.records import RecordError, RunRecord
+
+#: Reading bound of ``report.json`` (a run of 100,000 frames with 20 planes each: ~300 MiB).
+MAX_REPORT_BYTES = 1 << 30
+#: Reading bound of one line of the shapes record (thousands of vertices per frame fit easily).
+MAX_SHAPES_LINE = 64 << 20
+SHAPES_FORMAT = "annotate-rgbd drawn shapes"
+SHAPES_VERSION = 1
+
+
+def read_report(out_dir: str | Path) -> RunRecord:
+    """Read ``report.json`` of a finished ``cvat2mask`` run.
+
+    Raises
+    ------
+    InputError
+        No report (the folder is not the output of a finished run) or not a report.
+    """
+    path = Path(out_dir) / REPORT
+    try:
+        report = json.loads(read_bounded(path, MAX_REPORT_BYTES).decode("utf-8"))
+    except FileNotFoundError:
+        raise InputError(path, "no report: not the output folder of a finished cvat2mask run") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InputError(path, f"cannot read the report: {exc.strerror if isinstance(exc, OSError) else exc}") from None
+    except RecursionError:
+        raise InputError(path, "cannot read the report: nested too deeply") from None
+    if isinstance(report, dict) and report.get("tool") == "annotate-rgbd propose":
+        raise InputError(path, "this is the output of `propose`, not of a cvat2mask run")
+    if not isinstance(report, dict) or not {"inputs", "config", "frames", "planes"} <= report.keys():
+        raise InputError(path, "not a cvat2mask report (inputs, config, frames or planes missing)")
+    try:
+        return RunRecord.from_json(report)
+    except RecordError as exc:
+        raise InputError(path, f"not a cvat2mask report: {exc}") from None
+
+
+def colour_table(report: RunRecord) -> tuple[np.ndarray, np.ndarray]:
+    """The run's plane colours as packed ``0xRRGGBB`` keys (ascending) and their plane ids."""
+    packed = {int(p.colour.lstrip("#"), 16): p.plane for p in report.planes}
+    keys = np.array(sorted(packed), dtype=np.int64)
+    return keys, np.array([packed[k] for k in keys.tolist()], dtype=np.int64)
+
+
+def mask_plane_ids(image_bgr: np.ndarray, keys: np.ndarray, values: np.ndarray, path: Path) -> np.ndarray:
+    """Plane id of every pixel of a colour mask.
+
+    Parameters
+    ----------
+    image_bgr : ndarray of uint8, shape (H, W, 3)
+        As OpenCV reads it.
+    keys, values : ndarray of int64
+        Packed ``0xRRGGBB`` colours, ascending, and their plane ids (:func:`colour_table`).
+    path : Path
+        For messages.
+
+    Returns
+    -------
+    ndarray of int64, shape (H, W)
+        0 for black.
+
+    Raises
+    ------
+    InputError
+        A colour that is no plane of the run.
+    """
+    channels = image_bgr.astype(np.int64)
+    packed = (channels[..., 2] << 16) | (channels[..., 1] << 8) | channels[..., 0]
+    index = np.clip(np.searchsorted(keys, packed), 0, max(len(keys) - 1, 0))
+    known = (keys[index] == packed) if len(keys) else np.zeros(packed.shape, dtype=bool)
+    unknown = (packed != 0) & ~known
+    if unknown.any():
+        raise InputError(path, f"colour #{int(packed[unknown][0]):06x} is no plane of the run (planes.csv)")
+    return np.where(known, values[index] if len(values) else 0, 0)
+
+
+def shapes_to_json(shapes: Sequence[tuple[int, Shape]]) -> list[dict]:
+    """A frame's ``(plane id, shape)`` pairs as JSON values (exact: floats round-trip)."""
+    entries = []
+    for plane, shape in shapes:
+        entry = {"plane": int(plane), "kind": shape.kind, "z_order": int(shape.z_order),
+                 "points": np.asarray(shape.points, dtype=np.float64).tolist()}
+        if shape.bitmap is not None:
+            entry["size"] = list(shape.bitmap.shape)
+            entry["bits"] = base64.b64encode(np.packbits(shape.bitmap, axis=None).tobytes()).decode("ascii")
+        entries.append(entry)
+    return entries
+
+
+def shapes_from_json(entries: object) -> list[tuple[int, Shape]]:
+    """Inverse of :func:`shapes_to_json`.
+
+    Raises
+    ------
+    RecordError
+        An entry of the wrong layout.
+    """
+    if not isinstance(entries, list):
+        raise RecordError("shapes: not a list")
+    shapes = []
+    for entry in entries:
+        try:
+            kind = entry["kind"]
+            if kind not in AREA_KINDS:
+                raise RecordError(f"unknown shape kind {kind!r}")
+            points = np.asarray(entry["points"], dtype=np.float64).reshape(-1, 2)
+            bitmap = None
+            if "bits" in entry:
+                height, width = (int(v) for v in entry["size"])
+                if not (0 < height <= 1 << 15 and 0 < width <= 1 << 15):
+                    raise RecordError(f"mask of {width}x{height} pixels")
+                bits = np.frombuffer(base64.b64decode(entry["bits"], validate=True), dtype=np.uint8)
+                bitmap = np.unpackbits(bits, count=height * width).reshape(height, width).astype(bool)
+            shapes.append((int(entry["plane"]), Shape(kind, points, int(entry.get("z_order", 0)), bitmap=bitmap)))
+        except RecordError:
+            raise
+        except (KeyError, TypeError, ValueError) as exc:
+            raise RecordError(f"shape entry: {exc}") from None
+    return shapes
+
+
+def write_drawn_shapes(out_dir: Path, frames: Iterable[tuple[str, Sequence[tuple[int, Shape]]]]) -> None:
+    """Write the shapes record: one JSON line per written mask (``masks/<name>``, shapes).
+
+    Raises
+    ------
+    OutputError
+        It cannot be written.
+    """
+    from annotate_rgbd.io.writer import write_bytes_atomic  # OpenCV: not at import time
+
+    lines = [json.dumps({"format": SHAPES_FORMAT, "version": SHAPES_VERSION})]
+    lines += [json.dumps({"mask": mask, "shapes": shapes_to_json(shapes)}) for mask, shapes in frames]
+    write_bytes_atomic(out_dir / SHAPES_RECORD, ("\n".join(lines) + "\n").encode("utf-8"))
+
+
+def read_drawn_shapes(out_dir: Path, masks: set[str]) -> dict[str, list[tuple[int, Shape]]]:
+    """The drawn shapes of the masks ``masks`` (``masks/<name>``), from the shapes record.
+
+    Raises
+    ------
+    InputError
+        No record (a run made before annotate-rgbd kept one: run cvat2mask again), a malformed
+        one, or a mask it does not hold.
+    """
+    path = Path(out_dir) / SHAPES_RECORD
+    found: dict[str, list[tuple[int, Shape]]] = {}
+    try:
+        handle = open_regular(path)
+    except OSError as exc:
+        raise InputError(path, f"cannot read the run's drawn shapes ({exc.strerror or exc}); run cvat2mask "
+                               "again into this folder (it redoes nothing that is up to date)") from None
+    with handle:
+        header = _json_line(handle.readline(MAX_SHAPES_LINE + 1), path, 1)
+        if not isinstance(header, dict) or header.get("format") != SHAPES_FORMAT:
+            raise InputError(path, "not a drawn-shapes record")
+        for number, line in enumerate(iter(lambda: handle.readline(MAX_SHAPES_LINE + 1), b""), start=2):
+            entry = _json_line(line, path, number)
+            mask = entry.get("mask") if isinstance(entry, dict) else None
+            if mask in masks:
+                try:
+                    found[mask] = shapes_from_json(entry.get("shapes"))
+                except RecordError as exc:
+                    raise InputError(path, f"line {number}: {exc}") from None
+    missing = sorted(masks - found.keys())
+    if missing:
+        raise InputError(path, f"holds no shapes for {missing[0]}: the run changed since; run cvat2mask again")
+    return found
+
+
+def _json_line(line: bytes, path: Path, number: int):
+    if len(line) > MAX_SHAPES_LINE or (line and not line.endswith(b"\n")):
+        raise InputError(path, f"line {number}: too long or cut short")
+    try:
+        return json.loads(line)
+    except (ValueError, RecursionError):
+        raise InputError(path, f"line {number}: not JSON") from None
