@@ -1,10 +1,14 @@
-"""The package's layering, read from its source with ``ast`` (nothing is imported).
+"""The package's house, read from its source with ``ast`` (nothing is imported).
 
-- no import cycle among the package's modules: every import counts, at module level, inside
-  functions, under ``if TYPE_CHECKING:``, and ``importlib.import_module("annotate_rgbd.x")``
-  (with the name written out or held in a module-level constant);
+- every module of every folder counts, named by its dotted path (``segment.refine``, ``cli``);
+- no import cycle among the modules, nor among the folders (stages): every import counts, at
+  module level, inside functions, under ``if TYPE_CHECKING:``, and
+  ``importlib.import_module("annotate_rgbd.x")`` (written out or held in a module constant);
+- the stages are layers: the geometry and the per-frame stage never import the run machinery,
+  the CVAT reader or the report (:data:`FORBIDDEN`);
 - only the command line (``cli.py``, ``__main__.py``) imports typer, and no module imports ``cli``;
-- no module is longer than 600 lines (the project's limit).
+- at most :data:`MAX_TOP_MODULES` modules directly in ``annotate_rgbd/``; none longer than 600 lines;
+- only the CVAT reader and writer see XML.
 """
 
 from __future__ import annotations
@@ -16,32 +20,61 @@ PACKAGE = Path(__file__).resolve().parents[1] / "annotate_rgbd"
 PACKAGE_NAME = "annotate_rgbd"
 COMMAND_LINE = {"cli", "__main__"}
 MAX_LINES = 600
+MAX_TOP_MODULES = 12
 
-#: Cycles that other branches of the architecture step are removing; each is written as the
-#: modules in import order, starting from the alphabetically first one. The test tolerates
-#: exactly these for now. The lead empties this set once those branches are merged.
-KNOWN_CYCLES_BEING_FIXED: set[tuple[str, ...]] = set()
-
-#: Modules over MAX_LINES that other branches are splitting; the lead empties this set too.
-KNOWN_LONG_MODULES_BEING_SPLIT: set[str] = set()
+#: Stage -> the stages it must never import (directly): a stage only knows the ones below it.
+LOW = {"errors", "logs", "progress", "pool", "config", "io", "geometry", "annotation"}
+FORBIDDEN = {
+    "io": {"config", "annotation", "cvat", "geometry", "segment", "propagate", "pipeline", "report", "review",
+           "detect", "propose", "evaluate", "export"},
+    "geometry": {"io", "cvat", "annotation", "segment", "propagate", "pipeline", "report", "review", "detect",
+                 "propose", "evaluate", "export", "pool"},
+    "cvat": {"geometry", "segment", "propagate", "pipeline", "report", "review", "detect", "propose", "evaluate",
+             "export"},
+    "segment": {"io", "cvat", "propagate", "pipeline", "report", "review", "detect", "propose", "evaluate", "export",
+                "pool"},
+    "propagate": {"cvat", "pipeline", "report", "review", "detect", "propose", "evaluate", "export"},
+    "detect": {"io", "cvat", "segment", "propagate", "pipeline", "report", "review", "propose", "evaluate", "export"},
+    "report": {"pipeline", "review", "propose", "detect", "evaluate", "export", "cvat"},
+    "review": {"pipeline", "propose", "detect", "evaluate", "export", "cvat"},
+    "pipeline": {"propose", "detect", "evaluate", "export"},
+    "evaluate": {"segment", "propagate", "pipeline", "review", "propose", "detect", "export", "cvat"},
+}
 
 
 def module_names() -> list[str]:
-    """The package's modules, by file stem (``__init__`` stands for the package itself)."""
-    return sorted(path.stem for path in PACKAGE.glob("*.py"))
+    """Every module of the package, dotted from the package (``__init__`` for the package
+    itself, ``segment`` for ``segment/__init__.py``)."""
+    names = []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        parts = list(path.relative_to(PACKAGE).with_suffix("").parts)
+        if parts[-1] == "__init__" and len(parts) > 1:
+            parts.pop()
+        names.append(".".join(parts))
+    return names
 
 
-def imported_modules(name: str, modules: set[str], folder: Path = PACKAGE) -> tuple[set[str], set[str]]:
-    """What module ``name`` (the file ``folder/name.py``) imports.
+def module_path(name: str, root: Path = PACKAGE) -> Path:
+    candidate = root / Path(*name.split(".")).with_suffix(".py")
+    return candidate if candidate.exists() else root / Path(*name.split(".")) / "__init__.py"
+
+
+def imported_modules(name: str, modules: set[str], root: Path = PACKAGE) -> tuple[set[str], set[str]]:
+    """What module ``name`` imports.
 
     Returns
     -------
     internal : set of str
-        The package's modules it imports (stems, as in :func:`module_names`).
+        The package's modules it imports (dotted as in :func:`module_names`; the longest known
+        prefix of what it names, ``from x import y`` counting ``x.y`` when that is a module).
     external : set of str
         Top-level names of the other packages it imports (``typer``, ``numpy``...).
     """
-    tree = ast.parse((folder / f"{name}.py").read_text(encoding="utf-8"))
+    path = module_path(name, root)
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    is_package = path.name == "__init__.py"
+    here = name.split(".") if name != "__init__" else []
+    package = here if is_package else here[:-1]
     constants = {
         target.id: node.value.value
         for node in tree.body
@@ -52,38 +85,49 @@ def imported_modules(name: str, modules: set[str], folder: Path = PACKAGE) -> tu
     internal: set[str] = set()
     external: set[str] = set()
 
-    def absolute(dotted: str) -> None:
-        parts = dotted.split(".")
-        if parts[0] != PACKAGE_NAME:
-            external.add(parts[0])
-        elif len(parts) > 1 and parts[1] in modules:
-            internal.add(parts[1])
-        else:
-            internal.add("__init__")
+    def known(parts: list[str]) -> str:
+        for end in range(len(parts), 0, -1):
+            if ".".join(parts[:end]) in modules:
+                return ".".join(parts[:end])
+        return "__init__"
+
+    def add(parts: list[str], names: list[str]) -> None:
+        found = False
+        for leaf in names:
+            dotted = ".".join([*parts, leaf])
+            if dotted in modules:
+                internal.add(dotted)
+                found = True
+        if not found or any(".".join([*parts, leaf]) not in modules for leaf in names):
+            internal.add(known(parts))
 
     for node in ast.walk(tree):
         if isinstance(node, ast.Import):
             for alias in node.names:
-                absolute(alias.name)
+                parts = alias.name.split(".")
+                if parts[0] == PACKAGE_NAME:
+                    internal.add(known(parts[1:]))
+                else:
+                    external.add(parts[0])
         elif isinstance(node, ast.ImportFrom):
+            names = [a.name for a in node.names]
             if node.level == 0:
-                absolute(node.module)
-                if node.module == PACKAGE_NAME:  # from annotate_rgbd import x
-                    internal.update(a.name for a in node.names if a.name in modules)
-            elif node.module:  # from .x import y
-                internal.add(node.module.split(".")[0])
-            else:  # from . import x (a module) or from . import __version__ (the package)
-                named = {a.name for a in node.names}
-                internal.update(named & modules)
-                if named - modules:
-                    internal.add("__init__")
+                parts = (node.module or "").split(".")
+                if parts[0] != PACKAGE_NAME:
+                    external.add(parts[0])
+                    continue
+                add(parts[1:], names)
+            else:
+                base = package[: len(package) - (node.level - 1)]
+                add(base + (node.module.split(".") if node.module else []), names)
         elif isinstance(node, ast.Call) and _is_import_module(node.func) and node.args:
             argument = node.args[0]
-            if isinstance(argument, ast.Constant) and isinstance(argument.value, str):
-                absolute(argument.value)
-            elif isinstance(argument, ast.Name) and argument.id in constants:
-                absolute(constants[argument.id])
-    internal.discard(name)  # "from . import x" inside x itself is no cycle worth reporting
+            value = argument.value if isinstance(argument, ast.Constant) else constants.get(getattr(argument, "id", None))
+            if isinstance(value, str) and value.split(".")[0] == PACKAGE_NAME:
+                internal.add(known(value.split(".")[1:]))
+            elif isinstance(value, str):
+                external.add(value.split(".")[0])
+    internal.discard(name)
     return internal, external
 
 
@@ -98,6 +142,22 @@ def import_graph() -> dict[str, set[str]]:
     """Module -> the package's modules it imports."""
     modules = set(module_names())
     return {name: imported_modules(name, modules)[0] for name in sorted(modules)}
+
+
+def stage(module: str) -> str:
+    """The folder (stage) a module belongs to; a top-level module is its own."""
+    return module.split(".")[0]
+
+
+def stage_graph(graph: dict[str, set[str]]) -> dict[str, set[str]]:
+    """Stage -> the other stages its modules import. The package's face (``__init__``) is left
+    out: it names every command lazily, for users, and no module imports it but for the version."""
+    stages: dict[str, set[str]] = {}
+    for module, imported in graph.items():
+        if module == "__init__":
+            continue
+        stages.setdefault(stage(module), set()).update(stage(m) for m in imported if m != "__init__")
+    return {s: targets - {s} for s, targets in stages.items()}
 
 
 def find_cycles(graph: dict[str, set[str]]) -> set[tuple[str, ...]]:
@@ -131,37 +191,63 @@ def test_find_cycles_finds_each_cycle_once():
 
 
 def test_imports_are_read_from_every_form(tmp_path):
-    # Each import form of the package, in a throw-away module: all of them must be seen.
+    # Each import form of the package, in a throw-away sub-package: all of them must be seen.
     source = '''
 import importlib
 from typing import TYPE_CHECKING
 import annotate_rgbd.m1
 from annotate_rgbd import m2
-from . import m3, __version__
-from .m4 import thing
+from annotate_rgbd.sub import m9
+from .. import m3, __version__
+from ..m4 import thing
+from .sibling import x
 TARGET = "annotate_rgbd.m7"
 if TYPE_CHECKING:
-    from .m5 import Hint
+    from ..m5 import Hint
 def later():
-    from .m6 import helper
+    from ..m6 import helper
     importlib.import_module(TARGET)
     importlib.import_module("annotate_rgbd.m8")
     import typer
 '''
-    (tmp_path / "probe.py").write_text(source, encoding="utf-8")
-    modules = {"probe"} | {f"m{i}" for i in range(1, 9)}
-    internal, external = imported_modules("probe", modules, tmp_path)
-    assert internal == {f"m{i}" for i in range(1, 9)} | {"__init__"}
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "sub" / "probe.py").write_text(source, encoding="utf-8")
+    modules = {"sub", "sub.probe", "sub.sibling", "sub.m9"} | {f"m{i}" for i in range(1, 9)}
+    internal, external = imported_modules("sub.probe", modules, tmp_path)
+    assert internal == {f"m{i}" for i in range(1, 9)} | {"__init__", "sub.sibling", "sub.m9"}
     assert external == {"importlib", "typing", "typer"}
+
+
+def test_the_walk_sees_every_folder():
+    names = set(module_names())
+    assert {"segment.refine", "cvat.reader", "pipeline.plan", "cli", "__init__", "geometry"} <= names
+    assert len(names) == len(list(PACKAGE.rglob("*.py")))
 
 
 def test_no_import_cycles():
     cycles = find_cycles(import_graph())
-    new = cycles - KNOWN_CYCLES_BEING_FIXED
-    assert not new, (
-        f"import cycles in annotate_rgbd: {describe(new)} "
-        f"(all cycles found: {describe(cycles)}; tolerated for now: {describe(KNOWN_CYCLES_BEING_FIXED)})"
-    )
+    assert not cycles, f"import cycles in annotate_rgbd: {describe(cycles)}"
+
+
+def test_no_cycles_between_stages():
+    cycles = find_cycles(stage_graph(import_graph()))
+    assert not cycles, f"stages importing each other: {describe(cycles)}"
+
+
+def test_no_stage_reaches_into_a_later_one():
+    stages = stage_graph(import_graph())
+    graph = import_graph()
+    wrong = []
+    for source, targets in sorted(stages.items()):
+        for target in sorted(targets & FORBIDDEN.get(source, set())):
+            where = sorted(m for m, imported in graph.items() if stage(m) == source and any(stage(i) == target for i in imported))
+            wrong.append(f"{source} -> {target} ({', '.join(where)})")
+    assert not wrong, "stages reaching into later ones: " + "; ".join(wrong)
+
+
+def test_the_layer_check_sees_a_wrong_import(tmp_path):
+    stages = stage_graph({"geometry.camera": {"pipeline.plan"}, "pipeline.plan": {"geometry.camera"}})
+    assert stages["geometry"] & FORBIDDEN["geometry"] == {"pipeline"}
 
 
 def test_command_line_is_the_top_layer():
@@ -169,27 +255,31 @@ def test_command_line_is_the_top_layer():
     for name in sorted(modules):
         internal, external = imported_modules(name, modules)
         if name not in COMMAND_LINE:
-            assert "typer" not in external, f"{name}.py imports typer: only cli.py parses options"
-            assert "cli" not in internal, f"{name}.py imports cli: cli calls the library, never the reverse"
+            assert "typer" not in external, f"{name} imports typer: only cli.py parses options"
+            assert "cli" not in internal, f"{name} imports cli: cli calls the library, never the reverse"
+
+
+def test_few_modules_at_the_top():
+    top = sorted(p.name for p in PACKAGE.glob("*.py"))
+    assert len(top) <= MAX_TOP_MODULES, f"{len(top)} modules directly in annotate_rgbd/: {top}; put them in a stage"
 
 
 def test_module_length():
-    lengths = {name: len((PACKAGE / f"{name}.py").read_text(encoding="utf-8").splitlines()) for name in module_names()}
-    long = {name: n for name, n in lengths.items() if n > MAX_LINES and name not in KNOWN_LONG_MODULES_BEING_SPLIT}
+    lengths = {name: len(module_path(name).read_text(encoding="utf-8").splitlines()) for name in module_names()}
+    long = {name: n for name, n in lengths.items() if n > MAX_LINES}
     assert not long, f"modules over {MAX_LINES} lines, split them by job: " + ", ".join(
-        f"annotate_rgbd/{name}.py ({n} lines)" for name, n in sorted(long.items())
+        f"{module_path(name).relative_to(PACKAGE.parent)} ({n} lines)" for name, n in sorted(long.items())
     )
 
 
 def test_only_the_cvat_readers_and_writer_see_xml():
     """The CVAT format is read in one place: no other module imports an XML library."""
     allowed = {"cvat/xmlstream.py", "cvat/meta.py", "cvat/reader.py", "cvat/writer.py"}
-    package = Path(__file__).resolve().parents[1] / "annotate_rgbd"
     seeing = set()
-    for path in package.rglob("*.py"):
+    for path in PACKAGE.rglob("*.py"):
         for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
             names = [a.name for a in node.names] if isinstance(node, ast.Import) else (
                 [node.module or ""] if isinstance(node, ast.ImportFrom) else [])
             if any(n.split(".")[0] in ("lxml", "xml", "defusedxml") for n in names):
-                seeing.add(path.relative_to(package).as_posix())
+                seeing.add(path.relative_to(PACKAGE).as_posix())
     assert seeing and seeing <= allowed, sorted(seeing - allowed)

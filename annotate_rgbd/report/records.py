@@ -16,6 +16,15 @@ from collections import Counter
 from dataclasses import dataclass, field
 from typing import Any
 
+from annotate_rgbd.jsonfields import RecordError, mapping as _mapping, list_field as _list, int_field as _int
+from annotate_rgbd.jsonfields import number as _number
+from annotate_rgbd.jsonfields import text as _text
+from annotate_rgbd.segment.plane_record import PlaneRecord
+
+__all__ = ["RecordError", "PlaneRecord", "MaskRecord", "FrameRecord", "RunSummary", "summarize", "PartRecord",
+           "PlaneInfo", "RunRecord", "WRITTEN", "SKIPPED", "FAILED", "OUTSIDE_ANNOTATION", "NO_RGB_FRAME",
+           "RGB_NOT_ANNOTATED", "UNREADABLE_DEPTH", "TIMED_OUT"]
+
 #: A depth frame's status in the report.
 WRITTEN, SKIPPED, FAILED = "written", "skipped", "failed"
 
@@ -25,135 +34,6 @@ NO_RGB_FRAME = "no_rgb_frame_within_max_time_diff"
 RGB_NOT_ANNOTATED = "rgb_frame_not_in_annotation"
 UNREADABLE_DEPTH = "unreadable_depth"
 TIMED_OUT = "timed_out"
-
-
-class RecordError(ValueError):
-    """A JSON document does not have the layout of a record (wrong type, key missing)."""
-
-
-@dataclass(frozen=True)
-class PlaneRecord:
-    """What happened to one plane drawn on one depth frame.
-
-    Parameters
-    ----------
-    plane : int
-        Global plane id.
-    pixels : int
-        Pixels of the plane's shape as drawn (rasterised on the depth grid).
-    valid_pixels : int
-        Of these, pixels with valid depth.
-    mean_distance : float or None
-        Mean distance (m) of the valid pixels from the camera, along their rays; None without any.
-    inliers : int, optional
-        Kept planes: pixels that lie on the fitted plane (the pixels of the mask).
-    inlier_ratio : float, optional
-        Kept planes: ``inliers / valid_pixels``.
-    equation : tuple of 4 float, optional
-        Kept planes: ``(a, b, c, d)`` with ``a x + b y + c z + d = 0`` in the camera frame (m).
-    band : float, optional
-        Kept planes: the inlier band (m) at the median depth of the plane's inliers.
-    rms_sigma : float, optional
-        Kept planes: RMS distance of the fit's inliers to the plane in units of the sensor noise
-        at their depth (about 1 when the noise model fits).
-    noise_scale : float, optional
-        Kept planes: how much noisier than the model the plane's points are (the band is
-        widened by it; 1 when the model fits, :data:`annotate_rgbd.ransac.MAX_NOISE_SCALE` at most).
-    fit_points, fit_inliers_ransac, fit_inliers_refit : int, optional
-        Kept planes: the grid points the plane was fitted to, and how many of them lie within
-        the band of RANSAC's plane (or of the surface behind that replaced it) and of the plane
-        re-fitted to its inliers.
-    grown : int, optional
-        Kept planes: pixels outside the drawn shape added by edge growing (the mask holds
-        ``inliers + grown`` pixels of the plane).
-    surface_behind : bool, optional
-        Kept planes: whether the plane is a surface behind RANSAC's first plane, which an object
-        covering most of the shape had won (worth a look).
-    propagated : bool, optional
-        With camera poses: whether the plane's shape was carried here by the poses from
-        keyframes on other frames (False: drawn on this frame's keyframe). None without poses.
-    reason : str, optional
-        Dropped planes: why (``invalid_depth``, ``too_few_points``, ``too_far``); None: kept.
-    invalid_ratio : float, optional
-        Dropped planes: the share of the shape's pixels without valid depth.
-    """
-
-    plane: int
-    pixels: int
-    valid_pixels: int
-    mean_distance: float | None
-    inliers: int | None = None
-    inlier_ratio: float | None = None
-    equation: tuple[float, ...] | None = None
-    band: float | None = None
-    rms_sigma: float | None = None
-    noise_scale: float | None = None
-    fit_points: int | None = None
-    fit_inliers_ransac: int | None = None
-    fit_inliers_refit: int | None = None
-    grown: int | None = None
-    surface_behind: bool | None = None
-    reason: str | None = None
-    invalid_ratio: float | None = None
-    propagated: bool | None = None
-
-    @property
-    def kept(self) -> bool:
-        """Whether the plane is in the frame's mask (not dropped)."""
-        return self.reason is None
-
-    def to_json(self) -> dict[str, Any]:
-        """The report's plane entry."""
-        entry: dict[str, Any] = {
-            "plane": self.plane,
-            "pixels": self.pixels,
-            "valid_pixels": self.valid_pixels,
-            "mean_distance": self.mean_distance,
-        }
-        if self.kept:
-            entry.update(inliers=self.inliers, inlier_ratio=self.inlier_ratio,
-                         equation=None if self.equation is None else list(self.equation),
-                         band=self.band, rms_sigma=self.rms_sigma, noise_scale=self.noise_scale,
-                         fit_points=self.fit_points,
-                         fit_inliers_ransac=self.fit_inliers_ransac, fit_inliers_refit=self.fit_inliers_refit,
-                         grown=self.grown, surface_behind=self.surface_behind)
-        else:
-            entry.update(reason=self.reason, invalid_ratio=self.invalid_ratio)
-        if self.propagated is not None:
-            entry["propagated"] = self.propagated
-        return entry
-
-    @classmethod
-    def from_json(cls, entry: Any) -> PlaneRecord:
-        """Read a report's plane entry.
-
-        Raises
-        ------
-        RecordError
-            Not a plane entry.
-        """
-        entry = _mapping(entry, "plane entry")
-        equation = entry.get("equation")
-        return cls(
-            plane=_int(entry, "plane"),
-            pixels=_int(entry, "pixels"),
-            valid_pixels=_int(entry, "valid_pixels"),
-            mean_distance=_number(entry, "mean_distance", optional=True),
-            inliers=_int(entry, "inliers") if "inliers" in entry else None,
-            inlier_ratio=_number(entry, "inlier_ratio", optional=True),
-            equation=None if equation is None else tuple(_numbers(equation, "equation", 4)),
-            band=_number(entry, "band", optional=True),
-            rms_sigma=_number(entry, "rms_sigma", optional=True),
-            noise_scale=_number(entry, "noise_scale", optional=True),
-            fit_points=_optional_int(entry, "fit_points"),
-            fit_inliers_ransac=_optional_int(entry, "fit_inliers_ransac"),
-            fit_inliers_refit=_optional_int(entry, "fit_inliers_refit"),
-            grown=_optional_int(entry, "grown"),
-            surface_behind=entry["surface_behind"] if isinstance(entry.get("surface_behind"), bool) else None,
-            reason=_text(entry, "reason", optional=True),
-            invalid_ratio=_number(entry, "invalid_ratio", optional=True),
-            propagated=entry["propagated"] if isinstance(entry.get("propagated"), bool) else None,
-        )
 
 
 @dataclass(frozen=True)
@@ -543,51 +423,3 @@ class RunRecord:
             notes=[str(n) for n in report.get("notes", [])],
             propagation=report["propagation"] if isinstance(report.get("propagation"), dict) else None,
         )
-
-
-def _mapping(value: Any, what: str) -> dict:
-    if not isinstance(value, dict):
-        raise RecordError(f"{what} is not an object")
-    return value
-
-
-def _list(entry: dict, key: str) -> list:
-    value = entry.get(key)
-    if not isinstance(value, list):
-        raise RecordError(f"{key} is not a list")
-    return value
-
-
-def _int(entry: dict, key: str) -> int:
-    value = entry.get(key)
-    if isinstance(value, bool) or not isinstance(value, int):
-        raise RecordError(f"{key} is not an integer")
-    return value
-
-
-def _optional_int(entry: dict, key: str) -> int | None:
-    return None if entry.get(key) is None else _int(entry, key)
-
-
-def _number(entry: dict, key: str, optional: bool = False) -> float | None:
-    value = entry.get(key)
-    if value is None and optional:
-        return None
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise RecordError(f"{key} is not a number")
-    return value
-
-
-def _numbers(values: Any, key: str, count: int) -> list[float]:
-    if not isinstance(values, list) or len(values) != count:
-        raise RecordError(f"{key} is not a list of {count} numbers")
-    return [_number({key: v}, key) for v in values]
-
-
-def _text(entry: dict, key: str, optional: bool = False) -> str | None:
-    value = entry.get(key)
-    if value is None and optional:
-        return None
-    if not isinstance(value, str):
-        raise RecordError(f"{key} is not a string")
-    return value

@@ -29,7 +29,8 @@ from annotate_rgbd.io.outdir import OVERLAYS, REVIEW_RECORD, OutputFolder, file_
 from annotate_rgbd.io.sequence import read_image, read_rgb
 from annotate_rgbd.io.writer import write_bytes_atomic, write_png
 from annotate_rgbd.pool import run_jobs, start_helpers
-from annotate_rgbd.report.records import FrameRecord, PlaneRecord, RunRecord
+from annotate_rgbd.report.records import FrameRecord, RunRecord
+from annotate_rgbd.segment.plane_record import PlaneRecord
 from annotate_rgbd.report.run_folder import colour_table, mask_plane_ids, read_drawn_shapes, read_report
 from annotate_rgbd.segment.frame import FrameResult
 from annotate_rgbd.segment.rasterize import rasterize_frame

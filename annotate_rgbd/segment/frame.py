@@ -17,7 +17,7 @@ from annotate_rgbd.config.settings import Config
 from .filters import drop_reasons, label_histogram, plane_statistics
 from .grow import grow_connected, grow_planes
 from .rasterize import rasterize_frame
-from annotate_rgbd.report.records import PlaneRecord
+from annotate_rgbd.segment.plane_record import PlaneRecord
 from .refine import refine_planes
 
 
