@@ -3,7 +3,7 @@
 Generic machinery, with no knowledge of frames or masks: what helpers import before their first
 job is an argument (``preload``), jobs are picklable arguments of a module-level function, and
 each job's outcome comes back as a :class:`JobOutcome`. Used by
-:mod:`annotate_rgbd.execute` for frame jobs.
+:mod:`annotate_rgbd.pipeline.execute` for frame jobs.
 """
 
 from __future__ import annotations

@@ -12,7 +12,7 @@ The offset comes from, in this order of preference:
 
 Where parts overlap, **the later part wins from its first frame on**: a frame belongs to the
 part with the largest start among those that contain it. The shared frames are where the
-tracks of consecutive parts are matched (:mod:`annotate_rgbd.stitch`).
+tracks of consecutive parts are matched (:mod:`annotate_rgbd.annotation.stitch`).
 """
 
 from __future__ import annotations

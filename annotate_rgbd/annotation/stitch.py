@@ -2,7 +2,7 @@
 
 Tracks of consecutive parts are matched on the frames the parts share (or, without overlap, on
 the last frame of one part and the first of the next) by the IoU of their depth-refined masks
-(measured by :mod:`annotate_rgbd.part_overlap`; this module only matches), with an optimal one-to-one assignment (Hungarian) and a minimum IoU. Unmatched tracks become new
+(measured by :mod:`annotate_rgbd.pipeline.part_overlap`; this module only matches), with an optimal one-to-one assignment (Hungarian) and a minimum IoU. Unmatched tracks become new
 planes; a plane that leaves view in one part and returns in a later one stays a new plane unless
 a manual entry says otherwise. Manual entries (``[[matches]]`` in the configuration) override
 the automatic matching.

@@ -22,7 +22,7 @@ that is not listed is an error, so a typo never goes unnoticed::
     num_iterations = 1000
     seed = 0
     max_points = 1000
-    [noise]             # the inlier band: clip(k sigma(z), floor, cap) (annotate_rgbd.noise)
+    [noise]             # the inlier band: clip(k sigma(z), floor, cap) (annotate_rgbd.geometry.noise)
     model = "kinect_v1" # or icl_nuim, realsense_d435, quadratic (a, b, c), constant (sigma)
     k = 3.0
     floor = 0.002
@@ -73,11 +73,11 @@ class SequenceConfig:
     poses : str
         A camera trajectory in TUM format (``timestamp tx ty tz qx qy qz qw``, camera to world):
         keyframe shapes are then carried to every frame by the poses
-        (:mod:`annotate_rgbd.propagate`). Relative to the configuration file's folder. Empty:
+        (:mod:`annotate_rgbd.propagate.carry`). Relative to the configuration file's folder. Empty:
         no poses (shapes between keyframes are interpolated in 2-D, as CVAT does).
     max_pose_gap : float
         A frame gets a pose only when trajectory samples on both sides lie within this many
-        seconds (:data:`annotate_rgbd.poses.DEFAULT_MAX_POSE_GAP`: TUM's motion capture runs at
+        seconds (:data:`annotate_rgbd.io.poses.DEFAULT_MAX_POSE_GAP`: TUM's motion capture runs at
         100 Hz and has drop-outs).
     """
 
@@ -131,7 +131,7 @@ class RansacConfig:
         A fixed inlier band: the largest point-to-plane distance of an inlier, in metres, at
         every depth (EVOPS set it by hand per sequence: 0.02 m for TUM long_office; 0.005 m for
         ICL-NUIM, 0.01 m fr1_desk, 0.03 m fr2_pioneer_slam). 0 (the default): the band follows
-        the sensor's noise, ``[noise]`` (:class:`annotate_rgbd.noise.NoiseSettings`). A value
+        the sensor's noise, ``[noise]`` (:class:`annotate_rgbd.geometry.noise.NoiseSettings`). A value
         > 0 replaces the noise model, whatever ``[noise]`` says.
     num_iterations : int
         RANSAC iterations (Open3D stops earlier once the inlier set is certain).
@@ -160,11 +160,11 @@ class RefineConfig:
     grow_pixels : int
         Grow each kept plane by up to this many pixels beyond its drawn shape, into pixels
         whose depth lies on the plane and that no other plane's shape or inliers claim
-        (:func:`annotate_rgbd.grow.grow_planes`): a labeller's outline is a pixel or two off the
+        (:func:`annotate_rgbd.segment.grow.grow_planes`): a labeller's outline is a pixel or two off the
         real edge (this project's measurement on rendered scenes: +-2 px). 0: no growing.
     rim_pixels : int
         Drop a plane's pixels this close to a surface standing in front of it inside its shape
-        (:func:`annotate_rgbd.refine.near_surfaces_in_front`; README, *Refinement and sensor
+        (:func:`annotate_rgbd.segment.refine.near_surfaces_in_front`; README, *Refinement and sensor
         noise*, for the measurement behind 2). 0: keep them.
     """
 

@@ -1,7 +1,7 @@
 """Read and write CVAT XML exports: "CVAT for video 1.1" and "CVAT for images 1.1".
 
 This package is the only code that sees XML. :func:`read_cvat` turns an export (task, job or
-project) into the format-neutral :class:`~annotate_rgbd.annotation.Annotation`; the writers
+project) into the format-neutral :class:`~annotate_rgbd.annotation.model.Annotation`; the writers
 produce exports for fixtures, sample data, proposals and tests. One job per module:
 
 - :mod:`~annotate_rgbd.cvat.format`: the format's constants and the reader's bounds;
@@ -21,7 +21,7 @@ Rules the reader follows (checked against CVAT's exporter and interpolation code
   (``<meta>``, ``frame_filter`` ``step=N``). For a video export they index the RGB image list.
 - **Video tracks** list every frame where the object is visible. A file export already holds
   every frame (interpolated ones with ``keyframe="0"``); an API export holds keyframes only and
-  the frames between them are filled as CVAT does (:mod:`annotate_rgbd.interpolate`). A shape
+  the frames between them are filled as CVAT does (:mod:`annotate_rgbd.cvat.interpolate`). A shape
   with ``outside="1"`` hides the track until its next keyframe; the last visible shape persists
   to ``stop_frame``. Only task frames are filled. Masks are repeated, not interpolated.
 - **Images identity**: CVAT's images export writes no track id (not even for shapes that came

@@ -2,7 +2,7 @@
 
 Video tracks list every frame where the object is visible. A file export already holds every
 frame (interpolated ones with ``keyframe="0"``); an API export holds keyframes only and the
-frames between them are filled as CVAT does (:mod:`annotate_rgbd.interpolate`). A shape with
+frames between them are filled as CVAT does (:mod:`annotate_rgbd.cvat.interpolate`). A shape with
 ``outside="1"`` hides the track until its next keyframe; the last visible shape persists to
 ``stop_frame``. Only task frames are filled. Masks are repeated, not interpolated. Images
 exports group the shapes of all images into tracks by identity (group id, else label).

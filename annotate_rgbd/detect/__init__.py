@@ -73,7 +73,7 @@ def detect_planes(
     ----------
     depth_m : ndarray of float, shape (H, W)
         Depth in metres (the z coordinate), NaN or <= 0 where invalid (as from
-        :func:`annotate_rgbd.camera.depth_to_metres`).
+        :func:`annotate_rgbd.geometry.camera.depth_to_metres`).
     camera : Camera
         Intrinsics of the depth image (``depth_scale`` is not used).
     config : DetectorConfig

@@ -1,6 +1,6 @@
 """Label image -> simplified outer outlines, as CVAT polygons.
 
-CVAT (and :mod:`annotate_rgbd.rasterize`) puts the centre of pixel ``(col, row)`` at
+CVAT (and :mod:`annotate_rgbd.segment.rasterize`) puts the centre of pixel ``(col, row)`` at
 ``(col + 0.5, row + 0.5)`` and fills a polygon with the pixels whose centres it contains. An
 outline traced through the centres of a region's border pixels would leave out half of the
 border (its right and bottom pixels fall on the outline, which the half-open rule excludes).

@@ -66,7 +66,7 @@ class EvaluationResult:
 
     @property
     def means(self) -> dict[str, float]:
-        """Sequence mean of each statistic, in :data:`~annotate_rgbd.metrics.METRIC_NAMES` order."""
+        """Sequence mean of each statistic, in :data:`~annotate_rgbd.evaluate.metrics.METRIC_NAMES` order."""
         table = np.array([[getattr(f.statistics, name) for name in METRIC_NAMES] for f in self.frames])
         return dict(zip(METRIC_NAMES, table.mean(axis=0).tolist()))
 

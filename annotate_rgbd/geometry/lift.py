@@ -7,14 +7,14 @@ reaches behind the camera has no finite image there).
 
 Conventions:
 
-- Polygons are in CVAT image coordinates, as :class:`annotate_rgbd.annotation.Shape` holds them
-  and :mod:`annotate_rgbd.rasterize` fills them: the top-left image corner is (0, 0), so the centre
+- Polygons are in CVAT image coordinates, as :class:`annotate_rgbd.annotation.model.Shape` holds them
+  and :mod:`annotate_rgbd.segment.rasterize` fills them: the top-left image corner is (0, 0), so the centre
   of pixel ``(col, row)`` is ``(col + 0.5, row + 0.5)``. The camera model
-  (:mod:`annotate_rgbd.camera`) puts pixel centres at integers, hence the half-pixel shifts here.
+  (:mod:`annotate_rgbd.geometry.camera`) puts pixel centres at integers, hence the half-pixel shifts here.
 - Poses are camera-to-world, ``X_world = R @ X_camera + t`` (TUM trajectories,
-  :mod:`annotate_rgbd.poses`); camera frame x right, y down (or up when fy < 0), z forward.
+  :mod:`annotate_rgbd.io.poses`); camera frame x right, y down (or up when fy < 0), z forward.
 - A plane ``(a, b, c, d)`` holds the points with ``a x + b y + c z + d = 0``; the plane fits of
-  :mod:`annotate_rgbd.refine` have a unit normal and ``d >= 0``.
+  :mod:`annotate_rgbd.segment.refine` have a unit normal and ``d >= 0``.
 """
 
 from __future__ import annotations

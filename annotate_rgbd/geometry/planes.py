@@ -181,7 +181,7 @@ def refit_plane(
         The starting plane (e.g. RANSAC's), unit normal.
     model : ConstantNoise or QuadraticNoise
     k, floor, cap : float
-        The band, as in :func:`annotate_rgbd.noise.inlier_band`.
+        The band, as in :func:`annotate_rgbd.geometry.noise.inlier_band`.
     iterations : int
         Number of re-fits (0: only count the inliers of ``equation``).
     fit_points : int

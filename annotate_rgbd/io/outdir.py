@@ -63,7 +63,7 @@ TOP_LEVEL_NAMES = (
 )
 #: Bound on the outputs record (a 100,000-frame run with every kind of per-frame output: ~12 MiB).
 MAX_OUTPUTS_RECORD = 256 << 20
-#: A temporary file of :func:`annotate_rgbd.writer.write_bytes_atomic` (``.<name>.<8 hex>.tmp``).
+#: A temporary file of :func:`annotate_rgbd.io.writer.write_bytes_atomic` (``.<name>.<8 hex>.tmp``).
 TEMPORARY = re.compile(r"^\..+\.[0-9a-f]{8}\.tmp$")
 
 

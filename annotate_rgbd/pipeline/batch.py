@@ -1,4 +1,4 @@
-"""Relabel whole scenes in one command: the scenes of a manifest (:mod:`annotate_rgbd.manifest`),
+"""Relabel whole scenes in one command: the scenes of a manifest (:mod:`annotate_rgbd.pipeline.manifest`),
 one pool of workers.
 
 Scenes are planned one after the other (a scene whose inputs are broken fails alone), then

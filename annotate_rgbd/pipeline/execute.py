@@ -1,5 +1,5 @@
 """Making the masks of one or more planned scenes: frame jobs shared between this process and
-helper processes (:mod:`annotate_rgbd.pool`), unchanged masks reused (:mod:`annotate_rgbd.resume`),
+helper processes (:mod:`annotate_rgbd.pool`), unchanged masks reused (:mod:`annotate_rgbd.pipeline.resume`),
 every outcome recorded in the scene's frame records and journal as it arrives.
 """
 

@@ -52,11 +52,11 @@ class FrameJob:
         The RGB image the overlay is drawn on.
     propagated : frozenset of int, optional
         With camera poses: the planes whose shapes the poses carried here from keyframes on
-        other frames (:mod:`annotate_rgbd.propagate`); every plane record says whether it is
+        other frames (:mod:`annotate_rgbd.propagate.carry`); every plane record says whether it is
         one of them. None without poses.
     expected_planes : tuple of (int, (float, float, float, float))
         Where the poses put each of those planes in this depth frame's camera frame (metres):
-        refinement looks for it behind what RANSAC finds (:func:`annotate_rgbd.ransac.fit_plane`).
+        refinement looks for it behind what RANSAC finds (:func:`annotate_rgbd.segment.ransac.fit_plane`).
     """
 
     depth_path: Path
@@ -126,7 +126,7 @@ class FrameOutcome:
     Parameters
     ----------
     fingerprint : str
-        Of the frame's inputs (:func:`annotate_rgbd.resume.fingerprint`).
+        Of the frame's inputs (:func:`annotate_rgbd.pipeline.resume.fingerprint`).
     made : MaskRecord or None
         The planes of the mask just made; None when the outputs were up to date and reused
         (their recorded planes stand).

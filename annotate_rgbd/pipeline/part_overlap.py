@@ -1,6 +1,6 @@
 """Measuring how the tracks of two consecutive annotation parts overlap, for stitching.
 
-The matching itself (:mod:`annotate_rgbd.stitch`) is pure: it takes IoU matrices. This module
+The matching itself (:mod:`annotate_rgbd.annotation.stitch`) is pure: it takes IoU matrices. This module
 makes them, by reading the depth frames two parts share and segmenting each part's shapes on
 them.
 """
@@ -31,7 +31,7 @@ def part_pair_iou(
 
     Parameters
     ----------
-    sequence : annotate_rgbd.sequence.Sequence
+    sequence : annotate_rgbd.io.sequence.Sequence
     depth_of_rgb : dict of int to int
         RGB index -> the depth frame that shows it.
     a, b : Part

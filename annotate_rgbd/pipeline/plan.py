@@ -1,11 +1,11 @@
 """Planning a run: what each depth frame gets, and from where, before any mask is made.
 
 :func:`plan_run` reads the inputs (the sequence lists and the CVAT exports), places the parts,
-measures how the tracks of consecutive parts overlap (:mod:`annotate_rgbd.part_overlap`) and
-gives every track its global plane (:mod:`annotate_rgbd.stitch`); :func:`plan_frames`, a pure
+measures how the tracks of consecutive parts overlap (:mod:`annotate_rgbd.pipeline.part_overlap`) and
+gives every track its global plane (:mod:`annotate_rgbd.annotation.stitch`); :func:`plan_frames`, a pure
 function, then decides for every depth frame whether it gets a mask, and builds its
-:class:`~annotate_rgbd.records.FrameRecord` and, for a mask, its
-:class:`~annotate_rgbd.frame_job.FrameJob`.
+:class:`~annotate_rgbd.report.records.FrameRecord` and, for a mask, its
+:class:`~annotate_rgbd.pipeline.frame_job.FrameJob`.
 """
 
 from __future__ import annotations
@@ -103,7 +103,7 @@ class RunPlan:
 
 @dataclass
 class Propagation:
-    """What the camera poses give a run (:mod:`annotate_rgbd.propagate`).
+    """What the camera poses give a run (:mod:`annotate_rgbd.propagate.carry`).
 
     Parameters
     ----------
@@ -165,7 +165,7 @@ def plan_run(
 
     Parameters are those of :func:`annotate_rgbd.pipeline.run_cvat2mask`; ``poses`` (else the
     configuration's ``sequence.poses``) is a TUM trajectory that carries keyframe shapes to
-    every frame (:mod:`annotate_rgbd.propagate`).
+    every frame (:mod:`annotate_rgbd.propagate.carry`).
 
     Returns
     -------

@@ -59,7 +59,7 @@ def fingerprint(
     propagated : collection of int, optional
         The planes whose shapes camera poses carried to the frame.
     expected_planes : sequence of (int, (a, b, c, d))
-        Where the poses put them (:class:`annotate_rgbd.frame_job.FrameJob`).
+        Where the poses put them (:class:`annotate_rgbd.pipeline.frame_job.FrameJob`).
 
     Returns
     -------

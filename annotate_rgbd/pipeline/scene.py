@@ -1,6 +1,6 @@
 """The ``cvat2mask`` job: CVAT export(s) + RGB-D sequence -> refined plane masks and a report.
 
-:func:`run_cvat2mask` plans the run (:mod:`annotate_rgbd.plan`: inputs read, parts placed,
+:func:`run_cvat2mask` plans the run (:mod:`annotate_rgbd.pipeline.plan`: inputs read, parts placed,
 tracks given their global planes, one frame job per depth frame that gets a mask), makes the
 masks (:mod:`annotate_rgbd.pipeline.execute`) and finishes the output folder
 (:func:`annotate_rgbd.pipeline.finish.finish_scene`: tables, report, stale files removed). It is
@@ -39,7 +39,7 @@ def run_cvat2mask(
     """Run the whole job: ``masks/``, ``planes.csv``, ``tracks.csv`` and ``report.json`` in ``out_dir``.
 
     A re-run in the same ``out_dir`` redoes only the frames whose inputs changed
-    (:mod:`annotate_rgbd.resume`); masks of frames that no longer get one are removed.
+    (:mod:`annotate_rgbd.pipeline.resume`); masks of frames that no longer get one are removed.
 
     Parameters
     ----------
@@ -60,7 +60,7 @@ def run_cvat2mask(
     raw_masks : bool
         Also write ``masks_raw/``: the labeller's shapes as drawn, before any depth check.
     overlays : bool
-        Also write ``overlays/``: the review overlays (:mod:`annotate_rgbd.overlay`), then
+        Also write ``overlays/``: the review overlays (:mod:`annotate_rgbd.review.overlay`), then
         ``review.html`` and ``contact_sheet.png`` (``review_page`` of the returned run).
     progress : callable, optional
         Called as ``progress(done, total)`` after each frame that gets a mask.
@@ -69,7 +69,7 @@ def run_cvat2mask(
         and replaced (:func:`annotate_rgbd.pool.run_jobs`).
     poses : str or Path, optional
         A camera trajectory (TUM format) that carries the keyframe shapes to every frame
-        (:mod:`annotate_rgbd.propagate`); default: the configuration's ``sequence.poses``.
+        (:mod:`annotate_rgbd.propagate.carry`); default: the configuration's ``sequence.poses``.
     instance_ids : bool
         Also write ``masks_id/``: single-channel masks whose pixel values are the plane ids of
         ``planes.csv`` (8-bit for up to 255 planes, else 16-bit; 0 = no plane).

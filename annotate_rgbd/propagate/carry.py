@@ -109,7 +109,7 @@ class TrackLift:
     @property
     def consistent(self) -> bool:
         """Whether every substantial keyframe's own plane agrees with the track's consensus plane
-        (within :data:`annotate_rgbd.lift.SAME_SURFACE_ANGLE` and ``SAME_SURFACE_OFFSET``)."""
+        (within :data:`annotate_rgbd.geometry.lift.SAME_SURFACE_ANGLE` and ``SAME_SURFACE_OFFSET``)."""
         return not self.substantial
 
     def to_json(self) -> dict:
@@ -206,7 +206,7 @@ def consensus_plane(
     """The plane most of a track's keyframes agree on, and which of them agree with it.
 
     Each fitted plane is a candidate; it is supported by the keyframes whose plane lies within
-    :data:`annotate_rgbd.lift.SAME_SURFACE_ANGLE` and ``SAME_SURFACE_OFFSET`` of it (offset
+    :data:`annotate_rgbd.geometry.lift.SAME_SURFACE_ANGLE` and ``SAME_SURFACE_OFFSET`` of it (offset
     measured at that keyframe's outline centroid), each with its weight; the best supported wins
     (ties: the earliest).
 

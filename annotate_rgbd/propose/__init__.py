@@ -7,7 +7,7 @@ module:
 - :mod:`~annotate_rgbd.propose.settings`: the tunables, defaults and their sources;
 - :mod:`~annotate_rgbd.propose.detect_job`: one frame (detection with
   :func:`annotate_rgbd.detect.detect_planes`, merging of coplanar pieces, polygons in draw
-  order, the drop rules of :mod:`annotate_rgbd.filters`), run in helper processes;
+  order, the drop rules of :mod:`annotate_rgbd.segment.filters`), run in helper processes;
 - :mod:`~annotate_rgbd.propose.link`: detections -> tracks (with or without poses);
 - :mod:`~annotate_rgbd.propose.output`: polygon tracks as CVAT XML, colour masks;
 - :mod:`~annotate_rgbd.propose.run`: :func:`run_propose`, the whole sequence.

@@ -288,7 +288,7 @@ def draw_order(labels: np.ndarray, windows: list, distance: np.ndarray) -> np.nd
         Planes 1..K.
     windows : list of (int, int, ndarray of bool)
         Pixels of the polygon of plane ``k`` at position ``k - 1``, as
-        :func:`annotate_rgbd.rasterize.shape_mask` gives them: ``(top, left, window)``.
+        :func:`annotate_rgbd.segment.rasterize.shape_mask` gives them: ``(top, left, window)``.
     distance : ndarray of float, shape (K,)
         Mean camera distance of each plane (NaN: farthest).
 

@@ -3,10 +3,10 @@
 Two detections are candidates for one plane when their planes agree within the noise band and
 their masks overlap (see :class:`~annotate_rgbd.propose.settings.LinkConfig`):
 
-- **with poses**, by world plane (:func:`annotate_rgbd.lift.plane_agreement` for all of a
+- **with poses**, by world plane (:func:`annotate_rgbd.geometry.lift.plane_agreement` for all of a
   frame's planes at once, at the later detection's centroid) and by the IoU of
   the later mask with the earlier polygon lifted onto its plane and reprojected into the later
-  frame (:mod:`annotate_rgbd.lift`);
+  frame (:mod:`annotate_rgbd.geometry.lift`);
 - **without poses** (or where a frame has none), by the camera-frame planes, allowing for what
   the camera may have turned and moved in between, and by the IoU of the two masks after the
   2-D shift that overlaps them best, among the shifts that camera motion can explain

@@ -18,7 +18,7 @@ def piece_outlines(labels: np.ndarray, tolerance_px: float, min_piece: int = MIN
     Each 8-connected piece of at least ``min_piece`` pixels is outlined as
     :func:`annotate_rgbd.detect.plane_outlines` outlines the largest; the pieces are then
     chained into one polygon by zero-width bridges, each walked there and back, which enclose
-    no pixel centre under the even-odd rule CVAT and :mod:`annotate_rgbd.rasterize` fill with.
+    no pixel centre under the even-odd rule CVAT and :mod:`annotate_rgbd.segment.rasterize` fill with.
     Pieces inside a hole of another piece are left to that piece's outline, which covers them.
 
     Parameters
@@ -117,7 +117,7 @@ def bridge(polygons: list[np.ndarray]) -> np.ndarray:
 def fill_window(polygon: np.ndarray, height: int, width: int) -> tuple[int, int, np.ndarray]:
     """The pixels of a polygon, as a boolean window of the image, filled by OpenCV.
 
-    A fast stand-in for :func:`annotate_rgbd.rasterize.shape_mask` where a pixel more or less on
+    A fast stand-in for :func:`annotate_rgbd.segment.rasterize.shape_mask` where a pixel more or less on
     the outline does not matter (draw order, drop statistics, overlap of reprojected outlines):
     ``cv2.fillPoly`` at 1/16 pixel takes the outline's pixels too, and is ~20x faster on the
     long outlines of real planes.

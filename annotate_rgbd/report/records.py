@@ -44,7 +44,7 @@ class MaskRecord:
     Parameters
     ----------
     fingerprint : str
-        Of the frame's inputs (:func:`annotate_rgbd.resume.fingerprint`).
+        Of the frame's inputs (:func:`annotate_rgbd.pipeline.resume.fingerprint`).
     kept, dropped : tuple of PlaneRecord
     outputs : tuple of (str, str)
         ``(path relative to the output folder, digest of its bytes)`` of every file written for
@@ -343,12 +343,12 @@ class RunRecord:
         Number of global planes (ids ``1..n_planes``).
     tracks : list of dict
         How every track got its plane (``tracks.csv`` rows; see
-        :class:`annotate_rgbd.stitch.TrackPlane`).
+        :class:`annotate_rgbd.annotation.stitch.TrackPlane`).
     frames : list of FrameRecord
     warnings, notes : list of str
     propagation : dict, optional
         With camera poses: the trajectory, the frames with a pose and every track's lifted
-        keyframes and their agreement (:meth:`annotate_rgbd.plan.Propagation.to_json`).
+        keyframes and their agreement (:meth:`annotate_rgbd.pipeline.plan.Propagation.to_json`).
     """
 
     version: str

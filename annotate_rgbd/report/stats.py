@@ -19,7 +19,7 @@ def run_stats(report: RunRecord) -> dict:
     Parameters
     ----------
     report : RunRecord
-        The run's ``report.json`` (:func:`annotate_rgbd.review.read_report`).
+        The run's ``report.json`` (:func:`annotate_rgbd.report.run_folder.read_report`).
 
     Returns
     -------

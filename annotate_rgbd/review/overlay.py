@@ -5,7 +5,7 @@
 * **kept plane** - the RGB image tinted with the plane's colour where the refined mask has it,
   the labeller's polygon outlined in that colour (solid line), and its global plane id in a box
   of its colour (``7*`` when camera poses carried the shape here from keyframes on other
-  frames, :mod:`annotate_rgbd.propagate`);
+  frames, :mod:`annotate_rgbd.propagate.carry`);
 * **removed pixels** - inside a kept plane's polygon but not in its mask (RANSAC outliers or no
   valid depth): the image darkened, with diagonal stripes in the plane's colour;
 * **grown pixels** - outside every drawn shape but added to a plane by edge growing (its depth
@@ -135,7 +135,7 @@ def overlay_for_frame(rgb_path: Path, result: FrameResult, colours: np.ndarray) 
     rgb_path : Path
         The RGB image associated with the depth frame.
     result : FrameResult
-        :func:`annotate_rgbd.segment.segment_frame` of the depth frame.
+        :func:`annotate_rgbd.segment.frame.segment_frame` of the depth frame.
     colours : ndarray of uint8, shape (n_planes, 3)
         The plane palette of the run.
 

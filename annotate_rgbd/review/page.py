@@ -41,7 +41,7 @@ def page_data(report: RunRecord, overlays: Mapping[str, str]) -> dict:
         ``rgb``, ``part``, ``cvat_frame``, ``mask``, ``overlay`` (or ``None``) and ``planes``,
         rows ``[plane, "kept" | "dropped", reason, pixels, pixels after refinement, inlier
         ratio, shape]`` in plane order, ``shape`` being ``drawn`` or ``propagated`` with camera
-        poses (:mod:`annotate_rgbd.propagate`), empty without.
+        poses (:mod:`annotate_rgbd.propagate.carry`), empty without.
     """
     frames = []
     for index, frame in enumerate(report.frames):

@@ -57,7 +57,7 @@ def segment_frame(
     config : Config
     propagated : collection of int
         Planes whose shapes camera poses carried here from keyframes on other frames: no
-        labeller drew them over this frame (:func:`annotate_rgbd.ransac.fit_plane`'s
+        labeller drew them over this frame (:func:`annotate_rgbd.segment.ransac.fit_plane`'s
         ``look_behind``).
     expected : mapping of int to ndarray, shape (4,), optional
         Where camera poses put those planes in this frame (camera frame, metres).

@@ -63,7 +63,7 @@ def grow_planes(
         Intrinsics (``fy`` may be negative).
     model : ConstantNoise or QuadraticNoise
     k, floor, cap : float
-        The band, as in :func:`annotate_rgbd.noise.inlier_band`.
+        The band, as in :func:`annotate_rgbd.geometry.noise.inlier_band`.
     grow_pixels : int
         Largest distance in pixels from the drawn shape; 0 returns ``refined`` unchanged.
 
@@ -135,9 +135,9 @@ def grow_connected(
     Plane ``p`` takes a pixel outside its own shape when it is not ``claimed`` and no plane
     holds it (``labels == 0``), its depth is valid, its 3-D point lies within ``clip(k sigma(z),
     floor, cap)`` of ``p``'s plane and of no other growing plane more closely (a tie: the lowest
-    id), the mean residual of its window (:func:`annotate_rgbd.refine.window_scores` over these
+    id), the mean residual of its window (:func:`annotate_rgbd.segment.refine.window_scores` over these
     pixels and the planes' own, in units of the model's noise) lies within
-    :data:`annotate_rgbd.refine.COHERENCE_LIMIT` of 0 (a doormat on a floor lies within its band),
+    :data:`annotate_rgbd.segment.refine.COHERENCE_LIMIT` of 0 (a doormat on a floor lies within its band),
     and a chain of such pixels (8-connected) links it to ``p``'s own pixels. Unlike refinement's
     window test there is no per-plane centre and spread, and the band is the model's (not scaled
     by the plane's noise): on a sensor noisier than its model it grows less, never more.
@@ -158,7 +158,7 @@ def grow_connected(
     camera : Camera
     model : ConstantNoise or QuadraticNoise
     k, floor, cap : float
-        The band, as in :func:`annotate_rgbd.noise.inlier_band`.
+        The band, as in :func:`annotate_rgbd.geometry.noise.inlier_band`.
 
     Returns
     -------

@@ -104,7 +104,7 @@ def fit_plane(
     plane), with half the inlier band of the noise model at the points' median depth as its one
     distance threshold (:data:`RANSAC_SHARE`). A 3-point RANSAC plane is noisier than the data, so the plane is then
     re-fitted by least squares to its inliers, each weighted by ``1 / sigma(z)^2``
-    (:func:`annotate_rgbd.planefit.refit_plane`: every point tested against the band at its own
+    (:func:`annotate_rgbd.geometry.planes.refit_plane`: every point tested against the band at its own
     depth). Open3D runs single-threaded with its generator seeded before every call: its
     multi-threaded RANSAC gives different planes from run to run, and frames are parallelised
     across processes instead.
@@ -127,7 +127,7 @@ def fit_plane(
     expected : ndarray, shape (4,), optional
         Where camera poses put the plane in this frame (a track's keyframe plane): a surface
         behind replaces RANSAC's plane only when it is that one (within
-        :data:`annotate_rgbd.lift.SAME_SURFACE_ANGLE` and ``SAME_SURFACE_OFFSET``); and when
+        :data:`annotate_rgbd.geometry.lift.SAME_SURFACE_ANGLE` and ``SAME_SURFACE_OFFSET``); and when
         RANSAC's plane holds under :data:`EXHAUSTIVE_BELOW` of the points, RANSAC runs again
         through all its iterations (the plane with more inliers is kept).
 

@@ -1,5 +1,5 @@
 """Depth refinement: keep only the pixels that lie on each plane (each found by
-:func:`annotate_rgbd.ransac.fit_plane`)."""
+:func:`annotate_rgbd.segment.ransac.fit_plane`)."""
 
 from __future__ import annotations
 
@@ -55,12 +55,12 @@ def refine_planes(
         The inlier band.
     valid_pixels : ndarray of int, optional
         Number of valid-depth pixels of each plane of ``plane_ids`` (as counted by
-        :func:`annotate_rgbd.filters.plane_statistics`); counted here when not given.
+        :func:`annotate_rgbd.segment.filters.plane_statistics`); counted here when not given.
     rim_pixels : int
         Drop inliers this close (px) to a surface in front of their plane; 0: none.
     propagated : collection of int
         Planes whose shapes no labeller drew on this frame (carried here by camera poses): their
-        fits look behind RANSAC's plane (:func:`annotate_rgbd.ransac.fit_plane`) only for the
+        fits look behind RANSAC's plane (:func:`annotate_rgbd.segment.ransac.fit_plane`) only for the
         plane ``expected`` says.
     expected : mapping of int to ndarray, shape (4,), optional
         Where camera poses put each of those planes in this frame.

@@ -8,10 +8,10 @@ labeller would draw: its outline projected into the image, running straight over
 nearer planes, with a ``z_order`` that puts nearer planes on top.
 
 :func:`make_sequence` writes all of it as a TUM RGB-D sequence plus ground truth and returns the
-annotation as the format-neutral model (:mod:`annotate_rgbd.annotation`).
+annotation as the format-neutral model (:mod:`annotate_rgbd.annotation.model`).
 
 World frame: metres, z up. Camera frame: x right, y down, z forward (the pinhole model of
-:mod:`annotate_rgbd.camera`). A frame's RGB and depth images are rendered from the same pose
+:mod:`annotate_rgbd.geometry.camera`). A frame's RGB and depth images are rendered from the same pose
 (registered, like TUM's depth images); only their timestamps differ.
 
 Modules

@@ -3,10 +3,10 @@
 :func:`make_sequence <annotate_rgbd.synthetic.sequence.make_sequence>` states for every plane
 whether ``cvat2mask`` is expected to keep it or drop it (and why). The tests compare the
 pipeline's masks and report with that statement, so it is computed here on purpose from other
-data than :mod:`annotate_rgbd.filters` uses, and decided more coarsely. Its thresholds and rule
+data than :mod:`annotate_rgbd.segment.filters` uses, and decided more coarsely. Its thresholds and rule
 order are those of the pipeline (the defaults of :class:`annotate_rgbd.config.FilterConfig`;
 ``invalid_depth`` is checked before ``too_far``, both with a strict ``>``), but it differs from
-:func:`annotate_rgbd.filters.plane_statistics` and :func:`annotate_rgbd.filters.drop_reasons`
+:func:`annotate_rgbd.segment.filters.plane_statistics` and :func:`annotate_rgbd.segment.filters.drop_reasons`
 in exactly these points:
 
 1. **Distance: z depth, not the distance along the ray.** The oracle averages the depth image
@@ -38,7 +38,7 @@ statistics above and differ from the per-frame ``invalid_ratio`` and ``mean_dist
 every plane far from the thresholds (the corridor wall 4.4 m away on average, the window 90 %
 without depth, every other plane nearer than 2.7 m on average and at most 11 % without depth),
 so that the differences do not show there: on the committed sample, the benchmark scene and
-the tests' sequence, the per-frame rules of :mod:`annotate_rgbd.filters`, applied to the
+the tests' sequence, the per-frame rules of :mod:`annotate_rgbd.segment.filters`, applied to the
 labeller's polygons, give every plane the oracle's fate in every frame. A scene of your own
 with a plane near a threshold needs its own check.
 """

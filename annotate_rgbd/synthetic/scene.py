@@ -2,7 +2,7 @@
 
 A scene is a set of planar rectangles (walls, floor, a table top, cabinet faces, ...) and
 clutter (spheres, cylinders, boxes). World frame: metres, z up. Camera frame: x right,
-y down, z forward (the pinhole model of :mod:`annotate_rgbd.camera`).
+y down, z forward (the pinhole model of :mod:`annotate_rgbd.geometry.camera`).
 """
 
 from __future__ import annotations

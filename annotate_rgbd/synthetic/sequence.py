@@ -36,7 +36,7 @@ def _write_list(path: Path, kind: str, folder: str, names: Sequence[str], seed: 
 def _write_png(path: Path, image: np.ndarray) -> None:
     """Write an image as PNG at zlib level 6 (``(H, W, 3)`` arrays are taken as RGB).
 
-    Not :func:`annotate_rgbd.writer.write_png`: that one encodes with OpenCV's default settings,
+    Not :func:`annotate_rgbd.io.writer.write_png`: that one encodes with OpenCV's default settings,
     which give other bytes (on the committed sample RGB images 54 % larger, depth images 3 %
     smaller), so every committed sample image would change; and it writes atomically with an
     ``fsync`` per file, which a throw-away render does not need.
@@ -199,7 +199,7 @@ def make_sequence(
 
 
 def write_tum_trajectory(path: Path, timestamps: Sequence[float], poses: Sequence[Pose]) -> None:
-    """Write camera poses as a TUM trajectory file (what :func:`annotate_rgbd.poses.read_trajectory` reads).
+    """Write camera poses as a TUM trajectory file (what :func:`annotate_rgbd.io.poses.read_trajectory` reads).
 
     Parameters
     ----------
