@@ -8,11 +8,11 @@ measured on pixels with valid depth, the only ones a depth-based detector can la
 from __future__ import annotations
 
 import time
-from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
+from conftest import reference_data
 from scipy import ndimage
 
 from annotate_rgbd.geometry.camera import Camera, backproject, depth_to_metres
@@ -376,9 +376,6 @@ def test_outlines_of_detected_planes(room):
 # --- real frames ---------------------------------------------------------------------------------
 
 
-def shared_data() -> Path:
-    here = Path(__file__).resolve().parents[1].parent / "shared" / "data"
-    return here if here.is_dir() else Path("/work/shared/data")
 
 
 REAL = {
@@ -391,9 +388,7 @@ REAL = {
 @pytest.mark.parametrize("name", sorted(REAL))
 def test_real_frame_sanity(name):
     folder, camera = REAL[name]
-    files = sorted((shared_data() / folder).glob("*.png"))
-    if not files:
-        pytest.skip(f"reference data not found at {shared_data() / folder}")
+    files = sorted(reference_data(folder).glob("*.png"))
     depth = depth_to_metres(cv2.imread(str(files[0]), cv2.IMREAD_UNCHANGED), camera.depth_scale)
     start = time.perf_counter()
     detection = detect_planes(depth, camera)

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import reference_data
 from scipy.spatial.transform import Rotation, Slerp
 
 from annotate_rgbd.io import poses
@@ -26,11 +27,8 @@ REPO_ROOT = Path(__file__).resolve().parents[1]
 
 
 def shared_data() -> Path:
-    """The real reference data beside the repository, or the machine-wide copy; skip if absent."""
-    for folder in (REPO_ROOT.parent / "shared" / "data", Path("/work/shared/data")):
-        if folder.is_dir():
-            return folder
-    pytest.skip("reference data (shared/data) not found")
+    """The real reference data beside the repository; skip if absent."""
+    return reference_data()
 
 
 def random_trajectory(seed: int, n: int = 60, step: float = 0.2) -> Trajectory:

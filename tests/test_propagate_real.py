@@ -21,7 +21,7 @@ from annotate_rgbd.pipeline.scene import run_cvat2mask
 from annotate_rgbd.io.poses import poses_at, read_trajectory
 from annotate_rgbd.segment.rasterize import rasterize_frame
 
-from conftest import SHARED_DATA
+from conftest import reference_data
 
 #: The desk, straight over the clutter on it, as a quick labeller draws it (CVAT pixel coordinates).
 DESK = {
@@ -34,9 +34,7 @@ DESK_21 = [(90, 40), (355, 35), (360, 200), (640, 200), (640, 480), (0, 480), (0
 
 @pytest.fixture(scope="module")
 def propagated(tmp_path_factory):
-    if not SHARED_DATA.is_dir():
-        pytest.skip(f"reference data not found at {SHARED_DATA}")
-    sequence = SHARED_DATA / "tum_fr1_rpy"
+    sequence = reference_data("tum_fr1_rpy")
     root = tmp_path_factory.mktemp("tum_propagate")
     shapes = {f: Shape("polygon", np.array(DESK[14 if f < 29 else 29], dtype=np.float64)) for f in range(14, 30)}
     annotation = Annotation(str(root / "desk.xml"), "video", [Track(0, "desk", shapes)], list(range(30)))

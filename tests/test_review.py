@@ -245,10 +245,10 @@ REPLY_TIMEOUT = 30
 
 @pytest.fixture(scope="module")
 def chromium() -> str:
-    """Path of Debian's chromium (``bash .ci/setup`` installs it where it can); skip without it."""
+    """Path of Debian's chromium (``bash .ci/setup --tests`` installs it where it can); skip without it."""
     found = shutil.which("chromium")
     if not found:
-        pytest.skip("no browser: chromium is not installed (bash .ci/setup installs it as root or through sudo)")
+        pytest.skip("no browser: chromium is not installed (bash .ci/setup --tests installs it as root or through sudo)")
     return found
 
 
