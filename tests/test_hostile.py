@@ -323,7 +323,7 @@ print(len(a.tracks), shapes, round(time.perf_counter() - start, 1), resource.get
 """
 
 
-@pytest.mark.skipif(not os.environ.get("ANNOTATE_RGBD_SLOW"), reason="slow: set ANNOTATE_RGBD_SLOW=1 (about 20 s)")
+@pytest.mark.slow  # about 20 s: `pytest -m "not slow"` leaves it out
 def test_200_mb_export_is_parsed_in_bounded_memory(tmp_path):
     # Only one track is kept (--label): what remains in memory is the parser's, whatever the
     # file's size. (Reading all 1.6 million polygons takes about 100 s and 1.3 GiB: the
@@ -711,6 +711,7 @@ def test_full_disk_never_leaves_a_partial_file(scene, monkeypatch):
 INTERRUPTED_FRAMES = 60
 
 
+@pytest.mark.slow  # kills or interrupts processes: `pytest -m "not slow"` leaves it out
 @pytest.mark.parametrize(("signum", "status", "word"), [(signal.SIGTERM, 143, "terminated"), (signal.SIGINT, 130, "interrupted")])
 def test_interrupt_mid_run_keeps_finished_masks_and_a_rerun_completes(tmp_path, signum, status, word):
     scene = Scene(tmp_path, n=INTERRUPTED_FRAMES)
@@ -758,6 +759,7 @@ def test_outputs_are_readable_like_any_file_the_user_makes(tmp_path):
     assert (tmp_path / "m.png").stat().st_mode & 0o777 == 0o644
 
 
+@pytest.mark.slow  # kills or interrupts processes: `pytest -m "not slow"` leaves it out
 @pytest.mark.parametrize("delay", [0.3, 0.8, 1.3])
 @pytest.mark.parametrize(("signum", "status", "word"), [(signal.SIGINT, 130, "interrupted"), (signal.SIGTERM, 143, "terminated")])
 def test_interrupt_while_starting_prints_one_line(tmp_path, delay, signum, status, word):

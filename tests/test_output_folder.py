@@ -142,6 +142,7 @@ KILLED_RUN = textwrap.dedent("""
 """)
 
 
+@pytest.mark.slow  # kills or interrupts processes: `pytest -m "not slow"` leaves it out
 def test_a_killed_run_leaves_nothing_stale(tmp_path):
     out = tmp_path / "out"
     killed = subprocess.run([sys.executable, "-c", KILLED_RUN, str(SAMPLE_DATA), str(out)], capture_output=True,

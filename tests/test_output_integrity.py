@@ -83,6 +83,7 @@ def test_report_records_the_digest_of_every_output(clean_run):
         assert frame["outputs"][frame["mask"]] == hashlib.blake2b(data, digest_size=16).hexdigest()
 
 
+@pytest.mark.slow  # kills or interrupts processes: `pytest -m "not slow"` leaves it out
 @pytest.mark.parametrize("journalled, delay", [(2, 0.015), (5, 0.03), (8, 0.045), (11, 0.02)])
 def test_cli_run_killed_with_other_settings_then_rerun_equals_a_clean_run(clean_run, tmp_path, journalled, delay):
     # The reproduction of the issue: helpers finish masks the main process has not journalled
@@ -110,6 +111,7 @@ def _interrupted_run(out: str, overrides: dict, raw_masks: bool, overlays: bool)
     run_cvat2mask(SEQUENCE, [ANNOTATIONS], out, load_config(CAMERA, overrides), raw_masks=raw_masks, overlays=overlays)
 
 
+@pytest.mark.slow  # kills or interrupts processes: `pytest -m "not slow"` leaves it out
 def test_stress_random_interruptions_with_changing_settings_never_leave_a_wrong_mask(clean_run, tmp_path):
     """Rounds of: start a run with other settings, SIGKILL it at a random point, re-run with
     the clean settings, compare every mask with the clean run's. About a minute at most."""
@@ -254,6 +256,7 @@ def _stop_one_helper_soon(pool, sig: int) -> None:
 
 @pytest.mark.parametrize("sig, message", [(signal.SIGSTOP, "made no progress for 2 s (stopped or hung)"),
                                           (signal.SIGKILL, "a helper process stopped")])
+@pytest.mark.slow  # kills or interrupts processes: `pytest -m "not slow"` leaves it out
 def test_a_stopped_or_killed_helper_is_replaced_with_a_warning(sig, message, caplog):
     pool = start_helpers(3)
     assert pool.ready.wait(timeout=120)

@@ -113,6 +113,7 @@ def test_when_a_helper_dies_this_process_does_the_rest(caplog):
     assert "a helper process stopped" in caplog.text
 
 
+@pytest.mark.slow  # kills or interrupts processes: `pytest -m "not slow"` leaves it out
 def test_helpers_exit_when_the_main_process_is_killed(tmp_path):
     # SIGKILL leaves the main process no chance to stop its helpers: they notice and exit,
     # and so does the server they were forked from.
