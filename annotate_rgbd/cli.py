@@ -172,7 +172,8 @@ def cvat2mask(
             f"{report.written} masks in {out / 'masks'} ({report.counts.made} made, "
             f"{report.counts.reused} unchanged), {report.n_planes} planes, {counts.skipped} "
             f"frame{'s' if counts.skipped != 1 else ''} skipped, "
-            f"{counts.planes_dropped} of {counts.planes_kept + counts.planes_dropped} plane records dropped"
+            f"{counts.planes_dropped} of {counts.planes_kept + counts.planes_dropped} planes drawn on frames dropped "
+            "(no depth or too far)"
         )
         hint = drop_hint(counts, report.config.camera.depth_scale)
         if hint:

@@ -219,6 +219,14 @@ def test_an_unknown_label_is_a_warning(tmp_path):
     assert report.n_planes == 1
 
 
+def test_labels_that_match_no_shape_are_an_error(tmp_path):
+    result = CliRunner().invoke(app, ["cvat2mask", str(SEQUENCE), str(ANNOTATIONS), "--out", str(tmp_path / "out"),
+                                      "--config", str(SAMPLE_DATA / "camera.toml"), "--label", "Plane"])
+    assert result.exit_code == 1 and result.output.count("error:") == 1 and "Traceback" not in result.output
+    assert "no shape has the label 'Plane'" in result.output and "the exports' labels: cabinet_front" in result.output
+    assert not (tmp_path / "out").exists()
+
+
 def test_cvat2mask_exits_1_when_a_frame_failed_after_writing_every_other_mask(tmp_path):
     seq = tmp_path / "sequence"
     shutil.copytree(SEQUENCE, seq)

@@ -145,7 +145,7 @@ def test_a_keyframe_drawn_over_another_surface_is_listed_and_lifted_onto_the_agr
         assert angle < 2 and offset < 0.02, (keyframe.frame, angle, offset)
     report = json.loads((tmp_path / "out" / "report.json").read_text())
     assert f"{export.name}:{floor.track_id}" in report["propagation"]["inconsistent_tracks"]
-    assert any(f"track {floor.track_id}" in w and "lie off the plane" in w for w in report["warnings"])
+    assert any(f"track {floor.track_id}" in w and "off the plane its other keyframes agree on" in w for w in report["warnings"])
 
 
 def test_consensus_plane_is_the_best_supported_one():

@@ -181,6 +181,13 @@ def plan_run(
     sequence = read_sequence(sequence_dir)
     labels = config.annotation.labels or None
     annotations = [read_cvat(path, labels=labels) for path in annotation_paths]
+    if labels and not any(a.tracks for a in annotations):
+        known = sorted({label for a in annotations for label in a.labels})
+        raise InputError(
+            Path(annotation_paths[0]) if len(annotation_paths) == 1 else None,
+            f"no shape has the label{'s' if len(labels) > 1 else ''} {', '.join(map(repr, labels))} "
+            f"(--label / [annotation] labels): nothing to mask; the exports' labels: {', '.join(known) or 'none'}",
+        )
     notes = [f"{Path(a.path).name}: {note}" for a in annotations for note in a.notes]
     warnings: list[str] = []
 
@@ -203,8 +210,8 @@ def plan_run(
     if poses:
         propagation = plan_propagation(Path(poses), sequence, parts, tracks, depth_of_rgb, config)
         _warn(warnings, propagation_warnings(propagation))
-        if any(a.format == "video" for a in annotations):
-            notes.append("with poses, the interpolated shapes of the exports (keyframe=\"0\") are not used: "
+        if any(t.keyframes is not None and len(t.shapes) > len(t.keyframes) for a in annotations for t in a.tracks):
+            notes.append("with poses, the shapes between keyframes (CVAT's interpolation) are not used: "
                          "keyframes are carried to every frame by the poses")
     frames, jobs, frame_warnings = plan_frames(sequence, parts, tracks, association, output,
                                                config.sequence.max_time_diff, propagation, config)
@@ -237,8 +244,8 @@ def plan_propagation(
 def propagation_warnings(propagation: Propagation) -> list[str]:
     """A warning per track whose lifted keyframes disagree, and one for frames without a pose."""
     lines = [
-        f"{lift.part} track {lift.track} (plane {lift.plane}): keyframes {', '.join(map(str, lift.substantial))} lie off "
-        f"the plane its other keyframes agree on (up to {lift.angle:.1f} degrees, {100 * lift.offset:.1f} cm): "
+        f"{lift.part} track {lift.track} (plane {lift.plane}): "
+        f"{_keyframes_lie(lift.substantial)} off the plane its other keyframes agree on (up to {lift.angle:.1f} degrees, {100 * lift.offset:.1f} cm): "
         "a shape over another surface or clutter, two surfaces under one track, or poses that are off; "
         "they were lifted onto the agreed plane"
         for lift in propagation.lifts.values() if not lift.consistent
@@ -247,6 +254,12 @@ def propagation_warnings(propagation: Propagation) -> list[str]:
     if missing:
         lines.append(f"{propagation.path}: {missing} depth frames have no pose; their shapes are interpolated in 2-D")
     return lines
+
+
+def _keyframes_lie(frames) -> str:
+    """``keyframe 6 lies`` / ``keyframes 6, 9 lie``."""
+    frames = list(frames)
+    return f"keyframe {frames[0]} lies" if len(frames) == 1 else f"keyframes {', '.join(map(str, frames))} lie"
 
 
 def label_warnings(annotations: SequenceType[Annotation], labels: SequenceType[str]) -> list[str]:
