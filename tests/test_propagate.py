@@ -211,14 +211,18 @@ def test_review_and_stats_show_drawn_and_propagated_planes_and_tracks_to_review(
     assert f"tracks to review (keyframes off their plane)  wrong.xml:{floor.track_id}" in stats.output
 
 
-def test_review_of_a_run_with_poses_segments_every_frame_as_the_run_did(rendered, tmp_path):
+def test_review_of_a_run_with_poses_draws_the_shapes_the_poses_carried(rendered, tmp_path):
+    """Review reads the carried shapes from the run's records: its overlays are those the run
+    drew with --overlays (the trajectory is not read again)."""
     from annotate_rgbd.review.review import review_run
 
-    out = tmp_path / "out"
-    run_cvat2mask(rendered["sequence"], [rendered["keyframes"]], out, load_config(rendered["config"]),
-                  poses=rendered["poses"])
+    out, drawn = tmp_path / "out", tmp_path / "drawn"
+    for folder, overlays in ((out, False), (drawn, True)):
+        run_cvat2mask(rendered["sequence"], [rendered["keyframes"]], folder, load_config(rendered["config"]),
+                      poses=rendered["poses"], overlays=overlays)
     result = review_run(out)
-    assert result.overlays and result.warnings == []
+    assert result.overlays
+    assert all(p.read_bytes() == (drawn / "overlays" / p.name).read_bytes() for p in result.overlays)
 
 
 def test_outline_edges_on_the_image_border_are_carried_past_it():
