@@ -225,7 +225,7 @@ def test_photographs_given_as_masks_are_warned_about(tmp_path, caplog):
     assert [f.unlikely_masks for f in result.frames] == [(str(pred_dir / "a.png"),), (str(pred_dir / "b.png"),)]
     assert len(caplog.records) == 1
     assert caplog.records[0].getMessage() == (
-        f"{pred_dir / 'a.png'}: made mostly of tiny labels (every shade a plane): a photograph rather than a mask? "
+        f"{pred_dir / 'a.png'}: made mostly of tiny labels or of hundreds of them (every shade a plane): a photograph or a depth image rather than a mask? "
         "(and 1 more label files)")
     assert looks_like_a_photograph(planes) is False
     assert looks_like_a_photograph(colours_to_labels(shading)) is True
@@ -290,3 +290,23 @@ def test_cli_reports_bad_input_in_one_line(sequence, tmp_path):
     assert result.stderr.strip().count("\n") == 0
     assert result.stderr.startswith(f"error: {broken / '0001.5.csv'}: ")
     assert "Traceback" not in result.output
+
+
+def test_a_depth_folder_given_as_ground_truth_is_warned_about(tmp_path, caplog):
+    """Kinect depth has a few hundred distinct values spread over the frame: not a plane mask."""
+    from conftest import SAMPLE_DATA
+
+    depth = sorted((SAMPLE_DATA / "sequence" / "depth").glob("*.png"))[0]
+    quantised = (cv2.imread(str(depth), cv2.IMREAD_UNCHANGED) // 25 * 25).astype(np.uint16)  # ~ TUM's 350 values
+    assert 257 < len(np.unique(quantised)) < 2000
+    assert looks_like_a_photograph(quantised.astype(np.int64))
+    assert not looks_like_a_photograph(np.repeat(np.arange(200), 400).reshape(320, 250))  # 200 planes: a mask
+
+
+def test_a_runs_output_folder_stands_for_its_masks(tmp_path):
+    from annotate_rgbd.evaluate.evaluate import label_folder
+
+    (tmp_path / "run" / "masks").mkdir(parents=True)
+    (tmp_path / "run" / "report.json").write_text("{}")
+    assert label_folder(tmp_path / "run") == tmp_path / "run" / "masks"
+    assert label_folder(tmp_path / "other") == tmp_path / "other"

@@ -117,10 +117,20 @@ def evaluate_paths(
     unlikely = [path for frame in frames for path in frame.unlikely_masks]
     if unlikely:
         log.warning(
-            "%s: made mostly of tiny labels (every shade a plane): a photograph rather than a mask?%s",
+            "%s: made mostly of tiny labels or of hundreds of them (every shade a plane): a photograph or a "
+            "depth image rather than a mask?%s",
             unlikely[0], f" (and {len(unlikely) - 1} more label files)" if len(unlikely) > 1 else "",
         )
     return EvaluationResult(frames=frames, full=full, part=part, predictions_unmatched=tuple(unmatched))
+
+
+def label_folder(path: Path) -> Path:
+    """The label files a path stands for: a run's output folder (``report.json`` beside
+    ``masks/``) stands for its ``masks/``; anything else for itself."""
+    if path.is_dir() and (path / "report.json").is_file() and (path / "masks").is_dir():
+        log.info("%s: a run's output folder: scoring its masks/", path)
+        return path / "masks"
+    return path
 
 
 def match_frames(gt: str | Path, pred: str | Path) -> tuple[list[FramePair], list[str]]:
@@ -129,7 +139,8 @@ def match_frames(gt: str | Path, pred: str | Path) -> tuple[list[FramePair], lis
     Parameters
     ----------
     gt, pred : str or Path
-        Two folders, or two files (paired whatever their names).
+        Two folders, or two files (paired whatever their names); a run's output folder stands
+        for its ``masks/`` (:func:`label_folder`).
 
     Returns
     -------
@@ -138,7 +149,7 @@ def match_frames(gt: str | Path, pred: str | Path) -> tuple[list[FramePair], lis
     unmatched : list of str
         PRED file names without a GT frame.
     """
-    gt, pred = Path(gt), Path(pred)
+    gt, pred = label_folder(Path(gt)), label_folder(Path(pred))
     for path in (gt, pred):
         if not path.exists():
             raise InputError(path, "not found")
@@ -169,6 +180,10 @@ def match_frames(gt: str | Path, pred: str | Path) -> tuple[list[FramePair], lis
 SPECK_SHARE = 0.0005
 #: Share of pixels in specks above which a label file is taken for an image rather than a mask.
 MAX_SPECK_PIXELS = 0.02
+#: More distinct labels than this in one frame is a depth image, not a plane mask: a raw TUM depth
+#: frame holds ~350 distinct values (Kinect's quantised depth), a RealSense one ~700, while plane
+#: ground truth shows a few dozen planes per frame (EVOPS, ScanNet-derived sets).
+MAX_LABELS_PER_FRAME = 256
 
 
 def looks_like_a_photograph(labels: np.ndarray) -> bool:
@@ -182,9 +197,12 @@ def looks_like_a_photograph(labels: np.ndarray) -> bool:
     -------
     bool
         True when more than :data:`MAX_SPECK_PIXELS` of the pixels carry labels that each cover
-        less than :data:`SPECK_SHARE` of the image.
+        less than :data:`SPECK_SHARE` of the image, or when it holds more than
+        :data:`MAX_LABELS_PER_FRAME` distinct labels (a depth image).
     """
     _, inverse, counts = np.unique(labels.ravel(), return_inverse=True, return_counts=True)
+    if len(counts) > MAX_LABELS_PER_FRAME + 1:  # + 1: unsegmented
+        return True
     return bool((counts[inverse] < SPECK_SHARE * labels.size).mean() > MAX_SPECK_PIXELS)
 
 
