@@ -218,7 +218,7 @@ def test_cli_review(finished_run, tmp_path):
 
 def _expected_rows(frame: dict) -> list[list]:
     def source(r: dict) -> str:
-        return {None: "", True: "propagated", False: "drawn"}[r.get("propagated")]
+        return {None: "drawn", True: "propagated", False: "drawn"}[r.get("propagated")]
 
     rows = [[r["plane"], "kept", None, r["pixels"], r["inliers"], r["inlier_ratio"], source(r)] for r in frame["kept"]]
     rows += [[r["plane"], "dropped", r["reason"], r["pixels"], 0, None, source(r)] for r in frame["dropped"]]

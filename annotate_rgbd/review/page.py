@@ -40,8 +40,9 @@ def page_data(report: RunRecord, overlays: Mapping[str, str]) -> dict:
         ``frames``: for every written frame its ``index`` among the depth frames, ``depth``,
         ``rgb``, ``part``, ``cvat_frame``, ``mask``, ``overlay`` (or ``None``) and ``planes``,
         rows ``[plane, "kept" | "dropped", reason, pixels, pixels after refinement, inlier
-        ratio, shape]`` in plane order, ``shape`` being ``drawn`` or ``propagated`` with camera
-        poses (:mod:`annotate_rgbd.propagate.carry`), empty without.
+        ratio, shape]`` in plane order, ``shape`` being ``propagated`` when camera poses carried
+        it there (:mod:`annotate_rgbd.propagate.carry`) and ``drawn`` when it comes from the
+        export (drawn on the frame, or interpolated by CVAT between keyframes).
     """
     frames = []
     for index, frame in enumerate(report.frames):
@@ -97,5 +98,5 @@ def page_template() -> str:
 
 
 def _source(record) -> str:
-    """Where a plane's shape on a frame came from: drawn there, or carried by the poses."""
-    return "" if record.propagated is None else ("propagated" if record.propagated else "drawn")
+    """Where a plane's shape on a frame came from: the export, or the poses that carried it."""
+    return "propagated" if record.propagated else "drawn"
