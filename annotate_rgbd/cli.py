@@ -107,7 +107,7 @@ def cvat2mask(
     sequence_dir: Path = typer.Argument(..., metavar="SEQUENCE_DIR", help="TUM RGB-D or ICL-NUIM (TUM format) sequence folder."),
     annotations: List[Path] = typer.Argument(..., metavar="ANNOTATIONS...", help="CVAT export(s): 'CVAT for video 1.1' or 'CVAT for images 1.1' XML, or CVAT's .zip of it."),
     out: Path = typer.Option(..., "--out", "-o", metavar="DIR", help="Output folder for masks/, planes.csv and report.json."),
-    config: Optional[str] = typer.Option(None, "--config", "-c", metavar="FILE|PRESET", help="TOML file or preset name (see 'annotate-rgbd presets')."),
+    config: Optional[str] = typer.Option(None, "--config", "-c", metavar="FILE|PRESET", help="TOML file or preset name (see 'annotate-rgbd presets'); without it: a Kinect v1 at 640x480 (fx = fy = 525, depth in 1/5000 m, TUM's default)."),
     label: List[str] = typer.Option([], "--label", metavar="LABEL", help="Use only shapes with this CVAT label (repeatable)."),
     distance_threshold: Optional[float] = typer.Option(
         None, metavar="METRES", help="A fixed inlier band in metres at every depth, instead of the [noise] model's."
@@ -225,11 +225,11 @@ def batch(
 
 @app.command()
 def presets() -> None:
-    """List the scene presets that --config accepts."""
-    from annotate_rgbd.config.settings import preset_names
+    """List the scene presets that --config accepts, with their cameras."""
+    from annotate_rgbd.config.settings import preset_summaries
 
-    for name in preset_names():
-        typer.echo(name)
+    for name, what, camera in preset_summaries():
+        typer.echo(f"{name}: {what}\n    camera: {camera}")
 
 
 @app.command()
@@ -307,7 +307,7 @@ def stats(
 def propose(
     sequence_dir: Path = typer.Argument(..., metavar="SEQUENCE_DIR", help="TUM RGB-D or ICL-NUIM (TUM format) sequence folder."),
     out: Path = typer.Option(..., "--out", "-o", metavar="DIR", help="Output folder for proposals.xml, masks/ and report.json."),
-    config: Optional[str] = typer.Option(None, "--config", "-c", metavar="FILE|PRESET", help="TOML file or preset name (see 'annotate-rgbd presets')."),
+    config: Optional[str] = typer.Option(None, "--config", "-c", metavar="FILE|PRESET", help="TOML file or preset name (see 'annotate-rgbd presets'); without it: a Kinect v1 at 640x480 (fx = fy = 525, depth in 1/5000 m, TUM's default)."),
     poses: Optional[Path] = typer.Option(None, "--poses", metavar="FILE", help="TUM trajectory: link planes across frames by world plane."),
     every: int = typer.Option(1, "--every", min=1, metavar="N", help="Process every N-th depth frame (CVAT keyframes)."),
     jobs: Optional[int] = typer.Option(None, "--jobs", "-j", min=1, metavar="N", help="Worker processes (default: all cores)."),

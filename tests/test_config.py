@@ -253,3 +253,20 @@ def test_brackets_in_strings_and_comments_do_not_count_as_nesting(tmp_path):
     config = tmp_path / "c.toml"
     config.write_text('# [[[[[[[[[[[[[[[[[[[[\n[annotation]\nlabels = ["[[[[[[[[[[[[[[[[[[[[", \'{{{{{{{{{{{{{{{{{{{{\']\n')
     assert load_config(config).annotation.labels == ("[" * 20, "{" * 20)
+
+
+def test_presets_are_listed_with_their_camera_and_its_source():
+    from typer.testing import CliRunner
+
+    from annotate_rgbd.cli import app
+    from annotate_rgbd.config.settings import preset_names, preset_summaries
+
+    summaries = {name: (what, camera) for name, what, camera in preset_summaries()}
+    assert sorted(summaries) == preset_names()
+    what, camera = summaries["fr1_desk"]
+    assert what.startswith("TUM RGB-D freiburg1_desk")
+    assert camera.startswith("fx 517.306, fy 516.469, cx 318.643, cy 255.314, depth_scale 5000; ")
+    assert "calibration" in camera  # the source of the numbers
+    assert "depth_scale 1000" in summaries["realsense_d435"][1]
+    output = CliRunner().invoke(app, ["presets"]).output
+    assert all(f"{name}: " in output for name in summaries) and output.count("camera: ") == len(summaries)

@@ -266,6 +266,28 @@ def preset_names() -> list[str]:
     return sorted(p.name[: -len(".toml")] for p in folder.iterdir() if p.name.endswith(".toml"))
 
 
+def preset_summaries() -> list[tuple[str, str, str]]:
+    """Every preset with what it is for and where its camera comes from: ``(name, what,
+    camera)``, read from its TOML file's opening comment (``# what``, then ``# Camera: source``
+    over one or more lines) and its ``[camera]`` values."""
+    folder = resources.files("annotate_rgbd.configs")
+    summaries = []
+    for name in preset_names():
+        text = (folder / f"{name}.toml").read_text(encoding="utf-8")
+        head = []
+        for line in text.splitlines():
+            if not line.startswith("#"):
+                break
+            head.append(line.lstrip("#").strip())
+        what = head[0].rstrip(".") if head else ""
+        source = " ".join(head[1:]).removeprefix("Camera:").strip().rstrip(".")
+        camera = load_config(name).camera
+        values = (f"fx {camera.fx:g}, fy {camera.fy:g}, cx {camera.cx:g}, cy {camera.cy:g}, "
+                  f"depth_scale {camera.depth_scale:g}")
+        summaries.append((name, what, f"{values}; {source}" if source else values))
+    return summaries
+
+
 #: Sections that hold a list of tables (``[[parts]]``) rather than one table.
 LIST_SECTIONS = {"parts": PartConfig, "matches": MatchConfig}
 
