@@ -22,6 +22,7 @@ from annotate_rgbd.config.settings import Config
 from annotate_rgbd.cvat import read_cvat
 from annotate_rgbd.errors import InputError
 from .frame_job import OVERLAY_DIR, FrameJob, check_size
+from annotate_rgbd.geometry.depth_range import depth_scale_hint, median_raw_depth
 from annotate_rgbd.geometry.lift import plane_to_camera
 from annotate_rgbd.io.outdir import ID_MASKS, RAW_MASKS
 from annotate_rgbd.report.palette import plane_colours
@@ -392,13 +393,19 @@ def _frame_job(
     )
 
 
+#: Depth frames whose depth range is checked against the configured scale before any work.
+FIRST_FRAMES = 3
+
+
 def check_first_frames(jobs: SequenceType[tuple[int, FrameJob]], config: Config) -> list[str]:
     """Check the first masked depth frame of each annotation part before any work starts.
 
     Returns
     -------
     list of str
-        A warning when the camera's principal point does not fit the first frame.
+        A warning when the camera's principal point does not fit the first frame, and one when
+        the first frames' depth at the configured scale is not what an indoor sensor sees
+        (:func:`annotate_rgbd.geometry.depth_range.depth_scale_hint`).
 
     Raises
     ------
@@ -410,15 +417,26 @@ def check_first_frames(jobs: SequenceType[tuple[int, FrameJob]], config: Config)
     first_of_part = {}
     for _, job in jobs:
         first_of_part.setdefault(job.part_path, job)
+    medians = []
     for number, job in enumerate(first_of_part.values()):
         try:
-            height, width = read_depth(job.depth_path).shape
+            depth = read_depth(job.depth_path)
         except InputError:
             continue  # reported with its frame
+        height, width = depth.shape
         check_size(job, (height, width))
+        medians.append(median_raw_depth(depth))
         problem = camera_problem(config.camera.cx, config.camera.cy, width, height)
         if number == 0 and problem is not None:
             warnings.append(f"{job.depth_path}: {problem}")
+    for _, job in list(jobs)[1:FIRST_FRAMES]:  # a few frames more: one frame may show only a wall
+        try:
+            medians.append(median_raw_depth(read_depth(job.depth_path)))
+        except InputError:
+            continue
+    hint = depth_scale_hint(medians, config.camera.depth_scale)
+    if hint is not None and jobs:
+        warnings.append(f"{jobs[0][1].depth_path.parent}: {hint}")
     return warnings
 
 

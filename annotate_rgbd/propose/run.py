@@ -15,10 +15,11 @@ from annotate_rgbd import __version__
 from annotate_rgbd.annotation.model import Shape
 from annotate_rgbd.config.settings import Config, config_to_dict
 from annotate_rgbd.errors import InputError
+from annotate_rgbd.geometry.depth_range import depth_scale_hint, median_raw_depth
 from annotate_rgbd.geometry.lift import plane_to_world
 from annotate_rgbd.pool import default_workers, run_jobs, start_helpers
 from annotate_rgbd.io.poses import poses_at, read_trajectory
-from annotate_rgbd.io.sequence import associate, read_sequence
+from annotate_rgbd.io.sequence import associate, read_depth, read_sequence
 from annotate_rgbd.io.outdir import MASKS, OutputFolder, read_bounded, remove_stale_files
 from annotate_rgbd.io.writer import write_json
 from .detect_job import DetectJob, FrameProposal, propose_frame
@@ -33,6 +34,8 @@ DETECT_JOB_MODULE = "annotate_rgbd.propose.detect_job"
 PROPOSALS_NAME = "proposals.xml"
 MASKS_DIR = MASKS
 REPORT_NAME = "report.json"
+#: Depth frames whose depth range is checked against the configured scale before any work.
+FIRST_FRAMES = 3
 
 
 @dataclass
@@ -47,6 +50,8 @@ class ProposeResult:
         Tracks (planes) proposed.
     skipped : list of str
         Depth frames not processed, with why.
+    warnings : list of str
+        Problems with the whole sequence (a depth scale that does not fit), one line each.
     failed : list of str
         Frames whose job failed, with the error.
     """
@@ -55,6 +60,7 @@ class ProposeResult:
     tracks: int = 0
     skipped: list[str] = field(default_factory=list)
     failed: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
 
 
 def run_propose(
@@ -119,6 +125,10 @@ def _run(sequence, folder: OutputFolder, config, settings, poses_path, helpers, 
     chosen = chosen[matched[chosen]]
     if len(chosen) == 0:
         raise InputError(sequence.root, "no depth frame has an RGB frame within max_time_diff: nothing to propose")
+    hint = _depth_scale_hint(sequence, chosen, config)
+    if hint is not None:
+        result.warnings.append(hint)
+        log.warning("%s", hint)
     frame_poses = None
     if poses_path is not None:
         frame_poses = poses_at(read_trajectory(poses_path), depth_times[chosen])
@@ -205,6 +215,7 @@ def _run(sequence, folder: OutputFolder, config, settings, poses_path, helpers, 
                     "cvat_frames": len(t.shapes), **t.attributes} for t in ordered],
         "frames": frames,
         "skipped": result.skipped,
+        "warnings": result.warnings,
     })
     folder.settle(written)
     return result
@@ -219,6 +230,18 @@ def _masks_of_report(out_dir: Path) -> set[str]:
         return {f["mask"] for f in frames if isinstance(f, dict) and isinstance(f.get("mask"), str)}
     except (OSError, ValueError, RecursionError, AttributeError):
         return set()
+
+
+def _depth_scale_hint(sequence, chosen: np.ndarray, config: Config) -> str | None:
+    """:func:`annotate_rgbd.geometry.depth_range.depth_scale_hint` on the first processed frames."""
+    medians = []
+    for i in chosen[:FIRST_FRAMES].tolist():
+        try:
+            medians.append(median_raw_depth(read_depth(sequence.root / sequence.depth.files[i])))
+        except InputError:
+            continue  # reported with its frame
+    hint = depth_scale_hint(medians, config.camera.depth_scale)
+    return None if hint is None else f"{sequence.root / Path(sequence.depth.files[0]).parent}: {hint}"
 
 
 def _plane_records(item: FrameProposal, ids: np.ndarray) -> list[dict]:
