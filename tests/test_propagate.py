@@ -246,8 +246,10 @@ def test_outline_edges_on_the_image_border_are_carried_past_it():
                                       [2.5 - reach * 640, 479.0]])
     np.testing.assert_allclose(bottom, [[400.0, 478.5], [2.5, 479.0], [2.5, 479.0 + reach * 480],
                                         [400.0, 478.5 + reach * 480]])
-    # A narrower margin: the vertex 2.5 px from the left edge is no longer on it.
-    assert len(beyond_the_border(outline, (640, 480), margin=2.0)) == 0
+    # A narrower margin: the vertex 2.5 px from the left edge is no longer on it (the bottom
+    # edge's vertices, 1.0 and 1.5 px from the bottom, still are).
+    narrow = beyond_the_border(outline, (640, 480), margin=2.0)
+    assert len(narrow) == 1 and np.array_equal(narrow[0], bottom)
     # Inside the image, or crossing from one side to another: the plane's own edges.
     assert beyond_the_border(np.array([[10.0, 10.0], [100.0, 10.0], [100.0, 90.0]]), (640, 480)) == []
     assert beyond_the_border(np.array([[0.0, 100.0], [200.0, 480.0], [200.0, 100.0]]), (640, 480)) == []
