@@ -6,8 +6,7 @@ import numpy as np
 import pytest
 
 from annotate_rgbd.geometry.camera import Camera
-from annotate_rgbd.config.settings import RansacConfig
-from annotate_rgbd.segment import refine
+from annotate_rgbd.config.settings import RansacConfig, RefineConfig
 from annotate_rgbd.geometry.noise import SENSOR_MODELS, NoiseSettings
 from annotate_rgbd.segment.refine import _score_statistics, inlier_density, refine_planes, window_scores
 
@@ -63,11 +62,8 @@ def test_a_board_within_the_band_is_dropped_and_the_wall_is_kept_and_fitted_to_i
     assert np.degrees(np.arccos(min(1.0, abs(equation[:3] @ wall[:3])))) < 0.3
     assert abs(equation[3] * np.sign(equation[:3] @ wall[:3]) - wall[3]) < 0.1 * kinect_sigma(2.5)
     # Without the test (as before it), the board stays in and the plane leans towards it.
-    refine.COHERENCE_WINDOW, saved = 0, refine.COHERENCE_WINDOW
-    try:
-        plain, plain_fits = refine_wall(depth)
-    finally:
-        refine.COHERENCE_WINDOW = saved
+    plain, plain_fits = refine_planes(np.ones(SHAPE, np.uint8), depth, np.array([1]), CAMERA, RansacConfig(), KINECT,
+                                      refine=RefineConfig(coherence_window=0))
     assert plain[board].mean() > 0.8
     assert abs(plain_fits[1].equation[3] - wall[3]) > 0.2 * kinect_sigma(2.5)
 
@@ -99,7 +95,7 @@ def test_window_scores_are_window_sums_over_the_root_of_their_count():
         window = (slice(max(row - 3, 0), row + 4), slice(max(col - 3, 0), col + 4))
         values = residual[window][on_plane[window]]
         assert score[row, col] == pytest.approx(values.sum() / np.sqrt(values.size), rel=1e-4)
-        assert usable[row, col] == (on_plane[row, col] and values.size >= refine.MIN_WINDOW_INLIERS)
+        assert usable[row, col] == (on_plane[row, col] and values.size >= RefineConfig().min_window_inliers)
     # Independent noise: about standard normal.
     assert 0.9 < score[usable].std() < 1.1
 
@@ -147,7 +143,7 @@ def test_inlier_density_is_the_share_of_inliers_among_labelled_pixels_of_the_win
     corner = np.zeros((21, 21), bool)
     corner[:11, :11] = True
     assert inlier_density(corner, np.ones((21, 21), bool))[10, 10] == pytest.approx(16 / 49)
-    assert 16 / 49 > refine.MIN_INLIER_DENSITY  # corners are kept
+    assert 16 / 49 > RefineConfig().min_inlier_density  # corners are kept
 
 
 def test_a_constant_noise_model_gets_the_window_test_too():

@@ -14,9 +14,9 @@ from typer.testing import CliRunner
 
 from annotate_rgbd.geometry.camera import Camera
 from annotate_rgbd.cli import app
-from annotate_rgbd.config.settings import load_config
+from annotate_rgbd.config.settings import PropagateConfig, load_config
 from annotate_rgbd.cvat import read_cvat, write_cvat_video
-from annotate_rgbd.geometry.lift import SAME_SURFACE_ANGLE, plane_agreement
+from annotate_rgbd.geometry.lift import plane_agreement
 from annotate_rgbd.pipeline.scene import run_cvat2mask
 from annotate_rgbd.propagate.carry import consensus_plane
 from annotate_rgbd.synthetic import make_sequence
@@ -155,7 +155,12 @@ def test_consensus_plane_is_the_best_supported_one():
     outline = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
     plane, agree = consensus_plane([wall, floor, tilted, floor], [outline + [2, 0, 0], outline, outline, outline])
     assert plane is floor and agree == [False, True, True, True]
-    assert plane_agreement(floor, tilted)[0] < SAME_SURFACE_ANGLE
+    assert plane_agreement(floor, tilted)[0] < PropagateConfig().same_surface_angle
+    # With a tighter angle than the tilted keyframe's 2 degrees, it no longer agrees.
+    tight = PropagateConfig(same_surface_angle=1.0)
+    plane, agree = consensus_plane([wall, floor, tilted, floor], [outline + [2, 0, 0], outline, outline, outline],
+                                   propagate=tight)
+    assert plane is floor and agree == [False, True, False, True]
 
 
 def test_cli_poses_option_and_a_bad_pose_file(rendered, tmp_path):
@@ -226,7 +231,9 @@ def test_review_of_a_run_with_poses_draws_the_shapes_the_poses_carried(rendered,
 
 
 def test_outline_edges_on_the_image_border_are_carried_past_it():
-    from annotate_rgbd.propagate.carry import BEYOND_REACH, beyond_the_border
+    from annotate_rgbd.propagate.carry import beyond_the_border
+
+    reach = PropagateConfig().beyond_reach
 
     # A floor seen to the bottom-left corner: its left and bottom edges are the view's, the
     # diagonal is the floor's own edge (against a wall).
@@ -235,10 +242,14 @@ def test_outline_edges_on_the_image_border_are_carried_past_it():
     assert len(quads) == 2
     left = next(q for q in quads if q[2, 0] < 0)
     bottom = next(q for q in quads if q[2, 1] > 480)
-    np.testing.assert_allclose(left, [[2.5, 479.0], [1.0, 200.0], [1.0 - BEYOND_REACH * 640, 200.0],
-                                      [2.5 - BEYOND_REACH * 640, 479.0]])
-    np.testing.assert_allclose(bottom, [[400.0, 478.5], [2.5, 479.0], [2.5, 479.0 + BEYOND_REACH * 480],
-                                        [400.0, 478.5 + BEYOND_REACH * 480]])
+    np.testing.assert_allclose(left, [[2.5, 479.0], [1.0, 200.0], [1.0 - reach * 640, 200.0],
+                                      [2.5 - reach * 640, 479.0]])
+    np.testing.assert_allclose(bottom, [[400.0, 478.5], [2.5, 479.0], [2.5, 479.0 + reach * 480],
+                                        [400.0, 478.5 + reach * 480]])
+    # A narrower margin: the vertex 2.5 px from the left edge is no longer on it (the bottom
+    # edge's vertices, 1.0 and 1.5 px from the bottom, still are).
+    narrow = beyond_the_border(outline, (640, 480), margin=2.0)
+    assert len(narrow) == 1 and np.array_equal(narrow[0], bottom)
     # Inside the image, or crossing from one side to another: the plane's own edges.
     assert beyond_the_border(np.array([[10.0, 10.0], [100.0, 10.0], [100.0, 90.0]]), (640, 480)) == []
     assert beyond_the_border(np.array([[0.0, 100.0], [200.0, 480.0], [200.0, 100.0]]), (640, 480)) == []
@@ -247,7 +258,6 @@ def test_outline_edges_on_the_image_border_are_carried_past_it():
 def test_planes_cut_by_the_keyframes_view_are_carried_past_it(tmp_path, monkeypatch):
     # The contact scene's walk turns from the back wall to the table: the floor and walls come
     # into view past where the keyframes (every 10th frame) saw them end at the image border.
-    from annotate_rgbd.propagate import carry as propagate
     from annotate_rgbd.segment import frame as segment
     from annotate_rgbd.synthetic.contact import contact_scene, contact_trajectory
 
@@ -264,8 +274,9 @@ def test_planes_cut_by_the_keyframes_view_are_carried_past_it(tmp_path, monkeypa
     # The outlines carried past the border, on their own: without growing past the shapes.
     monkeypatch.setattr(segment, "grow_connected", lambda labels, *args: (labels.copy(), {}))
     run_cvat2mask(sequence, [keyframes], tmp_path / "beyond", config, poses=poses)
-    monkeypatch.setattr(propagate, "BEYOND_REACH", 0.0)
-    run_cvat2mask(sequence, [keyframes], tmp_path / "cut", config, poses=poses)
+    cut = load_config(None, {"camera.fx": 262.5, "camera.fy": 262.5, "camera.cx": 159.5, "camera.cy": 119.5,
+                             "propagate.beyond_reach": 0.0})
+    run_cvat2mask(sequence, [keyframes], tmp_path / "cut", cut, poses=poses)
     with_beyond, without = _mean_iou(tmp_path / "beyond", truth), _mean_iou(tmp_path / "cut", truth)
     assert with_beyond > without + 0.005, (with_beyond, without)
     # Growing over the plane past every keyframe's view adds to that.

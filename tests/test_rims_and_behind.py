@@ -136,6 +136,10 @@ def test_a_floor_mostly_hidden_by_a_carton_is_found_behind_the_carton_top():
     # Without looking behind (a shape carried from other frames), RANSAC's larger surface.
     fit = fit_plane(points, RansacConfig(max_points=0), KINECT, look_behind=False)
     assert through(fit.equation, top_y) and not fit.surface_behind
+    # Nor with ransac.max_behind = 0; nor when the floor must lie nearer behind than it does (0.3 m).
+    for config in (RansacConfig(max_points=0, max_behind=0), RansacConfig(max_points=0, max_behind_depth=0.2)):
+        fit = fit_plane(points, config, KINECT)
+        assert through(fit.equation, top_y) and not fit.surface_behind
 
 
 def test_a_plane_whose_points_lie_behind_the_first_is_not_taken():

@@ -22,6 +22,7 @@ that is not listed is an error, so a typo never goes unnoticed::
     num_iterations = 1000
     seed = 0
     max_points = 1000
+    band_share = 0.5    # ... and the fit's tunables (annotate_rgbd.config.masks.RansacConfig)
     [noise]             # the inlier band: clip(k sigma(z), floor, cap) (annotate_rgbd.geometry.noise)
     model = "kinect_v1" # or icl_nuim, realsense_d435, quadratic (a, b, c), constant (sigma)
     k = 3.0
@@ -30,6 +31,9 @@ that is not listed is an error, so a typo never goes unnoticed::
     [refine]
     grow_pixels = 3
     rim_pixels = 2
+    coherence_limit = 5.0   # ... and the window test's tunables (masks.RefineConfig)
+    [propagate]         # with camera poses (masks.PropagateConfig)
+    same_surface_angle = 5.0
     [stitch]            # several annotation parts of one sequence
     min_iou = 0.5
     [[parts]]           # where a part starts in the RGB list (repeat per part)
@@ -40,7 +44,9 @@ that is not listed is an error, so a typo never goes unnoticed::
     track = 3
     plane = 7           # or: with_part = "0-953.xml" and with_track = 5, or: new = true
 
-``--config`` takes a file path or the name of a preset in ``configs/`` (``fr1_desk``, ...).
+``--config`` takes a file path or the name of a preset in ``configs/`` (``fr1_desk``, ...). The
+sections that change how a mask is made (``[filter]``, ``[ransac]``, ``[refine]``,
+``[propagate]``) are defined, with their sources, in :mod:`annotate_rgbd.config.masks`.
 """
 
 from __future__ import annotations
@@ -58,6 +64,7 @@ from annotate_rgbd.geometry.camera import Camera
 from annotate_rgbd.errors import InputError
 from annotate_rgbd.geometry.noise import NoiseSettings, noise_settings_from_mapping
 from annotate_rgbd.io.poses import DEFAULT_MAX_POSE_GAP
+from .masks import FilterConfig, PropagateConfig, RansacConfig, RefineConfig, range_checks
 from .toml_input import NestedTooDeep, read_toml
 
 
@@ -97,79 +104,6 @@ class AnnotationConfig:
     """
 
     labels: tuple[str, ...] = ()
-
-
-@dataclass(frozen=True)
-class FilterConfig:
-    """When a plane is dropped from a frame before refinement.
-
-    Parameters
-    ----------
-    max_invalid_ratio : float
-        Drop a plane whose share of pixels without valid depth exceeds this (EVOPS paper: 0.8;
-        0.75 for fr2_pioneer_slam in the original annotation).
-    max_mean_distance : float
-        Drop a plane whose valid pixels lie farther than this from the camera on average, in
-        metres (EVOPS paper: 3.5 m, where Kinect depth noise grows beyond a few centimetres).
-    min_valid_pixels : int
-        Drop a plane with fewer valid pixels than this: RANSAC needs 3 points, and a patch
-        smaller than about 7x7 pixels says nothing reliable about a plane (this project's choice).
-    """
-
-    max_invalid_ratio: float = 0.8
-    max_mean_distance: float = 3.5
-    min_valid_pixels: int = 50
-
-
-@dataclass(frozen=True)
-class RansacConfig:
-    """Open3D ``segment_plane`` settings.
-
-    Parameters
-    ----------
-    distance_threshold : float
-        A fixed inlier band: the largest point-to-plane distance of an inlier, in metres, at
-        every depth (EVOPS set it by hand per sequence: 0.02 m for TUM long_office; 0.005 m for
-        ICL-NUIM, 0.01 m fr1_desk, 0.03 m fr2_pioneer_slam). 0 (the default): the band follows
-        the sensor's noise, ``[noise]`` (:class:`annotate_rgbd.geometry.noise.NoiseSettings`). A value
-        > 0 replaces the noise model, whatever ``[noise]`` says.
-    num_iterations : int
-        RANSAC iterations (Open3D stops earlier once the inlier set is certain).
-    seed : int
-        Seed of Open3D's random generator, set before every fit so that a re-run gives
-        identical masks.
-    max_points : int
-        RANSAC looks for the plane among at most this many of a plane's points, spread evenly
-        over it (a regular pixel grid); every pixel is then tested against that plane. On the
-        benchmark sequence (benchmarks/bench_cvat2mask.py) 1,000 points change 0.04 % of the
-        mask pixels against a search among all points, at a third of the time. 0: every point.
-    """
-
-    distance_threshold: float = 0.0
-    num_iterations: int = 1000
-    seed: int = 0
-    max_points: int = 1000
-
-
-@dataclass(frozen=True)
-class RefineConfig:
-    """What refinement does besides the inlier test.
-
-    Parameters
-    ----------
-    grow_pixels : int
-        Grow each kept plane by up to this many pixels beyond its drawn shape, into pixels
-        whose depth lies on the plane and that no other plane's shape or inliers claim
-        (:func:`annotate_rgbd.segment.grow.grow_planes`): a labeller's outline is a pixel or two off the
-        real edge (this project's measurement on rendered scenes: +-2 px). 0: no growing.
-    rim_pixels : int
-        Drop a plane's pixels this close to a surface standing in front of it inside its shape
-        (:func:`annotate_rgbd.segment.refine.near_surfaces_in_front`; README, *Refinement and sensor
-        noise*, for the measurement behind 2). 0: keep them.
-    """
-
-    grow_pixels: int = 3
-    rim_pixels: int = 2
 
 
 @dataclass(frozen=True)
@@ -248,6 +182,7 @@ class Config:
     ransac: RansacConfig = field(default_factory=RansacConfig)
     noise: NoiseSettings = field(default_factory=NoiseSettings)
     refine: RefineConfig = field(default_factory=RefineConfig)
+    propagate: PropagateConfig = field(default_factory=PropagateConfig)
     stitch: StitchConfig = field(default_factory=StitchConfig)
     parts: tuple[PartConfig, ...] = ()
     matches: tuple[MatchConfig, ...] = ()
@@ -576,6 +511,7 @@ def _check_ranges(config: Config, origin: str | Path | None) -> None:
         ("ransac.seed", config.ransac.seed >= 0, "must be >= 0"),
         ("ransac.max_points", config.ransac.max_points == 0 or config.ransac.max_points >= 3, "must be 0 or >= 3"),
         ("stitch.min_iou", 0 < config.stitch.min_iou <= 1, "must be in (0, 1]"),
+        *range_checks(config),
     ]
     for key, ok, rule in checks:
         if not ok:

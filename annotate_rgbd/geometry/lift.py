@@ -259,16 +259,6 @@ def plane_to_camera(equation: np.ndarray, rotation: np.ndarray, translation: np.
     )
 
 
-#: Largest angle (degrees) and offset (m, at a point of the surface) between two planes for them
-#: to be one surface seen through camera poses. Real poses reproject depth with errors of
-#: 0.4-2 cm over tens of frames (7-Scenes, TUM fr1_rpy), and a plane fitted to a few thousand
-#: pixels has an orientation error of a fraction of a degree: 5 degrees and 5 cm are well above
-#: both and well below two surfaces a labeller might confuse (a table top and the floor: 0.7 m; a
-#: wall and the door in it: a few cm, flagged when the poses are good).
-SAME_SURFACE_ANGLE = 5.0
-SAME_SURFACE_OFFSET = 0.05
-
-
 def plane_agreement(
     first: np.ndarray, second: np.ndarray, at: np.ndarray | None = None
 ) -> tuple[float, float]:

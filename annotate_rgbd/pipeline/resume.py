@@ -1,9 +1,11 @@
 """Resuming: which masks of an earlier run in the same output folder can be kept.
 
 Every mask gets a *fingerprint*: a hash of what it is made from — the depth image's bytes, the
-frame's shapes and plane ids, the settings that change a mask (camera, filter, RANSAC) and the
-tool version. A finished frame's fingerprint is recorded twice: in a journal appended as frames
-finish (:data:`JOURNAL`, which survives an interrupted run) and in ``report.json`` at the end of
+frame's shapes and plane ids, the settings that change a mask (camera, filter, RANSAC, noise,
+refinement, propagation), the tool version and the *algorithm digest*: a hash of the source of
+the code that makes a frame's files (:func:`algorithm_digest`, :data:`MASK_CODE`), so that a
+re-run after any change to that code (an upgrade, a local edit) redoes its frames. A finished
+frame's fingerprint is recorded twice: in a journal appended as frames finish (:data:`JOURNAL`, which survives an interrupted run) and in ``report.json`` at the end of
 a run (when the journal is removed). A re-run reuses a mask whose recorded fingerprint matches
 and whose files exist, and makes the others anew (the check is part of the frame's job, so it
 runs in parallel and reads the depth image once); since every mask is written atomically and the
@@ -40,6 +42,35 @@ MAX_JOURNAL_LINE = 4 << 20
 #: with 20 planes each journals about 300 MiB); what lies beyond is made anew.
 MAX_RECORDS_BYTES = 1 << 30
 
+#: The package's folder (the paths of :data:`MASK_CODE` are relative to it).
+PACKAGE = Path(__file__).resolve().parent.parent
+#: The code that turns a fingerprint's inputs (depth bytes, shapes, plane ids, settings) into a
+#: frame's files and record: a folder stands for every module in it. The per-frame stage
+#: (``segment/``: rasterise, filter, fit, refine, grow) and the geometry it calls (``geometry/``:
+#: camera, noise bands, plane fits); the frame's job (reading the depth image, segmenting, writing
+#: the PNGs and the record) with the modules it calls for that: the depth reader, the palette
+#: and id images, the PNG writer, the overlay, the records and their JSON readers (a reused mask
+#: keeps its recorded planes), and ``Config.inlier_band`` (in ``config/settings.py``); and this
+#: module (the fingerprint itself).
+#: Left out, on purpose: code whose results are themselves hashed into the fingerprint (the CVAT
+#: reader, interpolation, stitching, pose-guided propagation in ``propagate/``: they make the
+#: shapes, plane ids and expected planes; the configuration's values), and code that cannot
+#: change a frame's files (:data:`NOT_MASK_CODE`). tests/test_algorithm_digest.py checks that
+#: every module the frame job imports is in one of the two lists.
+MASK_CODE = (
+    "segment", "geometry", "pipeline/frame_job.py", "pipeline/resume.py", "io/sequence.py", "io/writer.py",
+    "report/palette.py", "report/records.py", "jsonfields.py", "review/overlay.py", "config/settings.py",
+)
+#: Modules the frame job imports whose code cannot change a frame's files: the package's and
+#: subpackages' ``__init__`` (re-exports; ``__version__`` is hashed by value), the settings'
+#: definitions and TOML reader (their values are hashed), errors, the output folder's helpers
+#: (file digests for the up-to-date check), camera poses and the shape record (hashed as data).
+NOT_MASK_CODE = (
+    "__init__.py", "config/__init__.py", "io/__init__.py", "pipeline/__init__.py", "report/__init__.py",
+    "review/__init__.py", "annotation/__init__.py", "config/masks.py", "config/toml_input.py", "errors.py",
+    "io/outdir.py", "io/poses.py", "annotation/model.py",
+)
+
 
 def fingerprint(
     shapes: Sequence[tuple[int, Shape]], image_size: tuple[int, int] | None, config: Config, depth: bytes | np.ndarray,
@@ -66,7 +97,7 @@ def fingerprint(
     str
         Hex digest; equal digests mean an equal mask.
     """
-    digest = hashlib.blake2b(_mask_settings(config), digest_size=32)
+    digest = hashlib.blake2b(_mask_settings(config, algorithm_digest()), digest_size=32)
     digest.update(depth)
     digest.update(json.dumps(image_size).encode())
     for plane_id, shape in shapes:
@@ -84,11 +115,47 @@ def fingerprint(
 
 
 @lru_cache(maxsize=16)
-def _mask_settings(config: Config) -> bytes:
-    """The tool version and the settings that change a mask (not stitching or part placement,
-    whose effect is in the shapes' plane ids)."""
+def _mask_settings(config: Config, algorithm: str) -> bytes:
+    """The tool version, the algorithm digest and the settings that change a mask (not stitching
+    or part placement, whose effect is in the shapes' plane ids)."""
     settings = config_to_dict(config)
-    return json.dumps([__version__, *(settings[key] for key in ("camera", "filter", "ransac", "noise", "refine"))]).encode()
+    sections = ("camera", "filter", "ransac", "noise", "refine", "propagate")
+    return json.dumps([__version__, algorithm, *(settings[key] for key in sections)]).encode()
+
+
+@lru_cache(maxsize=4)
+def algorithm_digest(root: Path = PACKAGE, parts: tuple[str, ...] = MASK_CODE) -> str:
+    """Hash of the source of the code that makes a frame's files, computed once per process.
+
+    Parameters
+    ----------
+    root : Path
+        The package's folder.
+    parts : tuple of str
+        Modules (``"io/writer.py"``) and folders (``"segment"``: every ``.py`` file below it)
+        relative to ``root``; :data:`MASK_CODE` by default.
+
+    Returns
+    -------
+    str
+        Hex digest of every module's relative path and bytes, in path order: one byte changed in
+        any of them changes it; it is the same in any copy of the package. A listed module that
+        is missing is hashed as missing.
+    """
+    files = set()
+    for part in parts:
+        path = root / part
+        files.update(path.rglob("*.py") if path.is_dir() else [path])
+    digest = hashlib.blake2b(digest_size=16)
+    for path in sorted(files, key=lambda p: p.relative_to(root).as_posix()):
+        try:
+            data = path.read_bytes()
+        except OSError:
+            data = b"<missing>"
+        name = path.relative_to(root).as_posix().encode()
+        digest.update(b"%d:%s:%d:" % (len(name), name, len(data)))
+        digest.update(data)
+    return digest.hexdigest()
 
 
 @dataclass

@@ -25,24 +25,16 @@ import numpy as np
 
 from annotate_rgbd.annotation.model import Shape, Track
 from annotate_rgbd.geometry.camera import backproject, depth_to_metres
-from annotate_rgbd.config.settings import Config
+from annotate_rgbd.config.settings import Config, PropagateConfig
 from annotate_rgbd.errors import InputError
 from annotate_rgbd.geometry.lift import (
-    SAME_SURFACE_ANGLE, SAME_SURFACE_OFFSET, lift_polygon, plane_agreement, plane_to_camera, plane_to_world,
-    project_polygon,
+    lift_polygon, plane_agreement, plane_to_camera, plane_to_world, project_polygon,
 )
 from annotate_rgbd.io.poses import FramePoses
 from annotate_rgbd.segment.rasterize import rasterize_frame
 from annotate_rgbd.segment.ransac import fit_plane
 from annotate_rgbd.segment.refine import grid_pixels
 from annotate_rgbd.io.sequence import read_depth
-
-#: A keyframe off its track's agreed plane makes the track "inconsistent" (a warning, the
-#: review queue) only when its shape holds at least this share of the valid depth pixels of
-#: the track's largest keyframe: a sliver of a plane leaving the view is mostly another
-#: surface, and its own fit says nothing about the track.
-MIN_KEYFRAME_WEIGHT = 0.25
-
 
 @dataclass(frozen=True)
 class LiftedKeyframe:
@@ -90,7 +82,7 @@ class TrackLift:
         Keyframes whose own plane disagreed with the track's consensus plane (lifted onto the
         consensus plane instead).
     substantial : list of int
-        Those of them that hold a good share of the track's depth (:data:`MIN_KEYFRAME_WEIGHT`):
+        Those of them that hold a good share of the track's depth (``propagate.min_keyframe_weight``):
         the track needs review.
     angle, offset : float
         The largest disagreement of those with the consensus plane (degrees, metres).
@@ -109,7 +101,7 @@ class TrackLift:
     @property
     def consistent(self) -> bool:
         """Whether every substantial keyframe's own plane agrees with the track's consensus plane
-        (within :data:`annotate_rgbd.geometry.lift.SAME_SURFACE_ANGLE` and ``SAME_SURFACE_OFFSET``)."""
+        (within ``propagate.same_surface_angle`` and ``same_surface_offset``)."""
         return not self.substantial
 
     def to_json(self) -> dict:
@@ -201,12 +193,13 @@ def outline_of(shape: Shape) -> np.ndarray | None:
 
 
 def consensus_plane(
-    planes: list[np.ndarray], outlines: list[np.ndarray], weights: list[float] | None = None
+    planes: list[np.ndarray], outlines: list[np.ndarray], weights: list[float] | None = None,
+    propagate: PropagateConfig = PropagateConfig(),
 ) -> tuple[np.ndarray, list[bool]]:
     """The plane most of a track's keyframes agree on, and which of them agree with it.
 
     Each fitted plane is a candidate; it is supported by the keyframes whose plane lies within
-    :data:`annotate_rgbd.geometry.lift.SAME_SURFACE_ANGLE` and ``SAME_SURFACE_OFFSET`` of it (offset
+    ``propagate.same_surface_angle`` and ``same_surface_offset`` of it (offset
     measured at that keyframe's outline centroid), each with its weight; the best supported wins
     (ties: the earliest).
 
@@ -218,6 +211,8 @@ def consensus_plane(
         The keyframes' outlines lifted onto their own planes (for the centroids).
     weights : list of float, optional
         How much each keyframe counts (the valid depth pixels it was fitted to); default 1 each.
+    propagate : PropagateConfig
+        The same-surface tolerances.
 
     Returns
     -------
@@ -230,7 +225,7 @@ def consensus_plane(
         agree = []
         for plane, centroid in zip(planes, centroids):
             angle, offset = plane_agreement(candidate, plane, at=centroid)
-            agree.append(angle <= SAME_SURFACE_ANGLE and offset <= SAME_SURFACE_OFFSET)
+            agree.append(angle <= propagate.same_surface_angle and offset <= propagate.same_surface_offset)
         support.append(agree)
     weights = [1.0] * len(planes) if weights is None else weights
     best = max(range(len(planes)), key=lambda i: (sum(w for w, ok in zip(weights, support[i]) if ok), -i))
@@ -278,16 +273,14 @@ def propagated_shapes(lift: TrackLift, frame: int, config: Config, pose: tuple[n
     return shapes
 
 
-#: Vertices this close to the keyframe image's edge (px) lie on it (CVAT clamps drawn vertices
-#: to the image; a labeller's few pixels of slack).
-BORDER_MARGIN = 4.0
-#: How far past the border (as a share of the image's size) an outline is carried, at most.
-BEYOND_REACH = 0.5
 #: The drawing order of what lies beyond a keyframe's border: below any drawn shape.
 BEYOND_Z_ORDER = -(2**31)
 
 
-def beyond_the_border(outline: np.ndarray, image_size: tuple[int, int]) -> list[np.ndarray]:
+def beyond_the_border(
+    outline: np.ndarray, image_size: tuple[int, int], margin: float = PropagateConfig.border_margin,
+    reach: float = PropagateConfig.beyond_reach,
+) -> list[np.ndarray]:
     """Quads that extend an outline's edges lying on the image border outward, off the image.
 
     Parameters
@@ -296,21 +289,26 @@ def beyond_the_border(outline: np.ndarray, image_size: tuple[int, int]) -> list[
         Polygon in CVAT image coordinates.
     image_size : (int, int)
         (width, height) of the keyframe image.
+    margin : float
+        Vertices this close to the image's edge (px) lie on it (``propagate.border_margin``).
+    reach : float
+        How far past the border an outline is carried, as a share of the image's size
+        (``propagate.beyond_reach``).
 
     Returns
     -------
     list of ndarray, shape (4, 2)
-        For every edge whose two ends lie within :data:`BORDER_MARGIN` of the same image side:
-        the edge and its copy moved :data:`BEYOND_REACH` of the image's size straight out.
+        For every edge whose two ends lie within ``margin`` of the same image side: the edge and
+        its copy moved ``reach`` of the image's size straight out.
     """
     width, height = image_size
     outline = np.asarray(outline, dtype=np.float64)
     following = np.roll(outline, -1, axis=0)
     sides = (
-        (lambda p: p[:, 0] <= BORDER_MARGIN, (-BEYOND_REACH * width, 0.0)),
-        (lambda p: p[:, 0] >= width - BORDER_MARGIN, (BEYOND_REACH * width, 0.0)),
-        (lambda p: p[:, 1] <= BORDER_MARGIN, (0.0, -BEYOND_REACH * height)),
-        (lambda p: p[:, 1] >= height - BORDER_MARGIN, (0.0, BEYOND_REACH * height)),
+        (lambda p: p[:, 0] <= margin, (-reach * width, 0.0)),
+        (lambda p: p[:, 0] >= width - margin, (reach * width, 0.0)),
+        (lambda p: p[:, 1] <= margin, (0.0, -reach * height)),
+        (lambda p: p[:, 1] >= height - margin, (0.0, reach * height)),
     )
     quads = []
     for on_side, out in sides:
@@ -326,7 +324,7 @@ def _lift_beyond(outline: np.ndarray, image_size, plane_camera: np.ndarray, pose
     until its far corners meet the plane in front of the camera within the distance rule."""
     farthest = 1.5 * config.filter.max_mean_distance
     lifted = []
-    for quad in beyond_the_border(outline, image_size):
+    for quad in beyond_the_border(outline, image_size, config.propagate.border_margin, config.propagate.beyond_reach):
         for _ in range(4):
             world = lift_polygon(quad, plane_camera, config.camera, *pose)
             depth = (world.world - pose[1]) @ pose[0][:, 2] if world.ok else None
@@ -353,7 +351,7 @@ def lift_tracks(
     one the track's keyframes agree on (:func:`consensus_plane`, weighted by their depth
     pixels: the shape lay mostly over clutter or another surface) is lifted onto that
     consensus plane instead, and listed; the track is flagged (``consistent`` False) when such
-    a keyframe holds a good share of the track's depth (:data:`MIN_KEYFRAME_WEIGHT`).
+    a keyframe holds a good share of the track's depth (``propagate.min_keyframe_weight``).
 
     Parameters
     ----------
@@ -421,7 +419,7 @@ def _lift_onto_planes(lift: TrackLift, track: Track, fitted: list, config: Confi
     consensus, agree = None, []
     if usable:
         consensus, agree = consensus_plane([e[3][0] for e, _ in usable], [lifted.world for _, lifted in usable],
-                                           [e[3][1] for e, _ in usable])
+                                           [e[3][1] for e, _ in usable], config.propagate)
     agrees = {e[0]: ok for (e, _), ok in zip(usable, agree)}
     weight = {frame: result[1] for frame, _, _, result in own}
     largest = max(weight.values(), default=0)
@@ -439,7 +437,7 @@ def _lift_onto_planes(lift: TrackLift, track: Track, fitted: list, config: Confi
         lift.keyframes.append(LiftedKeyframe(frame, lifted.world, target, track.shapes[frame].z_order, beyond))
         if plane is not None and target is consensus and not agrees.get(frame, False):
             lift.off_plane.append(frame)
-            if weight[frame] >= MIN_KEYFRAME_WEIGHT * largest:
+            if weight[frame] >= config.propagate.min_keyframe_weight * largest:
                 angle, offset = plane_agreement(consensus, plane, at=lifted.world.mean(axis=0))
                 lift.angle, lift.offset = max(lift.angle, angle), max(lift.offset, offset)
                 lift.substantial.append(frame)

@@ -77,7 +77,7 @@ def segment_frame(
     band = config.inlier_band()
     refined, fits = refine_planes(
         drawn, depth_m, stats.plane_ids[kept], config.camera, config.ransac, band, stats.valid_pixels[kept],
-        config.refine.rim_pixels, propagated, expected,
+        config.refine.rim_pixels, propagated, expected, config.refine, config.propagate,
     )
     inlier_count = label_histogram(refined, int(drawn.max(initial=0)) + 1)
     equations = {plane_id: fit.equation for plane_id, fit in fits.items()}
@@ -89,7 +89,7 @@ def segment_frame(
         # by poses (an outline's extension past a keyframe's border above all) are guesses.
         claimed = (drawn > 0) & ~np.isin(drawn, list(propagated))
         labels, beyond = grow_connected(labels, drawn, claimed, depth_m, carried, config.camera, band.model, band.k,
-                                        band.floor, band.cap)
+                                        band.floor, band.cap, config.refine)
         grown = {plane_id: count + beyond.get(plane_id, 0) for plane_id, count in grown.items()}
     result = FrameResult(labels=labels, drawn=drawn)
     for i, plane_id in enumerate(stats.plane_ids.tolist()):

@@ -13,9 +13,10 @@ from typing import Mapping
 import cv2
 import numpy as np
 
+from annotate_rgbd.config.settings import RefineConfig
 from annotate_rgbd.geometry.camera import Camera, backproject
 from annotate_rgbd.geometry.noise import NoiseModel, inlier_band
-from .refine import COHERENCE_LIMIT, ids_nearby, signed_distances, window_scores
+from .refine import ids_nearby, signed_distances, window_scores
 
 
 def grow_planes(
@@ -127,6 +128,7 @@ def grow_connected(
     k: float,
     floor: float,
     cap: float,
+    refine: RefineConfig = RefineConfig(),
 ) -> tuple[np.ndarray, dict[int, int]]:
     """Grow each plane of ``equations``, without a distance limit, over the pixels that lie on it
     and connect to it: for planes whose shapes camera poses carried from keyframes, where the
@@ -137,7 +139,7 @@ def grow_connected(
     floor, cap)`` of ``p``'s plane and of no other growing plane more closely (a tie: the lowest
     id), the mean residual of its window (:func:`annotate_rgbd.segment.refine.window_scores` over these
     pixels and the planes' own, in units of the model's noise) lies within
-    :data:`annotate_rgbd.segment.refine.COHERENCE_LIMIT` of 0 (a doormat on a floor lies within its band),
+    ``refine.coherence_limit`` of 0 (a doormat on a floor lies within its band),
     and a chain of such pixels (8-connected) links it to ``p``'s own pixels. Unlike refinement's
     window test there is no per-plane centre and spread, and the band is the model's (not scaled
     by the plane's noise): on a sensor noisier than its model it grows less, never more.
@@ -159,6 +161,9 @@ def grow_connected(
     model : ConstantNoise or QuadraticNoise
     k, floor, cap : float
         The band, as in :func:`annotate_rgbd.geometry.noise.inlier_band`.
+    refine : RefineConfig
+        The window test's tunables (``coherence_window``, ``min_window_inliers``,
+        ``coherence_limit``).
 
     Returns
     -------
@@ -195,8 +200,8 @@ def grow_connected(
         residual[scored] = signed[scored] * np.float32(k) / band[scored]
     # The window test of refinement (a doormat on the floor lies within its band): residuals in
     # noise units, averaged over each candidate's window, must look like the plane's noise.
-    score, usable = window_scores(residual, own | (candidate > 0))
-    candidate[~(usable & (np.abs(score) <= COHERENCE_LIMIT))] = 0
+    score, usable = window_scores(residual, own | (candidate > 0), refine.coherence_window, refine.min_window_inliers)
+    candidate[~(usable & (np.abs(score) <= refine.coherence_limit))] = 0
     for plane_id in ids:
         mine = labels == plane_id
         if not mine.any():

@@ -8,50 +8,18 @@ from dataclasses import dataclass
 import numpy as np
 import open3d as o3d
 
-from annotate_rgbd.config.settings import RansacConfig
-from annotate_rgbd.geometry.lift import SAME_SURFACE_ANGLE, SAME_SURFACE_OFFSET, plane_agreement
+from annotate_rgbd.config.settings import PropagateConfig, RansacConfig
+from annotate_rgbd.geometry.lift import plane_agreement
 from annotate_rgbd.geometry.noise import NoiseSettings
 from annotate_rgbd.geometry.planes import refit_plane
 
 
 #: Least-squares re-fits of a RANSAC plane to its inliers (the second settles the inlier set).
 REFITS = 2
-#: RANSAC's distance threshold, as a share of the inlier band (k = 3 sigma: 1.5 sigma). With
-#: the full band a plane tilted between two surfaces a few sigma apart (a whiteboard on a wall,
-#: books on a table) can gather more points than either surface's own plane; within 1.5 sigma
-#: the dominant surface wins. Measured on benchmarks/bench_refine.py: the wall behind a
-#: whiteboard went from mean IoU 0.86 to 0.94 (0.34 of the band gave the same).
-RANSAC_SHARE = 0.5
-#: Real sensors are noisier than their published axial noise: depth distortion (TUM fr1),
-#: stereo ripples (RealSense), lateral noise on tilted planes. Each plane's own residuals tell
-#: by how much: the noise is scaled by ``1.4826 median(|d| / sigma(z))`` of its fit's inliers
-#: (the MAD estimate of a standard deviation, robust to the clutter in the band), never below 1
-#: and at most this much. On TUM fr1_rpy and the RealSense office frames the planes' residuals
-#: are about 1.5 sigma of the published models; on renders with exactly the model's noise the
-#: factor stays about 1.
-MAX_NOISE_SCALE = 2.5
-#: A plane's noise is scaled only when its residuals say it is this much larger than the model:
-#: below, the difference is within the spread of the estimate (a median of about a thousand
-#: grid points varies by a few per cent).
-MIN_NOISE_SCALE = 1.15
-#: A surface behind RANSAC's plane (beyond its band) with at least this share of its inliers
-#: replaces it (see :func:`fit_plane`), at most MAX_BEHIND times in a row.
-BEHIND_SHARE = 0.3
-MAX_BEHIND = 2
-#: Fewest points a surface behind must hold (a few stray points always make a plane).
-MIN_BEHIND_POINTS = 10
-#: Farthest a surface behind may lie (m, at its own points): an object standing on a plane is
-#: rarely taller than this (the carton on the benchmark's floor: 0.3 m); a surface farther
-#: behind is seen through an opening in the plane (a doorway, a window), which labellers do
-#: draw over.
-MAX_BEHIND_DEPTH = 0.5
 #: Planes tried among the points behind, largest first.
 BEHIND_CANDIDATES = 3
 #: Open3D's default confidence for stopping RANSAC early.
 DEFAULT_PROBABILITY = 0.99999999
-#: For a shape carried by poses, RANSAC runs again through all its iterations when its plane
-#: holds under this share of the points (a wall half covered by a whiteboard).
-EXHAUSTIVE_BELOW = 0.6
 #: The share of a plane's points that may lie behind a plane that replaces it (noise, edges).
 IN_FRONT_SLACK = 0.02
 
@@ -77,7 +45,7 @@ class PlaneFit:
         Inliers among the input points of RANSAC's plane (or of the surface behind that replaced
         it) and of the re-fitted plane.
     noise_scale : float
-        How much noisier than the model the plane's points are (:data:`MAX_NOISE_SCALE`);
+        How much noisier than the model the plane's points are (``config.max_noise_scale``);
         the band, the re-fit's weights and the inlier test use the scaled noise.
     surface_behind : bool
         Whether a surface behind RANSAC's plane replaced it (:func:`_surface_behind`).
@@ -95,14 +63,14 @@ class PlaneFit:
 
 def fit_plane(
     points: np.ndarray, config: RansacConfig, noise: NoiseSettings, look_behind: bool = True,
-    expected: np.ndarray | None = None,
+    expected: np.ndarray | None = None, propagate: PropagateConfig = PropagateConfig(),
 ) -> PlaneFit:
     """Find a plane among 3-D points with Open3D's RANSAC, then re-fit it to its inliers.
 
     RANSAC searches for the plane among at most ``config.max_points`` of the points, taken
     evenly through the input (for a plane's pixels in row-major order: a regular grid over the
     plane), with half the inlier band of the noise model at the points' median depth as its one
-    distance threshold (:data:`RANSAC_SHARE`). A 3-point RANSAC plane is noisier than the data, so the plane is then
+    distance threshold (``config.band_share``). A 3-point RANSAC plane is noisier than the data, so the plane is then
     re-fitted by least squares to its inliers, each weighted by ``1 / sigma(z)^2``
     (:func:`annotate_rgbd.geometry.planes.refit_plane`: every point tested against the band at its own
     depth). Open3D runs single-threaded with its generator seeded before every call: its
@@ -127,9 +95,11 @@ def fit_plane(
     expected : ndarray, shape (4,), optional
         Where camera poses put the plane in this frame (a track's keyframe plane): a surface
         behind replaces RANSAC's plane only when it is that one (within
-        :data:`annotate_rgbd.geometry.lift.SAME_SURFACE_ANGLE` and ``SAME_SURFACE_OFFSET``); and when
-        RANSAC's plane holds under :data:`EXHAUSTIVE_BELOW` of the points, RANSAC runs again
-        through all its iterations (the plane with more inliers is kept).
+        ``propagate.same_surface_angle`` and ``same_surface_offset``); and when RANSAC's plane
+        holds under ``config.exhaustive_below`` of the points, RANSAC runs again through all its
+        iterations (the plane with more inliers is kept).
+    propagate : PropagateConfig
+        The same-surface tolerances.
 
     Returns
     -------
@@ -141,17 +111,17 @@ def fit_plane(
         sample = points[:: -(-len(points) // config.max_points)]
         if len(sample) < 3:  # a stride over very few points (max_points = 3) can leave two
             sample = points[: max(config.max_points, 3)]
-    threshold = RANSAC_SHARE * float(noise.band(np.median(sample[:, 2])))
+    threshold = config.band_share * float(noise.band(np.median(sample[:, 2])))
     equation, inliers = _ransac(sample, threshold, config)
-    if expected is not None and inliers < EXHAUSTIVE_BELOW * len(sample):
+    if expected is not None and inliers < config.exhaustive_below * len(sample):
         # Open3D stops searching once its plane is likely the best given the share of points it
         # holds; with two surfaces of about half each it can stop on a plane leaning between them.
         again = _ransac(sample, threshold, config, exhaustive=True)
         equation, inliers = again if again[1] > inliers else (equation, inliers)
     band = noise.band(sample[:, 2])
     behind = False
-    for _ in range(MAX_BEHIND if look_behind or expected is not None else 0):
-        found = _surface_behind(sample, band, equation, inliers, threshold, config, expected)
+    for _ in range(config.max_behind if look_behind or expected is not None else 0):
+        found = _surface_behind(sample, band, equation, inliers, threshold, config, expected, propagate)
         if found is None:
             break
         (equation, inliers), behind = found, True
@@ -159,9 +129,9 @@ def fit_plane(
     rms_sigma, before, scale = refit.rms_sigma, refit.inliers_before, 1.0
     for _ in range(2):  # the first estimate sees a band truncated at the model's k sigma
         found = noise_scale(points, refit.equation, noise.scaled(scale))
-        if found < (MIN_NOISE_SCALE if scale == 1.0 else 1.02):
+        if found < (config.min_noise_scale if scale == 1.0 else 1.02):
             break
-        scale = min(scale * found, MAX_NOISE_SCALE)
+        scale = min(scale * found, config.max_noise_scale)
         scaled = noise.scaled(scale)
         refit = refit_plane(points, refit.equation, scaled.model, scaled.k, scaled.floor, scaled.cap, iterations=1,
                             fit_points=0)
@@ -174,14 +144,15 @@ def fit_plane(
 
 def _surface_behind(
     sample: np.ndarray, band: np.ndarray, equation: np.ndarray, inliers: int, threshold: float, config: RansacConfig,
-    expected: np.ndarray | None = None,
+    expected: np.ndarray | None = None, propagate: PropagateConfig = PropagateConfig(),
 ) -> tuple[np.ndarray, int] | None:
     """A plane behind ``equation`` that the polygon was drawn for, or None.
 
     A polygon is drawn over what lies on its plane and in front of it, never over a surface
     behind it (but for a pixel or two along its edges, and openings such as a doorway). When
-    the points behind RANSAC's plane (beyond the band, within :data:`MAX_BEHIND_DEPTH`) hold a
-    plane with at least :data:`BEHIND_SHARE` of its ``inliers`` (and :data:`MIN_BEHIND_POINTS`),
+    the points behind RANSAC's plane (beyond the band, within ``config.max_behind_depth``) hold
+    a plane with at least ``config.behind_share`` of its ``inliers`` (and
+    ``config.min_behind_points``),
     and the plane's own points lie in front of that one, RANSAC took an object for the plane: the
     top of a carton on a floor that it mostly hides, a picture on a sliver of wall. Planes
     behind that the plane's points are not in front of (a carton's side seen behind its top:
@@ -191,25 +162,27 @@ def _surface_behind(
     on_plane = np.abs(sample @ equation[:3] + equation[3]) <= threshold
     behind = sample @ equation[:3] + equation[3] < -band
     for _ in range(BEHIND_CANDIDATES):
-        if np.count_nonzero(behind) < max(BEHIND_SHARE * inliers, MIN_BEHIND_POINTS):
+        if np.count_nonzero(behind) < max(config.behind_share * inliers, config.min_behind_points):
             return None
         candidate, found = _ransac(sample[behind], threshold, config)
-        if found < max(BEHIND_SHARE * inliers, MIN_BEHIND_POINTS):
+        if found < max(config.behind_share * inliers, config.min_behind_points):
             return None
         signed = sample @ candidate[:3] + candidate[3]
         on_candidate = np.abs(signed) <= threshold
         in_front = np.count_nonzero(on_plane & (signed < -band)) <= IN_FRONT_SLACK * np.count_nonzero(on_plane)
-        near = -np.median(sample[on_candidate] @ equation[:3] + equation[3]) <= MAX_BEHIND_DEPTH
-        if in_front and near and (expected is None or _same_surface(candidate, expected, sample[on_candidate])):
+        near = -np.median(sample[on_candidate] @ equation[:3] + equation[3]) <= config.max_behind_depth
+        if in_front and near and (
+            expected is None or _same_surface(candidate, expected, sample[on_candidate], propagate)
+        ):
             return candidate, found
         behind &= np.abs(signed) > threshold  # set that plane aside
     return None
 
 
-def _same_surface(plane: np.ndarray, expected: np.ndarray, points: np.ndarray) -> bool:
+def _same_surface(plane: np.ndarray, expected: np.ndarray, points: np.ndarray, propagate: PropagateConfig) -> bool:
     """Whether ``plane`` is the ``expected`` one, compared at the centre of its ``points``."""
     angle, offset = plane_agreement(expected, plane, at=points.mean(axis=0))
-    return angle <= SAME_SURFACE_ANGLE and offset <= SAME_SURFACE_OFFSET
+    return angle <= propagate.same_surface_angle and offset <= propagate.same_surface_offset
 
 
 def _ransac(sample: np.ndarray, threshold: float, config: RansacConfig, exhaustive: bool = False) -> tuple[np.ndarray, int]:

@@ -10,7 +10,7 @@ import cv2
 import numpy as np
 
 from annotate_rgbd.geometry.camera import Camera, backproject
-from annotate_rgbd.config.settings import RansacConfig
+from annotate_rgbd.config.settings import PropagateConfig, RansacConfig, RefineConfig
 from annotate_rgbd.geometry.noise import ConstantNoise, NoiseSettings
 from annotate_rgbd.geometry.planes import weighted_plane_fit
 from .ransac import PlaneFit, fit_plane
@@ -27,6 +27,8 @@ def refine_planes(
     rim_pixels: int = 0,
     propagated: Collection[int] = (),
     expected: Mapping[int, np.ndarray] | None = None,
+    refine: RefineConfig = RefineConfig(),
+    propagate: PropagateConfig = PropagateConfig(),
 ) -> tuple[np.ndarray, dict[int, PlaneFit]]:
     """Keep, for each plane, only its pixels with valid depth that lie on its fitted plane.
 
@@ -36,8 +38,8 @@ def refine_planes(
     to its own plane within the band ``noise.band(z)`` at its own depth. With a noise model (not
     a fixed band), surfaces inside the band but off the plane are then found by the window test
     (:func:`window_scores`): each plane is re-fitted to the windows around its dominant surface,
-    and inliers whose window score lies beyond :data:`COHERENCE_LIMIT` spreads, or whose window
-    holds under :data:`MIN_INLIER_DENSITY` inliers, are dropped. Last, inliers within
+    and inliers whose window score lies beyond ``refine.coherence_limit`` spreads, or whose
+    window holds under ``refine.min_inlier_density`` inliers, are dropped. Last, inliers within
     ``rim_pixels`` of a surface in front of their plane inside its shape are dropped
     (:func:`near_surfaces_in_front`).
 
@@ -64,6 +66,10 @@ def refine_planes(
         plane ``expected`` says.
     expected : mapping of int to ndarray, shape (4,), optional
         Where camera poses put each of those planes in this frame.
+    refine : RefineConfig
+        The window test's tunables (``rim_pixels`` is the parameter above).
+    propagate : PropagateConfig
+        The same-surface tolerances for ``expected``.
 
     Returns
     -------
@@ -86,7 +92,8 @@ def refine_planes(
         if rows.size < 3:
             continue
         fit = fit_plane(backproject(cols, rows, depth_m[rows, cols], camera), config, noise,
-                        look_behind=plane_id not in propagated, expected=(expected or {}).get(plane_id))
+                        look_behind=plane_id not in propagated, expected=(expected or {}).get(plane_id),
+                        propagate=propagate)
         fits[plane_id] = fit
         table[plane_id] = fit.equation
         scales[plane_id] = fit.noise_scale
@@ -94,7 +101,7 @@ def refine_planes(
     if not isinstance(band, float) and (scales != 1).any():  # widened where a plane's noise is larger
         band = np.clip(band * _lookup(scales, on_valid), np.float32(noise.floor), np.float32(noise.cap))
     # The window test needs the noise, which a fixed band (distance_threshold) does not give.
-    coherence = noise.floor < noise.cap and COHERENCE_WINDOW > 0
+    coherence = noise.floor < noise.cap and refine.coherence_window > 0
     if coherence and isinstance(band, float):  # a constant noise model
         band = np.where(np.isfinite(depth_m), np.float32(band), np.float32(np.nan))
     if coherence:
@@ -106,12 +113,12 @@ def refine_planes(
         small = (slice(None, None, 2), slice(None, None, 2))
         labels_s, depth_s, band_s = on_valid[small], depth_m[small], band[small]
         camera_s = replace(camera, fx=camera.fx / 2, fy=camera.fy / 2, cx=camera.cx / 2, cy=camera.cy / 2)
-        window = COHERENCE_WINDOW // 2 + 1
+        window = refine.coherence_window // 2 + 1
         on_plane_s, residual_s = _inlier_test(table, labels_s, depth_s, camera_s, band_s, noise.k)
-        for _ in range(CORE_REFITS):
-            score, usable = window_scores(residual_s, on_plane_s, window)
+        for _ in range(refine.core_refits):
+            score, usable = window_scores(residual_s, on_plane_s, window, refine.min_window_inliers)
             centre, _ = _score_statistics(score, usable, labels_s, n_labels)
-            core = usable & (np.abs(score - _lookup(centre, labels_s)) <= CORE_SCORE)
+            core = usable & (np.abs(score - _lookup(centre, labels_s)) <= refine.core_score)
             before = table.copy()
             _refit_to(core, labels_s, depth_s, band_s, noise.k, camera_s, config.max_points, fits, table)
             if np.abs(table - before).max(initial=0.0) < SETTLED:
@@ -119,10 +126,11 @@ def refine_planes(
             on_plane_s, residual_s = _inlier_test(table, labels_s, depth_s, camera_s, band_s, noise.k)
     on_plane, residual = _inlier_test(table, on_valid, depth_m, camera, band, noise.k)
     if coherence:
-        score, usable = window_scores(residual, on_plane)
+        score, usable = window_scores(residual, on_plane, refine.coherence_window, refine.min_window_inliers)
         centre, spread = _score_statistics(score, usable, on_valid, n_labels, step=4)
-        on_plane &= ~(usable & (np.abs(score - _lookup(centre, on_valid)) > COHERENCE_LIMIT * _lookup(spread, on_valid)))
-        on_plane &= inlier_density(on_plane, on_valid > 0) >= MIN_INLIER_DENSITY
+        limit = refine.coherence_limit * _lookup(spread, on_valid)
+        on_plane &= ~(usable & (np.abs(score - _lookup(centre, on_valid)) > limit))
+        on_plane &= inlier_density(on_plane, on_valid > 0, refine.coherence_window) >= refine.min_inlier_density
     if rim_pixels:
         with np.errstate(invalid="ignore"):
             in_front = (on_valid > 0) & ~on_plane & (residual > 0)
@@ -212,28 +220,8 @@ def signed_distances(
         return depth_m * (a * x_n + b * y_n + c) + d
 
 
-#: Side (px) of the window in which a plane's residuals are averaged to find surfaces that stand
-#: off it by less than the inlier band (a whiteboard on a wall, a book on a table): their
-#: pixels' residuals are each within the noise, but share a sign and a size over an area.
-COHERENCE_WINDOW = 7
-#: How many standard deviations of a window mean (measured over the plane itself) mark the
-#: window's centre pixel as lying on another surface.
-COHERENCE_LIMIT = 5.0
-#: Fewest inliers in a window for its score to count: the score is normalised for any number,
-#: and a surface just beyond the band leaves only scattered inliers (its noise's tail).
-MIN_WINDOW_INLIERS = 4
-#: Inliers with fewer inliers than this share of their window's labelled pixels are dropped: a
-#: plane pixel's window holds about 99 % (a 3 sigma band), 57 % on an occluder's straight edge
-#: (4 of 7 columns), 33 % in a right-angled corner (16 of 49); a surface a little beyond the
-#: band, whose noise puts only its scattered pixels inside it, 5-40 %.
-MIN_INLIER_DENSITY = 0.3
-#: Re-fits of each plane to its core: the pixels whose window score lies within this many
-#: standard normal deviations of the plane's centre (on real sensors, whose noise is correlated,
-#: fewer than 95 % of the plane, but all of them on its dominant surface).
-CORE_SCORE = 2.0
-#: At most this many re-fits; they stop once no plane's normal or offset moved by SETTLED
+#: The core re-fits (``refine.core_refits``) stop once no plane's normal or offset moved by this
 #: (unit normal components; metres), a small fraction of any band.
-CORE_REFITS = 2
 SETTLED = 5e-4
 #: Window scores are clipped to +-this for the statistics (far beyond any limit used).
 SCORE_CLIP = 1000.0
@@ -260,7 +248,9 @@ def _refit_to(
         table[plane_id] = equation
 
 
-def inlier_density(on_plane: np.ndarray, labelled: np.ndarray) -> np.ndarray:
+def inlier_density(
+    on_plane: np.ndarray, labelled: np.ndarray, window: int = RefineConfig.coherence_window
+) -> np.ndarray:
     """The share of inliers among the labelled pixels with depth of each pixel's window.
 
     Parameters
@@ -269,6 +259,8 @@ def inlier_density(on_plane: np.ndarray, labelled: np.ndarray) -> np.ndarray:
         Pixels within their plane's band.
     labelled : ndarray of bool, shape (H, W)
         Pixels in a plane's shape with valid depth.
+    window : int
+        Side of the square window (px).
 
     Returns
     -------
@@ -277,7 +269,7 @@ def inlier_density(on_plane: np.ndarray, labelled: np.ndarray) -> np.ndarray:
         occluder, and low over a surface just beyond the band, whose noise puts only scattered
         pixels inside it.
     """
-    size = (COHERENCE_WINDOW, COHERENCE_WINDOW)
+    size = (window, window)
     inliers = cv2.boxFilter(on_plane.astype(np.float32), -1, size, normalize=False, borderType=cv2.BORDER_CONSTANT)
     total = cv2.boxFilter(labelled.astype(np.float32), -1, size, normalize=False, borderType=cv2.BORDER_CONSTANT)
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -285,7 +277,8 @@ def inlier_density(on_plane: np.ndarray, labelled: np.ndarray) -> np.ndarray:
 
 
 def window_scores(
-    residual: np.ndarray, on_plane: np.ndarray, window: int = COHERENCE_WINDOW
+    residual: np.ndarray, on_plane: np.ndarray, window: int = RefineConfig.coherence_window,
+    min_inliers: int = RefineConfig.min_window_inliers,
 ) -> tuple[np.ndarray, np.ndarray]:
     """The mean residual of each pixel's window, scaled to a standard normal on a true plane.
 
@@ -297,6 +290,8 @@ def window_scores(
         The pixels within their plane's inlier band (the only ones averaged).
     window : int
         Side of the square window (px).
+    min_inliers : int
+        Fewest inliers in a window for its score to count.
 
     Returns
     -------
@@ -305,7 +300,7 @@ def window_scores(
         N(0, 1) where the noise is independent and the window lies on its plane, far from 0
         over a surface that stands off the plane (its residuals share a sign).
     usable : ndarray of bool, shape (H, W)
-        Inlier pixels whose window holds at least :data:`MIN_WINDOW_INLIERS` inliers.
+        Inlier pixels whose window holds at least ``min_inliers`` inliers.
     """
     values = np.where(on_plane, residual, np.float32(0))
     size = (window, window)
@@ -313,7 +308,7 @@ def window_scores(
     count = cv2.boxFilter(on_plane.astype(np.float32), -1, size, normalize=False, borderType=cv2.BORDER_CONSTANT)
     with np.errstate(invalid="ignore", divide="ignore"):
         score = total / np.sqrt(count)
-    return score, on_plane & (count >= MIN_WINDOW_INLIERS)
+    return score, on_plane & (count >= min_inliers)
 
 
 def _score_statistics(

@@ -1,0 +1,229 @@
+"""The configuration sections that change how a mask is made: ``[filter]``, ``[ransac]``,
+``[refine]`` and ``[propagate]`` (with ``[camera]`` and ``[noise]``, the settings a mask's
+fingerprint keys on, :func:`annotate_rgbd.pipeline.resume.fingerprint`).
+
+Each default is given with its source: a paper, a sensor's datasheet, or a measurement of this
+project (which benchmark). :mod:`annotate_rgbd.config.settings` assembles them into
+:class:`~annotate_rgbd.config.settings.Config` and reads them from TOML and ``--set``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+
+@dataclass(frozen=True)
+class FilterConfig:
+    """When a plane is dropped from a frame before refinement.
+
+    Parameters
+    ----------
+    max_invalid_ratio : float
+        Drop a plane whose share of pixels without valid depth exceeds this (EVOPS paper: 0.8;
+        0.75 for fr2_pioneer_slam in the original annotation).
+    max_mean_distance : float
+        Drop a plane whose valid pixels lie farther than this from the camera on average, in
+        metres (EVOPS paper: 3.5 m, where Kinect depth noise grows beyond a few centimetres).
+    min_valid_pixels : int
+        Drop a plane with fewer valid pixels than this: RANSAC needs 3 points, and a patch
+        smaller than about 7x7 pixels says nothing reliable about a plane (this project's choice).
+    """
+
+    max_invalid_ratio: float = 0.8
+    max_mean_distance: float = 3.5
+    min_valid_pixels: int = 50
+
+
+@dataclass(frozen=True)
+class RansacConfig:
+    """Open3D ``segment_plane`` settings.
+
+    Parameters
+    ----------
+    distance_threshold : float
+        A fixed inlier band: the largest point-to-plane distance of an inlier, in metres, at
+        every depth (EVOPS set it by hand per sequence: 0.02 m for TUM long_office; 0.005 m for
+        ICL-NUIM, 0.01 m fr1_desk, 0.03 m fr2_pioneer_slam). 0 (the default): the band follows
+        the sensor's noise, ``[noise]`` (:class:`annotate_rgbd.geometry.noise.NoiseSettings`). A value
+        > 0 replaces the noise model, whatever ``[noise]`` says.
+    num_iterations : int
+        RANSAC iterations (Open3D stops earlier once the inlier set is certain).
+    seed : int
+        Seed of Open3D's random generator, set before every fit so that a re-run gives
+        identical masks.
+    max_points : int
+        RANSAC looks for the plane among at most this many of a plane's points, spread evenly
+        over it (a regular pixel grid); every pixel is then tested against that plane. On the
+        benchmark sequence (benchmarks/bench_cvat2mask.py) 1,000 points change 0.04 % of the
+        mask pixels against a search among all points, at a third of the time. 0: every point.
+    band_share : float
+        RANSAC's distance threshold, as a share of the inlier band at the points' median depth
+        (k = 3 sigma: 1.5 sigma). With the full band a plane tilted between two surfaces a few
+        sigma apart (a whiteboard on a wall, books on a table) can gather more points than
+        either surface's own plane; within 1.5 sigma the dominant surface wins. Measured on
+        benchmarks/bench_refine.py: the wall behind a whiteboard went from mean IoU 0.86 to 0.94
+        (0.34 of the band gave the same).
+    exhaustive_below : float
+        For a shape carried by camera poses, RANSAC runs again through all its iterations when
+        its plane holds under this share of the points (a wall half covered by a whiteboard:
+        Open3D stops early on a plane leaning between two surfaces of about half each). This
+        project's choice, between those halves and a plane that clearly dominates.
+    min_noise_scale, max_noise_scale : float
+        Real sensors are noisier than their published axial noise (depth distortion on TUM fr1,
+        stereo ripples on RealSense, lateral noise on tilted planes). Each plane's own residuals
+        tell by how much (``1.4826 median(|d| / sigma(z))`` of its fit's inliers, the MAD
+        estimate of a standard deviation); the noise is scaled by that factor when it exceeds
+        ``min_noise_scale`` (below, it is within the spread of the estimate: a median of about
+        a thousand points varies by a few per cent) and by at most ``max_noise_scale``
+        (measured: the planes of TUM fr1_rpy and of the RealSense office frames are about 1.5
+        sigma of the published models; renders with the model's exact noise stay about 1).
+    behind_share, min_behind_points, max_behind_depth, max_behind : float, int, float, int
+        A surface behind RANSAC's plane (beyond its band) that holds at least ``behind_share``
+        of the plane's inliers and ``min_behind_points`` points (a few stray points always
+        make a plane), that lies at most ``max_behind_depth`` metres behind it (an object
+        standing on a plane is rarely taller: the carton on the benchmark's floor is 0.3 m; a
+        surface farther behind is seen through an opening, a doorway, which labellers do draw
+        over), and that the plane's points lie in front of, replaces it, at most ``max_behind``
+        times in a row (:func:`annotate_rgbd.segment.ransac.fit_plane`; this project's choices,
+        checked on the rendered scenes of tests/test_rims_and_behind.py). ``max_behind = 0``:
+        never.
+    """
+
+    distance_threshold: float = 0.0
+    num_iterations: int = 1000
+    seed: int = 0
+    max_points: int = 1000
+    band_share: float = 0.5
+    exhaustive_below: float = 0.6
+    min_noise_scale: float = 1.15
+    max_noise_scale: float = 2.5
+    behind_share: float = 0.3
+    min_behind_points: int = 10
+    max_behind_depth: float = 0.5
+    max_behind: int = 2
+
+
+@dataclass(frozen=True)
+class RefineConfig:
+    """What refinement does besides the inlier test.
+
+    Parameters
+    ----------
+    grow_pixels : int
+        Grow each kept plane by up to this many pixels beyond its drawn shape, into pixels
+        whose depth lies on the plane and that no other plane's shape or inliers claim
+        (:func:`annotate_rgbd.segment.grow.grow_planes`): a labeller's outline is a pixel or two off the
+        real edge (this project's measurement on rendered scenes: +-2 px). 0: no growing.
+    rim_pixels : int
+        Drop a plane's pixels this close to a surface standing in front of it inside its shape
+        (:func:`annotate_rgbd.segment.refine.near_surfaces_in_front`; README, *Refinement and sensor
+        noise*, for the measurement behind 2). 0: keep them.
+    coherence_window : int
+        Side (px, odd) of the window in which a plane's residuals (in noise units) are averaged
+        to find surfaces that stand off it by less than the inlier band (a whiteboard on a
+        wall, a book on a table): each pixel's residual is within the noise, but they share a
+        sign over an area (:func:`annotate_rgbd.segment.refine.window_scores`). 7 px covers a
+        few Kinect v1 correlation windows (this project's choice). 0: no window test.
+    coherence_limit : float
+        How many spreads of a plane's window scores (a standard deviation where the noise is
+        independent) mark a window's centre pixel as lying on another surface; also the limit
+        of growing beyond keyframes (:func:`annotate_rgbd.segment.grow.grow_connected`). 5:
+        far in the tail of a normal distribution, so a true plane loses almost nothing.
+    min_window_inliers : int
+        Fewest inliers in a window for its score to count: the score is normalised for any
+        number, and a surface just beyond the band leaves only scattered inliers.
+    min_inlier_density : float
+        Inliers whose window holds fewer inliers than this share of its labelled pixels are
+        dropped: a plane pixel's window holds about 99 % (a 3 sigma band), 57 % on an
+        occluder's straight edge (4 of 7 columns), 33 % in a right-angled corner (16 of 49); a
+        surface a little beyond the band, whose noise puts only scattered pixels inside it,
+        5-40 %.
+    core_score, core_refits : float, int
+        Each plane is re-fitted (at most ``core_refits`` times) to its core: the pixels whose
+        window score lies within ``core_score`` standard normal deviations of the plane's centre
+        (on real sensors, whose noise is correlated, fewer than 95 % of the plane, but all of
+        them on its dominant surface).
+    """
+
+    grow_pixels: int = 3
+    rim_pixels: int = 2
+    coherence_window: int = 7
+    coherence_limit: float = 5.0
+    min_window_inliers: int = 4
+    min_inlier_density: float = 0.3
+    core_score: float = 2.0
+    core_refits: int = 2
+
+
+@dataclass(frozen=True)
+class PropagateConfig:
+    """Pose-guided propagation (:mod:`annotate_rgbd.propagate`), with ``sequence.poses``.
+
+    Parameters
+    ----------
+    same_surface_angle, same_surface_offset : float
+        Largest angle (degrees) and offset (m, at a point of the surface) between two planes for
+        them to be one surface seen through camera poses: a track's keyframe planes, and a
+        surface behind RANSAC's plane against where the poses put it. Real poses reproject
+        depth with errors of 0.4-2 cm over tens of frames (7-Scenes, TUM fr1_rpy), and a plane
+        fitted to a few thousand pixels has an orientation error of a fraction of a degree: 5
+        degrees and 5 cm are well above both and well below two surfaces a labeller might
+        confuse (a table top and the floor: 0.7 m).
+    min_keyframe_weight : float
+        A keyframe off its track's agreed plane flags the track for review only when its shape
+        holds at least this share of the valid depth pixels of the track's largest keyframe (a
+        sliver of a plane leaving the view is mostly another surface). This project's choice.
+    border_margin : float
+        Outline vertices this close to the keyframe image's edge (px) lie on it (CVAT clamps
+        drawn vertices to the image; a labeller's few pixels of slack).
+    beyond_reach : float
+        How far past a keyframe image's border an outline that the border cut is carried, at
+        most, as a share of the image's size (:func:`annotate_rgbd.propagate.carry.beyond_the_border`).
+    """
+
+    same_surface_angle: float = 5.0
+    same_surface_offset: float = 0.05
+    min_keyframe_weight: float = 0.25
+    border_margin: float = 4.0
+    beyond_reach: float = 0.5
+
+
+def range_checks(config: Any) -> list[tuple[str, bool, str]]:
+    """The ``(key, holds, rule)`` checks of the tunables of these sections that
+    :func:`annotate_rgbd.config.settings.load_config` makes (one line each in the error:
+    ``'refine.coherence_window' must be ...``), besides the finite-number and integer-size
+    checks of every key and the checks of the keys listed in ``settings``.
+
+    Parameters
+    ----------
+    config : Config
+
+    Returns
+    -------
+    list of (str, bool, str)
+    """
+    ransac, refine, propagate = config.ransac, config.refine, config.propagate
+    return [
+        ("ransac.band_share", 0 < ransac.band_share <= 1, "must be in (0, 1]"),
+        ("ransac.exhaustive_below", 0 <= ransac.exhaustive_below <= 1, "must be in [0, 1]"),
+        ("ransac.min_noise_scale", ransac.min_noise_scale >= 1, "must be >= 1"),
+        ("ransac.max_noise_scale", ransac.max_noise_scale >= 1, "must be >= 1 (1: never scale the noise)"),
+        ("ransac.behind_share", ransac.behind_share > 0, "must be > 0"),
+        ("ransac.min_behind_points", ransac.min_behind_points >= 3, "must be >= 3"),
+        ("ransac.max_behind_depth", ransac.max_behind_depth > 0, "must be > 0"),
+        ("ransac.max_behind", 0 <= ransac.max_behind <= 10, "must be in [0, 10]"),
+        ("refine.coherence_window", refine.coherence_window == 0
+         or (3 <= refine.coherence_window <= 51 and refine.coherence_window % 2 == 1),
+         "must be 0 (no window test) or odd in [3, 51]"),
+        ("refine.coherence_limit", 0 < refine.coherence_limit <= 100, "must be in (0, 100]"),
+        ("refine.min_window_inliers", 1 <= refine.min_window_inliers, "must be >= 1"),
+        ("refine.min_inlier_density", 0 <= refine.min_inlier_density <= 1, "must be in [0, 1]"),
+        ("refine.core_score", 0 < refine.core_score <= 100, "must be in (0, 100]"),
+        ("refine.core_refits", 0 <= refine.core_refits <= 20, "must be in [0, 20]"),
+        ("propagate.same_surface_angle", 0 <= propagate.same_surface_angle <= 90, "must be in [0, 90] (degrees)"),
+        ("propagate.same_surface_offset", propagate.same_surface_offset >= 0, "must be >= 0"),
+        ("propagate.min_keyframe_weight", 0 <= propagate.min_keyframe_weight <= 1, "must be in [0, 1]"),
+        ("propagate.border_margin", propagate.border_margin >= 0, "must be >= 0"),
+        ("propagate.beyond_reach", 0 <= propagate.beyond_reach <= 10, "must be in [0, 10]"),
+    ]
