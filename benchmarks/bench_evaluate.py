@@ -4,7 +4,7 @@ Run from the repository root::
 
     python benchmarks/bench_evaluate.py [--frames 3] [--evops-python PATH]
 
-evops 1.0.0 needs numpy < 2, so it runs in its own environment (see ``tests/evops/make_vectors.py``
+evops 1.0.0 needs numpy < 2, so it runs in its own environment (see ``tests/evaluate/evops/make_vectors.py``
 for how to make one); its interpreter is ``--evops-python``, else ``$EVOPS_PYTHON``, else
 ``/work/venv-evops/bin/python`` if that exists. Both sides time only ``full_statistics`` on frames
 already in memory (evops's half-minute import is not counted), and the values are compared too.

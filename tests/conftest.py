@@ -29,3 +29,16 @@ def reference_data(folder: str = "") -> Path:
 def shared_data() -> Path:
     """The real reference data folder; the test is skipped where it is absent."""
     return reference_data()
+
+
+@pytest.fixture(scope="session")
+def sample_run(tmp_path_factory):
+    """``cvat2mask`` on the bundled sample with its camera.toml, made once for the whole test
+    session: ``(output folder, SceneResult)``. Read it, never change it (copy it first)."""
+    from annotate_rgbd.config.settings import load_config
+    from annotate_rgbd.pipeline.scene import run_cvat2mask
+
+    out = tmp_path_factory.mktemp("sample_run") / "out"
+    result = run_cvat2mask(SAMPLE_DATA / "sequence", [SAMPLE_DATA / "annotations.xml"], out,
+                           load_config(SAMPLE_DATA / "camera.toml"))
+    return out, result

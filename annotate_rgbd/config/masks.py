@@ -86,7 +86,7 @@ class RansacConfig:
         surface farther behind is seen through an opening, a doorway, which labellers do draw
         over), and that the plane's points lie in front of, replaces it, at most ``max_behind``
         times in a row (:func:`annotate_rgbd.segment.ransac.fit_plane`; this project's choices,
-        checked on the rendered scenes of tests/test_rims_and_behind.py). ``max_behind = 0``:
+        checked on the rendered scenes of tests/segment/test_rims_and_behind.py). ``max_behind = 0``:
         never.
     """
 

@@ -22,8 +22,8 @@ Everything is computed from one sparse contingency table (pixel counts per pair 
 ground-truth label), so a 640x480 frame takes milliseconds where ``evops`` loops over label pairs
 with set operations on pixel indices and takes about two seconds.
 
-Where this module differs from evops 1.0.0 (the differential tests in ``tests/test_metrics.py``
-exclude exactly these cases, and ``tests/evops/make_vectors.py`` marks them):
+Where this module differs from evops 1.0.0 (the differential tests in ``tests/evaluate/test_metrics.py``
+exclude exactly these cases, and ``tests/evaluate/evops/make_vectors.py`` marks them):
 
 - Empty inputs (zero pixels): evops raises ``AssertionError``; here every metric is 0.
 - ``full < 0.5``: a plane can then fully overlap several planes and evops pairs them greedily in

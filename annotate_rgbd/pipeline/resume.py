@@ -55,7 +55,7 @@ PACKAGE = Path(__file__).resolve().parent.parent
 #: Left out, on purpose: code whose results are themselves hashed into the fingerprint (the CVAT
 #: reader, interpolation, stitching, pose-guided propagation in ``propagate/``: they make the
 #: shapes, plane ids and expected planes; the configuration's values), and code that cannot
-#: change a frame's files (:data:`NOT_MASK_CODE`). tests/test_algorithm_digest.py checks that
+#: change a frame's files (:data:`NOT_MASK_CODE`). tests/pipeline/test_algorithm_digest.py checks that
 #: every module the frame job imports is in one of the two lists.
 MASK_CODE = (
     "segment", "geometry", "pipeline/frame_job.py", "pipeline/resume.py", "io/sequence.py", "io/writer.py",

@@ -22,7 +22,7 @@ from annotate_rgbd.propose import run_propose
 from annotate_rgbd.io.sequence import read_sequence
 from annotate_rgbd.synthetic import make_sequence, room_trajectory
 
-SAMPLE_DATA = Path(__file__).resolve().parents[1] / "sample_data"
+SAMPLE_DATA = Path(__file__).resolve().parents[2] / "sample_data"
 
 CAMERA = Camera(fx=525.0, fy=525.0, cx=319.5, cy=239.5, depth_scale=5000.0)
 N_FRAMES = 40

@@ -28,7 +28,7 @@ from annotate_rgbd.synthetic import (
     room_trajectory,
 )
 
-SAMPLE_DATA = Path(__file__).resolve().parents[1] / "sample_data"
+SAMPLE_DATA = Path(__file__).resolve().parents[2] / "sample_data"
 WIDTH, HEIGHT = 160, 120
 CAMERA = Camera(fx=131.25, fy=131.25, cx=79.5, cy=59.5, depth_scale=5000.0)
 #: Contact objects lying flat on or hung flat against a plane: clutter index in contact_scene ->
@@ -191,7 +191,7 @@ def test_jitter_offsets_are_uniform_per_axis():
 
 def test_default_arguments_render_the_committed_sample_and_object_images_add_only_files(tmp_path):
     """The default polygon jitter gives the committed sample's bytes (decoded for PNGs), and
-    asking for the object images adds them and changes nothing else (``tests/test_synthetic.py``
+    asking for the object images adds them and changes nothing else (``tests/synthetic/test_synthetic.py``
     checks the sample made without any of the new options)."""
     spec = importlib.util.spec_from_file_location("make_sample_data", SAMPLE_DATA / "make_sample_data.py")
     sample = importlib.util.module_from_spec(spec)

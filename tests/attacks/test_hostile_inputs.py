@@ -33,44 +33,13 @@ from annotate_rgbd.review.review import review_run
 from annotate_rgbd.io.sequence import MAX_FRAMES, MAX_IMAGE_PIXELS, MAX_LIST_BYTES, MAX_LIST_LINES, png_size, read_depth, read_sequence
 from annotate_rgbd.io.writer import write_csv, write_json
 
-W, H = 40, 30
-CAMERA = "[camera]\nfx = 40.0\nfy = 40.0\ncx = 19.5\ncy = 14.5\ndepth_scale = 5000.0\n"
-
-
-def timestamp(i: int) -> str:
-    return f"{100 + 0.1 * i:.6f}"
+from builders import CAMERA, H, W, box, error_line, timestamp, video_export
+from builders import make_sequence as _make_sequence
 
 
 def make_sequence(root: Path, n: int = 3) -> None:
-    """TUM layout of ``n`` 40 x 30 frames of one tilted plane (2 to 2.3 m, every pixel valid)."""
-    (root / "rgb").mkdir(parents=True)
-    (root / "depth").mkdir()
-    rows, cols = np.mgrid[0:H, 0:W]
-    depth = (10000 + 30 * cols + 20 * rows).astype(np.uint16)
-    for i in range(n):
-        cv2.imwrite(str(root / f"depth/{timestamp(i)}.png"), depth)
-        cv2.imwrite(str(root / f"rgb/{timestamp(i)}.png"), np.full((H, W, 3), 90 + 40 * i, np.uint8))
-    for kind in ("rgb", "depth"):
-        lines = [f"{timestamp(i)} {kind}/{timestamp(i)}.png" for i in range(n)]
-        (root / f"{kind}.txt").write_text("# timestamp filename\n" + "\n".join(lines) + "\n")
-
-
-def video_export(path: Path, n: int, body: str) -> Path:
-    """A "CVAT for video 1.1" task of frames 0 .. n - 1."""
-    path.write_text(
-        '<?xml version="1.0" encoding="utf-8"?>\n<annotations><version>1.1</version><meta><task>'
-        f"<start_frame>0</start_frame><stop_frame>{n - 1}</stop_frame><frame_filter></frame_filter>"
-        f"<original_size><width>{W}</width><height>{H}</height></original_size></task></meta>\n"
-        f"{body}\n</annotations>\n"
-    )
-    return path
-
-
-def box(frame: int, outside: int = 0) -> str:
-    return (
-        f'<box frame="{frame}" keyframe="1" outside="{outside}" occluded="0" '
-        'xtl="2" ytl="2" xbr="30" ybr="25" z_order="0"/>'
-    )
+    """The tiny scene with a different grey on every RGB frame."""
+    _make_sequence(root, n, varied_rgb=True)
 
 
 def cvat2mask(*args: str):
@@ -95,13 +64,6 @@ def tiny_run(tmp_path: Path, *extra: str, n: int = 3, body: str | None = None):
 
 def report_of(out: Path) -> dict:
     return json.loads((out / "report.json").read_text(encoding="utf-8"))
-
-
-def error_line(result) -> str:
-    """The single ``error:`` line of a failed run, which must have no traceback."""
-    errors = [line for line in result.stderr.splitlines() if line.startswith("error:")]
-    assert len(errors) == 1 and "Traceback" not in result.stderr, result.stderr
-    return errors[0]
 
 
 # --------------------------------------------------------------------------------------------
@@ -130,8 +92,9 @@ def test_overlays_of_frames_without_shapes_on_the_sample(tmp_path):
         overlay = cv2.cvtColor(cv2.imread(str(out / "overlays" / Path(frame["mask"]).name)), cv2.COLOR_BGR2RGB)
         assert not cv2.imread(str(out / frame["mask"])).any()
         assert np.array_equal(overlay, rgb_on_depth_grid(SAMPLE_DATA / "sequence" / frame["rgb"], overlay.shape[:2]))
-    reviewed = review_run(out)
-    assert len(reviewed.overlays) == len(written) and reviewed.warnings == []
+    drawn = {p.name: p.read_bytes() for p in (out / "overlays").iterdir()}
+    reviewed = review_run(out)  # from the run's records: the same overlays
+    assert {p.name: p.read_bytes() for p in reviewed.overlays} == drawn
 
 
 def test_overlays_after_a_track_ends_before_the_task(tmp_path):
@@ -371,7 +334,7 @@ def test_absurd_timestamps_are_refused_naming_file_and_line(tmp_path, value):
     result, out = tiny_run(tmp_path)
     assert result.exit_code == 1, result.stderr
     why = "is not a timestamp" if value in ("inf", "NaN") else "is out of range (timestamps are within +-1e+19)"
-    assert error_line(result) == f"error: {path}: line 3: '{value}' {why}"
+    assert error_line(result) == f"error: {path}: line 5: '{value}' {why}"  # after three header lines
 
 
 def test_timestamps_at_the_bound_give_a_strict_report(tmp_path):

@@ -11,7 +11,6 @@ reader and fails the test otherwise).
 from __future__ import annotations
 
 import errno
-import hashlib
 import http.server
 import json
 import os
@@ -35,55 +34,12 @@ from annotate_rgbd.cvat import encode_rle, read_cvat
 from annotate_rgbd.errors import InputError, OutputError
 from annotate_rgbd.io.sequence import camera_problem, read_sequence
 
-W, H = 40, 30
-CAMERA = "[camera]\nfx = 40.0\nfy = 40.0\ncx = 19.5\ncy = 14.5\ndepth_scale = 5000.0\n"
-XML_HEAD = '<?xml version="1.0" encoding="utf-8"?>\n'
+from builders import CAMERA, H, W, XML_HEAD, depth_image, error_line, make_sequence, snapshot, timestamp, video_export, wall_track
 
 
 # --------------------------------------------------------------------------------------------
 # A tiny scene, a command-line runner and the proofs
 # --------------------------------------------------------------------------------------------
-
-
-def timestamp(i: int) -> str:
-    return f"{100 + 0.1 * i:.6f}"
-
-
-def depth_image(size=(W, H)) -> np.ndarray:
-    """A plane tilted away from the camera, 2 to 2.3 m: every pixel valid."""
-    rows, cols = np.mgrid[0 : size[1], 0 : size[0]]
-    return (10000 + 30 * cols + 20 * rows).astype(np.uint16)
-
-
-def make_sequence(root: Path, n: int) -> None:
-    """TUM layout: rgb/ and depth/ PNGs, rgb.txt and depth.txt with equal timestamps."""
-    (root / "rgb").mkdir(parents=True)
-    (root / "depth").mkdir()
-    for i in range(n):
-        cv2.imwrite(str(root / f"depth/{timestamp(i)}.png"), depth_image())
-        cv2.imwrite(str(root / f"rgb/{timestamp(i)}.png"), np.full((H, W, 3), 128, np.uint8))
-    for kind in ("rgb", "depth"):
-        lines = [f"{timestamp(i)} {kind}/{timestamp(i)}.png" for i in range(n)]
-        (root / f"{kind}.txt").write_text(f"# {kind}\n# file: 'tiny'\n# timestamp filename\n" + "\n".join(lines) + "\n")
-
-
-def video_export(path: Path, n: int, body: str, size=(W, H)) -> Path:
-    """A "CVAT for video 1.1" task of frames 0 .. n - 1 whose tracks begin on line 3."""
-    original = f"<original_size><width>{size[0]}</width><height>{size[1]}</height></original_size>"
-    path.write_text(
-        f"{XML_HEAD}<annotations><version>1.1</version><meta><task><start_frame>0</start_frame>"
-        f"<stop_frame>{n - 1}</stop_frame><frame_filter></frame_filter>{original}</task></meta>\n"
-        f"{body}\n</annotations>\n"
-    )
-    return path
-
-
-def wall_track(n: int, track_id: int = 0) -> str:
-    boxes = "".join(
-        f'<box frame="{f}" keyframe="1" outside="0" occluded="0" xtl="2" ytl="2" xbr="30" ybr="25" z_order="0"/>'
-        for f in range(n)
-    )
-    return f'<track id="{track_id}" label="wall" source="manual">{boxes}</track>'
 
 
 class Scene:
@@ -116,26 +72,6 @@ class Scene:
 @pytest.fixture
 def scene(tmp_path) -> Scene:
     return Scene(tmp_path)
-
-
-def snapshot(root: Path, skip: Path) -> dict:
-    """Every path under ``root`` (not under ``skip``) with its type, mode and content hash."""
-    state = {}
-    for path in sorted(root.rglob("*")):
-        if path == skip or skip in path.parents:
-            continue
-        info = path.lstat()
-        digest = hashlib.sha256(path.read_bytes()).hexdigest() if path.is_file() and not path.is_fifo() else ""
-        state[path.relative_to(root).as_posix()] = (info.st_mode, info.st_size, info.st_mtime_ns, digest)
-    return state
-
-
-def error_line(result) -> str:
-    """The one ``error:`` line of a failed run (with no traceback)."""
-    errors = [line for line in result.stderr.splitlines() if line.startswith("error:")]
-    assert len(errors) == 1, result.stderr
-    assert "Traceback" not in result.stderr
-    return errors[0]
 
 
 def assert_fails(result, path: Path, message: str, status: int = 1) -> None:
@@ -683,7 +619,7 @@ def test_full_disk_leaves_no_partial_file(tmp_path, monkeypatch):
 
 
 def test_full_disk_stops_the_run_at_the_first_mask(scene, monkeypatch):
-    disk_full_after(monkeypatch, 1)
+    disk_full_after(monkeypatch, 2)  # the record of the files the run may write, then one mask
     result = scene.run()
     mask = scene.out / "masks" / f"{timestamp(1)}.png"
     assert_fails(result, mask, "cannot write output: No space left on device")

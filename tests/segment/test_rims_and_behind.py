@@ -4,6 +4,7 @@ stands on the plane meets it in a rim that depth cannot separate (so the plane g
 
 import numpy as np
 import pytest
+from builders import floor_under_carton, through
 from scipy import ndimage
 
 from annotate_rgbd.annotation.model import Shape
@@ -105,29 +106,6 @@ def test_rim_pixels_setting():
 
 
 # --- the surface behind RANSAC's plane -------------------------------------------------------
-
-def floor_under_carton(rng, floor_points=500, top_points=800, side_points=400):
-    """Points of a floor 1.5 m below the camera, a carton top 0.3 m above it (more points than
-    the floor) and the carton's side facing the camera (behind the top's plane, as the floor
-    is): camera frame, y down."""
-    floor_y, top_y = 1.5, 1.2
-    floor = np.column_stack([rng.uniform(-1, 1, floor_points), np.full(floor_points, floor_y),
-                             rng.uniform(1.5, 3.0, floor_points)])
-    top = np.column_stack([rng.uniform(-0.3, 0.3, top_points), np.full(top_points, top_y),
-                           rng.uniform(2.0, 2.5, top_points)])
-    side = np.column_stack([rng.uniform(-0.3, 0.3, side_points), rng.uniform(top_y, floor_y, side_points),
-                            np.full(side_points, 2.0)])
-    points = np.vstack([floor, top, side])
-    sigma = 0.0012 + 0.0019 * (points[:, 2] - 0.4) ** 2
-    points[:, 2] += rng.standard_normal(len(points)) * sigma
-    return points, floor_y, top_y
-
-
-def through(equation, y, z=2.25):
-    """Whether a plane is the horizontal one at height ``y``: it passes within 1 cm of the
-    point (0, y, z) and is level within a degree."""
-    return abs(equation[:3] @ (0.0, y, z) + equation[3]) < 0.01 and abs(equation[1]) > np.cos(np.radians(1))
-
 
 def test_a_floor_mostly_hidden_by_a_carton_is_found_behind_the_carton_top():
     points, floor_y, top_y = floor_under_carton(np.random.default_rng(4))

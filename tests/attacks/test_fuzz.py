@@ -150,7 +150,7 @@ def test_mutated_exports(tmp_path, data):
 def fuzz_with_atheris() -> None:
     """Coverage-guided fuzzing of :func:`read_cvat` with atheris (``pip install atheris``).
 
-    Run as ``python tests/test_fuzz.py [CORPUS_DIR] -max_total_time=600``; libFuzzer options
+    Run as ``python tests/attacks/test_fuzz.py [CORPUS_DIR] -max_total_time=600``; libFuzzer options
     apply. A crash (any exception but :class:`InputError`) stops it and writes the input.
     """
     import sys

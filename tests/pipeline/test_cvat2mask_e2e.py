@@ -10,7 +10,6 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-import pytest
 from typer.testing import CliRunner
 
 from annotate_rgbd.cli import app
@@ -23,13 +22,6 @@ from conftest import SAMPLE_DATA
 SEQUENCE = SAMPLE_DATA / "sequence"
 ANNOTATIONS = SAMPLE_DATA / "annotations.xml"
 GROUND_TRUTH = SAMPLE_DATA / "ground_truth"
-
-
-@pytest.fixture(scope="module")
-def sample_run(tmp_path_factory):
-    out = tmp_path_factory.mktemp("sample_run")
-    report = run_cvat2mask(SEQUENCE, [ANNOTATIONS], out, load_config(SAMPLE_DATA / "camera.toml"))
-    return out, report
 
 
 def read_mask_ids(path, colour_to_plane):

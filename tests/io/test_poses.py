@@ -23,7 +23,7 @@ from annotate_rgbd.io.poses import (
     read_trajectory,
 )
 
-REPO_ROOT = Path(__file__).resolve().parents[1]
+REPO_ROOT = Path(__file__).resolve().parents[2]
 
 
 def shared_data() -> Path:

@@ -14,7 +14,7 @@ from annotate_rgbd.segment.ransac import fit_plane
 from annotate_rgbd.pipeline.resume import fingerprint
 from annotate_rgbd.segment.frame import segment_frame
 
-from test_rims_and_behind import floor_under_carton, through
+from builders import floor_under_carton, through
 
 KINECT = NoiseSettings(SENSOR_MODELS["kinect_v1"])
 CAMERA = Camera(fx=150.0, fy=150.0, cx=79.5, cy=59.5, depth_scale=5000.0)

@@ -31,7 +31,7 @@ from annotate_rgbd.pipeline.scene import run_cvat2mask
 from annotate_rgbd.pool import JobOutcome, JobTimeout, run_jobs, start_helpers
 from annotate_rgbd.pipeline.resume import JOURNAL, MAX_RECORDS_BYTES, previous_results
 
-REPO_ROOT = Path(__file__).resolve().parents[1]
+REPO_ROOT = Path(__file__).resolve().parents[2]
 SAMPLE = REPO_ROOT / "sample_data"
 SEQUENCE, ANNOTATIONS, CAMERA = SAMPLE / "sequence", SAMPLE / "annotations.xml", SAMPLE / "camera.toml"
 CLI = [sys.executable, "-m", "annotate_rgbd"]
@@ -42,11 +42,9 @@ def _masks(folder: Path) -> dict[str, bytes]:
 
 
 @pytest.fixture(scope="module")
-def clean_run(tmp_path_factory) -> Path:
+def clean_run(sample_run) -> Path:
     """One uninterrupted run with the sample's settings."""
-    out = tmp_path_factory.mktemp("clean") / "out"
-    run_cvat2mask(SEQUENCE, [ANNOTATIONS], out, load_config(CAMERA))
-    return out
+    return sample_run[0]
 
 
 @pytest.fixture(scope="module")

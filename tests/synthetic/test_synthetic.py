@@ -25,7 +25,7 @@ from annotate_rgbd.synthetic import (
     room_trajectory,
 )
 
-SAMPLE_DATA = Path(__file__).resolve().parents[1] / "sample_data"
+SAMPLE_DATA = Path(__file__).resolve().parents[2] / "sample_data"
 WIDTH, HEIGHT = 160, 120
 CAMERA = Camera(fx=131.25, fy=131.25, cx=79.5, cy=59.5, depth_scale=5000.0)
 
@@ -238,7 +238,7 @@ def test_sample_data_matches_a_fresh_render(tmp_path):
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     module.make_sample_data(tmp_path)
-    # The script, the README and the review-page screenshot (made by tests/test_review.py) are not renders.
+    # The script, the README and the review-page screenshot (made by tests/review/test_review.py) are not renders.
     committed = {name: path for name, path in _files(SAMPLE_DATA).items() if path.suffix != ".py" and
                  not name.endswith(".md") and "__pycache__" not in name and name != "review.png"}
     fresh = _files(tmp_path)
