@@ -30,7 +30,8 @@ from annotate_rgbd import __version__
 from annotate_rgbd.annotation.model import Shape
 from annotate_rgbd.config.settings import Config, config_to_dict
 from annotate_rgbd.errors import OutputError
-from annotate_rgbd.io.outdir import JOURNAL, REPORT, open_regular, read_bounded
+from annotate_rgbd.io.files import open_regular
+from annotate_rgbd.io.outdir import JOURNAL, REPORT, read_bounded
 from annotate_rgbd.report.records import WRITTEN, MaskRecord, RecordError
 
 #: Reading bounds: a journal line longer than this is not a record (a frame with thousands of
@@ -151,7 +152,7 @@ def previous_results(out_dir: Path) -> Previous:
 def _journal_lines(path: Path) -> Iterator[bytes]:
     """The journal's lines, skipping over-long ones, up to :data:`MAX_RECORDS_BYTES`."""
     try:
-        handle = open_regular(path)
+        handle = open_regular(path, follow_links=False)
     except OSError:
         return
     with handle:
