@@ -143,7 +143,8 @@ def cvat2mask(
         workers = jobs or default_workers()
         prepare_process(workers)  # the helpers' server imports Open3D while this process does
 
-        from annotate_rgbd.config.settings import load_config, parse_part_offsets, parse_settings
+        from annotate_rgbd.config.command_line import parse_part_offsets, parse_settings
+        from annotate_rgbd.config.settings import load_config
         from annotate_rgbd.pipeline.scene import run_cvat2mask
         from annotate_rgbd.progress import Progress
 
@@ -237,14 +238,22 @@ def evaluate(
     ctx: typer.Context,
     gt: Path = typer.Argument(..., metavar="GT", help="Ground-truth masks: a folder of label files, or one file."),
     pred: Path = typer.Argument(..., metavar="PRED", help="Predicted masks, matched to GT by file name; or one file."),
-    full: float = typer.Option(0.75, "--full", metavar="IOU", help="IoU for a full match (a true positive)."),
-    partial: float = typer.Option(0.2, "--partial", metavar="IOU", help="IoU for a partial overlap (usr, osr, noise, missed)."),
+    full: Optional[float] = typer.Option(
+        None, "--full", metavar="IOU", help="IoU for a full match (a true positive); default: the configuration's [evaluate] full."
+    ),
+    partial: Optional[float] = typer.Option(
+        None, "--partial", metavar="IOU", help="IoU for a partial overlap (usr, osr, noise, missed); default: [evaluate] partial."
+    ),
+    config: Optional[str] = typer.Option(None, "--config", "-c", metavar="FILE|PRESET", help="TOML file or preset name (its [evaluate] section)."),
+    set_: List[str] = typer.Option([], "--set", metavar="SECTION.KEY=VALUE", help="Override any configuration key: SECTION.KEY=VALUE."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object instead of a table."),
     per_frame: Optional[Path] = typer.Option(None, "--per-frame", metavar="CSV", help="Also write each frame's statistics to this CSV."),
     # The old name of --partial, kept working for scripts; cvat2mask's --part is FILE:OFFSET.
     part: Optional[float] = typer.Option(None, "--part", hidden=True),
 ) -> None:
     """Score plane masks against ground truth with the EVOPS metrics (sequence means)."""
+    from annotate_rgbd.config.command_line import parse_settings
+    from annotate_rgbd.config.settings import load_config
     from annotate_rgbd.evaluate.evaluate import evaluate_paths, format_json, format_table, write_per_frame_csv
 
     with user_errors():
@@ -254,6 +263,10 @@ def evaluate(
                 raise InputError(None, "give --partial only (--part is its deprecated name)")
             typer.echo("warning: evaluate --part is deprecated, use --partial (the same IoU threshold)", err=True)
             partial = part
+        thresholds = load_config(config, parse_settings(set_)).evaluate
+        # The options win over the configuration; evaluate_paths checks them (naming --full, --partial).
+        full = thresholds.full if full is None else full
+        partial = thresholds.partial if partial is None else partial
         result = evaluate_paths(gt, pred, full=full, part=partial)
         if per_frame is not None:
             write_per_frame_csv(result, per_frame)
@@ -309,17 +322,20 @@ def propose(
     out: Path = typer.Option(..., "--out", "-o", metavar="DIR", help="Output folder for proposals.xml, masks/ and report.json."),
     config: Optional[str] = typer.Option(None, "--config", "-c", metavar="FILE|PRESET", help="TOML file or preset name (see 'annotate-rgbd presets'); without it: a Kinect v1 at 640x480 (fx = fy = 525, depth in 1/5000 m, TUM's default)."),
     poses: Optional[Path] = typer.Option(None, "--poses", metavar="FILE", help="TUM trajectory: link planes across frames by world plane."),
-    every: int = typer.Option(1, "--every", min=1, metavar="N", help="Process every N-th depth frame (CVAT keyframes)."),
+    every: Optional[int] = typer.Option(
+        None, "--every", min=1, metavar="N", help="Process every N-th depth frame (CVAT keyframes); default: [propose] every."
+    ),
     jobs: Optional[int] = typer.Option(None, "--jobs", "-j", min=1, metavar="N", help="Worker processes (default: all cores)."),
-    label: Optional[str] = typer.Option(None, "--label", metavar="LABEL", help="CVAT label of the proposed tracks (default: plane)."),
+    label: Optional[str] = typer.Option(
+        None, "--label", metavar="LABEL", help="CVAT label of the proposed tracks; default: [propose] label."
+    ),
     min_area: Optional[float] = typer.Option(
-        None, "--min-area", min=0.0, max=1.0, metavar="SHARE", help="Smallest plane proposed, as a share of the image (default 0.01)."
+        None, "--min-area", min=0.0, max=1.0, metavar="SHARE",
+        help="Smallest plane proposed, as a share of the image; default: [detect] min_area_fraction.",
     ),
     set_: List[str] = typer.Option([], "--set", metavar="SECTION.KEY=VALUE", help="Override any configuration key: SECTION.KEY=VALUE."),
 ) -> None:
     """Detect planes on the depth frames and write them as CVAT polygon tracks to correct."""
-    from dataclasses import replace
-
     with user_errors():
         from annotate_rgbd.pool import default_workers, prepare_helpers, reuse_freed_memory
 
@@ -327,19 +343,18 @@ def propose(
         prepare_helpers(workers, ["annotate_rgbd.propose.detect_job"])
         reuse_freed_memory()
 
-        from annotate_rgbd.config.settings import load_config, parse_settings
+        from annotate_rgbd.config.command_line import parse_settings
+        from annotate_rgbd.config.settings import load_config
         from annotate_rgbd.progress import Progress
-        from annotate_rgbd.propose import ProposeConfig, run_propose
+        from annotate_rgbd.propose import run_propose
 
-        settings = ProposeConfig(every=every)
-        if label is not None:
-            settings = replace(settings, label=label)
-        if min_area is not None:
-            if min_area <= 0:
-                raise InputError(None, "--min-area must be a share of the image in (0, 1]")
-            settings = replace(settings, detector=replace(settings.detector, min_area_fraction=min_area))
+        if min_area is not None and min_area <= 0:
+            raise InputError(None, "--min-area must be a share of the image in (0, 1]")
+        overrides = parse_settings(set_)
+        named = {"propose.every": every, "propose.label": label, "detect.min_area_fraction": min_area}
+        overrides.update({k: v for k, v in named.items() if v is not None})
         progress = Progress({sequence_dir.name: 0})
-        result = run_propose(sequence_dir, out, load_config(config, parse_settings(set_)), settings, poses=poses,
+        result = run_propose(sequence_dir, out, load_config(config, overrides), poses=poses,
                              workers=workers, progress=progress.callback(sequence_dir.name))
         progress.finish()
         typer.echo(f"{result.tracks} plane tracks on {result.frames} frames: {out / 'proposals.xml'}, "

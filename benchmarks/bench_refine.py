@@ -50,7 +50,7 @@ import cv2
 import numpy as np
 
 from annotate_rgbd.geometry.camera import Camera
-from annotate_rgbd.config.settings import parse_settings
+from annotate_rgbd.config.command_line import parse_settings
 from annotate_rgbd.config.settings import load_config
 from annotate_rgbd.cvat import read_cvat, write_cvat_video
 from annotate_rgbd.pipeline.execute import prepare_process

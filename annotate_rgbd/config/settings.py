@@ -43,6 +43,10 @@ that is not listed is an error, so a typo never goes unnoticed::
     part = "950-1900.xml"
     track = 3
     plane = 7           # or: with_part = "0-953.xml" and with_track = 5, or: new = true
+    [detect]            # propose's plane detector (annotate_rgbd.config.propose)
+    [propose]           # propose: label, every, merging and outlines of the detections
+    [link]              # propose: linking detections of successive frames into tracks
+    [evaluate]          # evaluate: IoU thresholds (annotate_rgbd.config.evaluate)
 
 ``--config`` takes a file path or the name of a preset in ``configs/`` (``fr1_desk``, ...). The
 sections that change how a mask is made (``[filter]``, ``[ransac]``, ``[refine]``,
@@ -64,7 +68,9 @@ from annotate_rgbd.geometry.camera import Camera
 from annotate_rgbd.errors import InputError
 from annotate_rgbd.geometry.noise import NoiseSettings, noise_settings_from_mapping
 from annotate_rgbd.io.poses import DEFAULT_MAX_POSE_GAP
+from .evaluate import EvaluateConfig
 from .masks import FilterConfig, PropagateConfig, RansacConfig, RefineConfig, range_checks
+from .propose import DetectorConfig, LinkConfig, ProposeConfig
 from .toml_input import NestedTooDeep, read_toml
 
 
@@ -173,7 +179,8 @@ DEFAULT_CAMERA = Camera(fx=525.0, fy=525.0, cx=319.5, cy=239.5, depth_scale=5000
 
 @dataclass(frozen=True)
 class Config:
-    """Everything a ``cvat2mask`` run depends on besides its input files."""
+    """Everything the commands depend on besides their input files (``[detect]``, ``[propose]``
+    and ``[link]`` are ``propose``'s alone, ``[evaluate]`` is ``evaluate``'s)."""
 
     camera: Camera = DEFAULT_CAMERA
     sequence: SequenceConfig = field(default_factory=SequenceConfig)
@@ -186,6 +193,10 @@ class Config:
     stitch: StitchConfig = field(default_factory=StitchConfig)
     parts: tuple[PartConfig, ...] = ()
     matches: tuple[MatchConfig, ...] = ()
+    detect: DetectorConfig = field(default_factory=DetectorConfig)
+    propose: ProposeConfig = field(default_factory=ProposeConfig)
+    link: LinkConfig = field(default_factory=LinkConfig)
+    evaluate: EvaluateConfig = field(default_factory=EvaluateConfig)
 
     def inlier_band(self) -> NoiseSettings:
         """The inlier band refinement uses: a fixed ``ransac.distance_threshold`` when one is
@@ -227,8 +238,13 @@ def preset_summaries() -> list[tuple[str, str, str]]:
 LIST_SECTIONS = {"parts": PartConfig, "matches": MatchConfig}
 
 
-def config_to_dict(config: Config) -> dict[str, Any]:
-    """The configuration as nested plain values (for reports: tuples become lists)."""
+#: The sections a ``cvat2mask`` run does not read: its record leaves them out.
+OTHER_COMMANDS_SECTIONS = ("detect", "propose", "link", "evaluate")
+
+
+def config_to_dict(config: Config, leave_out: Iterable[str] = ()) -> dict[str, Any]:
+    """The configuration as nested plain values (for reports: tuples become lists), without the
+    sections named in ``leave_out`` (those a command does not read)."""
 
     def plain(value: Any) -> Any:
         if isinstance(value, NoiseSettings):
@@ -239,8 +255,9 @@ def config_to_dict(config: Config) -> dict[str, Any]:
             return {k: plain(v) for k, v in value.items() if v is not None}
         return value
 
+    leave_out = set(leave_out)
     return {f.name: plain(getattr(config, f.name) if f.name == "noise" else dataclasses.asdict(config)[f.name])
-            for f in dataclasses.fields(config)}
+            for f in dataclasses.fields(config) if f.name not in leave_out}
 
 
 def load_config(source: str | Path | None = None, overrides: Mapping[str, Any] | None = None) -> Config:
@@ -284,69 +301,6 @@ def load_config(source: str | Path | None = None, overrides: Mapping[str, Any] |
 def config_from_dict(values: Mapping[str, Any], origin: str | Path | None = None) -> Config:
     """The inverse of :func:`config_to_dict` (e.g. the ``config`` recorded in ``report.json``)."""
     return _build(values, origin)
-
-
-def parse_settings(settings: Iterable[str]) -> dict[str, Any]:
-    """Read ``--set SECTION.KEY=VALUE`` overrides (also a manifest's ``set`` list).
-
-    Parameters
-    ----------
-    settings : iterable of str
-        ``"section.key=value"`` texts. A value is read as a TOML value (numbers, booleans,
-        lists, quoted strings); one that is not valid TOML is kept as the plain text.
-
-    Returns
-    -------
-    dict of str to value
-        ``"section.key" -> value``, the ``overrides`` of :func:`load_config`.
-
-    Raises
-    ------
-    InputError
-        A text without ``=`` or without a ``.`` in its key.
-    """
-    overrides = {}
-    for setting in settings:
-        key, sep, text = setting.partition("=")
-        if not sep or "." not in key:
-            raise InputError(None, f"--set {setting!r}: expected SECTION.KEY=VALUE, e.g. ransac.distance_threshold=0.01")
-        try:
-            value = read_toml(f"v = {text}", None)["v"]
-        except NestedTooDeep as exc:
-            raise InputError(None, f"--set {key.strip()}: {exc.message}") from None
-        except InputError:
-            value = text
-        overrides[key.strip()] = value
-    return overrides
-
-
-def parse_part_offsets(parts: Iterable[str]) -> dict[str, int]:
-    """Read ``--part FILE:OFFSET`` texts (also a manifest's ``parts`` list), the command-line
-    form of a ``[[parts]]`` entry (:class:`PartConfig`).
-
-    Parameters
-    ----------
-    parts : iterable of str
-        ``"file:offset"`` texts; the file name may itself contain ``:``, the offset is what
-        follows the last one.
-
-    Returns
-    -------
-    dict of str to int
-        File -> RGB index of the part's frame 0.
-
-    Raises
-    ------
-    InputError
-        A text without a file name or without a non-negative integer offset.
-    """
-    offsets = {}
-    for text in parts:
-        file, sep, offset = text.rpartition(":")
-        if not sep or not file or not offset.strip().isdigit():
-            raise InputError(None, f"--part {text!r}: expected FILE:OFFSET, e.g. --part 950-1900.xml:950")
-        offsets[file] = int(offset)
-    return offsets
 
 
 def _read_source(source: str | Path) -> tuple[Path | str, str]:
@@ -453,7 +407,10 @@ def _build_section(name: str, default: Any, table: Mapping[str, Any], origin: st
                 origin, f"unknown key '{name}.{key}' (known in [{name}]: {', '.join(fields)})"
             )
         changes[key] = _coerce(f"{name}.{key}", getattr(default, key), value, origin)
-    return dataclasses.replace(default, **changes)
+    try:
+        return dataclasses.replace(default, **changes)
+    except ValueError as exc:  # a section that checks its own ranges (annotate_rgbd.config.rules)
+        raise InputError(origin, str(exc)) from None
 
 
 def _coerce(key: str, default: Any, value: Any, origin: str | Path | None) -> Any:

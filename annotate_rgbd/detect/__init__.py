@@ -11,7 +11,9 @@ In the spirit of CAPE (Proenca & Gao 2018), vectorised with numpy:
    holds them within the noise band, and refit every plane on its final pixels (:mod:`.refine`);
 4. drop planes below a minimum area and number the rest by area.
 
-:func:`plane_outlines` turns the label image into polygons for CVAT (:mod:`.outline`).
+The settings are the ``[detect]`` section of the configuration
+(:class:`annotate_rgbd.config.propose.DetectorConfig`); the sensor's noise is ``[noise]``'s model.
+:func:`annotate_rgbd.cvat.from_masks.plane_outlines` turns the label image into polygons for CVAT.
 Everything is deterministic: no random sampling, stable sorts, ties broken by raster order.
 """
 
@@ -21,14 +23,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from annotate_rgbd.config.propose import DetectorConfig
 from annotate_rgbd.geometry.camera import Camera
+from annotate_rgbd.geometry.noise import SENSOR_MODELS
+from annotate_rgbd.geometry.planes import Moments, fit_planes
 from .cells import NoiseModel, cloud_cells
-from .config import DetectorConfig
-from .grow import cell_moments, fit_planes, grow_regions, merge_segments, sum_moments
-from .outline import plane_outlines
-from .refine import assign_pixels, claim_windows, order_labels, pixel_moments, planes_from_scatter, relabel
+from .grow import cell_totals, group_totals, grow_regions, merge_segments, totals_moments
+from .refine import assign_pixels, claim_windows, order_labels, pixel_moments, relabel
 
-__all__ = ["DetectorConfig", "PlaneDetection", "detect_planes", "plane_outlines"]
+__all__ = ["PlaneDetection", "detect_planes"]
 
 
 @dataclass(frozen=True)
@@ -60,6 +63,11 @@ class PlaneDetection:
     means: np.ndarray
     scatters: np.ndarray
 
+    @property
+    def moments(self) -> Moments:
+        """The moments of each label's points (``areas``, ``means``, ``scatters``)."""
+        return Moments(self.areas.astype(np.float64), self.means, self.scatters)
+
 
 def detect_planes(
     depth_m: np.ndarray,
@@ -77,10 +85,11 @@ def detect_planes(
     camera : Camera
         Intrinsics of the depth image (``depth_scale`` is not used).
     config : DetectorConfig
-        Settings; see its documentation for the defaults and their sources.
+        Settings (``[detect]``); see its documentation for the defaults and their sources.
     noise : callable, optional
         ``sigma(z)``, the axial noise standard deviation in metres at depth ``z`` (applied
-        elementwise to arrays); default ``config.sigma`` (Kinect v1 model).
+        elementwise to arrays), e.g. a ``[noise]`` model's ``sigma``; default the Kinect v1 model
+        (:data:`annotate_rgbd.geometry.noise.SENSOR_MODELS`).
 
     Returns
     -------
@@ -89,7 +98,7 @@ def detect_planes(
     depth_m = np.asarray(depth_m)
     if depth_m.ndim != 2:
         raise ValueError(f"depth image must be 2-D, got shape {depth_m.shape}")
-    noise = config.sigma if noise is None else noise
+    noise = SENSOR_MODELS["kinect_v1"].sigma if noise is None else noise
     cells = cloud_cells(depth_m, camera, config.cell_px, noise, config.planar_k, config.min_valid_fraction)
     region = merge_segments(grow_regions(cells, config), cells, config)
     min_area = int(np.ceil(config.min_area_fraction * depth_m.size))
@@ -99,8 +108,8 @@ def detect_planes(
     cell_area = config.cell_px**2
     sizes = np.bincount(region, minlength=1)[1:]
     region = _renumber(region, sizes * cell_area * 2 >= min_area)
-    moments = sum_moments(cell_moments(cells), region - 1, int(region.max()))
-    planes = fit_planes(moments)[0]
+    moments = totals_moments(group_totals(cell_totals(cells), region - 1, int(region.max())))
+    planes = fit_planes(moments.mean, moments.scatter)[0]
     labels = assign_pixels(cells, region, planes, config.band_k)
     count, mean, centred = pixel_moments(cells, labels, planes.shape[0], claim_windows(cells, region))
     small = count < max(min_area, 3)
@@ -108,7 +117,7 @@ def detect_planes(
         # Give the pixels of segments that fell short to their neighbours, using the planes
         # refitted on the survivors' pixels.
         region = _renumber(region, ~small)
-        planes = planes_from_scatter(mean[~small], centred[~small])
+        planes = fit_planes(mean[~small], centred[~small])[0]
         labels = assign_pixels(cells, region, planes, config.band_k)
         count, mean, centred = pixel_moments(cells, labels, planes.shape[0], claim_windows(cells, region))
     table = order_labels(labels, count, max(min_area, 3))
@@ -116,7 +125,7 @@ def detect_planes(
     dtype = np.uint8 if kept.size < 256 else np.uint16
     return PlaneDetection(
         labels=relabel(labels, table, dtype),
-        planes=planes_from_scatter(mean[kept], centred[kept]).reshape(-1, 4),
+        planes=fit_planes(mean[kept], centred[kept])[0].reshape(-1, 4),
         areas=count[kept].astype(np.int64),
         means=mean[kept].reshape(-1, 3),
         scatters=centred[kept].reshape(-1, 3, 3),

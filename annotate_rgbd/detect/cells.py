@@ -9,12 +9,12 @@ products (along the cells' rows, then their columns) give for every cell at once
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import lru_cache
 from typing import Callable
 
 import numpy as np
 
-from annotate_rgbd.geometry.camera import Camera, backproject
+from annotate_rgbd.geometry.camera import Camera, ray_grid
+from annotate_rgbd.geometry.planes import fit_planes, residual_ms
 
 NoiseModel = Callable[[np.ndarray], np.ndarray]
 
@@ -81,32 +81,6 @@ class CloudCells:
     planar: np.ndarray
 
 
-@lru_cache(maxsize=8)
-def pixel_rays(height: int, width: int, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
-    """Direction of every pixel's ray at depth 1 m; a pinhole ray's x depends on the column only.
-
-    Parameters
-    ----------
-    height, width : int
-        Image size.
-    camera : Camera
-        Intrinsics (fx, fy may be negative).
-
-    Returns
-    -------
-    ray_x : ndarray of float32, shape (W,), read-only
-        ``x / z`` per column.
-    ray_y : ndarray of float32, shape (H,), read-only
-        ``y / z`` per row. Cached: every frame of a sequence shares them.
-    """
-    size = max(height, width)
-    index = np.arange(size)
-    rays = backproject(index, index, np.ones(size), camera).astype(np.float32)
-    ray_x, ray_y = rays[:width, 0].copy(), rays[:height, 1].copy()
-    ray_x.flags.writeable = ray_y.flags.writeable = False
-    return ray_x, ray_y
-
-
 def cloud_cells(
     depth_m: np.ndarray,
     camera: Camera,
@@ -143,16 +117,14 @@ def cloud_cells(
     z = np.asarray(depth_m, dtype=np.float32)
     with np.errstate(invalid="ignore"):
         z = np.where(z > 0, z, np.float32(np.nan))  # NaN stays NaN; zero and negative become NaN
-    ray_x, ray_y = pixel_rays(height, width, camera)
+    ray_x, ray_y = (ray.astype(np.float32) for ray in ray_grid(camera, height, width))
     sigma = np.asarray(noise(z), dtype=np.float32)
 
     count, mean, scatter = cell_sums(z, ray_x, ray_y, rows, cols, cell_px)
 
-    eigenvalues, eigenvectors = np.linalg.eigh(scatter)  # ascending
-    normal = eigenvectors[:, :, 0]
-    normal = normal * np.where(np.einsum("ij,ij->i", normal, np.nan_to_num(mean)) > 0, -1.0, 1.0)[:, None]
-    offset = -np.einsum("ij,ij->i", normal, mean)
-    mse = np.maximum(eigenvalues[:, 0], 0) / np.maximum(count, 1)
+    planes, eigenvalues = fit_planes(mean, scatter)
+    normal, offset = np.ascontiguousarray(planes[:, :3]), planes[:, 3].copy()
+    mse = residual_ms(count, eigenvalues)
     cell_sigma = np.asarray(noise(mean[:, 2]), dtype=np.float64)
     with np.errstate(invalid="ignore", divide="ignore"):
         half_width = np.sqrt(3 * np.maximum(eigenvalues[:, 1], 0) / count)
@@ -187,7 +159,7 @@ def cell_sums(
     z : ndarray of float32, shape (H, W)
         Depth, metres, NaN where invalid.
     ray_x, ray_y : ndarray of float32, shapes (W,), (H,)
-        As :func:`pixel_rays` gives them.
+        The pixels' rays (:func:`annotate_rgbd.geometry.camera.ray_grid`).
     rows, cols, cell_px : int
         The cell grid (pixels beyond ``rows * cell_px``, ``cols * cell_px`` take no part).
 

@@ -1,109 +1,67 @@
 """Region growing of coplanar cells, and merging of coplanar segments, on the cell grid.
 
-Cells are summarised by their point count, centroid and scatter matrix; a set of cells by the
-sums of these (:class:`Moments`), from which its least-squares plane follows exactly. The grid
-holds a few hundred cells, so growing walks it cell by cell; every test against a region's
-plane is evaluated for all cells at once.
+A set of cells is summarised by the raw sums over its points (:func:`cell_totals`: count, sum of
+the points, sum of their outer products, sum of the noise variances), which add up when sets are
+joined; its least-squares plane follows exactly (:func:`totals_moments`,
+:func:`annotate_rgbd.geometry.planes.fit_planes`). The grid holds a few hundred cells, so growing
+walks it cell by cell; every test against a region's plane is evaluated for all cells at once.
 """
 
 from __future__ import annotations
 
 from collections import deque
-from dataclasses import dataclass
 
 import numpy as np
 
+from annotate_rgbd.config.propose import DetectorConfig
+from annotate_rgbd.geometry.planes import Moments, fit_planes, mean_squared_distance, moments_from_sums
 from .cells import CloudCells
-from .config import DetectorConfig
+
+#: Columns of a row of totals: the number of points, the sum of the points (3), the sum of
+#: their outer products about the camera centre (9, row-major) and the sum of ``sigma(z)**2``.
+COUNT, FIRST, SECOND, NOISE = 0, slice(1, 4), slice(4, 13), 13
+TOTALS_COLUMNS = 14
 
 
-@dataclass(frozen=True)
-class Moments:
-    """Sums over sets of points from which their planes follow, for ``K`` sets.
+def cell_totals(cells: CloudCells) -> np.ndarray:
+    """The totals of every cell's valid points (cells count their noise at the cell's depth).
 
-    Attributes
-    ----------
-    count : ndarray of float64, shape (K,)
-        Number of points.
-    first : ndarray of float64, shape (K, 3)
-        Sum of the points.
-    second : ndarray of float64, shape (K, 3, 3)
-        Sum of the outer products of the points (about the camera centre).
-    noise : ndarray of float64, shape (K,)
-        Sum of ``sigma(z) ** 2`` over the points (cells count theirs at the cell's depth).
+    Returns
+    -------
+    ndarray of float64, shape (C, 14)
+        One row per cell, columns as :data:`COUNT`, :data:`FIRST`, :data:`SECOND`, :data:`NOISE`.
     """
-
-    count: np.ndarray
-    first: np.ndarray
-    second: np.ndarray
-    noise: np.ndarray
-
-
-def cell_moments(cells: CloudCells) -> Moments:
-    """:class:`Moments` of every cell's valid points (``K`` = number of cells)."""
     count = cells.count.astype(np.float64)
     mean = np.nan_to_num(cells.mean)
-    return Moments(
-        count=count,
-        first=mean * count[:, None],
-        second=cells.scatter + count[:, None, None] * mean[:, :, None] * mean[:, None, :],
-        noise=count * np.nan_to_num(cells.cell_sigma) ** 2,
-    )
+    second = cells.scatter + count[:, None, None] * mean[:, :, None] * mean[:, None, :]
+    noise = count * np.nan_to_num(cells.cell_sigma) ** 2
+    return np.concatenate([count[:, None], mean * count[:, None], second.reshape(-1, 9), noise[:, None]], axis=1)
 
 
-def sum_moments(moments: Moments, groups: np.ndarray, n_groups: int) -> Moments:
-    """Add up cell moments per group.
+def group_totals(totals: np.ndarray, groups: np.ndarray, n_groups: int) -> np.ndarray:
+    """Add up cell totals per group.
 
     Parameters
     ----------
-    moments : Moments
-        Per-cell moments, ``C`` of them.
+    totals : ndarray of float64, shape (C, 14)
+        Per-cell totals (:func:`cell_totals`).
     groups : ndarray of int, shape (C,)
         Group of each cell in ``[0, n_groups)``, or -1 for none.
     n_groups : int
 
     Returns
     -------
-    Moments
-        ``n_groups`` sums.
+    ndarray of float64, shape (n_groups, 14)
     """
     keep = groups >= 0
-    index = groups[keep]
-
-    def add(values: np.ndarray) -> np.ndarray:
-        out = np.zeros((n_groups,) + values.shape[1:], dtype=np.float64)
-        np.add.at(out, index, values[keep])
-        return out
-
-    return Moments(add(moments.count), add(moments.first), add(moments.second), add(moments.noise))
+    out = np.zeros((n_groups, totals.shape[1]), dtype=np.float64)
+    np.add.at(out, groups[keep], totals[keep])
+    return out
 
 
-def fit_planes(moments: Moments) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Least-squares (orthogonal) planes of point sets given by their moments.
-
-    Parameters
-    ----------
-    moments : Moments
-        ``K`` point sets with at least 3 points each.
-
-    Returns
-    -------
-    planes : ndarray of float64, shape (K, 4)
-        ``(a, b, c, d)`` with unit normal ``(a, b, c)`` oriented towards the camera
-        (``d > 0`` for a plane that does not pass through the camera centre).
-    mean : ndarray of float64, shape (K, 3)
-        Centroids.
-    centred : ndarray of float64, shape (K, 3, 3)
-        Scatter matrices about the centroids.
-    """
-    count = np.maximum(moments.count, 1)
-    mean = moments.first / count[:, None]
-    centred = moments.second - count[:, None, None] * mean[:, :, None] * mean[:, None, :]
-    _, vectors = np.linalg.eigh(centred)
-    normal = vectors[:, :, 0]
-    normal = normal * np.where(np.einsum("ij,ij->i", normal, mean) > 0, -1.0, 1.0)[:, None]
-    planes = np.concatenate([normal, -np.einsum("ij,ij->i", normal, mean)[:, None]], axis=1)
-    return planes, mean, centred
+def totals_moments(totals: np.ndarray) -> Moments:
+    """The :class:`~annotate_rgbd.geometry.planes.Moments` of sets given by their totals, shape (K, 14)."""
+    return moments_from_sums(totals[:, COUNT], totals[:, FIRST], totals[:, SECOND].reshape(-1, 3, 3))
 
 
 def angle_limit(sigma: np.ndarray, half_width: np.ndarray, config: DetectorConfig) -> np.ndarray:
@@ -150,8 +108,8 @@ def neighbour_pairs(cells: CloudCells, config: DetectorConfig) -> tuple[list[lis
     cos = np.einsum("ij,ij->i", cells.normal[a], cells.normal[b])
     with np.errstate(invalid="ignore"):
         ok = cells.planar[a] & cells.planar[b] & (cos >= np.cos(np.maximum(limit[a], limit[b])))
-        ok &= _residual_ms_many(planes[a], mean[b], cells.scatter[b], count[b]) <= band2[b]
-        ok &= _residual_ms_many(planes[b], mean[a], cells.scatter[a], count[a]) <= band2[a]
+        ok &= mean_squared_distance(planes[a], Moments(count[b], mean[b], cells.scatter[b])) <= band2[b]
+        ok &= mean_squared_distance(planes[b], Moments(count[a], mean[a], cells.scatter[a])) <= band2[a]
     neighbours: list[list[int]] = [[] for _ in range(rows * cols)]
     for i, j in zip(a[ok].tolist(), b[ok].tolist()):
         neighbours[i].append(j)
@@ -181,11 +139,7 @@ def grow_regions(cells: CloudCells, config: DetectorConfig) -> np.ndarray:
         Region of each cell, 0 for none, regions numbered 1, 2, ... in the order grown.
     """
     neighbours, inner = neighbour_pairs(cells, config)
-    moments = cell_moments(cells)
-    # One row of sums per cell (count, first, second, noise): a region's totals in one reduction.
-    packed = np.concatenate(
-        [moments.count[:, None], moments.first, moments.second.reshape(-1, 9), moments.noise[:, None]], axis=1
-    )
+    totals = cell_totals(cells)  # a region's totals: one reduction over its cells' rows
     fits_plane = _plane_test(cells, config)
     with np.errstate(invalid="ignore", divide="ignore"):
         score = np.where(cells.planar, cells.mse / cells.cell_sigma**2, np.inf)
@@ -214,8 +168,8 @@ def grow_regions(cells: CloudCells, config: DetectorConfig) -> np.ndarray:
                     queue.append(other)
             if len(members) >= next_refit:
                 next_refit = 2 * len(members)
-                total = packed[members].sum(axis=0)
-                plane = fit_planes(Moments(total[:1], total[None, 1:4], total[4:13].reshape(1, 3, 3), total[13:]))[0][0]
+                moments = totals_moments(totals[members].sum(axis=0)[None])
+                plane = fit_planes(moments.mean, moments.scatter)[0][0]
                 fits = fits_plane(plane)
                 queue.extend(members)  # the new plane may admit cells the old one refused
     return np.array(region, dtype=np.int32)
@@ -281,13 +235,12 @@ def merge_segments(region: np.ndarray, cells: CloudCells, config: DetectorConfig
             pairs.update(zip(lo.tolist(), hi.tolist()))
     root = np.arange(n + 1)
     if pairs:
-        moments = sum_moments(cell_moments(cells), region - 1, n)
-        groups = Moments(*(np.concatenate([np.zeros((1,) + x.shape[1:]), x]) for x in moments.__dict__.values()))
+        groups = np.concatenate([np.zeros((1, TOTALS_COLUMNS)), group_totals(cell_totals(cells), region - 1, n)])
         pairs = np.array(sorted(pairs))
         # Rounds: cost every pair of current groups at once, merge the cheapest pairs whose
         # groups no earlier merge of the round has changed, repeat until nothing merges.
         while pairs.size:
-            costs = merge_costs(_take(groups, pairs[:, 0]), _take(groups, pairs[:, 1]), config)
+            costs = merge_costs(groups[pairs[:, 0]], groups[pairs[:, 1]], config)
             changed = np.zeros(n + 1, dtype=bool)
             for index in np.lexsort((np.arange(len(pairs)), costs)).tolist():
                 if costs[index] > 1.0:
@@ -297,8 +250,7 @@ def merge_segments(region: np.ndarray, cells: CloudCells, config: DetectorConfig
                     continue
                 changed[low] = changed[high] = True
                 root[root == high] = low
-                for total in groups.__dict__.values():
-                    total[low] += total[high]
+                groups[low] += groups[high]
             if not changed.any():
                 break
             pairs = np.sort(root[pairs], axis=1)
@@ -307,11 +259,7 @@ def merge_segments(region: np.ndarray, cells: CloudCells, config: DetectorConfig
     return renumbered[region].astype(np.int32)
 
 
-def _take(moments: Moments, index) -> Moments:
-    return Moments(moments.count[index], moments.first[index], moments.second[index], moments.noise[index])
-
-
-def merge_costs(a: Moments, b: Moments, config: DetectorConfig) -> np.ndarray:
+def merge_costs(a: np.ndarray, b: np.ndarray, config: DetectorConfig) -> np.ndarray:
     """How far pairs of point sets are from sharing one plane: <= 1 where they may merge.
 
     The cost is infinite when their normals differ by more than the :func:`angle_limit` of the
@@ -320,35 +268,27 @@ def merge_costs(a: Moments, b: Moments, config: DetectorConfig) -> np.ndarray:
 
     Parameters
     ----------
-    a, b : Moments
-        ``P`` point sets each.
+    a, b : ndarray of float64, shape (P, 14)
+        The totals of ``P`` point sets each (:func:`cell_totals`).
     config : DetectorConfig
 
     Returns
     -------
     ndarray of float64, shape (P,)
     """
-    both = Moments(*(x + y for x, y in zip(a.__dict__.values(), b.__dict__.values())))
-    plane_a, mean_a, centred_a = fit_planes(a)
-    plane_b, mean_b, centred_b = fit_planes(b)
-    plane_ab = fit_planes(both)[0]
+    moments_a, moments_b = totals_moments(a), totals_moments(b)
+    both = totals_moments(a + b)
+    plane_a = fit_planes(moments_a.mean, moments_a.scatter)[0]
+    plane_b = fit_planes(moments_b.mean, moments_b.scatter)[0]
+    plane_ab = fit_planes(both.mean, both.scatter)[0]
     cos = np.abs(np.einsum("ij,ij->i", plane_a[:, :3], plane_b[:, :3]))
-    sigma2_a = a.noise / np.maximum(a.count, 1)
-    sigma2_b = b.noise / np.maximum(b.count, 1)
-    width_a = np.sqrt(3 * np.maximum(np.linalg.eigvalsh(centred_a)[:, 1], 0) / np.maximum(a.count, 1))
-    width_b = np.sqrt(3 * np.maximum(np.linalg.eigvalsh(centred_b)[:, 1], 0) / np.maximum(b.count, 1))
+    count_a, count_b = np.maximum(moments_a.count, 1), np.maximum(moments_b.count, 1)
+    sigma2_a, sigma2_b = a[:, NOISE] / count_a, b[:, NOISE] / count_b
+    # eigvalsh, as the merge was tuned with (its last bit may differ from eigh's).
+    width_a = np.sqrt(3 * np.maximum(np.linalg.eigvalsh(moments_a.scatter)[:, 1], 0) / count_a)
+    width_b = np.sqrt(3 * np.maximum(np.linalg.eigvalsh(moments_b.scatter)[:, 1], 0) / count_b)
     limit = np.maximum(angle_limit(np.sqrt(sigma2_a), width_a, config), angle_limit(np.sqrt(sigma2_b), width_b, config))
-    ms_a = _residual_ms_many(plane_ab, mean_a, centred_a, a.count)
-    ms_b = _residual_ms_many(plane_ab, mean_b, centred_b, b.count)
+    ms_a = mean_squared_distance(plane_ab, moments_a)
+    ms_b = mean_squared_distance(plane_ab, moments_b)
     cost = np.maximum(ms_a / sigma2_a, ms_b / sigma2_b) / config.band_k**2
     return np.where(cos >= np.cos(limit), cost, np.inf)
-
-
-def _residual_ms_many(planes, mean, centred, count) -> np.ndarray:
-    """Mean squared distance of point set ``k`` to plane ``k``, from its moments:
-    ``n^T S n / N + (n . m + d) ** 2`` (``S`` the scatter about the centroid ``m``)."""
-    normal = planes[:, :3]
-    spread = np.einsum("ki,kij,kj->k", normal, centred, normal) / np.maximum(count, 1)
-    return spread + (np.einsum("ki,ki->k", mean, normal) + planes[:, 3]) ** 2
-
-

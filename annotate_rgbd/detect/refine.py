@@ -159,14 +159,6 @@ def pixel_moments(
     return count, mean, centred
 
 
-def planes_from_scatter(mean: np.ndarray, centred: np.ndarray) -> np.ndarray:
-    """Orthogonal least-squares planes ``(a, b, c, d)``, unit normal towards the camera (``d > 0``)."""
-    _, vectors = np.linalg.eigh(centred)
-    normal = vectors[:, :, 0]
-    normal = normal * np.where(np.einsum("ij,ij->i", normal, mean) > 0, -1.0, 1.0)[:, None]
-    return np.concatenate([normal, -np.einsum("ij,ij->i", normal, mean)[:, None]], axis=1)
-
-
 def order_labels(labels: np.ndarray, count: np.ndarray, min_area: int) -> np.ndarray:
     """New number of each label: by area descending, ties by first pixel in raster order.
 

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from annotate_rgbd.config.evaluate import EvaluateConfig
 from annotate_rgbd.errors import InputError
 from annotate_rgbd.io.writer import write_csv
 from annotate_rgbd.io.labelmaps import LABEL_SUFFIXES, read_label_map
@@ -83,8 +84,8 @@ class EvaluationResult:
 def evaluate_paths(
     gt: str | Path,
     pred: str | Path,
-    full: float = 0.75,
-    part: float = 0.2,
+    full: float = EvaluateConfig.full,
+    part: float = EvaluateConfig.partial,
     measure: str = "iou",
 ) -> EvaluationResult:
     """Score a prediction against the ground truth, frame by frame.

@@ -46,6 +46,8 @@ import numpy as np
 from scipy.sparse import coo_array
 from scipy.sparse.csgraph import maximum_bipartite_matching
 
+from annotate_rgbd.config.evaluate import EvaluateConfig
+
 #: The per-frame statistics, in the order tables and CSV files show them.
 METRIC_NAMES = ("precision", "recall", "fScore", "usr", "osr", "noise", "missed", "mean", "panoptic")
 
@@ -189,8 +191,8 @@ def frame_statistics(
     gt: np.ndarray,
     pred: np.ndarray,
     *,
-    full: float = 0.75,
-    part: float = 0.2,
+    full: float = EvaluateConfig.full,
+    part: float = EvaluateConfig.partial,
     measure: str = "iou",
 ) -> FrameStatistics:
     """EVOPS statistics of one predicted segmentation against the ground truth.

@@ -4,8 +4,9 @@ for a correction round in CVAT.
 One polygon track per plane, with the run's plane id as CVAT track id and the plane's label;
 every written frame is a keyframe (frame number = RGB index, as ``cvat2mask`` reads a video
 export); a plane absent on a written frame is ``outside`` there. Polygons are the masks' outer
-outlines, every piece of a plane bridged into one (:func:`annotate_rgbd.propose.outlines.piece_outlines`), drawn in the order that puts the plane
-whose pixels fill an overlap on top (:func:`annotate_rgbd.propose.detect_job.draw_order`), so that
+outlines, every piece of a plane bridged into one (:func:`annotate_rgbd.cvat.from_masks.piece_outlines`),
+drawn in the order that puts the plane whose pixels fill an overlap on top
+(:func:`annotate_rgbd.cvat.from_masks.draw_order`), as ``propose`` draws its detections, so that
 ``cvat2mask`` reads the file back to nearly the same masks.
 """
 
@@ -17,9 +18,8 @@ import cv2
 import numpy as np
 
 from annotate_rgbd.annotation.model import Shape
+from annotate_rgbd.cvat.from_masks import draw_order, piece_outlines
 from annotate_rgbd.errors import InputError
-from annotate_rgbd.propose.detect_job import draw_order
-from annotate_rgbd.propose.outlines import piece_outlines
 from annotate_rgbd.propose.output import TrackShapes, write_polygon_tracks
 from annotate_rgbd.segment.rasterize import shape_mask
 from annotate_rgbd.io.outdir import reading

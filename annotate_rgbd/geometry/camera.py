@@ -8,6 +8,7 @@ looks along the ray through ``((col - cx) / fx, (row - cy) / fy, 1)``. ``fy`` ma
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
@@ -78,6 +79,37 @@ def backproject(
     points[:, 1] = (np.asarray(rows, dtype=np.float64) - camera.cy) * z / camera.fy
     points[:, 2] = z
     return points
+
+
+@lru_cache(maxsize=16)
+def ray_grid(camera: Camera, height: int, width: int, dtype=np.float64) -> tuple[np.ndarray, np.ndarray]:
+    """The viewing rays of an image's pixels at depth 1: pixel ``(col, row)`` looks along
+    ``(ray_x[col], ray_y[row], 1)``, so its 3-D point is ``z`` times that (a pinhole ray's x
+    depends on the column only, its y on the row only).
+
+    Parameters
+    ----------
+    camera : Camera
+        Intrinsics (``fx``, ``fy`` may be negative).
+    height, width : int
+        Image size.
+    dtype : numpy float type
+        The type the rays are computed in: ``float64`` (then rounded to ``float32`` by callers
+        that store them so), or ``float32`` for float32 images (the intrinsics rounded to float32
+        first; the two can differ in the last bit).
+
+    Returns
+    -------
+    ray_x : ndarray of ``dtype``, shape (W,), read-only
+        ``(col - cx) / fx``.
+    ray_y : ndarray of ``dtype``, shape (H,), read-only
+        ``(row - cy) / fy``. Cached: every frame of a sequence shares them.
+    """
+    kind = np.dtype(dtype).type
+    ray_x = (np.arange(width, dtype=kind) - kind(camera.cx)) / kind(camera.fx)
+    ray_y = (np.arange(height, dtype=kind) - kind(camera.cy)) / kind(camera.fy)
+    ray_x.flags.writeable = ray_y.flags.writeable = False
+    return ray_x, ray_y
 
 
 def project(points: np.ndarray, camera: Camera) -> np.ndarray:

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .camera import Camera, project
+from .camera import Camera, backproject, project
 
 #: Default near plane for :func:`project_polygon`, metres: nearer than any depth sensor measures
 #: (Kinect and RealSense start at about 0.3-0.5 m), far enough that a vertex just in front of the
@@ -77,10 +77,8 @@ def pixel_rays(points_px: np.ndarray, camera: Camera) -> np.ndarray:
     ndarray of float64, shape (V, 3)
     """
     points_px = np.asarray(points_px, dtype=np.float64).reshape(-1, 2)
-    rays = np.ones((len(points_px), 3))
-    rays[:, 0] = (points_px[:, 0] - 0.5 - camera.cx) / camera.fx
-    rays[:, 1] = (points_px[:, 1] - 0.5 - camera.cy) / camera.fy
-    return rays
+    # The camera model puts pixel centres at integers: its point at depth 1 is the ray.
+    return backproject(points_px[:, 0] - 0.5, points_px[:, 1] - 0.5, np.ones(len(points_px)), camera)
 
 
 def lift_polygon(

@@ -1,12 +1,26 @@
-"""Least-squares plane fitting weighted by depth noise, and the re-fit of a RANSAC plane.
+"""Planes from points: least-squares fits, the moments they are fitted from, and the re-fit of
+a RANSAC plane weighted by depth noise.
 
-RANSAC (refine.py) returns the plane through 3 sampled points: its normal is as noisy as those
-3 points. Re-fitting the plane to all its inliers by least squares, each point weighted by
-``1 / sigma(z)^2`` (near, less noisy points count more), gives the maximum-likelihood plane under
-Gaussian noise of standard deviation ``sigma(z)`` along the normal.
+Every plane fit of the package is an eigen-decomposition done here (:func:`fit_planes`): the
+plane of a point set passes through its centroid, and its normal is the eigenvector of the
+smallest eigenvalue of the points' scatter about the centroid. What differs between callers is
+how the centroid and the scatter are gathered:
+
+- :func:`weighted_plane_fit`: from the points themselves, each with a weight (refinement's re-fit,
+  weighted by ``1 / sigma(z)^2``);
+- :class:`Moments`: from the count, centroid and centred scatter of ``K`` point sets (cells and
+  segments of the plane detector, merged proposals), which sets can be pooled without their
+  points (:func:`moments_from_sums`, :func:`merge_pairs`, :func:`pool_groups`).
+
+RANSAC (:mod:`annotate_rgbd.segment.ransac`) returns the plane through 3 sampled points: its
+normal is as noisy as those 3 points. Re-fitting the plane to all its inliers by least squares,
+each point weighted by ``1 / sigma(z)^2`` (near, less noisy points count more), gives the
+maximum-likelihood plane under Gaussian noise of standard deviation ``sigma(z)`` along the normal
+(:func:`refit_plane`).
 
 Planes are ``(a, b, c, d)`` with ``a x + b y + c z + d = 0`` in the camera frame (metres), a unit
-normal ``(a, b, c)``, oriented towards the camera at the origin (``d > 0``), as in refine.py.
+normal ``(a, b, c)``, oriented towards the camera at the origin (``d >= 0``). Moving planes between
+camera and world frames and comparing them is :mod:`annotate_rgbd.geometry.lift`'s.
 """
 
 from __future__ import annotations
@@ -15,7 +29,165 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .noise import NoiseModel, inlier_band
+from .noise import NoiseSettings
+
+
+@dataclass(frozen=True)
+class Moments:
+    """Point count, centroid and centred scatter of ``K`` point sets: all a least-squares plane needs.
+
+    Attributes
+    ----------
+    count : ndarray of float64, shape (K,)
+        Number of points.
+    mean : ndarray of float64, shape (K, 3)
+        Centroid, metres.
+    scatter : ndarray of float64, shape (K, 3, 3)
+        Sum of the outer products of the points about their centroid, m^2.
+    """
+
+    count: np.ndarray
+    mean: np.ndarray
+    scatter: np.ndarray
+
+    def take(self, index) -> Moments:
+        """The sets ``index`` (an index or a boolean mask along ``K``)."""
+        return Moments(self.count[index], self.mean[index], self.scatter[index])
+
+
+def fit_planes(mean: np.ndarray, scatter: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Least-squares (orthogonal) planes of point sets from their centroids and scatter matrices.
+
+    Parameters
+    ----------
+    mean : ndarray of float64, shape (K, 3)
+        Centroids, metres (NaN for an empty set gives a NaN offset).
+    scatter : ndarray of float64, shape (K, 3, 3)
+        Scatter (or covariance: any positive multiple) about the centroids.
+
+    Returns
+    -------
+    planes : ndarray of float64, shape (K, 4)
+        ``(a, b, c, d)`` through the centroid, unit normal oriented towards the camera (``d >= 0``).
+    eigenvalues : ndarray of float64, shape (K, 3)
+        Of ``scatter``, ascending: the first is the sum of squared distances to the plane (for a
+        scatter), the second measures the sets' extent across their narrower in-plane direction.
+    """
+    eigenvalues, eigenvectors = np.linalg.eigh(scatter)  # ascending
+    normal = eigenvectors[:, :, 0]
+    offset = -np.einsum("ij,ij->i", normal, mean)
+    flip = np.where(offset < 0, -1.0, 1.0)  # NaN < 0 is False: an empty set's normal stays as it is
+    planes = np.concatenate([normal * flip[:, None], (offset * flip)[:, None]], axis=1)
+    return planes, eigenvalues
+
+
+def residual_ms(count: np.ndarray, eigenvalues: np.ndarray) -> np.ndarray:
+    """Mean squared distance of each set's points to its least-squares plane, m^2: the smallest
+    eigenvalue of its scatter (:func:`fit_planes`) over its number of points.
+
+    Parameters
+    ----------
+    count : ndarray, shape (K,)
+    eigenvalues : ndarray of float64, shape (K, 3)
+        Of the sets' scatter matrices, ascending.
+
+    Returns
+    -------
+    ndarray of float64, shape (K,)
+    """
+    return np.maximum(eigenvalues[:, 0], 0) / np.maximum(count, 1)
+
+
+def moments_from_sums(count: np.ndarray, first: np.ndarray, second: np.ndarray) -> Moments:
+    """:class:`Moments` from raw sums over the points (which add up when sets are joined).
+
+    Parameters
+    ----------
+    count : ndarray of float64, shape (K,)
+        Number of points; a set of 0 points gets centroid 0 and scatter ``second``.
+    first : ndarray of float64, shape (K, 3)
+        Sum of the points.
+    second : ndarray of float64, shape (K, 3, 3)
+        Sum of the outer products of the points (about the camera centre).
+
+    Returns
+    -------
+    Moments
+        ``count`` as given.
+    """
+    divisor = np.maximum(count, 1)
+    mean = first / divisor[:, None]
+    scatter = second - divisor[:, None, None] * mean[:, :, None] * mean[:, None, :]
+    return Moments(count, mean, scatter)
+
+
+def mean_squared_distance(planes: np.ndarray, moments: Moments) -> np.ndarray:
+    """Mean squared distance of the points of set ``k`` to plane ``k``, from the set's moments:
+    ``n^T S n / N + (n . m + d)^2`` (``S`` the scatter about the centroid ``m``, unit normal ``n``).
+
+    Parameters
+    ----------
+    planes : ndarray of float64, shape (K, 4)
+    moments : Moments
+        ``K`` sets.
+
+    Returns
+    -------
+    ndarray of float64, shape (K,)
+        m^2.
+    """
+    normal = planes[:, :3]
+    spread = np.einsum("ki,kij,kj->k", normal, moments.scatter, normal) / np.maximum(moments.count, 1)
+    return spread + (np.einsum("ki,ki->k", moments.mean, normal) + planes[:, 3]) ** 2
+
+
+def merge_pairs(moments: Moments, a: np.ndarray, b: np.ndarray) -> Moments:
+    """The moments of the unions of sets ``a[p]`` and ``b[p]`` (parallel-axis theorem).
+
+    Parameters
+    ----------
+    moments : Moments
+    a, b : ndarray of int, shape (P,)
+        Indices of the sets to join, pairwise.
+
+    Returns
+    -------
+    Moments
+        ``P`` sets.
+    """
+    count, mean, scatter = moments.count, moments.mean, moments.scatter
+    joint = count[a] + count[b]
+    centre = (count[a, None] * mean[a] + count[b, None] * mean[b]) / joint[:, None]
+    delta = mean[a] - mean[b]
+    spread = scatter[a] + scatter[b] + (count[a] * count[b] / joint)[:, None, None] * delta[:, :, None] * delta[:, None, :]
+    return Moments(joint, centre, spread)
+
+
+def pool_groups(moments: Moments, group: np.ndarray, heads: np.ndarray) -> Moments:
+    """The moments of groups of sets, each about its own centroid.
+
+    Parameters
+    ----------
+    moments : Moments
+        ``K`` sets.
+    group : ndarray of int, shape (K,)
+        The group of each set.
+    heads : ndarray of int, shape (G,)
+        The groups to pool, in the order wanted.
+
+    Returns
+    -------
+    Moments
+        ``G`` sets.
+    """
+    count = np.array([moments.count[group == h].sum() for h in heads])
+    mean = np.array([(moments.count[group == h, None] * moments.mean[group == h]).sum(0) for h in heads]) / count[:, None]
+    scatter = np.array([
+        sum(moments.scatter[k] + moments.count[k] * np.outer(moments.mean[k] - mean[g], moments.mean[k] - mean[g])
+            for k in np.flatnonzero(group == h))
+        for g, h in enumerate(heads)
+    ])
+    return Moments(count, mean, scatter)
 
 
 def weighted_plane_fit(points: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
@@ -78,12 +250,15 @@ def _fit(coords: np.ndarray, weights: np.ndarray) -> np.ndarray:
             # on a busy machine made it 100x slower (5-12 ms instead of 0.05-0.13 ms).
             second[i, j] = second[j, i] = np.einsum("n,n->", weighted[i], centred[j]) / total
     covariance = second - np.outer(mean, mean)
-    eigenvalues, eigenvectors = np.linalg.eigh(covariance)  # ascending
+    centroid = origin + mean
+    planes, eigenvalues = fit_planes(centroid[None], covariance[None])
     # Collinear points: two eigenvalues vanish and the normal is any direction around the line.
-    if eigenvalues[1] <= 1e-12 * max(eigenvalues[2], np.finfo(float).tiny):
+    if eigenvalues[0, 1] <= 1e-12 * max(eigenvalues[0, 2], np.finfo(float).tiny):
         raise ValueError("the points lie on one line: no unique plane")
-    normal = eigenvectors[:, 0]
-    equation = np.append(normal, -normal @ (origin + mean))
+    # The offset of a single plane by ``@`` (a BLAS dot, whose last bit can differ from the
+    # batched einsum's): re-fitted planes stay bit for bit what they were.
+    normal = planes[0, :3]
+    equation = np.append(normal, -normal @ centroid)
     return -equation if equation[3] < 0 else equation
 
 
@@ -149,10 +324,7 @@ class Refit:
 def refit_plane(
     points: np.ndarray,
     equation: np.ndarray,
-    model: NoiseModel,
-    k: float,
-    floor: float,
-    cap: float,
+    noise: NoiseSettings,
     iterations: int = 2,
     fit_points: int = 20_000,
 ) -> Refit:
@@ -179,9 +351,8 @@ def refit_plane(
         The plane's points in metres, camera frame (z = depth); rows with NaN are never inliers.
     equation : ndarray of float, shape (4,)
         The starting plane (e.g. RANSAC's), unit normal.
-    model : ConstantNoise or QuadraticNoise
-    k, floor, cap : float
-        The band, as in :func:`annotate_rgbd.geometry.noise.inlier_band`.
+    noise : NoiseSettings
+        The noise model and the band built from it (``noise.band(z)``).
     iterations : int
         Number of re-fits (0: only count the inliers of ``equation``).
     fit_points : int
@@ -193,7 +364,8 @@ def refit_plane(
     """
     coords = np.ascontiguousarray(np.asarray(points, dtype=np.float64).T)  # rows x, y, z
     equation = np.asarray(equation, dtype=np.float64)
-    band = inlier_band(coords[2], model, k, floor, cap)  # NaN where z is NaN: never an inlier
+    k = noise.k
+    band = noise.band(coords[2])  # NaN where z is NaN: never an inlier
     with np.errstate(invalid="ignore"):
         distance = _distance(coords, equation)
         inliers = distance <= band
@@ -222,5 +394,5 @@ def refit_plane(
         # distance / (band / k), summed over the inliers without copying them out
         ratio = np.divide(distance, band, out=np.zeros_like(distance), where=inliers)
         rms = k * float(np.sqrt(np.einsum("n,n->", ratio, ratio) / after))
-        band_median = float(inlier_band(np.median(coords[2, inliers]), model, k, floor, cap))
+        band_median = float(noise.band(np.median(coords[2, inliers])))
     return Refit(equation, inliers, before, after, rms, band_median)

@@ -31,12 +31,12 @@ import json
 import logging
 import os
 import re
-import stat
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, Iterable
+from typing import Iterable
 
 from annotate_rgbd.errors import OutputError
+from .files import open_regular
 
 log = logging.getLogger("annotate_rgbd")
 
@@ -74,7 +74,7 @@ def file_digest(path: Path) -> str | None:
     """
     try:
         digest = hashlib.blake2b(digest_size=16)
-        with open_regular(path) as handle:
+        with open_regular(path, follow_links=False) as handle:
             for chunk in iter(lambda: handle.read(1 << 20), b""):
                 digest.update(chunk)
         return digest.hexdigest()
@@ -82,31 +82,16 @@ def file_digest(path: Path) -> str | None:
         return None
 
 
-def open_regular(path: Path) -> IO[bytes]:
-    """Open a regular file for reading: never through a symbolic link, never blocking on a FIFO.
-
-    Raises
-    ------
-    OSError
-        Missing, a link, or not a regular file.
-    """
-    fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK)
-    handle = os.fdopen(fd, "rb")
-    if not stat.S_ISREG(os.fstat(fd).st_mode):
-        handle.close()
-        raise OSError(errno.EINVAL, "not a regular file", str(path))
-    return handle
-
-
 def read_bounded(path: Path, max_bytes: int) -> bytes:
-    """Read a regular file (:func:`open_regular`) of at most ``max_bytes``.
+    """Read a regular file of at most ``max_bytes``, not through a symbolic link
+    (:func:`annotate_rgbd.io.files.open_regular`).
 
     Raises
     ------
     OSError
-        As :func:`open_regular`, or the file is larger.
+        As :func:`~annotate_rgbd.io.files.open_regular`, or the file is larger.
     """
-    with open_regular(path) as handle:
+    with open_regular(path, follow_links=False) as handle:
         data = handle.read(max_bytes + 1)
     if len(data) > max_bytes:
         raise OSError(errno.EFBIG, f"larger than {max_bytes} bytes", str(path))

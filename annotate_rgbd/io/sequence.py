@@ -26,7 +26,6 @@ import errno
 import io
 import math
 import os
-import stat
 import struct
 import zlib
 from collections.abc import Iterator
@@ -37,6 +36,7 @@ import cv2
 import numpy as np
 
 from annotate_rgbd.errors import InputError
+from .files import FileTooLarge, NotRegularFile, open_regular
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 
@@ -381,18 +381,16 @@ def read_bytes(path: Path, max_bytes: int = MAX_IMAGE_BYTES) -> np.ndarray:
     InputError
         Missing, unreadable, not a regular file (FIFO, device, folder) or too large.
     """
-    with open_regular(path, max_bytes) as handle:
+    with open_input(path, max_bytes) as handle:
         try:
             return np.fromfile(handle, dtype=np.uint8)
         except OSError as exc:
             raise InputError(path, f"cannot read ({exc.strerror})") from None
 
 
-def open_regular(path: Path, max_bytes: int):
-    """Open a regular file of at most ``max_bytes`` for reading in binary mode.
-
-    The file is opened without blocking and checked on the open descriptor (``fstat``): a FIFO
-    would block the open or the read until a writer comes, a device (``/dev/zero``) never ends.
+def open_input(path: Path, max_bytes: int):
+    """Open an input file (links followed: the user named it) of at most ``max_bytes`` for reading
+    in binary mode, a regular file only (:func:`annotate_rgbd.io.files.open_regular`).
 
     Raises
     ------
@@ -400,23 +398,17 @@ def open_regular(path: Path, max_bytes: int):
         Missing, unreadable, not a regular file or larger than ``max_bytes``.
     """
     try:
-        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_BINARY", 0))
+        return open_regular(path, max_bytes)
+    except FileNotFoundError:
+        raise InputError(path, "file not found") from None
+    except NotRegularFile as exc:
+        if exc.kind == "a folder":
+            raise InputError(path, f"cannot read ({os.strerror(errno.EISDIR)})") from None
+        raise InputError(path, f"not a regular file ({exc.kind}); refused") from None
+    except FileTooLarge as exc:
+        raise InputError(path, f"file is {exc.size / 2**20:.0f} MiB; at most {max_bytes / 2**20:.0f} MiB are read") from None
     except OSError as exc:
-        reason = "file not found" if isinstance(exc, FileNotFoundError) else f"cannot read ({exc.strerror})"
-        raise InputError(path, reason) from None
-    info = os.fstat(fd)
-    problem = None
-    if stat.S_ISDIR(info.st_mode):
-        problem = f"cannot read ({os.strerror(errno.EISDIR)})"
-    elif not stat.S_ISREG(info.st_mode):
-        kind = "a FIFO" if stat.S_ISFIFO(info.st_mode) else "a device or socket"
-        problem = f"not a regular file ({kind}); refused"
-    elif info.st_size > max_bytes:
-        problem = f"file is {info.st_size / 2**20:.0f} MiB; at most {max_bytes / 2**20:.0f} MiB are read"
-    if problem is not None:
-        os.close(fd)
-        raise InputError(path, problem)
-    return os.fdopen(fd, "rb")
+        raise InputError(path, f"cannot read ({exc.strerror})") from None
 
 
 def decode_image(data: np.ndarray, path: Path, flags: int) -> np.ndarray:
@@ -492,7 +484,7 @@ def _read_rows(path: Path, min_columns: int) -> Iterator[tuple[int, list[str]]]:
         ``MAX_LIST_LINES`` lines or ``MAX_FRAMES`` rows, or a row has too few columns.
     """
     try:
-        binary = open_regular(path, MAX_LIST_BYTES)
+        binary = open_input(path, MAX_LIST_BYTES)
     except InputError as exc:
         raise InputError(path, f"cannot read frame list: {exc.message}") from None
     with io.TextIOWrapper(binary, encoding="utf-8") as handle:

@@ -27,7 +27,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from annotate_rgbd.config.settings import Config, parse_part_offsets, parse_settings
+from annotate_rgbd.config.command_line import parse_part_offsets, parse_settings
+from annotate_rgbd.config.settings import Config
 from annotate_rgbd.config.toml_input import read_toml
 from annotate_rgbd.errors import InputError
 

@@ -32,7 +32,8 @@ from annotate_rgbd import __version__
 from annotate_rgbd.annotation.model import Shape
 from annotate_rgbd.config.settings import Config, config_to_dict
 from annotate_rgbd.errors import OutputError
-from annotate_rgbd.io.outdir import JOURNAL, REPORT, open_regular, read_bounded
+from annotate_rgbd.io.files import open_regular
+from annotate_rgbd.io.outdir import JOURNAL, REPORT, read_bounded
 from annotate_rgbd.report.records import WRITTEN, MaskRecord, RecordError
 
 #: Reading bounds: a journal line longer than this is not a record (a frame with thousands of
@@ -63,12 +64,13 @@ MASK_CODE = (
 )
 #: Modules the frame job imports whose code cannot change a frame's files: the package's and
 #: subpackages' ``__init__`` (re-exports; ``__version__`` is hashed by value), the settings'
-#: definitions and TOML reader (their values are hashed), errors, the output folder's helpers
-#: (file digests for the up-to-date check), camera poses and the shape record (hashed as data).
+#: definitions and TOML reader (their values are hashed; propose's and evaluate's are not used),
+#: errors, the bounded file opener and the output folder's helpers (file digests for the
+#: up-to-date check), camera poses and the shape record (hashed as data).
 NOT_MASK_CODE = (
     "__init__.py", "config/__init__.py", "io/__init__.py", "pipeline/__init__.py", "report/__init__.py",
     "review/__init__.py", "annotation/__init__.py", "config/masks.py", "config/toml_input.py", "errors.py",
-    "io/outdir.py", "io/poses.py", "annotation/model.py",
+    "io/outdir.py", "io/poses.py", "annotation/model.py", "config/evaluate.py", "config/propose.py", "io/files.py",
 )
 
 
@@ -218,7 +220,7 @@ def previous_results(out_dir: Path) -> Previous:
 def _journal_lines(path: Path) -> Iterator[bytes]:
     """The journal's lines, skipping over-long ones, up to :data:`MAX_RECORDS_BYTES`."""
     try:
-        handle = open_regular(path)
+        handle = open_regular(path, follow_links=False)
     except OSError:
         return
     with handle:

@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from annotate_rgbd import __version__
-from annotate_rgbd.config.settings import Config, config_to_dict
+from annotate_rgbd.config.settings import OTHER_COMMANDS_SECTIONS, Config, config_to_dict
 from annotate_rgbd.report.palette import colour_hex
 from annotate_rgbd.report.records import PartRecord, PlaneInfo, RunRecord
 from annotate_rgbd.annotation.stitch import TrackPlane, plane_origins
@@ -53,7 +53,7 @@ def run_record(plan: RunPlan, config: Config) -> RunRecord:
             PartRecord(str(Path(p.annotation.path).resolve()), p.name, p.offset, p.first, p.last, p.offset_source)
             for p in plan.parts
         ],
-        config=config_to_dict(config),
+        config=config_to_dict(config, leave_out=OTHER_COMMANDS_SECTIONS),
         planes=[
             PlaneInfo(plane, colour_hex(colours[plane - 1]), t.label, t.part, t.track)
             for plane, t in sorted(plane_origins(plan.tracks).items())

@@ -12,16 +12,18 @@ from pathlib import Path
 
 import numpy as np
 
-from annotate_rgbd.geometry.camera import Camera, depth_to_metres
+from annotate_rgbd.config.propose import DetectorConfig, ProposeConfig
 from annotate_rgbd.config.settings import FilterConfig
+from annotate_rgbd.cvat.from_masks import draw_order, piece_outlines
 from annotate_rgbd.detect import detect_planes
 from annotate_rgbd.detect.refine import relabel
 from annotate_rgbd.errors import InputError
-from annotate_rgbd.segment.filters import camera_distances, drop_reasons, statistics_of_distances
+from annotate_rgbd.geometry.camera import Camera, depth_to_metres
 from annotate_rgbd.geometry.noise import NoiseSettings
+from annotate_rgbd.geometry.planes import Moments, fit_planes, merge_pairs, pool_groups, residual_ms
 from annotate_rgbd.io.sequence import read_depth
-from .outlines import fill_window, piece_outlines
-from .settings import ProposeConfig
+from annotate_rgbd.segment.filters import camera_distances, drop_reasons, statistics_of_distances
+from annotate_rgbd.segment.rasterize import fill_window
 
 
 @dataclass(frozen=True)
@@ -34,7 +36,10 @@ class DetectJob:
         Index of the frame among the processed frames.
     depth_path : Path
     camera : Camera
+    detector : DetectorConfig
+        The detector (``[detect]``).
     settings : ProposeConfig
+        Merging and outlines (``[propose]``).
     noise : NoiseSettings
         The sensor's noise model (``[noise]``): the detector's ``sigma(z)``.
     filter : FilterConfig
@@ -44,6 +49,7 @@ class DetectJob:
     position: int
     depth_path: Path
     camera: Camera
+    detector: DetectorConfig
     settings: ProposeConfig
     noise: NoiseSettings
     filter: FilterConfig
@@ -96,12 +102,13 @@ def propose_frame(job: DetectJob) -> FrameProposal:
         The depth image cannot be read or is not a depth map.
     """
     depth = depth_to_metres(read_depth(Path(job.depth_path)), job.camera.depth_scale)
-    return propose_planes(depth, job.camera, job.settings, job.noise, job.filter, job.position)
+    return propose_planes(depth, job.camera, job.detector, job.settings, job.noise, job.filter, job.position)
 
 
 def propose_planes(
     depth: np.ndarray,
     camera: Camera,
+    detector: DetectorConfig,
     settings: ProposeConfig,
     noise: NoiseSettings,
     rules: FilterConfig,
@@ -114,6 +121,8 @@ def propose_planes(
     depth : ndarray of float32, shape (H, W)
         Metres, NaN where invalid.
     camera : Camera
+    detector : DetectorConfig
+        ``detector.min_area_fraction`` is the smallest plane proposed.
     settings : ProposeConfig
     noise : NoiseSettings
     rules : FilterConfig
@@ -127,11 +136,11 @@ def propose_planes(
     sigma = noise.model.sigma
     # The detector keeps pieces down to a fraction of the smallest plane: pieces of one plane
     # that occluders cut apart (a floor around a table) reach the minimum area together.
-    min_area = settings.detector.min_area_fraction * depth.size
-    pieces = replace(settings.detector, min_area_fraction=settings.detector.min_area_fraction * settings.piece_fraction)
+    min_area = detector.min_area_fraction * depth.size
+    pieces = replace(detector, min_area_fraction=detector.min_area_fraction * settings.piece_fraction)
     detection = detect_planes(depth, camera, pieces, noise=sigma)
     # The detector's own moments of its final pixels: exact, and already paid for.
-    moments = Moments(detection.areas.astype(np.float64), detection.means, detection.scatters)
+    moments = detection.moments
     groups = merge_groups(moments, sigma, settings.merge_excess)
     labels, planes, areas, centroids = _apply_groups(detection.labels, moments, groups, min_area)
     outlines = piece_outlines(labels, settings.outline_tolerance_px)
@@ -174,34 +183,6 @@ def propose_planes(
     )
 
 
-@dataclass(frozen=True)
-class Moments:
-    """First and second moments of each label's 3-D points (label k in row k - 1).
-
-    Attributes
-    ----------
-    count : ndarray of float64, shape (K,)
-    mean : ndarray of float64, shape (K, 3)
-    scatter : ndarray of float64, shape (K, 3, 3)
-        Sum of the outer products of the centred points.
-    """
-
-    count: np.ndarray
-    mean: np.ndarray
-    scatter: np.ndarray
-
-
-def fit(count: np.ndarray, mean: np.ndarray, scatter: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Least-squares planes of moments: ``(K, 4)`` planes (unit normal towards the camera,
-    ``d > 0``) and the mean squared residual ``(K,)``."""
-    values, vectors = np.linalg.eigh(scatter)
-    normal = vectors[..., 0]
-    d = -np.einsum("ki,ki->k", normal, mean)
-    flip = np.where(d < 0, -1.0, 1.0)
-    planes = np.concatenate([normal * flip[:, None], (d * flip)[:, None]], axis=1)
-    return planes, np.maximum(values[:, 0], 0) / np.maximum(count, 1)
-
-
 def merge_groups(moments: Moments, sigma, excess_k: float) -> np.ndarray:
     """Which labels are one plane: greedy merging of the pair whose joint fit adds the least
     residual, while it adds at most ``excess_k * sigma(z)**2`` (z: the pair's mean depth).
@@ -209,6 +190,7 @@ def merge_groups(moments: Moments, sigma, excess_k: float) -> np.ndarray:
     Parameters
     ----------
     moments : Moments
+        Of each label's points (label k in row k - 1).
     sigma : callable
         Axial noise standard deviation at a depth, metres.
     excess_k : float
@@ -221,26 +203,24 @@ def merge_groups(moments: Moments, sigma, excess_k: float) -> np.ndarray:
     """
     n = len(moments.count)
     group = np.arange(n)
-    count, mean, scatter = moments.count.copy(), moments.mean.copy(), moments.scatter.copy()
-    alive = count > 0
+    current = Moments(moments.count.copy(), moments.mean.copy(), moments.scatter.copy())
+    alive = current.count > 0
     while alive.sum() > 1:
         idx = np.flatnonzero(alive)
         i, j = np.triu_indices(len(idx), 1)
         a, b = idx[i], idx[j]
-        c = count[a] + count[b]
-        m = (count[a, None] * mean[a] + count[b, None] * mean[b]) / c[:, None]
-        delta = mean[a] - mean[b]
-        joint = scatter[a] + scatter[b] + (count[a] * count[b] / c)[:, None, None] * delta[:, :, None] * delta[:, None, :]
-        _, joint_ms = fit(c, m, joint)
-        _, ms_a = fit(count[a], mean[a], scatter[a])
-        _, ms_b = fit(count[b], mean[b], scatter[b])
-        added = joint_ms - (count[a] * ms_a + count[b] * ms_b) / c
-        ratio = added / (excess_k * sigma(m[:, 2]) ** 2)
+        joint = merge_pairs(current, a, b)
+        joint_ms = residual_ms(joint.count, fit_planes(joint.mean, joint.scatter)[1])
+        ms_a = residual_ms(current.count[a], fit_planes(current.mean[a], current.scatter[a])[1])
+        ms_b = residual_ms(current.count[b], fit_planes(current.mean[b], current.scatter[b])[1])
+        added = joint_ms - (current.count[a] * ms_a + current.count[b] * ms_b) / joint.count
+        ratio = added / (excess_k * sigma(joint.mean[:, 2]) ** 2)
         best = int(np.argmin(ratio))  # first minimum: deterministic
         if ratio[best] > 1:
             break
         keep, gone = min(a[best], b[best]), max(a[best], b[best])
-        count[keep], mean[keep], scatter[keep] = c[best], m[best], joint[best]
+        current.count[keep], current.mean[keep], current.scatter[keep] = (
+            joint.count[best], joint.mean[best], joint.scatter[best])
         alive[gone] = False
         group[group == gone] = keep
     return group
@@ -254,67 +234,16 @@ def _apply_groups(labels, moments: Moments, group: np.ndarray, min_area: float):
     if n == 0:
         return labels, np.zeros((0, 4)), np.zeros(0, np.int64), np.zeros((0, 3))
     heads = np.unique(group)
-    count = np.array([moments.count[group == h].sum() for h in heads])
-    mean = np.array([(moments.count[group == h, None] * moments.mean[group == h]).sum(0) for h in heads]) / count[:, None]
-    scatter = np.array([
-        sum(moments.scatter[k] + moments.count[k] * np.outer(moments.mean[k] - mean[g], moments.mean[k] - mean[g])
-            for k in np.flatnonzero(group == h))
-        for g, h in enumerate(heads)
-    ])
-    area = np.array([moments.count[group == h].sum() for h in heads]).astype(np.int64)
+    pooled = pool_groups(moments, group, heads)
+    area = pooled.count.astype(np.int64)
     order = np.lexsort((heads, -area))
     order = order[area[order] >= min_area]
     rank = np.full(len(heads), -1, dtype=np.intp)
     rank[order] = np.arange(len(order))
     table = np.zeros(n + 1, dtype=labels.dtype)
     table[1:] = rank[np.searchsorted(heads, group)] + 1
-    planes, _ = fit(count[order], mean[order], scatter[order])
-    return relabel(labels, table, labels.dtype), planes, area[order], mean[order]
-
-
-def draw_order(labels: np.ndarray, windows: list, distance: np.ndarray) -> np.ndarray:
-    """``z_order`` of the polygons so that, where two overlap, the plane whose pixels fill the
-    overlap is drawn on top: the nearer one where one plane occludes the other, the inner one
-    where a polygon's filled holes hold another plane (a picture on a wall).
-
-    Plane ``q`` goes above ``p`` when more of ``q``'s pixels lie inside ``p``'s polygon than of
-    ``p``'s inside ``q``'s. The order is a topological sort of these relations, picking the
-    farthest plane (``distance``) first among those free to go next, and the farthest of all
-    when the relations form a cycle.
-
-    Parameters
-    ----------
-    labels : ndarray of int, shape (H, W)
-        Planes 1..K.
-    windows : list of (int, int, ndarray of bool)
-        Pixels of the polygon of plane ``k`` at position ``k - 1``, as
-        :func:`annotate_rgbd.segment.rasterize.shape_mask` gives them: ``(top, left, window)``.
-    distance : ndarray of float, shape (K,)
-        Mean camera distance of each plane (NaN: farthest).
-
-    Returns
-    -------
-    ndarray of int64, shape (K,)
-        0 (bottom) .. K - 1 (top).
-    """
-    k = len(windows)
-    inside = np.zeros((k, k + 1), dtype=np.int64)  # [p, q]: pixels of plane q inside polygon p
-    for p, (top, left, window) in enumerate(windows):
-        rows, cols = window.shape
-        covered = labels[top : top + rows, left : left + cols][window]
-        inside[p] = np.bincount(covered.astype(np.intp), minlength=k + 1)[: k + 1]
-    counts = inside[:, 1:]
-    below = counts.T > counts  # below[q, p]: q must be drawn above p
-    farthest = np.nan_to_num(np.asarray(distance, dtype=np.float64), nan=np.inf)
-    z = np.zeros(k, dtype=np.int64)
-    placed = np.zeros(k, dtype=bool)
-    for level in range(k):
-        ready = ~placed & ~(below & ~placed[None, :]).any(axis=1)
-        pool = np.flatnonzero(ready if ready.any() else ~placed)
-        pick = pool[np.lexsort((pool, -farthest[pool]))[0]]
-        z[pick] = level
-        placed[pick] = True
-    return z
+    planes = fit_planes(pooled.mean[order], pooled.scatter[order])[0]
+    return relabel(labels, table, labels.dtype), planes, area[order], pooled.mean[order]
 
 
 def paint(windows: list, z_order: np.ndarray, shape: tuple[int, int]) -> np.ndarray:

@@ -1,7 +1,7 @@
 """Linking the planes proposed on successive processed frames into tracks (pure, deterministic).
 
 Two detections are candidates for one plane when their planes agree within the noise band and
-their masks overlap (see :class:`~annotate_rgbd.propose.settings.LinkConfig`):
+their masks overlap (see :class:`~annotate_rgbd.config.propose.LinkConfig`, the ``[link]`` section):
 
 - **with poses**, by world plane (:func:`annotate_rgbd.geometry.lift.plane_agreement` for all of a
   frame's planes at once, at the later detection's centroid) and by the IoU of
@@ -26,12 +26,12 @@ import cv2
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from annotate_rgbd.config.propose import LinkConfig
 from annotate_rgbd.geometry.camera import Camera
 from annotate_rgbd.geometry.lift import lift_polygon, plane_agreement, plane_to_world, project_polygon
 from annotate_rgbd.geometry.noise import NoiseSettings
+from annotate_rgbd.segment.rasterize import fill_window
 from .detect_job import FrameProposal
-from .outlines import fill_window
-from .settings import LinkConfig
 
 #: Masks are compared without poses on every STRIDE-th pixel along rows and columns: a plane
 #: of the smallest proposed size (1 % of the image) keeps ~190 samples, and a shift search over

@@ -25,7 +25,6 @@ from annotate_rgbd.io.writer import write_json
 from .detect_job import DetectJob, FrameProposal, propose_frame
 from .link import TrackLinker
 from .output import TrackShapes, equation_text, track_colour, write_colour_mask, write_polygon_tracks
-from .settings import ProposeConfig
 
 log = logging.getLogger("annotate_rgbd")
 
@@ -67,7 +66,6 @@ def run_propose(
     sequence_dir: str | Path,
     out_dir: str | Path,
     config: Config = Config(),
-    settings: ProposeConfig = ProposeConfig(),
     poses: str | Path | None = None,
     workers: int | None = None,
     progress: Callable[[int, int], None] | None = None,
@@ -81,8 +79,8 @@ def run_propose(
         TUM / ICL-NUIM sequence folder.
     out_dir : str or Path
     config : Config
-        Camera, ``[sequence]`` (RGB association), ``[filter]`` (drop rules), ``[noise]``.
-    settings : ProposeConfig
+        Camera, ``[sequence]`` (RGB association), ``[filter]`` (drop rules), ``[noise]``, and
+        ``propose``'s own ``[detect]``, ``[propose]`` (every N-th frame, label...) and ``[link]``.
     poses : str or Path, optional
         TUM trajectory: link tracks by world plane.
     workers : int, optional
@@ -107,15 +105,16 @@ def run_propose(
     with OutputFolder(out_dir, "propose") as folder:
         helpers = start_helpers(workers, [DETECT_JOB_MODULE])
         try:
-            return _run(sequence, folder, config, settings, poses, helpers, progress)
+            return _run(sequence, folder, config, poses, helpers, progress)
         finally:
             if helpers is not None:
                 helpers.shutdown()
 
 
-def _run(sequence, folder: OutputFolder, config, settings, poses_path, helpers, progress) -> ProposeResult:
+def _run(sequence, folder: OutputFolder, config, poses_path, helpers, progress) -> ProposeResult:
     out_dir = folder.path
     result = ProposeResult()
+    settings = config.propose
     depth_times = sequence.depth.timestamps
     nearest, time_diff, matched = associate(depth_times, sequence.rgb.timestamps, config.sequence.max_time_diff)
     chosen = np.arange(0, len(depth_times), settings.every)
@@ -145,10 +144,11 @@ def _run(sequence, folder: OutputFolder, config, settings, poses_path, helpers, 
     (out_dir / MASKS_DIR).mkdir(exist_ok=True)
 
     jobs = [
-        DetectJob(position, sequence.root / sequence.depth.files[i], config.camera, settings, config.noise, config.filter)
+        DetectJob(position, sequence.root / sequence.depth.files[i], config.camera, config.detect, settings, config.noise,
+                  config.filter)
         for position, i in enumerate(chosen.tolist())
     ]
-    linker = TrackLinker(settings.link, config.noise, config.camera)
+    linker = TrackLinker(config.link, config.noise, config.camera)
     tracks: dict[int, TrackShapes] = {}
     best: dict[int, tuple[int, np.ndarray, str]] = {}  # track -> (area, equation, frame) for the attribute
     frames: list[dict] = []
@@ -205,8 +205,8 @@ def _run(sequence, folder: OutputFolder, config, settings, poses_path, helpers, 
         "tool": "annotate-rgbd propose", "version": __version__,
         "inputs": {"sequence": str(sequence.root), "poses": None if poses_path is None else str(poses_path),
                    "every": settings.every, "label": settings.label,
-                   "min_area_fraction": settings.detector.min_area_fraction},
-        "config": config_to_dict(config),
+                   "min_area_fraction": config.detect.min_area_fraction},
+        "config": config_to_dict(config, leave_out=("evaluate",)),
         "summary": {"frames_processed": result.frames, "frames_skipped": len(result.skipped),
                     "frames_failed": len(result.failed), "tracks": result.tracks,
                     "planes_proposed": sum(len(f.get("planes", ())) for f in frames),

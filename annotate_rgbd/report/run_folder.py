@@ -22,7 +22,8 @@ import numpy as np
 
 from annotate_rgbd.annotation.model import AREA_KINDS, Shape
 from annotate_rgbd.errors import InputError
-from annotate_rgbd.io.outdir import REPORT, SHAPES_RECORD, open_regular, read_bounded
+from annotate_rgbd.io.files import open_regular
+from annotate_rgbd.io.outdir import REPORT, SHAPES_RECORD, read_bounded
 from annotate_rgbd.report.records import RecordError, RunRecord
 
 #: Reading bound of ``report.json`` (a run of 100,000 frames with 20 planes each: ~300 MiB).
@@ -171,7 +172,7 @@ def read_drawn_shapes(out_dir: Path, masks: set[str]) -> dict[str, list[tuple[in
     path = Path(out_dir) / SHAPES_RECORD
     found: dict[str, list[tuple[int, Shape]]] = {}
     try:
-        handle = open_regular(path)
+        handle = open_regular(path, follow_links=False)
     except OSError as exc:
         raise InputError(path, f"cannot read the run's drawn shapes ({exc.strerror or exc}); run cvat2mask "
                                "again into this folder (it redoes nothing that is up to date)") from None

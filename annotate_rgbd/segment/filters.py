@@ -8,7 +8,7 @@ from functools import lru_cache
 import cv2
 import numpy as np
 
-from annotate_rgbd.geometry.camera import Camera
+from annotate_rgbd.geometry.camera import Camera, ray_grid
 from annotate_rgbd.config.settings import FilterConfig
 
 #: Reasons a plane is dropped from a frame, as written to the report.
@@ -131,11 +131,8 @@ def ray_lengths(camera: Camera, height: int, width: int) -> np.ndarray:
     ndarray of float32, shape (height, width)
         Read-only (cached: every frame of a sequence uses the same one).
     """
-    ray = np.sqrt(
-        (((np.arange(height, dtype=np.float32) - np.float32(camera.cy)) / np.float32(camera.fy)) ** 2)[:, None]
-        + (((np.arange(width, dtype=np.float32) - np.float32(camera.cx)) / np.float32(camera.fx)) ** 2)[None, :]
-        + np.float32(1.0)
-    )
+    ray_x, ray_y = ray_grid(camera, height, width, np.float32)
+    ray = np.sqrt((ray_y**2)[:, None] + (ray_x**2)[None, :] + np.float32(1.0))
     ray.setflags(write=False)
     return ray
 

@@ -125,16 +125,14 @@ def fit_plane(
         if found is None:
             break
         (equation, inliers), behind = found, True
-    refit = refit_plane(points, equation, noise.model, noise.k, noise.floor, noise.cap, iterations=REFITS, fit_points=0)
+    refit = refit_plane(points, equation, noise, iterations=REFITS, fit_points=0)
     rms_sigma, before, scale = refit.rms_sigma, refit.inliers_before, 1.0
     for _ in range(2):  # the first estimate sees a band truncated at the model's k sigma
         found = noise_scale(points, refit.equation, noise.scaled(scale))
         if found < (config.min_noise_scale if scale == 1.0 else 1.02):
             break
         scale = min(scale * found, config.max_noise_scale)
-        scaled = noise.scaled(scale)
-        refit = refit_plane(points, refit.equation, scaled.model, scaled.k, scaled.floor, scaled.cap, iterations=1,
-                            fit_points=0)
+        refit = refit_plane(points, refit.equation, noise.scaled(scale), iterations=1, fit_points=0)
     equation = refit.equation / np.linalg.norm(refit.equation[:3])
     if equation[3] < 0:
         equation = -equation

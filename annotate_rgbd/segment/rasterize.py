@@ -14,6 +14,7 @@ from __future__ import annotations
 
 from typing import Iterable
 
+import cv2
 import numpy as np
 
 from annotate_rgbd.annotation.model import Shape
@@ -143,6 +144,38 @@ def polygon_window(points: np.ndarray, height: int, width: int) -> tuple[int, in
     for k in more:  # spans of a row are disjoint: one comparison per span
         inside |= (cols >= first[:, k, None]) & (cols < stop[:, k, None])
     return top, left, inside
+
+
+def fill_window(polygon: np.ndarray, height: int, width: int) -> tuple[int, int, np.ndarray]:
+    """The pixels of a polygon, as a boolean window of the image, filled by OpenCV.
+
+    A fast stand-in for :func:`shape_mask` where a pixel more or less on
+    the outline does not matter (draw order, drop statistics, overlap of reprojected outlines):
+    ``cv2.fillPoly`` at 1/16 pixel takes the outline's pixels too, and is ~20x faster on the
+    long outlines of real planes.
+
+    Parameters
+    ----------
+    polygon : ndarray, shape (V, 2)
+        CVAT image coordinates (pixel ``(col, row)`` has its centre at ``(col + 0.5, row + 0.5)``).
+    height, width : int
+
+    Returns
+    -------
+    top, left : int
+    window : ndarray of bool, shape (rows, cols)
+        Empty when the polygon lies outside the image.
+    """
+    points = np.asarray(polygon, dtype=np.float64) - 0.5  # OpenCV puts pixel centres at integers
+    left = int(np.clip(np.floor(points[:, 0].min()), 0, width))
+    right = int(np.clip(np.ceil(points[:, 0].max()) + 1, 0, width))
+    top = int(np.clip(np.floor(points[:, 1].min()), 0, height))
+    bottom = int(np.clip(np.ceil(points[:, 1].max()) + 1, 0, height))
+    window = np.zeros((max(bottom - top, 0), max(right - left, 0)), dtype=np.uint8)
+    if window.size:
+        fixed = np.round((points - (left, top)) * 16).astype(np.int32)
+        cv2.fillPoly(window, [fixed.reshape(-1, 1, 2)], 1, lineType=cv2.LINE_8, shift=4)
+    return top, left, window.view(bool)
 
 
 def _span(low: float, high: float, size: int) -> tuple[int, int]:

@@ -11,7 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from annotate_rgbd.geometry.camera import Camera, project
+from annotate_rgbd.geometry.camera import Camera, project, ray_grid
+from annotate_rgbd.geometry.lift import pixel_rays
 from .polygons import plane_polygon
 from .scene import NEAR, Box, Clutter, Cylinder, Plane, Pose, Scene, Sphere
 
@@ -33,13 +34,6 @@ class Render:
     object_index: np.ndarray
     rgb: np.ndarray
 
-
-
-def _ray_grid(camera: Camera, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
-    """Per-column x/z and per-row y/z of the pixel-centre rays (rays are ``(x, y, 1)``)."""
-    cols = ((np.arange(width) - camera.cx) / camera.fx).astype(np.float32)
-    rows = ((np.arange(height) - camera.cy) / camera.fy).astype(np.float32)
-    return cols, rows
 
 
 def _dot(vector: np.ndarray, cols: np.ndarray, rows: np.ndarray) -> np.ndarray:
@@ -76,10 +70,7 @@ def _extent(item: Plane | Clutter, pose: Pose, camera: Camera, width: int, heigh
         polygon = plane_polygon(item, pose, camera, width, height)
         if polygon is None:
             return np.empty((0, 3))
-        return np.column_stack(
-            [(polygon[:, 0] - 0.5 - camera.cx) / camera.fx, (polygon[:, 1] - 0.5 - camera.cy) / camera.fy,
-             np.ones(len(polygon))]
-        )
+        return pixel_rays(polygon, camera)
     if isinstance(item, Sphere):
         centre = pose.to_camera(np.asarray([item.centre]))[0]
         return _box_corners(centre - item.radius, centre + item.radius)
@@ -250,7 +241,7 @@ def render(scene: Scene, pose: Pose, camera: Camera, width: int, height: int) ->
     -------
     Render
     """
-    cols, rows = _ray_grid(camera, width, height)
+    cols, rows = (ray.astype(np.float32) for ray in ray_grid(camera, height, width))
     ray_norm2 = (cols * cols)[None, :] + (rows * rows + 1.0)[:, None]
     light = pose.direction_to_camera(np.asarray([scene.light]))[0]
     light /= np.linalg.norm(light)

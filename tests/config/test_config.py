@@ -6,14 +6,13 @@ from typing import Optional
 import numpy as np
 import pytest
 
+from annotate_rgbd.config.command_line import parse_part_offsets, parse_settings
 from annotate_rgbd.config.settings import (
     Config,
     _build_list,
     config_from_dict,
     config_to_dict,
     load_config,
-    parse_part_offsets,
-    parse_settings,
     preset_names,
 )
 from annotate_rgbd.geometry.noise import SENSOR_MODELS, NoiseSettings, QuadraticNoise

@@ -16,7 +16,9 @@ from conftest import reference_data
 from scipy import ndimage
 
 from annotate_rgbd.geometry.camera import Camera, backproject, depth_to_metres
-from annotate_rgbd.detect import DetectorConfig, detect_planes, plane_outlines
+from annotate_rgbd.config.propose import DetectorConfig
+from annotate_rgbd.cvat.from_masks import plane_outlines
+from annotate_rgbd.detect import detect_planes
 from annotate_rgbd.detect.cells import cloud_cells
 from annotate_rgbd.segment.rasterize import polygon_window
 

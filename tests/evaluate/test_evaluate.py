@@ -280,6 +280,26 @@ def test_cli_part_is_the_deprecated_name_of_partial(sequence):
     assert "--partial" in help_text and "--part " not in help_text
 
 
+def test_cli_reads_the_thresholds_from_the_evaluate_section(sequence, tmp_path):
+    gt_dir, pred_dir, _, _ = sequence
+    base = ["evaluate", str(gt_dir), str(pred_dir), "--json"]
+    # At partial 0.6 the merged prediction is no partial overlap any more (as above).
+    expected = evaluate_paths(gt_dir, pred_dir, part=0.6).to_dict()
+    assert expected != evaluate_paths(gt_dir, pred_dir).to_dict()
+    config = tmp_path / "scene.toml"
+    config.write_text("[evaluate]\npartial = 0.6\n")
+    from_file = CliRunner().invoke(app, [*base, "--config", str(config)])
+    from_set = CliRunner().invoke(app, [*base, "--set", "evaluate.partial=0.6"])
+    assert from_file.exit_code == from_set.exit_code == 0, from_file.output
+    assert json.loads(from_file.stdout) == json.loads(from_set.stdout) == expected
+    # The option beats the file.
+    option = CliRunner().invoke(app, [*base, "--config", str(config), "--partial", "0.2"])
+    assert json.loads(option.stdout) == evaluate_paths(gt_dir, pred_dir).to_dict()
+    bad = CliRunner().invoke(app, [*base, "--set", "evaluate.full=1.5"])
+    assert bad.exit_code == 1
+    assert bad.stderr == "error: command-line option: 'evaluate.full' must be in (0, 1], got 1.5\n"
+
+
 def test_cli_reports_bad_input_in_one_line(sequence, tmp_path):
     gt_dir, _, _, _ = sequence
     broken = tmp_path / "broken"

@@ -5,8 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from annotate_rgbd.geometry.noise import SENSOR_MODELS, ConstantNoise, inlier_band
-from annotate_rgbd.geometry.planes import Refit, point_plane_distance, refit_plane, weighted_plane_fit
+from annotate_rgbd.geometry.noise import SENSOR_MODELS, ConstantNoise, NoiseSettings, inlier_band
+from annotate_rgbd.geometry.planes import (
+    Moments, Refit, fit_planes, mean_squared_distance, merge_pairs, moments_from_sums, point_plane_distance, pool_groups,
+    refit_plane, residual_ms, weighted_plane_fit,
+)
 
 KINECT = SENSOR_MODELS["kinect_v1"]
 K, FLOOR, CAP = 3.0, 0.002, 0.10
@@ -128,7 +131,7 @@ def test_refit_recovers_the_normal_better_than_a_three_point_plane():
         rng = np.random.default_rng(seed)
         points, truth = tilted_plane(rng, 20_000)
         start = three_point_plane(points, rng)
-        fit = refit_plane(points, start, KINECT, K, FLOOR, CAP)
+        fit = refit_plane(points, start, NoiseSettings(KINECT, K, FLOOR, CAP))
         assert angle_deg(fit.equation, truth) < 0.03
         worse += angle_deg(fit.equation, truth) >= angle_deg(start, truth)
     assert worse == 0
@@ -141,7 +144,7 @@ def test_weighting_by_noise_beats_an_unweighted_fit():
     for seed in range(30):
         rng = np.random.default_rng(100 + seed)
         points, truth = tilted_plane(rng, 3000)
-        fit = refit_plane(points, truth, KINECT, K, FLOOR, CAP)
+        fit = refit_plane(points, truth, NoiseSettings(KINECT, K, FLOOR, CAP))
         weighted_errors.append(angle_deg(fit.equation, truth))
         plain_errors.append(angle_deg(svd_plane(points[fit.inliers]), truth))
     assert np.mean(weighted_errors) < 0.7 * np.mean(plain_errors)
@@ -150,12 +153,12 @@ def test_weighting_by_noise_beats_an_unweighted_fit():
 def test_rms_in_sigma_units_is_about_one_for_noise_of_that_sigma():
     rng = np.random.default_rng(7)
     points, truth = tilted_plane(rng, 50_000)
-    fit = refit_plane(points, truth, KINECT, K, FLOOR, CAP)
+    fit = refit_plane(points, truth, NoiseSettings(KINECT, K, FLOOR, CAP))
     # Gaussian noise cut at 3 sigma has RMS 0.986 sigma.
     assert fit.rms_sigma == pytest.approx(0.986, abs=0.02)
     # twice the noise -> twice the RMS in units of the model's sigma (band 6 of those: 3 true sigma)
     doubled, _ = tilted_plane(np.random.default_rng(7), 50_000, model=type(KINECT)(2 * KINECT.a, 2 * KINECT.b, KINECT.c))
-    assert refit_plane(doubled, truth, KINECT, 6.0, FLOOR, 1.0).rms_sigma == pytest.approx(2 * 0.986, rel=0.02)
+    assert refit_plane(doubled, truth, NoiseSettings(KINECT, 6.0, FLOOR, 1.0)).rms_sigma == pytest.approx(2 * 0.986, rel=0.02)
 
 
 def test_counts_band_and_inliers_against_an_independent_count():
@@ -164,7 +167,7 @@ def test_counts_band_and_inliers_against_an_independent_count():
     clutter = points[:3000] + truth[:3] * 0.05  # 5 cm in front of the plane
     points = np.vstack([points, clutter])
     start = three_point_plane(points[:30_000], rng)
-    fit = refit_plane(points, start, KINECT, K, FLOOR, CAP)
+    fit = refit_plane(points, start, NoiseSettings(KINECT, K, FLOOR, CAP))
     band = np.clip(K * (0.0012 + 0.0019 * (points[:, 2] - 0.4) ** 2), FLOOR, CAP)
     distance_start = np.abs(points @ start[:3] + start[3])
     assert fit.inliers_before == np.count_nonzero(distance_start <= band)
@@ -187,7 +190,7 @@ def test_constant_model_refit_is_plain_least_squares_on_the_inliers():
     points, truth = tilted_plane(rng, 5000, model=ConstantNoise(0.003))
     start = three_point_plane(points, rng)
     model = ConstantNoise(0.004)
-    fit = refit_plane(points, start, model, K, FLOOR, CAP, iterations=1, fit_points=0)
+    fit = refit_plane(points, start, NoiseSettings(model, K, FLOOR, CAP), iterations=1, fit_points=0)
     inliers = np.abs(points @ start[:3] + start[3]) <= K * 0.004
     assert fit.equation == pytest.approx(svd_plane(points[inliers]), abs=1e-9)
 
@@ -196,7 +199,7 @@ def test_iterations_zero_keeps_the_plane_and_counts_its_inliers():
     rng = np.random.default_rng(6)
     points, truth = tilted_plane(rng, 2000)
     start = three_point_plane(points, rng)
-    fit = refit_plane(points, start, KINECT, K, FLOOR, CAP, iterations=0)
+    fit = refit_plane(points, start, NoiseSettings(KINECT, K, FLOOR, CAP), iterations=0)
     assert np.array_equal(fit.equation, start)
     assert fit.inliers_before == fit.inliers_after == np.count_nonzero(fit.inliers)
 
@@ -208,8 +211,8 @@ def test_nan_points_are_never_inliers_and_change_nothing_else():
     with_nan[::7, 2] = np.nan
     with_nan[3::7] = np.nan
     keep = np.isfinite(with_nan).all(axis=1)
-    fit = refit_plane(with_nan, truth, KINECT, K, FLOOR, CAP, fit_points=0)
-    alone = refit_plane(points[keep], truth, KINECT, K, FLOOR, CAP, fit_points=0)
+    fit = refit_plane(with_nan, truth, NoiseSettings(KINECT, K, FLOOR, CAP), fit_points=0)
+    alone = refit_plane(points[keep], truth, NoiseSettings(KINECT, K, FLOOR, CAP), fit_points=0)
     assert not fit.inliers[~keep].any()
     assert np.array_equal(fit.inliers[keep], alone.inliers)
     assert fit.equation == pytest.approx(alone.equation, abs=1e-12)
@@ -219,8 +222,8 @@ def test_nan_points_are_never_inliers_and_change_nothing_else():
 def test_subsampled_fit_agrees_with_the_full_fit():
     rng = np.random.default_rng(9)
     points, truth = tilted_plane(rng, 100_000)
-    sampled = refit_plane(points, truth, KINECT, K, FLOOR, CAP, fit_points=10_000)
-    full = refit_plane(points, truth, KINECT, K, FLOOR, CAP, fit_points=0)
+    sampled = refit_plane(points, truth, NoiseSettings(KINECT, K, FLOOR, CAP), fit_points=10_000)
+    full = refit_plane(points, truth, NoiseSettings(KINECT, K, FLOOR, CAP), fit_points=0)
     assert angle_deg(sampled.equation, full.equation) < 0.02
     assert abs(sampled.inliers_after - full.inliers_after) < 0.001 * len(points)
 
@@ -230,7 +233,7 @@ def test_no_inliers_gives_nan_figures():
     points, truth = tilted_plane(rng, 100)
     far = truth.copy()
     far[3] += 1.0  # a plane 1 m away from every point
-    fit = refit_plane(points, far, KINECT, K, FLOOR, CAP)
+    fit = refit_plane(points, far, NoiseSettings(KINECT, K, FLOOR, CAP))
     assert isinstance(fit, Refit)
     assert fit.inliers_before == fit.inliers_after == 0
     assert np.isnan(fit.rms_sigma) and np.isnan(fit.band_at_median)
@@ -240,5 +243,69 @@ def test_no_inliers_gives_nan_figures():
 def test_band_at_median_uses_the_noise_model():
     rng = np.random.default_rng(12)
     points, truth = tilted_plane(rng, 10_000, z_range=(2.0, 2.0001))
-    fit = refit_plane(points, truth, KINECT, K, FLOOR, CAP)
+    fit = refit_plane(points, truth, NoiseSettings(KINECT, K, FLOOR, CAP))
     assert fit.band_at_median == pytest.approx(float(inlier_band(2.0, KINECT, K, FLOOR, CAP)), rel=1e-3)
+
+
+# --- planes of point sets from their moments ----------------------------------------------------
+
+
+def point_sets(rng, sizes):
+    """Noisy patches of differently tilted planes, 1-4 m from the camera."""
+    sets = []
+    for size in sizes:
+        points, _ = tilted_plane(rng, size)
+        angle = rng.uniform(-0.5, 0.5)  # radians, about the camera's y axis
+        turn = np.array([[np.cos(angle), 0.0, np.sin(angle)], [0.0, 1.0, 0.0], [-np.sin(angle), 0.0, np.cos(angle)]])
+        sets.append(points @ turn.T + rng.normal(0, 0.003, points.shape))
+    return sets
+
+
+def moments_of(sets) -> Moments:
+    """Count, centroid and centred scatter computed here, point by point."""
+    means = [s.mean(axis=0) for s in sets]
+    return Moments(np.array([len(s) for s in sets], dtype=np.float64), np.array(means),
+                   np.array([(s - m).T @ (s - m) for s, m in zip(sets, means)]))
+
+
+def svd_plane_and_residual(points):
+    """The orthogonal least-squares plane by SVD, d >= 0, and the mean squared residual."""
+    centre = points.mean(axis=0)
+    _, singular, vt = np.linalg.svd(points - centre, full_matrices=False)
+    plane = np.append(vt[-1], -vt[-1] @ centre)
+    return (-plane if plane[3] < 0 else plane), singular[-1] ** 2 / len(points)
+
+
+def test_fit_planes_from_moments_match_an_svd_of_the_points():
+    rng = np.random.default_rng(20)
+    sets = point_sets(rng, [50, 400, 3000])
+    moments = moments_of(sets)
+    planes, eigenvalues = fit_planes(moments.mean, moments.scatter)
+    mse = residual_ms(moments.count, eigenvalues)
+    for k, points in enumerate(sets):
+        plane, residual = svd_plane_and_residual(points)
+        np.testing.assert_allclose(planes[k], plane, atol=1e-9)
+        assert mse[k] == pytest.approx(residual, rel=1e-6)
+        assert mean_squared_distance(planes, moments)[k] == pytest.approx(np.mean(point_plane_distance(points, plane) ** 2), rel=1e-6)
+    # Any plane: the mean squared distance of the points, from the moments alone.
+    other = np.array([[0.0, 0.6, -0.8, 2.0]] * len(sets))
+    for k, points in enumerate(sets):
+        assert mean_squared_distance(other, moments)[k] == pytest.approx(np.mean(point_plane_distance(points, other[k]) ** 2))
+
+
+def test_moments_pool_without_their_points():
+    rng = np.random.default_rng(21)
+    sets = point_sets(rng, [30, 200, 700, 90])
+    moments = moments_of(sets)
+    # Raw sums -> moments.
+    from_sums = moments_from_sums(moments.count, np.array([s.sum(axis=0) for s in sets]), np.array([s.T @ s for s in sets]))
+    np.testing.assert_allclose(from_sums.mean, moments.mean, atol=1e-12)
+    np.testing.assert_allclose(from_sums.scatter, moments.scatter, atol=1e-8)
+    # Pairs and groups -> the moments of the union of their points.
+    joined = merge_pairs(moments, np.array([0, 1]), np.array([2, 3]))
+    union = moments_of([np.concatenate([sets[0], sets[2]]), np.concatenate([sets[1], sets[3]])])
+    for got, want in ((joined, union), (pool_groups(moments, np.array([5, 7, 5, 7]), np.array([5, 7])), union)):
+        np.testing.assert_array_equal(got.count, want.count)
+        np.testing.assert_allclose(got.mean, want.mean, atol=1e-12)
+        np.testing.assert_allclose(got.scatter, want.scatter, rtol=1e-9, atol=1e-12)
+    assert moments.take([1, 3]).count.tolist() == [200.0, 90.0]

@@ -10,10 +10,12 @@ from lxml import etree
 from annotate_rgbd.annotation.model import Annotation, Shape, Track
 from annotate_rgbd.geometry.camera import Camera
 from annotate_rgbd.cvat import read_cvat, write_cvat_video
-from annotate_rgbd.propose.outlines import piece_outlines
+from annotate_rgbd.config.propose import LinkConfig
+from annotate_rgbd.cvat.from_masks import draw_order, piece_outlines
 from annotate_rgbd.geometry.noise import NoiseSettings
-from annotate_rgbd.propose import FrameProposal, LinkConfig, link_proposals
-from annotate_rgbd.propose.detect_job import Moments, draw_order, merge_groups, paint
+from annotate_rgbd.geometry.planes import Moments
+from annotate_rgbd.propose import FrameProposal, link_proposals
+from annotate_rgbd.propose.detect_job import merge_groups, paint
 from annotate_rgbd.propose.link import shifted_iou
 from annotate_rgbd.segment.rasterize import rasterize_frame, shape_mask
 

@@ -1,0 +1,181 @@
+"""The ``[detect]``, ``[propose]`` and ``[link]`` sections: every tunable of ``propose``, with its
+default and the reason for it.
+
+``propose`` also reads ``[camera]``, ``[sequence]`` (RGB association), ``[filter]`` (the drop rules,
+as ``cvat2mask`` applies them) and ``[noise]`` (the sensor's ``sigma(z)``, which the detector's
+bands and tests are multiples of). Each section checks itself when it is made: a bad value is a
+``ValueError`` of one line naming ``section.key`` (:func:`annotate_rgbd.config.rules.check_section`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from .rules import check_section
+
+#: CVAT label of the proposed tracks.
+DEFAULT_LABEL = "plane"
+
+
+@dataclass(frozen=True)
+class DetectorConfig:
+    """The ``[detect]`` section: settings of :func:`annotate_rgbd.detect.detect_planes`.
+
+    Lengths are in metres, image sizes in pixels of the depth image. The noise standard deviation
+    ``sigma(z)`` is the ``[noise]`` model's.
+
+    Parameters
+    ----------
+    cell_px : int
+        Side of the square cells whose planarity is tested. 20 px at 640 x 480 is CAPE's
+        recommendation (Proenca & Gao 2018): large enough for a stable plane fit under Kinect
+        noise, small enough to follow plane boundaries before pixel refinement.
+    min_valid_fraction : float
+        Share of a cell's pixels that must have depth for the cell to be tested (CAPE: half).
+    planar_k : float
+        A cell is planar when the RMS distance of its points to their best plane is at most
+        ``planar_k * sigma(z)`` at the cell's mean depth. Pure sensor noise gives an RMS of
+        about ``sigma``; 3 leaves room for depth quantisation and lens distortion on real
+        Kinect frames while a cell across a 90-degree corner or a depth step stays far above.
+    band_k : float
+        Width of the band around a plane, in noise standard deviations: a cell joins a
+        region, and a pixel a plane, when it lies within ``band_k * sigma(z)`` of the plane
+        (3 sigma holds 99.7 % of Gaussian noise).
+    min_angle_deg, max_angle_deg : float
+        Two normals agree when their angle is at most the tilt the noise band allows across
+        the less certain patch, ``atan(band_k * sigma / half_width)`` (half_width: half the
+        patch's extent across its narrower in-plane direction), clipped to these bounds. The
+        tilt bound, not a standard error, because real depth noise is correlated over a
+        cell (RealSense stereo ripples tilt neighbouring 20-pixel cells of a flat screen by
+        15 degrees at 0.7 m). The floor (10 degrees) covers the low-frequency distortion of
+        real sensors on large segments; the ceiling (25 degrees, about CAPE's merge angle)
+        keeps far, noisy cells from bridging creases. The band tests on the points do the
+        finer work.
+    merge_gap_cells : int
+        Coplanar segments are merged when at most this many cells separate them on the cell
+        grid (1: touching or one non-planar cell in between, e.g. a seam or a cable).
+    min_area_fraction : float
+        Smallest plane kept (and proposed), as a share of the image's pixels. 1 % (3072 px at
+        640 x 480) is the smallest plane EVOPS-style annotations keep.
+    """
+
+    cell_px: int = 20
+    min_valid_fraction: float = 0.5
+    planar_k: float = 3.0
+    band_k: float = 3.0
+    min_angle_deg: float = 10.0
+    max_angle_deg: float = 25.0
+    merge_gap_cells: int = 1
+    min_area_fraction: float = 0.01
+
+    def __post_init__(self):
+        check_section("detect", self, [
+            ("cell_px", lambda v: v >= 2, "must be an integer >= 2"),
+            ("min_valid_fraction", lambda v: 0 < v <= 1, "must be in (0, 1]"),
+            ("planar_k", lambda v: v > 0, "must be > 0"),
+            ("band_k", lambda v: v > 0, "must be > 0"),
+            ("min_angle_deg", lambda v: 0 < v <= self.max_angle_deg, "must be > 0 and at most detect.max_angle_deg"),
+            ("max_angle_deg", lambda v: v < 90, "must be < 90"),
+            ("merge_gap_cells", lambda v: v >= 0, "must be >= 0"),
+            ("min_area_fraction", lambda v: 0 < v <= 1, "must be in (0, 1]"),
+        ])
+
+
+@dataclass(frozen=True)
+class LinkConfig:
+    """The ``[link]`` section: how ``propose`` links detections on successive processed frames
+    into tracks.
+
+    Two detections can be one plane when their planes agree within the noise band (plus what
+    the camera may have moved between the two frames, when no poses are given) and their
+    masks overlap; among those, an optimal one-to-one assignment maximises the overlap.
+
+    Parameters
+    ----------
+    min_iou : float
+        Smallest IoU of the two masks (without poses: after the 2-D shift that overlaps them
+        best among those the camera motion limits below allow; with poses: the earlier outline
+        reprojected into the later frame). 0.3: a plane seen at 30 Hz overlaps itself on the
+        next frame with IoU > 0.8, at every 10th frame of TUM fr1 still > 0.5; two different
+        planes that touch overlap by a few boundary pixels only. Without the shift, a narrow
+        plane (a cabinet side seen at a grazing angle) falls below 0.3 across a missed frame
+        while the camera pans.
+    angle_deg : float
+        Largest angle between the two planes' normals from estimation noise alone: the
+        detector's own tolerance for coplanar patches (``[detect]``'s default ``min_angle_deg``).
+    max_speed : float
+        Without poses: the largest camera speed, m/s, allowed for between the two frames (the
+        planes' distances from the camera may differ by ``max_speed * dt`` more, and their
+        masks may be shifted by what such a move does to the image). 0.5 m/s:
+        TUM RGB-D's hand-held sequences stay below about 0.4 m/s (Sturm et al. 2012, Table 1).
+    max_turn_deg : float
+        Without poses: the largest camera rotation rate, degrees per second (normals may differ
+        by ``max_turn_deg * dt`` more, masks may be shifted by ``f tan(max_turn_deg * dt)``
+        pixels more). 60 deg/s: above the hand-held TUM fr1 sequences' mean rates (fr1_rpy:
+        ~50 deg/s).
+    pose_error : float
+        With poses: metres added to the offset tolerance for trajectory error (TUM's
+        motion-capture ground truth: ~1 cm; SLAM trajectories: a few cm).
+    max_gap : int
+        A track may skip this many processed frames and still be continued (a plane the
+        detector missed once keeps its track and colour).
+    """
+
+    min_iou: float = 0.3
+    angle_deg: float = DetectorConfig.min_angle_deg
+    max_speed: float = 0.5
+    max_turn_deg: float = 60.0
+    pose_error: float = 0.02
+    max_gap: int = 2
+
+    def __post_init__(self):
+        check_section("link", self, [
+            ("min_iou", lambda v: 0 < v <= 1, "must be in (0, 1]"),
+            ("angle_deg", lambda v: 0 <= v <= 90, "must be in [0, 90]"),
+            ("max_speed", lambda v: v >= 0, "must be >= 0"),
+            ("max_turn_deg", lambda v: v >= 0, "must be >= 0"),
+            ("pose_error", lambda v: v >= 0, "must be >= 0"),
+            ("max_gap", lambda v: v >= 0, "must be >= 0"),
+        ])
+
+
+@dataclass(frozen=True)
+class ProposeConfig:
+    """The ``[propose]`` section: settings of :func:`annotate_rgbd.propose.run_propose` beyond the
+    detector's and the linker's.
+
+    Parameters
+    ----------
+    label : str
+        CVAT label of every proposed track (``--label``).
+    every : int
+        Process every N-th depth frame (keyframes); 1: all (``--every``).
+    merge_excess : float
+        Two detected planes that do not touch (a floor on both sides of a table, a wall behind
+        a cabinet) are one plane when fitting one plane to both raises the mean squared
+        residual by at most ``merge_excess * sigma(z)**2`` over their own fits: for two
+        parallel planes of equal size, an offset of up to 2 sigma at 1.
+    piece_fraction : float
+        The detector keeps pieces down to this fraction of the smallest plane, for the merge
+        (0.5: a floor cut in two by a table adds up; 0.25 found nothing more on the rendered
+        room and made detection a third slower); what is smaller than the smallest plane after
+        merging is not proposed.
+    outline_tolerance_px : float
+        Douglas-Peucker tolerance of the polygons
+        (:func:`annotate_rgbd.cvat.from_masks.piece_outlines`): a pixel or two of error.
+    """
+
+    label: str = DEFAULT_LABEL
+    every: int = 1
+    merge_excess: float = 1.0
+    piece_fraction: float = 0.5
+    outline_tolerance_px: float = 1.5
+
+    def __post_init__(self):
+        check_section("propose", self, [
+            ("label", lambda v: bool(v.strip()), "must not be empty"),
+            ("every", lambda v: v >= 1, "must be an integer >= 1"),
+            ("merge_excess", lambda v: v > 0, "must be > 0"),
+            ("piece_fraction", lambda v: 0 < v <= 1, "must be in (0, 1]"),
+            ("outline_tolerance_px", lambda v: v >= 0, "must be >= 0"),
+        ])
