@@ -37,6 +37,7 @@ from pathlib import Path
 from typing import IO, Iterable
 
 from annotate_rgbd.errors import OutputError
+from annotate_rgbd.io.bounded import read_stream_bounded
 
 log = logging.getLogger("annotate_rgbd")
 
@@ -99,7 +100,8 @@ def open_regular(path: Path) -> IO[bytes]:
 
 
 def read_bounded(path: Path, max_bytes: int) -> bytes:
-    """Read a regular file (:func:`open_regular`) of at most ``max_bytes``.
+    """Read a regular file (:func:`open_regular`) of at most ``max_bytes``, in pieces
+    (:func:`annotate_rgbd.io.bounded.read_stream_bounded`).
 
     Raises
     ------
@@ -107,10 +109,7 @@ def read_bounded(path: Path, max_bytes: int) -> bytes:
         As :func:`open_regular`, or the file is larger.
     """
     with open_regular(path) as handle:
-        data = handle.read(max_bytes + 1)
-    if len(data) > max_bytes:
-        raise OSError(errno.EFBIG, f"larger than {max_bytes} bytes", str(path))
-    return data
+        return read_stream_bounded(handle, max_bytes, path)
 
 
 def data_digest(data: bytes) -> str:
