@@ -101,5 +101,26 @@ class ProposeConfig:
     def __post_init__(self):
         if not isinstance(self.every, int) or self.every < 1:
             raise ValueError(f"every must be an integer >= 1, got {self.every!r}")
-        if not self.label.strip():
-            raise ValueError("the label must not be empty")
+        problem = label_problem(self.label)
+        if problem is not None:
+            raise ValueError(f"the label {problem}")
+
+
+def label_problem(label: str) -> str | None:
+    """Why a text cannot be a CVAT label (``"is empty"``, ``"holds the control character
+    U+0001"``), or None when it can.
+
+    A CVAT label is a name shown in menus and written into XML: it has a visible character, and
+    no control character (XML 1.0 has none of C0 but tab and line breaks, which a label cannot
+    hold either).
+    """
+    if not label.strip():
+        return "is empty"
+    control = next((c for c in label if ord(c) < 0x20 or 0x7F <= ord(c) < 0xA0), None)
+    if control is not None:
+        return f"holds the control character U+{ord(control):04X}"
+    try:
+        label.encode("utf-8")
+    except UnicodeEncodeError:
+        return "is not Unicode text (a lone surrogate)"
+    return None
