@@ -489,7 +489,7 @@ def test_unusable_depth_frame_is_skipped_and_reported(scene, how, problem):
     assert result.exit_code == 1, result.stderr  # a failed frame fails the run, after every other mask
     message = f"{path}: {problem}"
     assert f"warning: {message}; skipped" in result.stderr.splitlines()
-    assert f"  failed: {path.relative_to(scene.seq)}: {message}" in result.stdout.splitlines()
+    assert f"  failed: {message}" in result.stdout.splitlines()
     report = scene.report()
     entry = report["frames"][1]
     assert (entry["status"], entry["reason"], entry["error"]) == ("failed", "unreadable_depth", message)
