@@ -2,7 +2,7 @@
 
 A sequence's lists and images are read within these bounds (:mod:`annotate_rgbd.io.sequence`),
 and a run's records are checked against them when read back
-(:mod:`annotate_rgbd.report.reading`): a number beyond them is damage, not data.
+(:mod:`annotate_rgbd.report.validation`): a number beyond them is damage, not data.
 """
 
 #: Most frames one stream may list. TUM RGB-D and ICL-NUIM sequences have a few thousand frames;
