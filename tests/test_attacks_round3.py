@@ -149,6 +149,7 @@ def test_contact_sheet_of_degenerate_frames_is_small_and_warned_about(caplog):
     ]
 
 
+@pytest.mark.slow  # stresses processes (memory and file-size limits)
 @needs_limits
 def test_overlays_of_1_by_20000_frames_run_in_4_gb(tmp_path):
     make_frames(tmp_path / "seq", [(1, 20000)] * 3)
@@ -222,6 +223,7 @@ def vga_run(tmp_path_factory) -> Path:
     return root
 
 
+@pytest.mark.slow  # stresses processes (memory and file-size limits)
 @needs_limits
 def test_stats_runs_in_1_gb_and_imports_no_open3d(vga_run):
     result = run_limited(["stats", vga_run / "out"], memory=1_000_000 * 1024)
@@ -236,6 +238,7 @@ def test_stats_runs_in_1_gb_and_imports_no_open3d(vga_run):
     assert probe.stdout.split("\n")[0] == "0 []", probe.stderr
 
 
+@pytest.mark.slow  # stresses processes (memory and file-size limits)
 @needs_limits
 @pytest.mark.parametrize("command", ["review", "rerun"])
 def test_review_and_a_rerun_run_in_2_gb(vga_run, tmp_path, command):
@@ -570,6 +573,7 @@ def test_batch_refuses_nested_or_empty_outputs(tmp_path, outs, problem):
     assert line.startswith(f"error: {tmp_path / 'batch.toml'}: ") and problem in line
 
 
+@pytest.mark.slow  # stresses processes (memory and file-size limits)
 @needs_limits
 def test_a_journal_that_cannot_be_written_is_named(tmp_path):
     scene = Scene(tmp_path, n=10)
