@@ -50,7 +50,7 @@ from annotate_rgbd.config.settings import load_config
 from annotate_rgbd.report.records import RunRecord
 from annotate_rgbd.review.overlay import MAX_THUMB_ASPECT, contact_sheet, thumbnail_size
 from annotate_rgbd.review.page import page_data
-from test_hostile import Scene, error_line, snapshot, timestamp, video_export
+from builders import CAMERA, error_line, make_sequence, snapshot, timestamp, video_export, wall_track
 
 try:
     import resource
@@ -75,6 +75,22 @@ def run_limited(args, *, memory: int | None = None, file_size: int | None = None
 
     return subprocess.run([*COMMAND, *map(str, args)], preexec_fn=limit, stdout=stdout, stderr=subprocess.PIPE,
                           cwd=cwd, timeout=timeout)
+
+
+class Scene:
+    """``root`` holding the tiny scene of :mod:`builders` (``seq/``, ``a.xml``, ``camera.toml``);
+    output goes to ``out/``."""
+
+    def __init__(self, root: Path, n: int = 3):
+        self.root, self.n = root, n
+        self.seq, self.xml, self.out, self.camera = root / "seq", root / "a.xml", root / "out", root / "camera.toml"
+        make_sequence(self.seq, n)
+        video_export(self.xml, n, wall_track(n))
+        self.camera.write_text(CAMERA)
+
+    def run(self):
+        """cvat2mask in this process, one worker."""
+        return invoke("cvat2mask", self.seq, self.xml, "-c", self.camera, "-o", self.out, "-j", "1")
 
 
 def one_error(stderr: str) -> str:
