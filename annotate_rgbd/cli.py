@@ -89,6 +89,14 @@ def user_errors() -> Iterator[None]:
         logger.removeHandler(handler)
 
 
+def output_folder(out: str) -> Path:
+    """``--out`` as a path; an empty one is refused (``Path("")`` is the working directory,
+    which the user did not name)."""
+    if not out.strip():
+        raise InputError(None, "--out is empty: name the output folder")
+    return Path(out)
+
+
 def _version(value: bool) -> None:
     if value:
         typer.echo(f"annotate-rgbd {__version__}")
@@ -106,7 +114,7 @@ def main(
 def cvat2mask(
     sequence_dir: Path = typer.Argument(..., metavar="SEQUENCE_DIR", help="TUM RGB-D or ICL-NUIM (TUM format) sequence folder."),
     annotations: List[Path] = typer.Argument(..., metavar="ANNOTATIONS...", help="CVAT export(s): 'CVAT for video 1.1' or 'CVAT for images 1.1' XML, or CVAT's .zip of it."),
-    out: Path = typer.Option(..., "--out", "-o", metavar="DIR", help="Output folder for masks/, planes.csv and report.json."),
+    out: str = typer.Option(..., "--out", "-o", metavar="DIR", help="Output folder for masks/, planes.csv and report.json."),
     config: Optional[str] = typer.Option(None, "--config", "-c", metavar="FILE|PRESET", help="TOML file or preset name (see 'annotate-rgbd presets'); without it: a Kinect v1 at 640x480 (fx = fy = 525, depth in 1/5000 m, TUM's default)."),
     label: List[str] = typer.Option([], "--label", metavar="LABEL", help="Use only shapes with this CVAT label (repeatable)."),
     distance_threshold: Optional[float] = typer.Option(
@@ -138,6 +146,7 @@ def cvat2mask(
     Several exports are annotation parts of one sequence: their tracks are matched into one plane id per physical plane (see tracks.csv).
     """
     with user_errors():
+        out = output_folder(out)
         from annotate_rgbd.pipeline.execute import default_workers, prepare_process
 
         workers = jobs or default_workers()
@@ -180,8 +189,8 @@ def cvat2mask(
         if hint:
             logging.getLogger("annotate_rgbd").warning(hint)
         failures = report.failures()
-        if failures:
-            summary += f", {len(failures)} frame{'s' if len(failures) > 1 else ''} failed"
+        if counts.frames_failed:
+            summary += f", {counts.frames_failed} frame{'s' if counts.frames_failed > 1 else ''} failed"
         if report.warnings:
             count = len(report.warnings)
             summary += f", {count} warning{'s' if count > 1 else ''} (see {out / 'report.json'})"
@@ -270,7 +279,11 @@ def evaluate(
         result = evaluate_paths(gt, pred, full=full, part=partial)
         if per_frame is not None:
             write_per_frame_csv(result, per_frame)
-        typer.echo(format_json(result) if as_json else format_table(result))
+        from annotate_rgbd.io.writer import names_stdout
+
+        # With the per-frame CSV in standard output, the means go to standard error.
+        typer.echo(format_json(result) if as_json else format_table(result),
+                   err=per_frame is not None and names_stdout(per_frame))
 
 
 @app.command()
@@ -319,7 +332,7 @@ def stats(
 @app.command()
 def propose(
     sequence_dir: Path = typer.Argument(..., metavar="SEQUENCE_DIR", help="TUM RGB-D or ICL-NUIM (TUM format) sequence folder."),
-    out: Path = typer.Option(..., "--out", "-o", metavar="DIR", help="Output folder for proposals.xml, masks/ and report.json."),
+    out: str = typer.Option(..., "--out", "-o", metavar="DIR", help="Output folder for proposals.xml, masks/ and report.json."),
     config: Optional[str] = typer.Option(None, "--config", "-c", metavar="FILE|PRESET", help="TOML file or preset name (see 'annotate-rgbd presets'); without it: a Kinect v1 at 640x480 (fx = fy = 525, depth in 1/5000 m, TUM's default)."),
     poses: Optional[Path] = typer.Option(None, "--poses", metavar="FILE", help="TUM trajectory: link planes across frames by world plane."),
     every: Optional[int] = typer.Option(
@@ -337,6 +350,9 @@ def propose(
 ) -> None:
     """Detect planes on the depth frames and write them as CVAT polygon tracks to correct."""
     with user_errors():
+        out = output_folder(out)  # the options first, before any work
+        if min_area is not None and min_area <= 0:
+            raise InputError(None, "--min-area must be a share of the image in (0, 1]")
         from annotate_rgbd.pool import default_workers, prepare_helpers, reuse_freed_memory
 
         workers = jobs or default_workers()
@@ -346,10 +362,13 @@ def propose(
         from annotate_rgbd.config.command_line import parse_settings
         from annotate_rgbd.config.settings import load_config
         from annotate_rgbd.progress import Progress
+        from annotate_rgbd.config.propose import label_problem
         from annotate_rgbd.propose import run_propose
 
         if min_area is not None and min_area <= 0:
             raise InputError(None, "--min-area must be a share of the image in (0, 1]")
+        if label is not None and label_problem(label) is not None:
+            raise InputError(None, f"--label {label!r} {label_problem(label)}: give the CVAT label of the proposed planes")
         overrides = parse_settings(set_)
         named = {"propose.every": every, "propose.label": label, "detect.min_area_fraction": min_area}
         overrides.update({k: v for k, v in named.items() if v is not None})
@@ -359,9 +378,9 @@ def propose(
         progress.finish()
         typer.echo(f"{result.tracks} plane tracks on {result.frames} frames: {out / 'proposals.xml'}, "
                    f"{out / 'masks'}, {out / 'report.json'}")
-        for line in result.failed:
-            typer.echo(f"  failed: {line}")
         if result.failed:
+            count = len(result.failed)
+            typer.echo(f"  {count} frame{'s' if count > 1 else ''} failed (see the warnings above)")
             raise typer.Exit(1)
 
 
@@ -374,5 +393,8 @@ def export_cvat_command(
     from annotate_rgbd.export.cvat import export_cvat
 
     with user_errors():
+        from annotate_rgbd.io.writer import names_stdout
+
         count = export_cvat(run_dir, xml)
-        typer.echo(f"{count} plane tracks: {xml}")
+        # Into standard output the XML goes alone: the summary to standard error.
+        typer.echo(f"{count} plane tracks: {xml}", err=names_stdout(xml))

@@ -1,10 +1,11 @@
-"""Warnings of one scene among several: a batch names the scene in front of each."""
+"""Warnings: of one scene among several (a batch names the scene in front of each), and one
+line per problem that many frames share."""
 
 from __future__ import annotations
 
 import logging
 from contextlib import contextmanager
-from typing import Iterator
+from typing import Iterable, Iterator
 
 LOGGER = "annotate_rgbd"
 
@@ -32,3 +33,32 @@ def scene_warnings(name: str | None) -> Iterator[None]:
         yield
     finally:
         logger.removeFilter(prefix)
+
+
+def group_problems(problems: Iterable[tuple[str, str]], shown: int = 3) -> list[str]:
+    """One line per distinct problem, naming the files that have it: a problem every frame
+    shares is said once, not once per frame.
+
+    Parameters
+    ----------
+    problems : iterable of (str, str)
+        ``(file, problem)`` pairs, in the order to report them.
+    shown : int
+        Files named per line; the others are counted.
+
+    Returns
+    -------
+    list of str
+        ``"<file>: <problem>"`` for a problem of one file, ``"<file>, <file> and 57 more: <problem>"``
+        for a shared one, in the order each problem first occurs.
+    """
+    files: dict[str, list[str]] = {}
+    for file, problem in problems:
+        files.setdefault(problem, []).append(file)
+    lines = []
+    for problem, names in files.items():
+        named = ", ".join(names[:shown])
+        if len(names) > shown:
+            named += f" and {len(names) - shown} more"
+        lines.append(f"{named}: {problem}")
+    return lines

@@ -173,9 +173,29 @@ class ProposeConfig:
 
     def __post_init__(self):
         check_section("propose", self, [
-            ("label", lambda v: bool(v.strip()), "must not be empty"),
+            ("label", lambda v: label_problem(v) is None, "must be a CVAT label: visible text without control characters"),
             ("every", lambda v: v >= 1, "must be an integer >= 1"),
             ("merge_excess", lambda v: v > 0, "must be > 0"),
             ("piece_fraction", lambda v: 0 < v <= 1, "must be in (0, 1]"),
             ("outline_tolerance_px", lambda v: v >= 0, "must be >= 0"),
         ])
+
+
+def label_problem(label: str) -> str | None:
+    """Why a text cannot be a CVAT label (``"is empty"``, ``"holds the control character
+    U+0001"``), or None when it can.
+
+    A CVAT label is a name shown in menus and written into XML: it has a visible character, and
+    no control character (XML 1.0 has none of C0 but tab and line breaks, which a label cannot
+    hold either).
+    """
+    if not label.strip():
+        return "is empty"
+    control = next((c for c in label if ord(c) < 0x20 or 0x7F <= ord(c) < 0xA0), None)
+    if control is not None:
+        return f"holds the control character U+{ord(control):04X}"
+    try:
+        label.encode("utf-8")
+    except UnicodeEncodeError:
+        return "is not Unicode text (a lone surrogate)"
+    return None

@@ -66,6 +66,7 @@ from typing import Any, Iterable, Mapping
 
 from annotate_rgbd.geometry.camera import Camera
 from annotate_rgbd.errors import InputError
+from annotate_rgbd.io.bounded import read_input
 from annotate_rgbd.geometry.noise import NoiseSettings, noise_settings_from_mapping
 from annotate_rgbd.io.poses import DEFAULT_MAX_POSE_GAP
 from .evaluate import EvaluateConfig
@@ -236,6 +237,8 @@ def preset_summaries() -> list[tuple[str, str, str]]:
 
 #: Sections that hold a list of tables (``[[parts]]``) rather than one table.
 LIST_SECTIONS = {"parts": PartConfig, "matches": MatchConfig}
+#: Largest configuration file read (a thousand [[matches]] take some 100 KiB).
+MAX_CONFIG_BYTES = 16 << 20
 
 
 #: The sections a ``cvat2mask`` run does not read: its record leaves them out.
@@ -307,8 +310,10 @@ def _read_source(source: str | Path) -> tuple[Path | str, str]:
     path = Path(source)
     if path.is_file():
         try:
-            return path, path.read_text(encoding="utf-8")
-        except (OSError, UnicodeDecodeError) as exc:
+            return path, read_input(path, MAX_CONFIG_BYTES).decode("utf-8")
+        except OSError as exc:
+            raise InputError(path, f"cannot read configuration: {exc.strerror or exc}") from None
+        except UnicodeDecodeError as exc:
             raise InputError(path, f"cannot read configuration: {exc}") from None
     names = preset_names()
     if str(source) in names:

@@ -5,6 +5,7 @@ from __future__ import annotations
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import IO
 
 import numpy as np
 from lxml import etree
@@ -17,7 +18,7 @@ from .format import SUPPORTED_VERSION
 
 def write_cvat_video(
     annotation: Annotation,
-    path: str | Path,
+    path: str | Path | IO[bytes],
     *,
     width: int,
     height: int,
@@ -36,8 +37,8 @@ def write_cvat_video(
     annotation : Annotation
         What to write; ``annotation.frames`` must be evenly spaced (they give ``start_frame``,
         ``stop_frame`` and the ``step`` of ``frame_filter``).
-    path : str or Path
-        The XML file to create.
+    path : str or Path or binary file object
+        The XML file to create, or an open binary stream to write it to.
     width, height : int
         The video's frame size (``<original_size>``).
     keyframe_step : int
@@ -115,9 +116,10 @@ def write_cvat_images(annotation: Annotation, path: str | Path, *, width: int, h
 
 
 @contextmanager
-def _export_file(path: str | Path) -> Iterator[etree.xmlfile]:
-    """An export being written: the XML declaration, ``<annotations>`` and its ``<version>``."""
-    with etree.xmlfile(str(path), encoding="utf-8") as xml:
+def _export_file(path: str | Path | IO[bytes]) -> Iterator[etree.xmlfile]:
+    """An export being written (to a path or an open binary stream): the XML declaration,
+    ``<annotations>`` and its ``<version>``."""
+    with etree.xmlfile(str(path) if isinstance(path, (str, Path)) else path, encoding="utf-8") as xml:
         xml.write_declaration()
         with xml.element("annotations"):
             xml.write(_text_element("version", SUPPORTED_VERSION), pretty_print=True)

@@ -19,7 +19,7 @@ import numpy as np
 
 from annotate_rgbd.config.evaluate import EvaluateConfig
 from annotate_rgbd.errors import InputError
-from annotate_rgbd.io.writer import write_csv
+from annotate_rgbd.io.writer import csv_bytes, write_output
 from annotate_rgbd.io.labelmaps import LABEL_SUFFIXES, read_label_map
 from .metrics import METRIC_NAMES, FrameStatistics, frame_statistics
 
@@ -110,7 +110,7 @@ def evaluate_paths(
         For a missing path, a GT folder without label files, an unreadable label file, or a PRED
         frame whose size differs from its GT frame.
     """
-    for value, name in ((full, "full"), (part, "part")):
+    for value, name in ((full, "full"), (part, "partial")):  # as the command line names them
         if not 0.0 < value <= 1.0:
             raise InputError(None, f"--{name} must be in (0, 1], not {value}")
     pairs, unmatched = match_frames(gt, pred)
@@ -243,15 +243,16 @@ def format_json(result: EvaluationResult) -> str:
 
 
 def write_per_frame_csv(result: EvaluationResult, path: str | Path) -> None:
-    """Write one CSV row per frame (atomically): its name, the statistics, and whether PRED was missing."""
-    write_csv(
-        Path(path),
-        ("frame", *METRIC_NAMES, "missing"),
-        [
-            (frame.name, *(repr(getattr(frame.statistics, name)) for name in METRIC_NAMES), int(frame.missing))
-            for frame in result.frames
-        ],
-    )
+    """Write one CSV row per frame: its name, the statistics, and whether PRED was missing.
+
+    A file is written atomically; ``-``, ``/dev/stdout``, a device or a FIFO is written into as it
+    is, never replaced (:func:`annotate_rgbd.io.writer.open_output`).
+    """
+    rows = [
+        (frame.name, *(repr(getattr(frame.statistics, name)) for name in METRIC_NAMES), int(frame.missing))
+        for frame in result.frames
+    ]
+    write_output(Path(path), csv_bytes(("frame", *METRIC_NAMES, "missing"), rows))
 
 
 def _label_files(folder: Path) -> dict[str, Path]:

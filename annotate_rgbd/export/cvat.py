@@ -12,6 +12,7 @@ drawn in the order that puts the plane whose pixels fill an overlap on top
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 
 import cv2
@@ -19,13 +20,17 @@ import numpy as np
 
 from annotate_rgbd.annotation.model import Shape
 from annotate_rgbd.cvat.from_masks import draw_order, piece_outlines
-from annotate_rgbd.errors import InputError
+from annotate_rgbd.errors import InputError, OutputError
+from annotate_rgbd.io.outdir import TOP_LEVEL_NAMES, reading
+from annotate_rgbd.io.writer import is_stream
+from annotate_rgbd.logs import group_problems
 from annotate_rgbd.propose.output import TrackShapes, write_polygon_tracks
 from annotate_rgbd.segment.rasterize import shape_mask
-from annotate_rgbd.io.outdir import reading
 from annotate_rgbd.io.sequence import read_image
 from annotate_rgbd.report.records import RunRecord
 from annotate_rgbd.report.run_folder import colour_table, mask_plane_ids, read_report
+
+log = logging.getLogger("annotate_rgbd")
 
 
 def export_cvat(run_dir: str | Path, xml_path: str | Path, tolerance_px: float = 0.5) -> int:
@@ -54,7 +59,9 @@ def export_cvat(run_dir: str | Path, xml_path: str | Path, tolerance_px: float =
     """
     run_dir = Path(run_dir)
     with reading(run_dir):
-        return _export(run_dir, read_report(run_dir), Path(xml_path), tolerance_px)
+        report = read_report(run_dir)
+        check_target(run_dir, Path(xml_path))
+        return _export(run_dir, report, Path(xml_path), tolerance_px)
 
 
 def _export(run_dir: Path, report: RunRecord, xml_path: Path, tolerance_px: float) -> int:
@@ -63,9 +70,14 @@ def _export(run_dir: Path, report: RunRecord, xml_path: Path, tolerance_px: floa
     tracks: dict[int, TrackShapes] = {}
     sampled: list[int] = []
     size = None
+    other_size: list[tuple[str, str]] = []
     for frame in _keyframes(report):
         path = run_dir / frame.mask
         ids = mask_plane_ids(read_image(path, cv2.IMREAD_COLOR), keys, values, path)
+        if size is not None and ids.shape != size:  # the export's frames have one size, the first mask's
+            other_size.append((str(path), f"mask is {ids.shape[1]} x {ids.shape[0]} pixels, not {size[1]} x {size[0]} "
+                                          "as the first; left out of the export"))
+            continue
         size = ids.shape
         sampled.append(frame.rgb_index)
         present = np.unique(ids[ids > 0])
@@ -86,10 +98,31 @@ def _export(run_dir: Path, report: RunRecord, xml_path: Path, tolerance_px: floa
             entry.shapes[frame.rgb_index] = Shape("polygon", outlines[k], z_order=int(z))
     if size is None:
         raise InputError(run_dir / "report.json", "the run wrote no mask: nothing to export")
+    for line in group_problems(other_size):
+        log.warning("%s", line)
     last = max([p.last_rgb for p in report.parts] + sampled)
     write_polygon_tracks([tracks[t] for t in sorted(tracks)], Path(xml_path), n_frames=last + 1,
                          sampled_frames=sampled, width=size[1], height=size[0])
     return len(tracks)
+
+
+def check_target(run_dir: Path, xml_path: Path) -> None:
+    """Refuse to write the export over a file of the run it is made from (its report, tables,
+    masks): the run would be lost.
+
+    Raises
+    ------
+    OutputError
+    """
+    if is_stream(xml_path):
+        return
+    target = xml_path.resolve()
+    try:
+        inside = target.relative_to(run_dir.resolve()).parts
+    except ValueError:
+        return
+    if inside and inside[0] in TOP_LEVEL_NAMES:
+        raise OutputError(xml_path, f"is {'/'.join(inside)} of the run being exported; write the export elsewhere")
 
 
 def _keyframes(report: RunRecord) -> list:

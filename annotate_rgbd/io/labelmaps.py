@@ -15,13 +15,20 @@ same plane alike.
 
 from __future__ import annotations
 
+import math
+import os
 from pathlib import Path
 
 import cv2
 import numpy as np
 
 from annotate_rgbd.errors import InputError
+from .bounded import read_input
+from .limits import MAX_IMAGE_PIXELS
 from .sequence import read_image
+
+#: Largest CAPE label CSV read: a 1920 x 1080 frame of three-digit labels takes 8 MiB.
+MAX_CSV_BYTES = 128 << 20
 
 #: File suffixes that :func:`read_label_map` understands.
 LABEL_SUFFIXES = (".png", ".npy", ".csv")
@@ -87,7 +94,8 @@ def read_cape_csv(path: str | Path) -> np.ndarray:
     Parameters
     ----------
     path : str or Path
-        The CSV file. A trailing comma on a line (as CAPE writes it) and blank lines are ignored.
+        The CSV file, at most :data:`MAX_CSV_BYTES`. A trailing comma on a line (as CAPE writes
+        it) and blank lines are ignored.
 
     Returns
     -------
@@ -97,24 +105,33 @@ def read_cape_csv(path: str | Path) -> np.ndarray:
     Raises
     ------
     InputError
-        When a line is not all integers or the lines differ in length.
+        When the file is too large, a line is not all integers, the lines differ in length or
+        they hold more than :data:`MAX_IMAGE_PIXELS` labels.
     """
     path = Path(path)
     try:
-        text = path.read_text(encoding="ascii")
-    except (OSError, UnicodeDecodeError) as error:
+        text = read_input(path, MAX_CSV_BYTES).decode("ascii")
+    except OSError as error:
+        raise InputError(path, f"cannot read label CSV: {error.strerror or error}") from None
+    except UnicodeDecodeError as error:
         raise InputError(path, f"cannot read label CSV: {error}") from None
     rows = [line.strip().rstrip(",") for line in text.splitlines() if line.strip()]
+    del text
     if not rows:
         raise InputError(path, "label CSV is empty")
     widths = {row.count(",") + 1 for row in rows}
     if len(widths) != 1:
         raise InputError(path, f"label CSV rows differ in length ({min(widths)} to {max(widths)} values)")
+    width = widths.pop()
+    if len(rows) * width > MAX_IMAGE_PIXELS:
+        raise InputError(path, f"label CSV holds {width} x {len(rows)} labels, more than {MAX_IMAGE_PIXELS} pixels")
+    labels = np.empty((len(rows), width), dtype=np.int64)
     try:
-        values = np.array(",".join(rows).split(","), dtype=np.int64)
-    except ValueError:
-        raise InputError(path, "label CSV holds a value that is not an integer") from None
-    return values.reshape(len(rows), widths.pop())
+        for index, row in enumerate(rows):  # one row at a time: no list of every label's text
+            labels[index] = np.array(row.split(","), dtype=np.int64)
+    except (ValueError, OverflowError):
+        raise InputError(path, f"label CSV line {index + 1} holds a value that is not an integer") from None
+    return labels
 
 
 def _read_png(path: Path) -> np.ndarray:
@@ -132,12 +149,28 @@ def _read_png(path: Path) -> np.ndarray:
 
 
 def _read_npy(path: Path) -> np.ndarray:
+    """A ``.npy`` label array, its header checked before any allocation: a file claiming a
+    74 GiB array is refused, not read."""
     try:
-        labels = np.load(path, allow_pickle=False)
-    except (OSError, ValueError) as error:
+        with open(path, "rb") as handle:
+            version = np.lib.format.read_magic(handle)
+            read_header = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+            shape, _, dtype = read_header(handle)
+            data_bytes = os.fstat(handle.fileno()).st_size - handle.tell()
+            if len(shape) != 2:
+                raise InputError(path, f"label array must be 2-D, not of shape {shape}")
+            if dtype != bool and dtype.kind not in "ui":
+                raise InputError(path, f"label array must hold integers, not {dtype}")
+            pixels = math.prod(shape)
+            if pixels > MAX_IMAGE_PIXELS:
+                raise InputError(path, f"label array of shape {shape} is larger than {MAX_IMAGE_PIXELS} pixels")
+            if pixels * dtype.itemsize > data_bytes:
+                raise InputError(path, f"label array of shape {shape} needs {pixels * dtype.itemsize} bytes; "
+                                       f"the file holds {data_bytes} (truncated?)")
+            handle.seek(0)
+            labels = np.load(handle, allow_pickle=False)
+    except OSError as error:
+        raise InputError(path, f"cannot read .npy label array: {error.strerror or error}") from None
+    except ValueError as error:
         raise InputError(path, f"cannot read .npy label array: {error}") from None
-    if labels.ndim != 2:
-        raise InputError(path, f"label array must be 2-D, not of shape {labels.shape}")
-    if labels.dtype != bool and labels.dtype.kind not in "ui":
-        raise InputError(path, f"label array must hold integers, not {labels.dtype}")
     return labels

@@ -36,6 +36,7 @@ from pathlib import Path
 from typing import Iterable
 
 from annotate_rgbd.errors import OutputError
+from annotate_rgbd.io.bounded import read_stream_bounded
 from .files import open_regular
 
 log = logging.getLogger("annotate_rgbd")
@@ -84,7 +85,8 @@ def file_digest(path: Path) -> str | None:
 
 def read_bounded(path: Path, max_bytes: int) -> bytes:
     """Read a regular file of at most ``max_bytes``, not through a symbolic link
-    (:func:`annotate_rgbd.io.files.open_regular`).
+    (:func:`annotate_rgbd.io.files.open_regular`), in pieces
+    (:func:`annotate_rgbd.io.bounded.read_stream_bounded`).
 
     Raises
     ------
@@ -92,10 +94,7 @@ def read_bounded(path: Path, max_bytes: int) -> bytes:
         As :func:`~annotate_rgbd.io.files.open_regular`, or the file is larger.
     """
     with open_regular(path, follow_links=False) as handle:
-        data = handle.read(max_bytes + 1)
-    if len(data) > max_bytes:
-        raise OSError(errno.EFBIG, f"larger than {max_bytes} bytes", str(path))
-    return data
+        return read_stream_bounded(handle, max_bytes, path)
 
 
 def data_digest(data: bytes) -> str:

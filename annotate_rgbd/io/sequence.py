@@ -37,27 +37,17 @@ import numpy as np
 
 from annotate_rgbd.errors import InputError
 from .files import FileTooLarge, NotRegularFile, open_regular
+from .limits import MAX_FRAMES, MAX_IMAGE_PIXELS, MAX_TIMESTAMP  # noqa: F401 (read from here too)
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 
-#: Most frames one stream may list. TUM RGB-D and ICL-NUIM sequences have a few thousand frames;
-#: a million is over nine hours at 30 Hz.
-MAX_FRAMES = 1_000_000
 #: Largest frame list read (checked before reading): a million ``associate.py`` lines of about
 #: 90 bytes, with room for comments.
 MAX_LIST_BYTES = 128 * 2**20
 #: Most lines of a frame list, comments and blank lines included.
 MAX_LIST_LINES = 2 * MAX_FRAMES
-#: Largest image decoded, in pixels (8192 x 8192, eight times the 3840 x 2160 depth maps of the
-#: largest stereo cameras), checked in a PNG's header before decoding: a small file announcing
-#: a huge image (a decompression bomb) is refused without allocating it.
-MAX_IMAGE_PIXELS = 8192 * 8192
 #: Largest image file read, in bytes: an uncompressed 16-bit RGBA image of MAX_IMAGE_PIXELS.
 MAX_IMAGE_BYTES = 8 * MAX_IMAGE_PIXELS
-#: Largest timestamp magnitude. 2**63 ns (9.2e18, the end of 64-bit nanosecond clocks) is within,
-#: so seconds, milliseconds or nanoseconds since 1970 all pass, and the difference of two
-#: timestamps stays finite (1.7e308 - -1.7e308 is infinite).
-MAX_TIMESTAMP = 1e19
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 

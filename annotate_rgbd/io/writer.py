@@ -7,15 +7,19 @@ truncated PNG or JSON.
 from __future__ import annotations
 
 import csv
+import errno
 import io
 import json
 import math
 import os
 import re
 import secrets
+import stat
+import sys
 import tempfile
+from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Iterable, Sequence
+from typing import IO, Any, Iterable, Iterator, Sequence
 
 import cv2
 import numpy as np
@@ -59,11 +63,97 @@ def write_bytes_atomic(path: Path, data: bytes) -> None:
     tmp = path.parent / f".{path.name}.{secrets.token_hex(4)}.tmp"
     done = False
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
+        # Only the file's own folder (masks/): an output folder removed or moved during the run
+        # is an error here, never silently made again at its old path.
+        path.parent.mkdir(exist_ok=True)
         # Mode 0o666 minus the umask, like any file the user creates (mkstemp's 0o600 is not).
         fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
         with os.fdopen(fd, "wb") as handle:
             handle.write(data)
+            handle.flush()
+            os.fsync(handle.fileno())
+        os.replace(tmp, path)
+        done = True
+    except FileNotFoundError:
+        raise OutputError(path, "cannot write output: its folder is gone (the output folder removed or moved during the run?)") from None
+    except OSError as exc:
+        raise OutputError(path, f"cannot write output: {exc.strerror or exc}") from None
+    finally:
+        if not done:
+            try:
+                tmp.unlink()
+            except OSError:  # never created (no folder, no permission): nothing to remove
+                pass
+
+
+#: The output name that stands for standard output.
+STDOUT = "-"
+#: Paths that name an open descriptor of this process (``/dev/stdout``, ``/dev/fd/3``).
+_DESCRIPTOR = re.compile(r"^/(?:dev/(?:fd/(\d+)|(stdout)|(stderr))|proc/self/fd/(\d+))$")
+
+
+def descriptor_of(path: str | Path) -> int | None:
+    """The descriptor an output path names: 1 for ``-`` and ``/dev/stdout``, ``N`` for
+    ``/dev/fd/N`` and ``/proc/self/fd/N``, 2 for ``/dev/stderr``; None for any other path."""
+    if str(path) == STDOUT:
+        return 1
+    found = _DESCRIPTOR.match(os.path.abspath(path))
+    if found is None:
+        return None
+    fd, out, err, proc = found.groups()
+    return 1 if out else 2 if err else int(fd or proc)
+
+
+def is_stream(path: str | Path) -> bool:
+    """Whether an output path names a stream to write into rather than a file to replace:
+    ``-``, a descriptor (:func:`descriptor_of`), or an existing character device, FIFO or
+    socket (``/dev/null``, a named pipe)."""
+    if descriptor_of(path) is not None:
+        return True
+    try:
+        mode = os.stat(path).st_mode
+    except OSError:
+        return False
+    return stat.S_ISCHR(mode) or stat.S_ISFIFO(mode) or stat.S_ISSOCK(mode)
+
+
+def names_stdout(path: str | Path) -> bool:
+    """Whether writing to ``path`` writes to this process's standard output (then a command's
+    summary goes to standard error, not into the data)."""
+    if descriptor_of(path) == 1:
+        return True
+    try:
+        return os.path.samestat(os.stat(path), os.fstat(1)) and not stat.S_ISREG(os.fstat(1).st_mode)
+    except OSError:
+        return False
+
+
+@contextmanager
+def open_output(path: str | Path) -> Iterator[IO[bytes]]:
+    """A user-named output file, open for writing in binary.
+
+    A stream (:func:`is_stream`: ``-``, ``/dev/stdout``, a device, a FIFO) is written into as it
+    is, never replaced; a FIFO without a reader is refused rather than waited for. Any other
+    path is written atomically: a temporary file beside it, renamed over it at the end of the
+    block (nothing is left when the block raises).
+
+    Raises
+    ------
+    OutputError
+        The stream or file cannot be opened or written (one line naming it).
+    """
+    with (_stream_output if is_stream(path) else _atomic_output)(Path(path)) as handle:
+        yield handle
+
+
+@contextmanager
+def _atomic_output(path: Path) -> Iterator[IO[bytes]]:
+    tmp = path.parent / f".{path.name}.{secrets.token_hex(4)}.tmp"
+    done = False
+    try:
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+        with os.fdopen(fd, "wb") as handle:
+            yield handle
             handle.flush()
             os.fsync(handle.fileno())
         os.replace(tmp, path)
@@ -74,8 +164,45 @@ def write_bytes_atomic(path: Path, data: bytes) -> None:
         if not done:
             try:
                 tmp.unlink()
-            except OSError:  # never created (no folder, no permission): nothing to remove
+            except OSError:  # never created
                 pass
+
+
+@contextmanager
+def _stream_output(path: Path) -> Iterator[IO[bytes]]:
+    sys.stdout.flush()  # what this process printed comes first
+    if str(path) == STDOUT:
+        handle, own = sys.stdout.buffer, False
+    else:
+        descriptor = descriptor_of(path)
+        try:
+            if descriptor is not None:
+                fd = os.dup(descriptor)
+            else:
+                fd = os.open(path, os.O_WRONLY | os.O_NONBLOCK)  # a FIFO without a reader: ENXIO, not a hang
+                os.set_blocking(fd, True)
+        except OSError as exc:
+            reason = "a FIFO without a reader" if exc.errno == errno.ENXIO else exc.strerror or str(exc)
+            raise OutputError(path, f"cannot write output: {reason}") from None
+        handle, own = os.fdopen(fd, "wb"), True
+    try:
+        yield handle
+        handle.flush()
+    except OSError as exc:
+        raise OutputError(path, f"cannot write output: {exc.strerror or exc}") from None
+    finally:
+        if own:
+            try:
+                handle.close()
+            except OSError:  # what flush could not write: reported above
+                pass
+
+
+def write_output(path: str | Path, data: bytes) -> None:
+    """Write ``data`` to a user-named output (:func:`open_output`: a stream as it is, a file
+    atomically)."""
+    with open_output(path) as handle:
+        handle.write(data)
 
 
 def write_png(path: Path, image: np.ndarray) -> bytes:
@@ -133,7 +260,12 @@ _NUMBER = re.compile(r"[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?|[+-]?(inf|nan)", re
 
 
 def write_csv(path: Path, header: Sequence[str], rows: Iterable[Sequence[Any]]) -> None:
-    """Write a CSV table atomically, with text cells made safe for spreadsheets.
+    """Write a CSV table atomically (:func:`csv_bytes`)."""
+    write_bytes_atomic(path, csv_bytes(header, rows))
+
+
+def csv_bytes(header: Sequence[str], rows: Iterable[Sequence[Any]]) -> bytes:
+    """A CSV table as UTF-8 bytes, with text cells made safe for spreadsheets.
 
     A text cell starting with ``=``, ``+``, ``-``, ``@``, a tab or a carriage return (a label
     such as ``=HYPERLINK(...)``) would run as a formula when the file is opened in a
@@ -148,7 +280,7 @@ def write_csv(path: Path, header: Sequence[str], rows: Iterable[Sequence[Any]]) 
     for row in [header, *rows]:
         cells = [safe_cell(cell) for cell in row]
         (quoted if any(isinstance(c, str) and "\r" in c for c in cells) else table).writerow(cells)
-    write_bytes_atomic(path, buffer.getvalue().encode("utf-8"))
+    return buffer.getvalue().encode("utf-8")
 
 
 def safe_cell(cell: Any) -> Any:

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Callable, Sequence
 from annotate_rgbd.config.settings import Config
 from annotate_rgbd.errors import InputError, OutputError
 from annotate_rgbd.io.outdir import OutputFolder
-from annotate_rgbd.logs import scene_warnings
+from annotate_rgbd.logs import group_problems, scene_warnings
 from annotate_rgbd.pool import (
     STALL_TIMEOUT, HelperPool, JobTimeout, default_workers, prepare_helpers, reuse_freed_memory, run_jobs, start_helpers,
 )
@@ -60,6 +60,20 @@ class FrameCounts:
         return self.made + self.reused + self.failed
 
 
+def failure_lines(frames: Sequence[FrameRecord], root: Path) -> list[str]:
+    """One line per problem of the failed depth frames: the frame and why, or the frames that
+    share the problem (:func:`annotate_rgbd.logs.group_problems`: 8-bit depth is said once).
+
+    Parameters
+    ----------
+    frames : sequence of FrameRecord
+    root : Path
+        The sequence folder: a failed frame's error starts with its path there.
+    """
+    paths = ((str(root / f.depth), f) for f in frames if f.status == FAILED)
+    return group_problems((path, (f.error or f.reason).removeprefix(f"{path}: ")) for path, f in paths)
+
+
 @dataclass
 class SceneResult:
     """How one scene of ``cvat2mask`` or ``batch`` ended: a plain record, no open resources.
@@ -85,6 +99,8 @@ class SceneResult:
         ``review.html``, written with overlays.
     propagation : object, optional
         With camera poses: what they gave the run (:class:`annotate_rgbd.pipeline.plan.Propagation`).
+    sequence : Path, optional
+        The sequence folder (the failed frames' messages start with their path in it).
     """
 
     name: str
@@ -100,6 +116,7 @@ class SceneResult:
     config: Config | None = None
     review_page: Path | None = None
     propagation: object | None = None
+    sequence: Path | None = None
 
     @property
     def written(self) -> int:
@@ -107,8 +124,8 @@ class SceneResult:
         return sum(1 for f in self.frames if f.written)
 
     def failures(self) -> list[str]:
-        """One line per failed depth frame: the file and why."""
-        return [f"{f.depth}: {f.error or f.reason}" for f in self.frames if f.status == FAILED]
+        """One line per problem of the failed depth frames (:func:`failure_lines`)."""
+        return failure_lines(self.frames, self.sequence or Path())
 
     @property
     def failed_frames(self) -> list[str]:
@@ -207,13 +224,14 @@ class SceneRun:
         return sum(1 for f in self.frames if f.written)
 
     def failures(self) -> list[str]:
-        """One line per failed depth frame: the file and why."""
-        return [f"{f.depth}: {f.error or f.reason}" for f in self.frames if f.status == FAILED]
+        """One line per problem of the failed depth frames (:func:`failure_lines`)."""
+        return failure_lines(self.frames, self.plan.sequence.root)
 
     def result(self) -> SceneResult:
         """The finished scene as a plain record."""
         return SceneResult(self.name, self.out_dir, None, None, self.frames, self.tracks, self.n_planes, self.counts,
-                           self.warnings, self.notes, self.config, self.review_page, self.plan.propagation)
+                           self.warnings, self.notes, self.config, self.review_page, self.plan.propagation,
+                           sequence=self.plan.sequence.root)
 
     def _step(self) -> None:
         if self.progress:
@@ -297,10 +315,13 @@ def execute_scenes(
         for journal in journals.values():
             journal.close()
     for scene in scenes:
-        # In frame order, whatever order the workers finished in.
+        if scene.error is None and scene.plan.jobs and scene.counts.failed == len(scene.plan.jobs):
+            # A problem every frame shares (8-bit depth): one line, and no run without a mask.
+            scene.error = InputError(None, f"no depth frame can be used: {scene.failures()[0]}")
+            continue
+        # In frame order, whatever order the workers finished in; a problem many frames share once.
         with scene_warnings(scene.name if scene_names else None):
-            for frame in scene.plan.frames:
-                if frame.status == FAILED:
-                    message = f"{frame.error}; skipped"
-                    scene.plan.warnings.append(message)
-                    log.warning(message)
+            for line in scene.failures():
+                message = f"{line}; skipped"
+                scene.plan.warnings.append(message)
+                log.warning(message)

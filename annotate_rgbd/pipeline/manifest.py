@@ -31,7 +31,10 @@ from annotate_rgbd.config.command_line import parse_part_offsets, parse_settings
 from annotate_rgbd.config.settings import Config
 from annotate_rgbd.config.toml_input import read_toml
 from annotate_rgbd.errors import InputError
+from annotate_rgbd.io.bounded import read_input
 
+#: Largest manifest read: a thousand scenes take some 500 KiB.
+MAX_MANIFEST_BYTES = 16 << 20
 SCENE_KEYS = {"name", "sequence", "annotations", "config", "out", "parts", "set", "raw_masks", "overlays",
               "instance_ids", "poses"}
 FLAGS = ("raw_masks", "overlays", "instance_ids")
@@ -77,7 +80,7 @@ def read_manifest(path: str | Path) -> tuple[list[SceneSpec], int | None]:
     """
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
+        text = read_input(path, MAX_MANIFEST_BYTES).decode("utf-8")
     except OSError as exc:
         raise InputError(path, f"cannot read manifest: {exc.strerror or exc}") from None
     except UnicodeDecodeError as exc:
@@ -104,6 +107,8 @@ def read_manifest(path: str | Path) -> tuple[list[SceneSpec], int | None]:
         for key in ("sequence", "annotations", "out"):
             if key not in table:
                 raise InputError(path, f"{where}: '{key}' is missing")
+        if isinstance(table["out"], str) and not table["out"].strip():
+            raise InputError(path, f"{where}: 'out' is empty: name the scene's output folder")
         annotations = table["annotations"]
         if isinstance(annotations, str):
             annotations = [annotations]
@@ -141,4 +146,9 @@ def read_manifest(path: str | Path) -> tuple[list[SceneSpec], int | None]:
     for out in set(outs):
         if outs.count(out) > 1:
             raise InputError(path, f"two scenes write to {out}: give each scene its own 'out'")
+    for out in outs:  # a scene's output folder inside another's: each run would see the other's files
+        outer = next((other for other in outs if other in out.parents), None)
+        if outer is not None:
+            raise InputError(path, f"the output folder {out} is inside another scene's, {outer}: give each scene "
+                                   "a folder of its own, side by side")
     return scenes, jobs

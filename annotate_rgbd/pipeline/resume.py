@@ -24,7 +24,7 @@ import os
 from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
-from typing import IO, Collection, Iterator, Sequence
+from typing import Collection, Iterator, Sequence
 
 import numpy as np
 
@@ -251,28 +251,32 @@ class Journal:
             fd = os.open(self.path, os.O_WRONLY | os.O_APPEND | os.O_CREAT | os.O_NOFOLLOW, 0o666)
         except OSError as exc:
             raise OutputError(self.path, f"cannot write output: {exc.strerror or exc}") from None
-        self._file: IO[str] | None = os.fdopen(fd, "a", encoding="utf-8")
+        self._fd: int | None = fd
 
     def record(self, mask_name: str, result: MaskRecord) -> None:
-        """Append one finished frame, flushed at once (an interrupted run keeps it).
+        """Append one finished frame, written at once (an interrupted run keeps it).
+
+        Unbuffered: a write that fails (a full disk) leaves nothing pending that closing the
+        journal would try again; a torn last line is ignored when the journal is read.
 
         Raises
         ------
         OutputError
-            The journal cannot be written.
+            The journal cannot be written (the message names it).
         """
         line = json.dumps({"mask": mask_name, "fingerprint": result.fingerprint, "result": result.to_json()})
+        data = memoryview((line + "\n").encode("utf-8"))
         try:
-            self._file.write(line + "\n")
-            self._file.flush()
+            while data:
+                data = data[os.write(self._fd, data):]
         except OSError as exc:
             raise OutputError(self.path, f"cannot write output: {exc.strerror or exc}") from None
 
     def close(self) -> None:
         """Close the file (it stays on disk until :func:`remove_journal`)."""
-        if self._file is not None:
-            self._file.close()
-            self._file = None
+        fd, self._fd = self._fd, None
+        if fd is not None:
+            os.close(fd)
 
 
 def remove_journal(out_dir: Path) -> None:

@@ -93,15 +93,26 @@ class FrameProposal:
     dropped: list
 
 
+class FrameTooSmall(InputError):
+    """A depth image smaller than one cell of the detector: the frame is skipped, not failed."""
+
+
 def propose_frame(job: DetectJob) -> FrameProposal:
     """Run one :class:`DetectJob` (the worker function of the pool).
 
     Raises
     ------
     InputError
-        The depth image cannot be read or is not a depth map.
+        The depth image cannot be read or is not a depth map; :class:`FrameTooSmall` when it
+        holds no cell of the detector.
     """
-    depth = depth_to_metres(read_depth(Path(job.depth_path)), job.camera.depth_scale)
+    raw = read_depth(Path(job.depth_path))
+    cell = job.detector.cell_px
+    if min(raw.shape) < cell:
+        raise FrameTooSmall(
+            job.depth_path, f"depth image is {raw.shape[1]} x {raw.shape[0]} pixels, smaller than the detector's {cell}-pixel cells"
+        )
+    depth = depth_to_metres(raw, job.camera.depth_scale)
     return propose_planes(depth, job.camera, job.detector, job.settings, job.noise, job.filter, job.position)
 
 

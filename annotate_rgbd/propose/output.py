@@ -3,8 +3,6 @@ masks, the report's entries. The CVAT XML itself is :mod:`annotate_rgbd.cvat`'s 
 
 from __future__ import annotations
 
-import os
-import secrets
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -12,9 +10,8 @@ import numpy as np
 
 from annotate_rgbd.annotation.model import Annotation, Shape, Track
 from annotate_rgbd.cvat import write_cvat_video
-from annotate_rgbd.errors import OutputError
 from annotate_rgbd.report.palette import colour_hex, colourize, plane_colours
-from annotate_rgbd.io.writer import write_png
+from annotate_rgbd.io.writer import open_output, write_png
 
 
 @dataclass
@@ -69,22 +66,15 @@ def write_polygon_tracks(
     Raises
     ------
     OutputError
-        The file cannot be written.
+        The file cannot be written (:func:`annotate_rgbd.io.writer.open_output`).
     """
     annotation = Annotation(
         path=str(path.stem), format="video",
         tracks=[Track(t.track, t.label, dict(sorted(t.shapes.items())), attributes=dict(t.attributes)) for t in tracks],
         frames=list(range(n_frames)),
     )
-    tmp = path.parent / f".{path.name}.{secrets.token_hex(4)}.tmp"
-    try:
-        write_cvat_video(annotation, tmp, width=width, height=height, sampled_frames=sorted(set(sampled_frames)))
-        os.replace(tmp, path)
-    except OSError as exc:
-        raise OutputError(path, f"cannot write output: {exc.strerror or exc}") from None
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+    with open_output(path) as handle:  # atomically; a stream (``-``, /dev/stdout, a FIFO) as it is
+        write_cvat_video(annotation, handle, width=width, height=height, sampled_frames=sorted(set(sampled_frames)))
 
 
 def write_colour_mask(path: Path, labels: np.ndarray, ids: np.ndarray) -> None:

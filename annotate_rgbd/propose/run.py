@@ -22,7 +22,8 @@ from annotate_rgbd.io.poses import poses_at, read_trajectory
 from annotate_rgbd.io.sequence import associate, read_depth, read_sequence
 from annotate_rgbd.io.outdir import MASKS, OutputFolder, read_bounded, remove_stale_files
 from annotate_rgbd.io.writer import write_json
-from .detect_job import DetectJob, FrameProposal, propose_frame
+from annotate_rgbd.logs import group_problems
+from .detect_job import DetectJob, FrameProposal, FrameTooSmall, propose_frame
 from .link import TrackLinker
 from .output import TrackShapes, equation_text, track_colour, write_colour_mask, write_polygon_tracks
 
@@ -154,6 +155,7 @@ def _run(sequence, folder: OutputFolder, config, poses_path, helpers, progress) 
     frames: list[dict] = []
     waiting: dict[int, FrameProposal | InputError] = {}
     size = None
+    problems: list[tuple[str, str, str]] = []  # (depth file, problem, outcome): said once per problem
     following = 0
     for outcome in run_jobs(jobs, propose_frame, helpers):
         waiting[outcome.index] = outcome.value if outcome.error is None else outcome.error
@@ -163,9 +165,19 @@ def _run(sequence, folder: OutputFolder, config, poses_path, helpers, progress) 
             record = {"depth": sequence.depth.files[i], "depth_timestamp": float(depth_times[i]),
                       "rgb": sequence.rgb.files[int(nearest[i])], "rgb_index": int(nearest[i]),
                       "time_offset": float(time_diff[i])}
-            if isinstance(item, InputError):
+            if not isinstance(item, InputError) and size is not None and item.labels.shape != size:
+                item = FrameTooSmall(  # the exports hold frames of one size, the first frame's
+                    jobs[following].depth_path,
+                    f"depth image is {item.labels.shape[1]} x {item.labels.shape[0]} pixels, not "
+                    f"{size[1]} x {size[0]} as the first processed frame",
+                )
+            if isinstance(item, FrameTooSmall):
+                result.skipped.append(f"{sequence.depth.files[i]}: {item.message}")
+                problems.append((str(item.path), item.message, "skipped"))
+                frames.append({**record, "status": "skipped", "reason": "frame_size", "error": item.message})
+            elif isinstance(item, InputError):
                 result.failed.append(f"{sequence.depth.files[i]}: {item}")
-                log.warning("%s", item)
+                problems.append((str(item.path or jobs[following].depth_path), item.message, "failed"))
                 frames.append({**record, "status": "failed", "error": str(item)})
             else:
                 pose = None
@@ -184,6 +196,12 @@ def _run(sequence, folder: OutputFolder, config, poses_path, helpers, progress) 
             following += 1
             if progress is not None:
                 progress(following, len(jobs))
+    if result.frames == 0:
+        lines = group_problems((file, problem) for file, problem, _ in problems)
+        more = f" (and {len(lines) - 1} other problem{'s' if len(lines) > 2 else ''})" if len(lines) > 1 else ""
+        raise InputError(None, f"no depth frame can be used: {lines[0]}{more}")
+    for line in group_problems((file, f"{problem}; {outcome}") for file, problem, outcome in problems):
+        log.warning("%s", line)
     for track, (_, equation, where) in best.items():
         tracks[track].attributes = {"equation": equation_text(equation), "equation_frame": where}
     ordered = [tracks[t] for t in sorted(tracks)]

@@ -20,11 +20,10 @@ import cv2
 import numpy as np
 
 from annotate_rgbd.errors import InputError
+from annotate_rgbd.io.limits import MAX_PLANES
 
 #: Colours darker than this CIELAB lightness are not used (too close to black = unsegmented).
 MIN_LIGHTNESS = 25.0
-#: Most planes one run can colour, each with its own colour: the largest 16-bit plane id.
-MAX_PLANES = 2**16 - 1
 
 
 def plane_colours(count: int) -> np.ndarray:

@@ -417,9 +417,9 @@ class RunRecord:
             config=_mapping(report["config"], "config"),
             planes=planes,
             n_planes=n_planes if isinstance(n_planes, int) else len(planes),
-            tracks=[_mapping(t, "track entry") for t in report.get("tracks", [])],
+            tracks=[_mapping(t, "track entry") for t in _list({"tracks": report.get("tracks", [])}, "tracks")],
             frames=frames,
-            warnings=[str(w) for w in report.get("warnings", [])],
-            notes=[str(n) for n in report.get("notes", [])],
+            warnings=[_text({"warnings": w}, "warnings") for w in _list({"warnings": report.get("warnings", [])}, "warnings")],
+            notes=[_text({"notes": n}, "notes") for n in _list({"notes": report.get("notes", [])}, "notes")],
             propagation=report["propagation"] if isinstance(report.get("propagation"), dict) else None,
         )

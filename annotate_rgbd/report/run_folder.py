@@ -25,6 +25,7 @@ from annotate_rgbd.errors import InputError
 from annotate_rgbd.io.files import open_regular
 from annotate_rgbd.io.outdir import REPORT, SHAPES_RECORD, read_bounded
 from annotate_rgbd.report.records import RecordError, RunRecord
+from annotate_rgbd.report.validation import check_run, load_json
 
 #: Reading bound of ``report.json`` (a run of 100,000 frames with 20 planes each: ~300 MiB).
 MAX_REPORT_BYTES = 1 << 30
@@ -44,21 +45,22 @@ def read_report(out_dir: str | Path) -> RunRecord:
     """
     path = Path(out_dir) / REPORT
     try:
-        report = json.loads(read_bounded(path, MAX_REPORT_BYTES).decode("utf-8"))
+        data = read_bounded(path, MAX_REPORT_BYTES)
     except FileNotFoundError:
         raise InputError(path, "no report: not the output folder of a finished cvat2mask run") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InputError(path, f"cannot read the report: {exc.strerror if isinstance(exc, OSError) else exc}") from None
-    except RecursionError:
-        raise InputError(path, "cannot read the report: nested too deeply") from None
+    except OSError as exc:
+        raise InputError(path, f"cannot read the report: {exc.strerror or exc}") from None
+    report = load_json(data, path)  # strict: no NaN, no lone surrogate
     if isinstance(report, dict) and report.get("tool") == "annotate-rgbd propose":
         raise InputError(path, "this is the output of `propose`, not of a cvat2mask run")
     if not isinstance(report, dict) or not {"inputs", "config", "frames", "planes"} <= report.keys():
         raise InputError(path, "not a cvat2mask report (inputs, config, frames or planes missing)")
     try:
-        return RunRecord.from_json(report)
+        record = RunRecord.from_json(report)
+        check_run(record)  # every field within what a run writes: one line naming the field
     except RecordError as exc:
-        raise InputError(path, f"not a cvat2mask report: {exc}") from None
+        raise InputError(path, f"not a cvat2mask report as annotate-rgbd writes it (edited or damaged?): {exc}") from None
+    return record
 
 
 def colour_table(report: RunRecord) -> tuple[np.ndarray, np.ndarray]:

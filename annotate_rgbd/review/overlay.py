@@ -20,7 +20,8 @@ with the result it has just segmented, so that no frame is segmented twice.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import logging
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 
 import cv2
@@ -29,6 +30,8 @@ from scipy import ndimage
 
 from annotate_rgbd.segment.frame import FrameResult
 from annotate_rgbd.io.sequence import read_rgb
+
+log = logging.getLogger("annotate_rgbd")
 
 #: Weight of the plane colour in the tint of a kept plane.
 TINT_ALPHA = 0.45
@@ -229,8 +232,40 @@ def label_points(regions: np.ndarray) -> dict[int, tuple[int, int]]:
     return {int(k): (int(r), int(c)) for k, r, c in zip(ids[last], rows, cols)}
 
 
+#: Tallest thumbnail on the contact sheet, as a multiple of its width: a taller frame (a
+#: portrait 480 x 640 frame fits) is scaled down to fit, so that a degenerate frame (1 x 20000
+#: pixels) gives a thin thumbnail rather than a gigabyte sheet.
+MAX_THUMB_ASPECT = 2.0
+#: Frames more elongated than this (either way) get a warning: their thumbnails are a sliver.
+DEGENERATE_ASPECT = 8.0
+
+
+def thumbnail_size(shape: tuple[int, ...], thumb_width: int, max_aspect: float = MAX_THUMB_ASPECT) -> tuple[int, int]:
+    """Size of an image's thumbnail: the image scaled, keeping its aspect ratio, to fit a box
+    ``thumb_width`` wide and ``max_aspect * thumb_width`` tall.
+
+    Parameters
+    ----------
+    shape : tuple of int
+        The image's ``(H, W, ...)``, both at least 1.
+    thumb_width : int
+        Box width, pixels.
+    max_aspect : float
+        Box height over box width.
+
+    Returns
+    -------
+    (int, int)
+        ``(width, height)``, each between 1 and the box's side.
+    """
+    height, width = shape[0], shape[1]
+    box_height = max(1, int(max_aspect * thumb_width))
+    scale = min(thumb_width / width, box_height / height)
+    return (min(thumb_width, max(1, round(width * scale))), min(box_height, max(1, round(height * scale))))
+
+
 def contact_sheet(
-    images: Sequence[np.ndarray],
+    images: Iterable[np.ndarray],
     captions: Sequence[str] | None = None,
     *,
     columns: int = 4,
@@ -239,43 +274,53 @@ def contact_sheet(
 ) -> np.ndarray:
     """A grid of thumbnails, each with an optional caption below it.
 
+    Each image is shrunk as it arrives, so that memory holds one full image at a time; every
+    thumbnail fits a ``thumb_width`` x ``MAX_THUMB_ASPECT * thumb_width`` box, whatever the
+    image's aspect ratio (a frame more elongated than :data:`DEGENERATE_ASPECT` gets one warning).
+
     Parameters
     ----------
-    images : sequence of ndarray of uint8, shape (H, W, 3)
-        The images, in reading order (sizes may differ).
+    images : iterable of ndarray of uint8, shape (H, W, 3)
+        The images, in reading order (sizes may differ); a generator is read one image at a time.
     captions : sequence of str, optional
         One per image (e.g. the frame's file name).
     columns : int
         Thumbnails per row.
     thumb_width : int
-        Width of each thumbnail, in pixels; heights keep each image's aspect ratio.
+        Width of each cell, in pixels; thumbnails keep each image's aspect ratio.
     gap : int
         Space between thumbnails, in pixels.
 
     Returns
     -------
     ndarray of uint8, shape (H', W', 3)
-        The sheet (RGB), white between the thumbnails.
+        The sheet (RGB), white between the thumbnails; at most
+        ``(MAX_THUMB_ASPECT * thumb_width + caption + gap)`` pixels tall per row of ``columns``.
     """
-    if not images:
+    thumbs, degenerate = [], None
+    for image in images:
+        if degenerate is None and max(image.shape[0] / image.shape[1], image.shape[1] / image.shape[0]) > DEGENERATE_ASPECT:
+            degenerate = image.shape
+        thumbs.append(cv2.resize(image, thumbnail_size(image.shape, thumb_width), interpolation=cv2.INTER_AREA))
+    if not thumbs:
         raise ValueError("no images for the contact sheet")
-    if captions is not None and len(captions) != len(images):
-        raise ValueError(f"{len(captions)} captions for {len(images)} images")
-    columns = max(1, min(columns, len(images)))
-    thumbs = [
-        cv2.resize(image, (thumb_width, max(1, round(image.shape[0] * thumb_width / image.shape[1]))),
-                   interpolation=cv2.INTER_AREA)
-        for image in images
-    ]
+    if captions is not None and len(captions) != len(thumbs):
+        raise ValueError(f"{len(captions)} captions for {len(thumbs)} images")
+    if degenerate is not None:
+        log.warning(
+            "frames of %d x %d pixels are too elongated for thumbnails: the contact sheet shows them as slivers",
+            degenerate[1], degenerate[0],
+        )
+    columns = max(1, min(columns, len(thumbs)))
     scale = 0.4 * thumb_width / 320
     caption_height = cv2.getTextSize("Ag", FONT, scale, 1)[0][1] + 8 if captions is not None else 0
     cell_height = max(t.shape[0] for t in thumbs) + caption_height
-    rows = -(-len(images) // columns)
+    rows = -(-len(thumbs) // columns)
     sheet = np.full((gap + rows * (cell_height + gap), gap + columns * (thumb_width + gap), 3), 255, np.uint8)
     for i, thumb in enumerate(thumbs):
         top = gap + (i // columns) * (cell_height + gap)
         left = gap + (i % columns) * (thumb_width + gap)
-        sheet[top : top + thumb.shape[0], left : left + thumb_width] = thumb
+        sheet[top : top + thumb.shape[0], left : left + thumb.shape[1]] = thumb
         if captions is not None:
             baseline = top + thumb.shape[0] + caption_height - 4
             cv2.putText(sheet, captions[i], (left + 2, baseline), FONT, scale, (0, 0, 0), 1, cv2.LINE_AA)

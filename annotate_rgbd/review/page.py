@@ -17,6 +17,7 @@ import json
 from collections.abc import Mapping
 from functools import cache
 from importlib import resources
+from urllib.parse import quote
 
 from annotate_rgbd.report.records import RunRecord
 from annotate_rgbd.report.stats import run_stats
@@ -38,7 +39,8 @@ def page_data(report: RunRecord, overlays: Mapping[str, str]) -> dict:
     dict
         ``planes`` (``plane``, ``colour``, ``label``), ``stats`` (:func:`run_stats`) and
         ``frames``: for every written frame its ``index`` among the depth frames, ``depth``,
-        ``rgb``, ``part``, ``cvat_frame``, ``mask``, ``overlay`` (or ``None``) and ``planes``,
+        ``rgb``, ``part``, ``cvat_frame``, ``mask``, ``mask_url`` and ``overlay`` (links relative
+        to the page, percent-encoded; ``overlay`` ``None`` without one) and ``planes``,
         rows ``[plane, "kept" | "dropped", reason, pixels, pixels after refinement, inlier
         ratio, shape]`` in plane order, ``shape`` being ``propagated`` when camera poses carried
         it there (:mod:`annotate_rgbd.propagate.carry`) and ``drawn`` when it comes from the
@@ -57,7 +59,9 @@ def page_data(report: RunRecord, overlays: Mapping[str, str]) -> dict:
             "part": frame.part,
             "cvat_frame": frame.cvat_frame,
             "mask": frame.mask,
-            "overlay": overlays.get(frame.mask),
+            # Links, percent-encoded: a file named with '#', '?' or '%' is still found.
+            "mask_url": quote(frame.mask),
+            "overlay": None if overlays.get(frame.mask) is None else quote(overlays[frame.mask]),
             "planes": sorted(rows, key=lambda row: row[0]),
         })
     planes = [{"plane": p.plane, "colour": p.colour, "label": p.label} for p in report.planes]

@@ -146,7 +146,7 @@ def write_review(
             raise InputError(out_dir / OVERLAYS, "no overlays for the contact sheet: run review with overlays")
         picks = np.unique(np.linspace(0, len(available) - 1, min(len(available), SHEET_FRAMES)).round().astype(int))
         frames = [available[i] for i in picks]
-        images = [read_rgb(_overlay_path(out_dir, f)) for f in frames]
+        images = (read_rgb(_overlay_path(out_dir, f)) for f in frames)  # one full image in memory at a time
         output.sheet = out_dir / SHEET_NAME
         write_png(output.sheet, contact_sheet(images, [Path(f.depth).stem for f in frames]))
     # So that a later cvat2mask run removes these files, and only these (annotate_rgbd.io.outdir).

@@ -255,7 +255,13 @@ from annotate_rgbd.cvat import read_cvat
 start = time.perf_counter()
 a = read_cvat(sys.argv[1], labels=sys.argv[2:] or None)
 shapes = sum(len(t.shapes) for t in a.tracks)
-print(len(a.tracks), shapes, round(time.perf_counter() - start, 1), resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)
+peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+try:  # Linux keeps ru_maxrss across exec (the forking test process's); VmHWM is this program's own
+    with open("/proc/self/status") as status:
+        peak = next(int(line.split()[1]) for line in status if line.startswith("VmHWM:"))
+except (OSError, StopIteration):
+    pass
+print(len(a.tracks), shapes, round(time.perf_counter() - start, 1), peak)
 """
 
 
@@ -489,7 +495,7 @@ def test_unusable_depth_frame_is_skipped_and_reported(scene, how, problem):
     assert result.exit_code == 1, result.stderr  # a failed frame fails the run, after every other mask
     message = f"{path}: {problem}"
     assert f"warning: {message}; skipped" in result.stderr.splitlines()
-    assert f"  failed: {path.relative_to(scene.seq)}: {message}" in result.stdout.splitlines()
+    assert f"  failed: {message}" in result.stdout.splitlines()
     report = scene.report()
     entry = report["frames"][1]
     assert (entry["status"], entry["reason"], entry["error"]) == ("failed", "unreadable_depth", message)

@@ -229,7 +229,7 @@ def test_cvat2mask_exits_1_when_a_frame_failed_after_writing_every_other_mask(tm
                                       "--out", str(tmp_path / "out")])
     assert result.exit_code == 1
     assert "18 masks in" in result.output and "1 frame failed" in result.output
-    assert f"  failed: depth/{broken.name}: " in result.output
+    assert f"  failed: {broken}: " in result.output
     assert len(list((tmp_path / "out" / "masks").iterdir())) == 18
     assert json.loads((tmp_path / "out" / "report.json").read_text())["summary"]["frames_failed"] == 1
 

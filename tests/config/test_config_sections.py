@@ -23,7 +23,7 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover
     import tomli as tomllib
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 SAMPLE = ROOT / "sample_data"
 SAMPLE_PIXELS = 320 * 240
 
@@ -66,7 +66,7 @@ def test_the_readme_documents_every_key_with_its_default():
         ("[detect]\ncell_size = 20\n", "unknown key 'detect.cell_size' (known in [detect]: cell_px, "),
         ("[detect]\nnoise_a = 0.001\n", "unknown key 'detect.noise_a'"),  # the noise model is [noise]'s
         ("[propose]\nevery = 0\n", "'propose.every' must be an integer >= 1, got 0"),
-        ("[propose]\nlabel = ' '\n", "'propose.label' must not be empty, got ' '"),
+        ("[propose]\nlabel = ' '\n", "'propose.label' must be a CVAT label: visible text without control characters, got ' '"),
         ("[propose]\nlabel = 3\n", "'propose.label' must be a string, got 3"),
         ("[propose]\npiece_fraction = 1.5\n", "'propose.piece_fraction' must be in (0, 1], got 1.5"),
         ("[link]\nmin_iou = 1.5\n", "'link.min_iou' must be in (0, 1], got 1.5"),
@@ -148,7 +148,7 @@ def test_a_toml_propose_section_changes_the_frames_and_the_label(tmp_path):
     [
         (["--set", "detect.cell_px=1"], "error: command-line option: 'detect.cell_px' must be an integer >= 2, got 1"),
         (["--set", "link.min_iou=0"], "error: command-line option: 'link.min_iou' must be in (0, 1], got 0.0"),
-        (["--label", ""], "error: command-line option: 'propose.label' must not be empty, got ''"),
+        (["--label", ""], "error: --label '' is empty: give the CVAT label of the proposed planes"),
     ],
 )
 def test_propose_refuses_bad_values_in_one_line(tmp_path, options, message):
