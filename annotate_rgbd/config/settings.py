@@ -9,6 +9,14 @@ that is not listed is an error, so a typo never goes unnoticed::
     cx = 318.6
     cy = 255.3
     depth_scale = 5000.0
+    [colour_camera]     # only when colour images are not registered to depth (another grid)
+    fx = 1170.2
+    fy = 1170.2
+    cx = 647.8
+    cy = 483.8
+    width = 1296
+    height = 968
+    extrinsic = [[1, 0, 0, 0.025], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]  # depth -> colour, m
     [sequence]
     max_time_diff = 0.02
     [annotation]
@@ -67,6 +75,7 @@ from typing import Any, Iterable, Mapping
 from annotate_rgbd.geometry.camera import Camera
 from annotate_rgbd.errors import InputError
 from annotate_rgbd.geometry.noise import NoiseSettings, noise_settings_from_mapping
+from annotate_rgbd.geometry.registration import ColourCamera, colour_camera_from_mapping
 from annotate_rgbd.io.poses import DEFAULT_MAX_POSE_GAP
 from .evaluate import EvaluateConfig
 from .masks import FilterConfig, PropagateConfig, RansacConfig, RefineConfig, range_checks
@@ -180,9 +189,11 @@ DEFAULT_CAMERA = Camera(fx=525.0, fy=525.0, cx=319.5, cy=239.5, depth_scale=5000
 @dataclass(frozen=True)
 class Config:
     """Everything the commands depend on besides their input files (``[detect]``, ``[propose]``
-    and ``[link]`` are ``propose``'s alone, ``[evaluate]`` is ``evaluate``'s)."""
+    and ``[link]`` are ``propose``'s alone, ``[evaluate]`` is ``evaluate``'s; ``colour_camera``:
+    None for registered colour and depth, :mod:`annotate_rgbd.geometry.registration`)."""
 
     camera: Camera = DEFAULT_CAMERA
+    colour_camera: ColourCamera | None = None
     sequence: SequenceConfig = field(default_factory=SequenceConfig)
     annotation: AnnotationConfig = field(default_factory=AnnotationConfig)
     filter: FilterConfig = field(default_factory=FilterConfig)
@@ -256,8 +267,14 @@ def config_to_dict(config: Config, leave_out: Iterable[str] = ()) -> dict[str, A
         return value
 
     leave_out = set(leave_out)
-    return {f.name: plain(getattr(config, f.name) if f.name == "noise" else dataclasses.asdict(config)[f.name])
-            for f in dataclasses.fields(config) if f.name not in leave_out}
+    values = {}
+    for f in dataclasses.fields(config):
+        value = getattr(config, f.name)
+        if f.name in leave_out or value is None:  # no colour camera: registered data, and its reports, unchanged
+            continue
+        values[f.name] = value.to_mapping() if isinstance(value, ColourCamera) else plain(
+            value if f.name == "noise" else dataclasses.asdict(config)[f.name])
+    return values
 
 
 def load_config(source: str | Path | None = None, overrides: Mapping[str, Any] | None = None) -> Config:
@@ -328,6 +345,12 @@ def _build(values: Mapping[str, Any], origin: str | Path | None) -> Config:
         if name == "noise" and isinstance(table, Mapping):
             try:
                 built[name] = noise_settings_from_mapping(table)
+            except ValueError as exc:
+                raise InputError(origin, str(exc)) from None
+            continue
+        if name == "colour_camera" and isinstance(table, Mapping):
+            try:
+                built[name] = colour_camera_from_mapping(table) if table else None
             except ValueError as exc:
                 raise InputError(origin, str(exc)) from None
             continue
@@ -445,8 +468,8 @@ MAX_INT_SETTING = 2**31 - 1
 def _check_ranges(config: Config, origin: str | Path | None) -> None:
     for section in dataclasses.fields(config):
         value = getattr(config, section.name)
-        if not dataclasses.is_dataclass(value) or isinstance(value, NoiseSettings):
-            continue  # lists of tables are checked per entry; the noise section by its reader
+        if not dataclasses.is_dataclass(value) or isinstance(value, (NoiseSettings, ColourCamera)):
+            continue  # lists of tables are checked per entry; noise and colour camera by their readers
         for key, number in dataclasses.asdict(value).items():
             if isinstance(number, float) and not math.isfinite(number):
                 raise InputError(origin, f"'{section.name}.{key}' must be a finite number, got {number!r}")

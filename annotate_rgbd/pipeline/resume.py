@@ -122,6 +122,7 @@ def _mask_settings(config: Config, algorithm: str) -> bytes:
     or part placement, whose effect is in the shapes' plane ids)."""
     settings = config_to_dict(config)
     sections = ("camera", "filter", "ransac", "noise", "refine", "propagate")
+    sections += ("colour_camera",) if config.colour_camera else ()
     return json.dumps([__version__, algorithm, *(settings[key] for key in sections)]).encode()
 
 
