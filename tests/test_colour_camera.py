@@ -26,7 +26,9 @@ from annotate_rgbd.geometry.camera import Camera, depth_to_metres
 from annotate_rgbd.geometry.registration import colour_camera_from_mapping
 from annotate_rgbd.segment.frame import segment_frame
 from annotate_rgbd.segment.rasterize import draw_on_depth_grid
-from annotate_rgbd.synthetic import Pose, plane_polygon, render, render_frame, room_scene, room_trajectory
+from annotate_rgbd.synthetic import (
+    Pose, plane_polygon, render, render_frame, room_scene, room_trajectory, write_tum_trajectory,
+)
 
 DEPTH_CAMERA = Camera(fx=262.5, fy=262.5, cx=159.5, cy=119.5, depth_scale=5000.0)
 DEPTH_SIZE = (320, 240)
@@ -98,6 +100,22 @@ def expected_drawn(depth_raw: np.ndarray, shapes) -> np.ndarray:
     return labels
 
 
+def seen_by_both(depth, seen, plane_ids) -> np.ndarray:
+    """Ground truth: a depth pixel shows plane k when the depth camera sees k there and the colour
+    camera sees the same surface where that point lies in its image (not beyond its view, not
+    behind an occluder), for the given planes (ids = scene plane index + 1)."""
+    rows, cols, xy = in_colour_image(depth.depth_raw)
+    at = np.rint(xy).astype(int)
+    inside = (at[:, 0] >= 0) & (at[:, 0] < COLOUR_SIZE[0]) & (at[:, 1] >= 0) & (at[:, 1] < COLOUR_SIZE[1])
+    seen_there = np.full(len(rows), -2)
+    seen_there[inside] = seen.object_index[at[inside, 1], at[inside, 0]]
+    visible = depth.visible[rows, cols]
+    same = (seen_there == visible) & np.isin(visible + 1, plane_ids)
+    truth = np.zeros(depth.depth_raw.shape, dtype=np.int32)
+    truth[rows[same], cols[same]] = visible[same] + 1
+    return truth
+
+
 def edge_distance(points: np.ndarray, polygons) -> np.ndarray:
     """Distance of each point (N, 2) to the nearest edge of any polygon."""
     nearest = np.full(len(points), np.inf)
@@ -144,19 +162,7 @@ def test_refined_masks_match_the_rendered_ground_truth(index):
     scene, depth, seen, shapes = colour_frame(index)
     config = Config(camera=DEPTH_CAMERA, colour_camera=colour_camera_from_mapping(COLOUR_TABLE))
     result = segment_frame(depth.depth_raw, shapes, config)
-    # Ground truth: a depth pixel shows plane k when the depth camera sees k there and the colour
-    # camera sees the same surface where that point lies in its image (not beyond its view, not
-    # behind an occluder), for the planes drawn.
-    rows, cols, xy = in_colour_image(depth.depth_raw)
-    at = np.rint(xy).astype(int)
-    inside = (at[:, 0] >= 0) & (at[:, 0] < COLOUR_SIZE[0]) & (at[:, 1] >= 0) & (at[:, 1] < COLOUR_SIZE[1])
-    seen_there = np.full(len(rows), -2)
-    seen_there[inside] = seen.object_index[at[inside, 1], at[inside, 0]]
-    drawn_planes = [plane_id - 1 for plane_id, _ in shapes]
-    visible = depth.visible[rows, cols]
-    same = (seen_there == visible) & np.isin(visible, drawn_planes)
-    truth = np.zeros(depth.depth_raw.shape, dtype=np.int32)
-    truth[rows[same], cols[same]] = visible[same] + 1
+    truth = seen_by_both(depth, seen, [plane_id for plane_id, _ in shapes])
     kept = [r.plane for r in result.kept]
     assert {scene.planes[r.plane - 1].label for r in result.dropped} <= {"wall_corridor", "window"}  # far, glass
     assert len(kept) >= 6
@@ -206,16 +212,18 @@ def test_colour_camera_configuration(tmp_path):
         load_config(path)
 
 
-def write_sequence(folder: Path, n_frames: int = 3) -> Path:
+def write_sequence(folder: Path, frames=(2, 3, 4), n_frames: int = 8, keyframe_step: int = 1) -> Path:
     """A TUM-layout sequence whose RGB images come from the offset colour camera, with the
-    labeller's polygons drawn on them as a CVAT video export."""
+    labeller's polygons drawn on them as a CVAT video export (keyframes every ``keyframe_step``
+    frames and the last, the API's way) and the depth camera's trajectory."""
     (folder / "rgb").mkdir(parents=True)
     (folder / "depth").mkdir()
     tracks: dict[int, dict[int, Shape]] = {}
-    rgb_lines, depth_lines = [], []
-    for i in range(n_frames):
-        _, depth, seen, shapes = colour_frame(2 + i)
+    rgb_lines, depth_lines, stamps = [], [], []
+    for i, index in enumerate(frames):
+        _, depth, seen, shapes = colour_frame(index, n_frames)
         stamp = f"{1700000000 + i / 10:.6f}"
+        stamps.append(float(stamp))
         cv2.imwrite(str(folder / "rgb" / f"{stamp}.png"), cv2.cvtColor(seen.rgb, cv2.COLOR_RGB2BGR))
         cv2.imwrite(str(folder / "depth" / f"{stamp}.png"), depth.depth_raw)
         rgb_lines.append(f"{stamp} rgb/{stamp}.png")
@@ -224,14 +232,16 @@ def write_sequence(folder: Path, n_frames: int = 3) -> Path:
             tracks.setdefault(plane_id, {})[i] = shape
     (folder / "rgb.txt").write_text("\n".join(rgb_lines) + "\n")
     (folder / "depth.txt").write_text("\n".join(depth_lines) + "\n")
+    write_tum_trajectory(folder / "groundtruth.txt", stamps, [room_trajectory(n_frames)[i] for i in frames])
     scene = room_scene()
     annotation = Annotation(
-        path=str(folder), format="video", frames=list(range(n_frames)),
+        path=str(folder), format="video", frames=list(range(len(frames))),
         tracks=[Track(plane_id, scene.planes[plane_id - 1].label, shapes) for plane_id, shapes in sorted(tracks.items())],
-        image_size={f: COLOUR_SIZE for f in range(n_frames)},
+        image_size={f: COLOUR_SIZE for f in range(len(frames))},
     )
     xml = folder / "annotations.xml"
-    write_cvat_video(annotation, xml, width=COLOUR_SIZE[0], height=COLOUR_SIZE[1])
+    write_cvat_video(annotation, xml, width=COLOUR_SIZE[0], height=COLOUR_SIZE[1], keyframe_step=keyframe_step,
+                     keyframes_only=keyframe_step > 1)
     return xml
 
 
@@ -259,3 +269,28 @@ def test_cvat2mask_with_a_colour_camera(tmp_path):
     assert len(masks) == len(overlays) == 3
     assert cv2.imread(str(masks[0])).shape[:2] == cv2.imread(str(overlays[0])).shape[:2] == (240, 320)
     assert all(f["kept"] for f in report["frames"])
+
+
+def test_poses_carry_keyframes_drawn_on_the_colour_camera(tmp_path):
+    frames = list(range(20, 27))
+    xml = write_sequence(tmp_path / "seq", frames=frames, n_frames=48, keyframe_step=6)
+    config = tmp_path / "colour.toml"
+    config.write_text(f"[camera]\nfx = {DEPTH_CAMERA.fx}\nfy = {DEPTH_CAMERA.fy}\ncx = {DEPTH_CAMERA.cx}\n"
+                      f"cy = {DEPTH_CAMERA.cy}\ndepth_scale = 5000.0\n" + COLOUR_TOML, encoding="utf-8")
+    out = tmp_path / "out"
+    result = CliRunner().invoke(app, ["cvat2mask", str(tmp_path / "seq"), str(xml), "--config", str(config), "--out",
+                                      str(out), "-j", "1", "--instance-ids", "--poses",
+                                      str(tmp_path / "seq" / "groundtruth.txt")])
+    assert result.exit_code == 0, result.output
+    report = json.loads((out / "report.json").read_text())
+    track_of = {p["plane"]: p["track_id"] for p in report["planes"]}
+    ious = []
+    for i, frame in enumerate(report["frames"][1:6], start=1):  # between the keyframes 0 and 6
+        _, depth, seen, shapes = colour_frame(frames[i], 48)
+        ids = cv2.imread(str(out / "masks_id" / Path(frame["depth"]).name), cv2.IMREAD_UNCHANGED)
+        as_tracks = np.array([0] + [track_of[p] for p in range(1, len(track_of) + 1)])[ids]
+        truth = seen_by_both(depth, seen, [plane_id for plane_id, _ in shapes])
+        kept = [track_of[r["plane"]] for r in frame["kept"]]
+        assert any(r["propagated"] for r in frame["kept"])
+        ious.append(mean_iou(as_tracks, truth, kept))
+    assert np.mean(ious) >= 0.95, ious
