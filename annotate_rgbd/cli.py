@@ -376,3 +376,22 @@ def export_cvat_command(
     with user_errors():
         count = export_cvat(run_dir, xml)
         typer.echo(f"{count} plane tracks: {xml}")
+
+
+@app.command("export")
+def export_command(
+    run_dir: Path = typer.Argument(..., metavar="RUN_DIR", help="Output folder of a finished cvat2mask run."),
+    out: Path = typer.Argument(..., metavar="OUT_DIR", help="The export folder (empty, or an earlier export's)."),
+    fmt: str = typer.Option(..., "--format", "-f", metavar="FORMAT", help="planercnn, planes, evops or coco."),
+    poses: Optional[Path] = typer.Option(
+        None, "--poses", metavar="FILE", help="Camera trajectory (TUM format) for world-frame planes; default: the run's."
+    ),
+) -> None:
+    """Export a run's plane ground truth: PlaneRCNN layout, per-frame plane parameters, EVOPS labels, COCO."""
+    from annotate_rgbd.export import export_run
+
+    with user_errors():
+        result = export_run(run_dir, fmt, out, poses)
+        for name in result.removed:
+            typer.echo(f"removed {name} (an earlier export's)")
+        typer.echo(f"{fmt}: {result.frames} frames ({result.posed} with a pose), {len(result.files)} files in {out}")
