@@ -202,6 +202,11 @@ def batch(
     job_timeout: float = typer.Option(
         STALL_TIMEOUT, "--job-timeout", min=1.0, metavar="SECONDS", help="Seconds without a frame finished by the helpers before they are replaced."
     ),
+    shard: Optional[str] = typer.Option(
+        None, "--shard", metavar="K/N", help="Run only the K-th of N disjoint shards of the scenes (by a hash of their names)."
+    ),
+    merge: bool = typer.Option(False, "--merge", help="Run nothing: one summary of the scenes' finished runs (e.g. of all shards)."),
+    as_json: bool = typer.Option(False, "--json", help="With --merge: print one JSON object."),
 ) -> None:
     """Relabel several scenes with one pool of workers; only changed frames are redone."""
     with user_errors():
@@ -209,6 +214,18 @@ def batch(
         from annotate_rgbd.pipeline.manifest import read_manifest
 
         scenes, manifest_jobs = read_manifest(manifest)
+        if shard is not None:
+            from annotate_rgbd.pipeline.shards import parse_shard, select_shard
+
+            k, n = parse_shard(shard)
+            scenes = select_shard(scenes, k, n)
+            typer.echo(f"shard {k}/{n}: {len(scenes)} scene{'s' if len(scenes) != 1 else ''}"
+                       + (f" ({', '.join(s.name for s in scenes)})" if scenes else ""))
+        if merge:
+            _merge_batch(scenes, as_json)
+            return
+        if not scenes:
+            return
         workers = jobs or manifest_jobs or default_workers()
         prepare_process(workers)  # the helpers' server imports Open3D while this process does
 
@@ -222,6 +239,25 @@ def batch(
             typer.echo(line)
         if any(o.error is not None or o.failed_frames for o in outcomes):
             raise typer.Exit(1)
+
+
+def _merge_batch(scenes: list, as_json: bool) -> None:
+    """Print one summary of the scenes' finished runs; exit 1 when a scene has none."""
+    from annotate_rgbd.report.stats import format_stats, format_stats_json, merge_stats, run_stats
+    from annotate_rgbd.review.review import read_report
+
+    found, missing = [], []
+    for scene in scenes:
+        try:
+            found.append(run_stats(read_report(scene.out)))
+        except InputError as exc:
+            missing.append(f"{scene.name}: {exc}")
+    merged = merge_stats(found)
+    typer.echo(format_stats_json(merged) if as_json else format_stats(merged))
+    for line in missing:
+        typer.echo(f"error: {line}", err=True)
+    if missing:
+        raise typer.Exit(1)
 
 
 @app.command()
