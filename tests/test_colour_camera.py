@@ -23,7 +23,7 @@ from annotate_rgbd.config.settings import Config, config_from_dict, config_to_di
 from annotate_rgbd.cvat.writer import write_cvat_video
 from annotate_rgbd.errors import InputError
 from annotate_rgbd.geometry.camera import Camera, depth_to_metres
-from annotate_rgbd.geometry.registration import colour_camera_from_mapping
+from annotate_rgbd.geometry.registration import colour_camera_from_mapping, sample_labels
 from annotate_rgbd.segment.frame import segment_frame
 from annotate_rgbd.segment.rasterize import draw_on_depth_grid
 from annotate_rgbd.synthetic import (
@@ -294,3 +294,15 @@ def test_poses_carry_keyframes_drawn_on_the_colour_camera(tmp_path):
         assert any(r["propagated"] for r in frame["kept"])
         ious.append(mean_iou(as_tracks, truth, kept))
     assert np.mean(ious) >= 0.95, ious
+
+
+def test_label_sampling_is_the_nearest_colour_pixel():
+    rng = np.random.default_rng(1)
+    labels = rng.integers(0, 200, (97, 131))
+    map_x = rng.uniform(-3, 134, (50, 60)).astype(np.float32)
+    map_y = rng.uniform(-3, 100, (50, 60)).astype(np.float32)
+    cols, rows = np.floor(map_x.astype(np.float64) + 0.5).astype(int), np.floor(map_y.astype(np.float64) + 0.5).astype(int)
+    inside = (cols >= 0) & (cols < 131) & (rows >= 0) & (rows < 97)
+    expected = np.where(inside, labels[rows.clip(0, 96), cols.clip(0, 130)], 0)
+    for dtype in (np.uint8, np.uint16, np.int32):  # OpenCV's remap, and numpy for ids past 65535
+        np.testing.assert_array_equal(sample_labels(labels.astype(dtype), map_x, map_y), expected)

@@ -24,6 +24,7 @@ import math
 from dataclasses import dataclass
 from typing import Any, Mapping
 
+import cv2
 import numpy as np
 
 from .camera import Camera
@@ -160,29 +161,49 @@ def colour_pixel_grid(depth_m: np.ndarray, depth_camera: Camera, colour: ColourC
     map_x, map_y : ndarray of float32, shape (H, W)
         Colour image coordinates (column, row; pixel centres at integers) of each depth pixel's
         point. Pixels without depth are placed at the frame's median valid depth (at infinity
-        when the frame has none); a point at or behind the colour camera's centre plane gets
-        ``-1`` (off the image).
+        when the frame has none: only the rotation moves them); a point at or behind the colour
+        camera's centre plane gets ``-1`` (off the image).
     """
     height, width = depth_m.shape
     valid = np.isfinite(depth_m)
-    fill = float(np.median(depth_m[valid])) if valid.any() else math.inf
-    z = np.where(valid, depth_m, np.float32(fill)).astype(np.float64)
-    ray_x = (np.arange(width, dtype=np.float64) - depth_camera.cx) / depth_camera.fx
-    ray_y = (np.arange(height, dtype=np.float64) - depth_camera.cy) / depth_camera.fy
-    rotation = np.asarray(colour.rotation, dtype=np.float64)
-    # X_colour = R @ (z * ray) + t, per component; at infinity only the rotation remains.
-    finite = np.isfinite(z)
-    scale = np.where(finite, z, 1.0)
-    shift = np.where(finite, 1.0, 0.0)
-    coords = []
-    for row, t in zip(rotation, colour.translation):
-        coords.append(scale * (row[0] * ray_x[None, :] + row[1] * ray_y[:, None] + row[2]) + shift * t)
-    x, y, zc = coords
-    in_front = zc > 0
+    fill = _typical_depth(depth_m, valid)
+    translation = np.asarray(colour.translation, dtype=np.float32)
+    if fill is None:  # no depth at all: every pixel at infinity, where only the rotation counts
+        z, translation = np.ones((height, width), dtype=np.float32), np.zeros(3, dtype=np.float32)
+    else:
+        z = np.where(valid, depth_m, np.float32(fill)).astype(np.float32, copy=False)
+    ray_x = ((np.arange(width) - depth_camera.cx) / depth_camera.fx).astype(np.float32)
+    ray_y = ((np.arange(height) - depth_camera.cy) / depth_camera.fy).astype(np.float32)
+    rotation = np.asarray(colour.rotation, dtype=np.float32)
+    # X_colour = R @ (z * ray) + t, one component at a time, in place (float32: 0.001 px at
+    # 10,000 px); then the colour pinhole projection.
+    x, y, zc = ((row[0] * ray_x)[None, :] + (row[1] * ray_y)[:, None] + row[2] for row in rotation)
+    for component, t in zip((x, y, zc), translation):
+        component *= z
+        component += t
+    behind = zc <= 0
     with np.errstate(divide="ignore", invalid="ignore"):
-        map_x = np.where(in_front, colour.fx * x / zc + colour.cx, -1.0).astype(np.float32)
-        map_y = np.where(in_front, colour.fy * y / zc + colour.cy, -1.0).astype(np.float32)
-    return map_x, map_y
+        np.divide(np.float32(1.0), zc, out=zc)
+    for component, focal, centre in ((x, colour.fx, colour.cx), (y, colour.fy, colour.cy)):
+        component *= zc
+        component *= np.float32(focal)
+        component += np.float32(centre)
+        component[behind] = -1.0
+    return x, y
+
+
+#: Pixels without depth are placed at the median depth of every SAMPLE_STEP-th row and column.
+SAMPLE_STEP = 4
+
+
+def _typical_depth(depth_m: np.ndarray, valid: np.ndarray) -> float | None:
+    """The median valid depth of a sparse grid of the frame (of all of it when the grid has
+    none); None without any valid depth."""
+    sample = depth_m[::SAMPLE_STEP, ::SAMPLE_STEP]
+    sample = sample[np.isfinite(sample)]
+    if sample.size == 0:
+        sample = depth_m[valid]
+    return float(np.median(sample)) if sample.size else None
 
 
 def sample_labels(colour_labels: np.ndarray, map_x: np.ndarray, map_y: np.ndarray) -> np.ndarray:
@@ -192,16 +213,18 @@ def sample_labels(colour_labels: np.ndarray, map_x: np.ndarray, map_y: np.ndarra
     ----------
     colour_labels : ndarray of int, shape (Hc, Wc)
         A label image on the colour grid.
-    map_x, map_y : ndarray of float, shape (H, W)
+    map_x, map_y : ndarray of float32, shape (H, W)
         :func:`colour_pixel_grid`.
 
     Returns
     -------
     ndarray, shape (H, W), dtype of ``colour_labels``
     """
+    if colour_labels.dtype in (np.uint8, np.uint16):  # OpenCV's nearest-neighbour remap (ties round up)
+        return cv2.remap(colour_labels, map_x, map_y, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
     rows_c, cols_c = colour_labels.shape
-    cols = np.rint(map_x)
-    rows = np.rint(map_y)
+    cols = np.floor(map_x + np.float32(0.5))
+    rows = np.floor(map_y + np.float32(0.5))
     inside = (cols >= 0) & (cols <= cols_c - 1) & (rows >= 0) & (rows <= rows_c - 1)
     labels = np.zeros(map_x.shape, dtype=colour_labels.dtype)
     labels[inside] = colour_labels[rows[inside].astype(np.intp), cols[inside].astype(np.intp)]
