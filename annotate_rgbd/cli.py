@@ -243,8 +243,8 @@ def batch(
 
 def _merge_batch(scenes: list, as_json: bool) -> None:
     """Print one summary of the scenes' finished runs; exit 1 when a scene has none."""
+    from annotate_rgbd.report.run_folder import read_report
     from annotate_rgbd.report.stats import format_stats, format_stats_json, merge_stats, run_stats
-    from annotate_rgbd.review.review import read_report
 
     found, missing = [], []
     for scene in scenes:

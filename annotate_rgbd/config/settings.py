@@ -9,14 +9,7 @@ that is not listed is an error, so a typo never goes unnoticed::
     cx = 318.6
     cy = 255.3
     depth_scale = 5000.0
-    [colour_camera]     # only when colour images are not registered to depth (another grid)
-    fx = 1170.2
-    fy = 1170.2
-    cx = 647.8
-    cy = 483.8
-    width = 1296
-    height = 968
-    extrinsic = [[1, 0, 0, 0.025], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]  # depth -> colour, m
+    [colour_camera]     # colour on a grid of its own: fx, fy, cx, cy, width, height, extrinsic
     [sequence]
     max_time_diff = 0.02
     [annotation]
@@ -334,6 +327,10 @@ def _read_source(source: str | Path) -> tuple[Path | str, str]:
     raise InputError(source, f"no such configuration file or preset (presets: {', '.join(names)})")
 
 
+#: Sections read by their own module (one-line ValueErrors naming the key).
+SECTION_READERS = {"noise": noise_settings_from_mapping, "colour_camera": colour_camera_from_mapping}
+
+
 def _build(values: Mapping[str, Any], origin: str | Path | None) -> Config:
     defaults = Config()
     sections = {f.name: getattr(defaults, f.name) for f in dataclasses.fields(Config)}
@@ -342,15 +339,9 @@ def _build(values: Mapping[str, Any], origin: str | Path | None) -> Config:
         if name in LIST_SECTIONS:
             built[name] = _build_list(name, LIST_SECTIONS[name], table, origin)
             continue
-        if name == "noise" and isinstance(table, Mapping):
-            try:
-                built[name] = noise_settings_from_mapping(table)
-            except ValueError as exc:
-                raise InputError(origin, str(exc)) from None
-            continue
-        if name == "colour_camera" and isinstance(table, Mapping):
-            try:
-                built[name] = colour_camera_from_mapping(table) if table else None
+        if name in SECTION_READERS and isinstance(table, Mapping):
+            try:  # an empty [colour_camera]: registered, as without one
+                built[name] = SECTION_READERS[name](table) if table or name == "noise" else None
             except ValueError as exc:
                 raise InputError(origin, str(exc)) from None
             continue

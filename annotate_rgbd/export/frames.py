@@ -20,9 +20,9 @@ from annotate_rgbd.errors import InputError
 from annotate_rgbd.geometry.lift import plane_to_world
 from annotate_rgbd.io.poses import DEFAULT_MAX_POSE_GAP, poses_at, read_trajectory
 from annotate_rgbd.io.sequence import read_image
-from annotate_rgbd.report.records import PlaneRecord, RunRecord
-from annotate_rgbd.review.review import read_report
-from .cvat import mask_plane_ids
+from annotate_rgbd.report.records import RunRecord
+from annotate_rgbd.report.run_folder import colour_table, mask_plane_ids, read_report
+from annotate_rgbd.segment.plane_record import PlaneRecord
 
 
 @dataclass(frozen=True)
@@ -95,10 +95,7 @@ class ExportRun:
         InputError
             The mask is missing, unreadable, or holds a colour that is no plane of the run.
         """
-        packed = {int(p.colour.lstrip("#"), 16): p.plane for p in self.report.planes}
-        keys = np.array(sorted(packed), dtype=np.int64)
-        values = np.array([packed[k] for k in keys], dtype=np.int64)
-        return mask_plane_ids(read_image(frame.mask, cv2.IMREAD_COLOR), keys, values, frame.mask)
+        return mask_plane_ids(read_image(frame.mask, cv2.IMREAD_COLOR), *colour_table(self.report), frame.mask)
 
 
 def read_run(run_dir: str | Path, poses: str | Path | None = None) -> ExportRun:
