@@ -269,6 +269,11 @@ def test_cvat2mask_with_a_colour_camera(tmp_path):
     assert len(masks) == len(overlays) == 3
     assert cv2.imread(str(masks[0])).shape[:2] == cv2.imread(str(overlays[0])).shape[:2] == (240, 320)
     assert all(f["kept"] for f in report["frames"])
+    # review draws them again from the run's records: the same overlays as the frames' jobs drew.
+    made = {p.name: p.read_bytes() for p in overlays}
+    result = runner.invoke(app, ["review", str(out), "-j", "1"])
+    assert result.exit_code == 0, result.output
+    assert {p.name: p.read_bytes() for p in (out / "overlays").iterdir()} == made
 
 
 def test_poses_carry_keyframes_drawn_on_the_colour_camera(tmp_path):

@@ -84,6 +84,7 @@ def snapshot(folder: Path) -> dict[str, bytes]:
     return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
 
 
+@pytest.mark.slow
 def test_shards_as_processes_make_the_unsharded_files(tmp_path):
     n = 3
     shards = {k: [s for s in SETTINGS if shard_of(s, n) == k] for k in range(1, n + 1)}
