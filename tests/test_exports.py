@@ -147,6 +147,7 @@ def test_frame_planes_without_poses(run, tmp_path):
     assert result.posed == 0
     entry = json.loads(next((tmp_path / "f" / "frames").iterdir()).read_text())
     assert entry["camera_to_world"] is None and all(p["world"] is None for p in entry["planes"])
+    assert "d > 0" in entry["convention"]
     with pytest.raises(InputError, match="give the camera trajectory with --poses"):
         export_run(run / "flat", "planercnn", tmp_path / "p")
     # A trajectory given to the export puts them in the world frame.

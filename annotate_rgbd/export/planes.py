@@ -117,6 +117,7 @@ def write_frame_planes(run: ExportRun, out: Path) -> list[Path]:
             "rgb": frame.rgb,
             "depth_timestamp": frame.timestamp,
             "camera_to_world": None if frame.pose is None else _matrix(*frame.pose),
+            "convention": EQUATION_CONVENTION,
             "planes": [
                 {
                     "plane": p.plane,
