@@ -211,6 +211,11 @@ def batch(
     job_timeout: float = typer.Option(
         STALL_TIMEOUT, "--job-timeout", min=1.0, metavar="SECONDS", help="Seconds without a frame finished by the helpers before they are replaced."
     ),
+    shard: Optional[str] = typer.Option(
+        None, "--shard", metavar="K/N", help="Run only the K-th of N disjoint shards of the scenes (by a hash of their names)."
+    ),
+    merge: bool = typer.Option(False, "--merge", help="Run nothing: one summary of the scenes' finished runs (e.g. of all shards)."),
+    as_json: bool = typer.Option(False, "--json", help="With --merge: print one JSON object."),
 ) -> None:
     """Relabel several scenes with one pool of workers; only changed frames are redone."""
     with user_errors():
@@ -218,6 +223,18 @@ def batch(
         from annotate_rgbd.pipeline.manifest import read_manifest
 
         scenes, manifest_jobs = read_manifest(manifest)
+        if shard is not None:
+            from annotate_rgbd.pipeline.shards import parse_shard, select_shard
+
+            k, n = parse_shard(shard)
+            scenes = select_shard(scenes, k, n)
+            typer.echo(f"shard {k}/{n}: {len(scenes)} scene{'s' if len(scenes) != 1 else ''}"
+                       + (f" ({', '.join(s.name for s in scenes)})" if scenes else ""))
+        if merge:
+            _merge_batch(scenes, as_json)
+            return
+        if not scenes:
+            return
         workers = jobs or manifest_jobs or default_workers()
         prepare_process(workers)  # the helpers' server imports Open3D while this process does
 
@@ -231,6 +248,25 @@ def batch(
             typer.echo(line)
         if any(o.error is not None or o.failed_frames for o in outcomes):
             raise typer.Exit(1)
+
+
+def _merge_batch(scenes: list, as_json: bool) -> None:
+    """Print one summary of the scenes' finished runs; exit 1 when a scene has none."""
+    from annotate_rgbd.report.run_folder import read_report
+    from annotate_rgbd.report.stats import format_stats, format_stats_json, merge_stats, run_stats
+
+    found, missing = [], []
+    for scene in scenes:
+        try:
+            found.append(run_stats(read_report(scene.out)))
+        except InputError as exc:
+            missing.append(f"{scene.name}: {exc}")
+    merged = merge_stats(found)
+    typer.echo(format_stats_json(merged) if as_json else format_stats(merged))
+    for line in missing:
+        typer.echo(f"error: {line}", err=True)
+    if missing:
+        raise typer.Exit(1)
 
 
 @app.command()
@@ -398,3 +434,22 @@ def export_cvat_command(
         count = export_cvat(run_dir, xml)
         # Into standard output the XML goes alone: the summary to standard error.
         typer.echo(f"{count} plane tracks: {xml}", err=names_stdout(xml))
+
+
+@app.command("export")
+def export_command(
+    run_dir: Path = typer.Argument(..., metavar="RUN_DIR", help="Output folder of a finished cvat2mask run."),
+    out: Path = typer.Argument(..., metavar="OUT_DIR", help="The export folder (empty, or an earlier export's)."),
+    fmt: str = typer.Option(..., "--format", "-f", metavar="FORMAT", help="planercnn, planes, evops or coco."),
+    poses: Optional[Path] = typer.Option(
+        None, "--poses", metavar="FILE", help="Camera trajectory (TUM format) for world-frame planes; default: the run's."
+    ),
+) -> None:
+    """Export a run's plane ground truth: PlaneRCNN layout, per-frame plane parameters, EVOPS labels, COCO."""
+    from annotate_rgbd.export import export_run
+
+    with user_errors():
+        result = export_run(run_dir, fmt, out, poses)
+        for name in result.removed:
+            typer.echo(f"removed {name} (an earlier export's)")
+        typer.echo(f"{fmt}: {result.frames} frames ({result.posed} with a pose), {len(result.files)} files in {out}")

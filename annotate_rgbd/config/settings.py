@@ -9,6 +9,7 @@ that is not listed is an error, so a typo never goes unnoticed::
     cx = 318.6
     cy = 255.3
     depth_scale = 5000.0
+    [colour_camera]     # colour on a grid of its own: fx, fy, cx, cy, width, height, extrinsic
     [sequence]
     max_time_diff = 0.02
     [annotation]
@@ -68,6 +69,7 @@ from annotate_rgbd.geometry.camera import Camera
 from annotate_rgbd.errors import InputError
 from annotate_rgbd.io.bounded import read_input
 from annotate_rgbd.geometry.noise import NoiseSettings, noise_settings_from_mapping
+from annotate_rgbd.geometry.registration import ColourCamera, colour_camera_from_mapping
 from annotate_rgbd.io.poses import DEFAULT_MAX_POSE_GAP
 from .evaluate import EvaluateConfig
 from .masks import FilterConfig, PropagateConfig, RansacConfig, RefineConfig, range_checks
@@ -181,9 +183,11 @@ DEFAULT_CAMERA = Camera(fx=525.0, fy=525.0, cx=319.5, cy=239.5, depth_scale=5000
 @dataclass(frozen=True)
 class Config:
     """Everything the commands depend on besides their input files (``[detect]``, ``[propose]``
-    and ``[link]`` are ``propose``'s alone, ``[evaluate]`` is ``evaluate``'s)."""
+    and ``[link]`` are ``propose``'s alone, ``[evaluate]`` is ``evaluate``'s; ``colour_camera``:
+    None for registered colour and depth, :mod:`annotate_rgbd.geometry.registration`)."""
 
     camera: Camera = DEFAULT_CAMERA
+    colour_camera: ColourCamera | None = None
     sequence: SequenceConfig = field(default_factory=SequenceConfig)
     annotation: AnnotationConfig = field(default_factory=AnnotationConfig)
     filter: FilterConfig = field(default_factory=FilterConfig)
@@ -259,8 +263,14 @@ def config_to_dict(config: Config, leave_out: Iterable[str] = ()) -> dict[str, A
         return value
 
     leave_out = set(leave_out)
-    return {f.name: plain(getattr(config, f.name) if f.name == "noise" else dataclasses.asdict(config)[f.name])
-            for f in dataclasses.fields(config) if f.name not in leave_out}
+    values = {}
+    for f in dataclasses.fields(config):
+        value = getattr(config, f.name)
+        if f.name in leave_out or value is None:  # no colour camera: registered data, and its reports, unchanged
+            continue
+        values[f.name] = value.to_mapping() if isinstance(value, ColourCamera) else plain(
+            value if f.name == "noise" else dataclasses.asdict(config)[f.name])
+    return values
 
 
 def load_config(source: str | Path | None = None, overrides: Mapping[str, Any] | None = None) -> Config:
@@ -322,6 +332,10 @@ def _read_source(source: str | Path) -> tuple[Path | str, str]:
     raise InputError(source, f"no such configuration file or preset (presets: {', '.join(names)})")
 
 
+#: Sections read by their own module (one-line ValueErrors naming the key).
+SECTION_READERS = {"noise": noise_settings_from_mapping, "colour_camera": colour_camera_from_mapping}
+
+
 def _build(values: Mapping[str, Any], origin: str | Path | None) -> Config:
     defaults = Config()
     sections = {f.name: getattr(defaults, f.name) for f in dataclasses.fields(Config)}
@@ -330,9 +344,9 @@ def _build(values: Mapping[str, Any], origin: str | Path | None) -> Config:
         if name in LIST_SECTIONS:
             built[name] = _build_list(name, LIST_SECTIONS[name], table, origin)
             continue
-        if name == "noise" and isinstance(table, Mapping):
-            try:
-                built[name] = noise_settings_from_mapping(table)
+        if name in SECTION_READERS and isinstance(table, Mapping):
+            try:  # an empty [colour_camera]: registered, as without one
+                built[name] = SECTION_READERS[name](table) if table or name == "noise" else None
             except ValueError as exc:
                 raise InputError(origin, str(exc)) from None
             continue
@@ -450,8 +464,8 @@ MAX_INT_SETTING = 2**31 - 1
 def _check_ranges(config: Config, origin: str | Path | None) -> None:
     for section in dataclasses.fields(config):
         value = getattr(config, section.name)
-        if not dataclasses.is_dataclass(value) or isinstance(value, NoiseSettings):
-            continue  # lists of tables are checked per entry; the noise section by its reader
+        if not dataclasses.is_dataclass(value) or isinstance(value, (NoiseSettings, ColourCamera)):
+            continue  # lists of tables are checked per entry; noise and colour camera by their readers
         for key, number in dataclasses.asdict(value).items():
             if isinstance(number, float) and not math.isfinite(number):
                 raise InputError(origin, f"'{section.name}.{key}' must be a finite number, got {number!r}")

@@ -1,1 +1,161 @@
-"""Exports of a finished run for other tools (CVAT for corrections)."""
+"""Exports of a finished run for other tools: CVAT for corrections (:mod:`.cvat`), and plane
+ground truth in the layouts plane-segmentation codebases read (:func:`export_run`):
+
+``planercnn``
+    PlaneRCNN's ScanNet layout: ``planes.npy`` (world frame) and ``segmentation/<frame>.png``.
+``planes``
+    ``frames/<frame>.json``: every kept plane's equation in the camera and the world frame.
+``evops``
+    ``labels/<frame>.npy``: per-point label arrays that the ``evops`` package scores directly.
+``coco``
+    ``annotations.json``: COCO instances with PlaneRecNet's ``plane_paras``.
+
+Every export also writes ``export.json``: the format, the run, the trajectory, the conventions
+(frames, sign of the offset, units) and the files written. An export folder holds one export: a
+folder with files no export wrote is refused, and a re-export removes the files of the earlier
+export that it does not write again.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+from annotate_rgbd import __version__
+from annotate_rgbd.errors import InputError, OutputError
+from annotate_rgbd.io.outdir import check_not_link, read_bounded
+from annotate_rgbd.io.writer import prepare_output, write_json
+from .coco import write_coco
+from .evops import write_evops
+from .frames import read_run
+from .planercnn import write_planercnn
+from .planes import EQUATION_CONVENTION, write_frame_planes
+
+FORMATS = {"planercnn": write_planercnn, "planes": write_frame_planes, "evops": write_evops, "coco": write_coco}
+#: Folders the formats write into, inside the export folder.
+SUBFOLDERS = ("segmentation", "frames", "labels")
+RECORD = "export.json"
+#: What each format's files mean, stated in ``export.json``.
+DESCRIPTIONS = {
+    "planercnn": "planes.npy: N x 3 float64, row k = plane k + 1 of planes.csv, normal * offset with normal . X = "
+                 "offset (the plane's point nearest the origin), world frame, metres; 0 0 0 for a plane never kept "
+                 "on a frame with a pose. segmentation/<frame>.png: 24-bit RGB on the depth grid, "
+                 "(R * 65536 + G * 256 + B) // 100 - 1 = row in planes.npy, -1 = no plane",
+    "planes": "frames/<frame>.json: per kept plane its id (planes.csv), label, mask pixels and equation in the camera "
+              "frame ('camera') and, with a pose, the world frame ('world'); camera_to_world: the frame's 4 x 4 pose",
+    "evops": "labels/<frame>.npy: int32, shape (H * W,), the depth image's pixels row-major (point i = pixel "
+             "(i // W, i % W)); plane ids of planes.csv, 0 = unsegmented",
+    "coco": "annotations.json: COCO instances on the depth grid (uncompressed RLE), plane_paras [nx, ny, nz, offset]: "
+            "camera frame, metres, normal away from the camera, normal . X = offset > 0",
+}
+
+
+@dataclass(frozen=True)
+class ExportResult:
+    """What :func:`export_run` wrote.
+
+    Parameters
+    ----------
+    files : list of Path
+        The files written (``export.json`` last).
+    frames : int
+        Written frames of the run.
+    posed : int
+        Of these, frames with a camera pose.
+    removed : list of str
+        Files of an earlier export in the folder that this one did not write again, removed.
+    """
+
+    files: list[Path]
+    frames: int
+    posed: int
+    removed: list[str]
+
+
+def export_run(run_dir: str | Path, fmt: str, out: str | Path, poses: str | Path | None = None) -> ExportResult:
+    """Export a finished run's plane ground truth.
+
+    Parameters
+    ----------
+    run_dir : str or Path
+        Output folder of a finished ``cvat2mask`` run.
+    fmt : str
+        One of :data:`FORMATS`.
+    out : str or Path
+        The export folder (created; empty, or the folder of an earlier export).
+    poses : str or Path, optional
+        A camera trajectory (TUM format) for world-frame planes; default: the run's.
+
+    Returns
+    -------
+    ExportResult
+
+    Raises
+    ------
+    InputError
+        Unknown format, no report, a missing or unreadable mask, no pose for a world-frame layout.
+    OutputError
+        The folder holds files no export wrote, is the run's folder, or cannot be written.
+    """
+    if fmt not in FORMATS:
+        raise InputError(None, f"unknown export format {fmt!r} (formats: {', '.join(FORMATS)})")
+    run = read_run(run_dir, poses)
+    out = Path(out)
+    if out.resolve() == run.run_dir.resolve():
+        raise OutputError(out, "is the run's folder: export into a folder of its own")
+    previous = _previous_files(out)
+    prepare_output(out)
+    for name in SUBFOLDERS + (RECORD,):
+        check_not_link(out / name)
+    record = {"tool": {"name": "annotate-rgbd", "version": __version__}, "format": fmt, "complete": False,
+              "files": sorted(previous)}
+    write_json(out / RECORD, record)  # an interrupted export's folder is still recognised as one
+    files = FORMATS[fmt](run, out)
+    names = {str(path.relative_to(out)) for path in files}
+    removed = _remove(out, previous - names)
+    record.update(
+        complete=True, run=str(run.run_dir.resolve()), trajectory=run.trajectory,
+        conventions={"files": DESCRIPTIONS[fmt], "plane_equation": EQUATION_CONVENTION},
+        frames=len(run.frames), frames_with_pose=sum(f.pose is not None for f in run.frames), files=sorted(names),
+    )
+    write_json(out / RECORD, record)
+    return ExportResult(files + [out / RECORD], len(run.frames), record["frames_with_pose"], removed)
+
+
+def _previous_files(out: Path) -> set[str]:
+    """The files an earlier export recorded in ``out`` (empty for a new or empty folder).
+
+    Raises
+    ------
+    OutputError
+        The folder holds files and no export record.
+    """
+    if not out.is_dir() or not any(out.iterdir()):
+        return set()
+    try:
+        record = json.loads(read_bounded(out / RECORD, 64 << 20).decode("utf-8"))
+        files = record["files"]
+        if record.get("tool", {}).get("name") != "annotate-rgbd" or not all(isinstance(f, str) for f in files):
+            raise ValueError
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        raise OutputError(out, f"holds files that no export wrote (no {RECORD}): export into an empty folder") from None
+    return {f for f in files if _inside(f)}
+
+
+def _inside(name: str) -> bool:
+    """Whether a recorded name stays inside the export folder (a relative path without '..')."""
+    path = Path(name)
+    return not path.is_absolute() and ".." not in path.parts and name not in ("", ".")
+
+
+def _remove(out: Path, stale: set[str]) -> list[str]:
+    removed = []
+    for name in sorted(stale):
+        path = out / name
+        if os.path.islink(path.parent) or not path.is_file() or os.path.islink(path):
+            continue
+        path.unlink()
+        removed.append(name)
+    return removed

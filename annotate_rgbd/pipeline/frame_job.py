@@ -14,6 +14,7 @@ import numpy as np
 from annotate_rgbd.annotation.model import Shape
 from annotate_rgbd.config.settings import Config
 from annotate_rgbd.errors import InputError
+from annotate_rgbd.geometry.registration import ColourCamera
 from annotate_rgbd.io.outdir import data_digest, file_digest
 from annotate_rgbd.report.palette import colourize, id_image
 from annotate_rgbd.report.records import MaskRecord
@@ -158,14 +159,23 @@ def segment_job(job: FrameJob, config: Config, depth_file: np.ndarray | None = N
         annotated image.
     """
     depth_raw = read_depth(job.depth_path, depth_file)
-    check_size(job, depth_raw.shape)
+    check_size(job, depth_raw.shape, config.colour_camera)
     expected = {plane: np.array(equation) for plane, equation in job.expected_planes}
     return segment_frame(depth_raw, job.shapes, config, job.propagated or (), expected)
 
 
-def check_size(job: FrameJob, shape: tuple[int, ...]) -> None:
-    """Raise :class:`SizeMismatch` when a depth image of ``shape`` (rows, columns) does not have
-    the size of the images the job's annotation part was drawn on."""
+def check_size(job: FrameJob, shape: tuple[int, ...], colour: ColourCamera | None = None) -> None:
+    """Raise :class:`SizeMismatch` when a depth image of ``shape`` (rows, columns) -- or the
+    configured colour camera's images, when there is one -- does not have the size of the images
+    the job's annotation part was drawn on."""
+    if colour is not None:
+        if job.image_size is not None and job.image_size != (colour.width, colour.height):
+            raise SizeMismatch(
+                job.depth_path,
+                f"[colour_camera] images are {colour.width}x{colour.height} but {Path(job.part_path).name} "
+                f"annotates {job.image_size[0]}x{job.image_size[1]} images",
+            )
+        return
     if job.image_size is not None and tuple(shape[:2]) != (job.image_size[1], job.image_size[0]):
         raise SizeMismatch(
             job.depth_path,

@@ -424,11 +424,16 @@ def check_first_frames(jobs: SequenceType[tuple[int, FrameJob]], config: Config)
         except InputError:
             continue  # reported with its frame
         height, width = depth.shape
-        check_size(job, (height, width))
+        check_size(job, (height, width), config.colour_camera)
         medians.append(median_raw_depth(depth))
         problem = camera_problem(config.camera.cx, config.camera.cy, width, height)
         if number == 0 and problem is not None:
             warnings.append(f"{job.depth_path}: {problem}")
+        colour = config.colour_camera
+        problem = None if colour is None else camera_problem(colour.cx, colour.cy, colour.width, colour.height)
+        if number == 0 and problem is not None:
+            warnings.append(f"[colour_camera]: the principal point ({colour.cx:g}, {colour.cy:g}) is far from the centre "
+                            f"of the {colour.width}x{colour.height} colour images: intrinsics for another resolution?")
     for _, job in list(jobs)[1:FIRST_FRAMES]:  # a few frames more: one frame may show only a wall
         try:
             medians.append(median_raw_depth(read_depth(job.depth_path)))

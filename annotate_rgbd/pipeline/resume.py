@@ -65,12 +65,13 @@ MASK_CODE = (
 #: Modules the frame job imports whose code cannot change a frame's files: the package's and
 #: subpackages' ``__init__`` (re-exports; ``__version__`` is hashed by value), the settings'
 #: definitions and TOML reader (their values are hashed; propose's and evaluate's are not used),
-#: errors, the bounded file opener and the output folder's helpers (file digests for the
+#: errors, the bounded file opener, reader and input limits, the output folder's helpers (file digests for the
 #: up-to-date check), camera poses and the shape record (hashed as data).
 NOT_MASK_CODE = (
     "__init__.py", "config/__init__.py", "io/__init__.py", "pipeline/__init__.py", "report/__init__.py",
     "review/__init__.py", "annotation/__init__.py", "config/masks.py", "config/toml_input.py", "errors.py",
     "io/outdir.py", "io/poses.py", "annotation/model.py", "config/evaluate.py", "config/propose.py", "io/files.py",
+    "io/bounded.py", "io/limits.py",
 )
 
 
@@ -122,6 +123,7 @@ def _mask_settings(config: Config, algorithm: str) -> bytes:
     or part placement, whose effect is in the shapes' plane ids)."""
     settings = config_to_dict(config)
     sections = ("camera", "filter", "ransac", "noise", "refine", "propagate")
+    sections += ("colour_camera",) if config.colour_camera else ()
     return json.dumps([__version__, algorithm, *(settings[key] for key in sections)]).encode()
 
 

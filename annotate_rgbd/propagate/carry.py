@@ -12,6 +12,10 @@ pixels whose depth lies on the plane in that frame, so occluders (nearer than th
 out. The lifted planes of one track must agree: a track whose keyframes disagree (two surfaces
 under one track, or wrong poses) is listed for review.
 
+With a colour camera of its own (``[colour_camera]``), the trajectory gives the depth camera's
+poses: outlines are lifted and projected with the colour camera's intrinsics and its pose
+(:func:`rgb_view`), so that carried shapes stay in colour image coordinates like drawn ones.
+
 Reading depth for the fits is the only I/O here (:func:`lift_tracks`); projecting is pure
 (:func:`propagated_shapes`).
 """
@@ -24,14 +28,15 @@ from pathlib import Path
 import numpy as np
 
 from annotate_rgbd.annotation.model import Shape, Track
-from annotate_rgbd.geometry.camera import backproject, depth_to_metres
+from annotate_rgbd.geometry.camera import Camera, backproject, depth_to_metres
 from annotate_rgbd.config.settings import Config, PropagateConfig
 from annotate_rgbd.errors import InputError
 from annotate_rgbd.geometry.lift import (
     lift_polygon, plane_agreement, plane_to_camera, plane_to_world, project_polygon,
 )
+from annotate_rgbd.geometry.registration import colour_pose
 from annotate_rgbd.io.poses import FramePoses
-from annotate_rgbd.segment.rasterize import rasterize_frame
+from annotate_rgbd.segment.rasterize import draw_on_depth_grid
 from annotate_rgbd.segment.ransac import fit_plane
 from annotate_rgbd.segment.refine import grid_pixels
 from annotate_rgbd.io.sequence import read_depth
@@ -160,7 +165,7 @@ def keyframe_planes(
         For each wanted key: the world plane and the number of valid depth pixels it was
         fitted to, or why there is none.
     size : (int, int)
-        (width, height) of the depth frame.
+        (width, height) of the keyframe image: the depth frame's, or the colour camera's.
 
     Raises
     ------
@@ -168,7 +173,7 @@ def keyframe_planes(
         The depth frame is unreadable.
     """
     depth_m = depth_to_metres(read_depth(depth_path), config.camera.depth_scale)
-    drawn = rasterize_frame(shapes, *depth_m.shape)
+    drawn, _ = draw_on_depth_grid(shapes, depth_m, config.camera, config.colour_camera)
     on_valid = np.where(np.isfinite(depth_m), drawn, 0)
     planes: dict[int, tuple[np.ndarray, int] | str] = {}
     for key in wanted:
@@ -179,7 +184,35 @@ def keyframe_planes(
         rows, cols = grid_pixels(on_valid, key, valid, config.ransac.max_points)
         fit = fit_plane(backproject(cols, rows, depth_m[rows, cols], config.camera), config.ransac, config.inlier_band())
         planes[key] = (plane_to_world(fit.equation, *depth_pose), valid)
-    return planes, (depth_m.shape[1], depth_m.shape[0])
+    colour = config.colour_camera
+    return planes, (depth_m.shape[1], depth_m.shape[0]) if colour is None else (colour.width, colour.height)
+
+
+def rgb_view(config: Config, pose: tuple[np.ndarray, np.ndarray]) -> tuple[Camera, tuple[np.ndarray, np.ndarray]]:
+    """The camera the labeller's shapes are drawn in, and its pose, for a depth camera pose.
+
+    Parameters
+    ----------
+    config : Config
+    pose : (ndarray (3, 3), ndarray (3,))
+        The depth camera's camera-to-world pose.
+
+    Returns
+    -------
+    camera : Camera
+        ``config.camera`` when colour and depth are registered, else the colour intrinsics.
+    pose : (ndarray (3, 3), ndarray (3,))
+        The colour camera's camera-to-world pose (:func:`annotate_rgbd.geometry.registration.colour_pose`).
+    """
+    colour = config.colour_camera
+    if colour is None:
+        return config.camera, pose
+    return colour.intrinsics, colour_pose(*pose, colour)
+
+
+def rgb_camera(config: Config) -> Camera:
+    """The intrinsics of the camera the labeller's shapes are drawn in (:func:`rgb_view`)."""
+    return config.camera if config.colour_camera is None else config.colour_camera.intrinsics
 
 
 def outline_of(shape: Shape) -> np.ndarray | None:
@@ -258,8 +291,9 @@ def propagated_shapes(lift: TrackLift, frame: int, config: Config, pose: tuple[n
     # part of the plane in view when it was drawn, and their union is the plane as the labeller
     # saw it (measured on benchmarks/bench_propagate.py, keyframe every 30th frame: mean IoU
     # 0.71 with the two neighbouring keyframes, 0.87 with all).
+    camera, pose = rgb_view(config, pose)
     for keyframe in own or lift.keyframes:
-        polygon = project_polygon(keyframe.world, config.camera, *pose)
+        polygon = project_polygon(keyframe.world, camera, *pose)
         if len(polygon) >= 3 and np.isfinite(polygon).all():
             shapes.append(Shape("polygon", polygon, z_order=keyframe.z_order))
     if not own:
@@ -267,7 +301,7 @@ def propagated_shapes(lift: TrackLift, frame: int, config: Config, pose: tuple[n
         # these only take pixels no other shape claims (and refinement keeps the plane's own).
         for keyframe in lift.keyframes:
             for quad in keyframe.beyond:
-                polygon = project_polygon(quad, config.camera, *pose)
+                polygon = project_polygon(quad, camera, *pose)
                 if len(polygon) >= 3 and np.isfinite(polygon).all():
                     shapes.append(Shape("polygon", polygon, z_order=BEYOND_Z_ORDER))
     return shapes
@@ -323,10 +357,11 @@ def _lift_beyond(outline: np.ndarray, image_size, plane_camera: np.ndarray, pose
     """:func:`beyond_the_border` lifted onto the plane: each quad shortened (halved, a few times)
     until its far corners meet the plane in front of the camera within the distance rule."""
     farthest = 1.5 * config.filter.max_mean_distance
+    camera = rgb_camera(config)
     lifted = []
     for quad in beyond_the_border(outline, image_size, config.propagate.border_margin, config.propagate.beyond_reach):
         for _ in range(4):
-            world = lift_polygon(quad, plane_camera, config.camera, *pose)
+            world = lift_polygon(quad, plane_camera, camera, *pose)
             depth = (world.world - pose[1]) @ pose[0][:, 2] if world.ok else None
             if world.ok and (depth <= farthest).all():
                 lifted.append(world.world)
@@ -397,6 +432,7 @@ def lift_tracks(
                 continue
             depth_pose = (depth_poses.rotations[depth], depth_poses.translations[depth])
             rgb_pose = (rgb_poses.rotations[rgb], rgb_poses.translations[rgb]) if rgb_poses.ok[rgb] else depth_pose
+            rgb_pose = rgb_view(config, rgb_pose)[1]  # the colour camera's, when it has its own
             shapes = [(i + 1, t.shapes[frame]) for i, t in enumerate(tracks) if frame in t.shapes]
             try:
                 planes, sizes[frame] = keyframe_planes(shapes, [i + 1 for i in wanted], depth_files[depth], depth_pose, config)
@@ -414,7 +450,8 @@ def _lift_onto_planes(lift: TrackLift, track: Track, fitted: list, config: Confi
     """Lift a track's fitted keyframes onto their own plane, or the track's consensus plane
     (``sizes``: CVAT frame -> (width, height) of the keyframe image, to carry outlines past it)."""
     own = [(frame, outline, pose, result) for frame, outline, pose, result in fitted if not isinstance(result, str)]
-    lifted_own = [lift_polygon(o, plane_to_camera(r[0], *p), config.camera, *p) for _, o, p, r in own]
+    camera = rgb_camera(config)
+    lifted_own = [lift_polygon(o, plane_to_camera(r[0], *p), camera, *p) for _, o, p, r in own]
     usable = [(entry, lifted) for entry, lifted in zip(own, lifted_own) if lifted.ok]
     consensus, agree = None, []
     if usable:
@@ -429,7 +466,7 @@ def _lift_onto_planes(lift: TrackLift, track: Track, fitted: list, config: Confi
         if target is None:
             lift.failed.append((frame, result if isinstance(result, str) else "the outline cannot be lifted onto its plane"))
             continue
-        lifted = lift_polygon(outline, plane_to_camera(target, *pose), config.camera, *pose)
+        lifted = lift_polygon(outline, plane_to_camera(target, *pose), camera, *pose)
         if not lifted.ok:
             lift.failed.append((frame, f"the outline cannot be lifted onto its plane ({lifted.reason})"))
             continue

@@ -9,6 +9,7 @@ planes, the dropped planes by reason and the mean RANSAC inlier ratio of the kep
 from __future__ import annotations
 
 import json
+from collections import Counter
 
 from .records import RunRecord, RunSummary, summarize
 
@@ -49,6 +50,51 @@ def run_stats(report: RunRecord) -> dict:
     }
 
 
+def merge_stats(scenes: list[dict]) -> dict:
+    """One summary of several runs (the scenes of a batch, e.g. run as shards).
+
+    Parameters
+    ----------
+    scenes : list of dict
+        :func:`run_stats` of each run.
+
+    Returns
+    -------
+    dict
+        The keys of :func:`run_stats`: counts summed over the runs (distinct and annotated planes
+        per run: plane ids are a run's own), ``planes_per_observation`` and
+        ``mean_inlier_ratio`` over all of them (the ratio weighted by each run's kept planes),
+        ``tracks_to_review`` prefixed by the run's position (``2:part.xml:5``); and ``scenes``.
+    """
+    def total(key: str) -> int:
+        return sum(s[key] for s in scenes)
+
+    def by_reason(key: str) -> dict:
+        counts: Counter = Counter()
+        for s in scenes:
+            counts.update(s[key])
+        return dict(sorted(counts.items()))
+
+    written, kept = total("observations"), total("total_planes")
+    rated = [(s["mean_inlier_ratio"], s["total_planes"]) for s in scenes if s["mean_inlier_ratio"] is not None]
+    weight = sum(w for _, w in rated)
+    return {
+        "scenes": len(scenes),
+        "observations": written,
+        "total_planes": kept,
+        "planes_per_observation": round(kept / written, 3) if written else 0.0,
+        "distinct_planes": total("distinct_planes"),
+        "planes_annotated": total("planes_annotated"),
+        "depth_frames": total("depth_frames"),
+        "frames_skipped": by_reason("frames_skipped"),
+        "frames_failed": total("frames_failed"),
+        "planes_dropped": total("planes_dropped"),
+        "dropped_by_reason": by_reason("dropped_by_reason"),
+        "mean_inlier_ratio": round(sum(r * w for r, w in rated) / weight, 4) if weight else None,
+        "tracks_to_review": [f"{i}:{t}" for i, s in enumerate(scenes, start=1) for t in s["tracks_to_review"]],
+    }
+
+
 def format_stats(stats: dict) -> str:
     """The summary as an aligned two-column table for the terminal.
 
@@ -61,7 +107,8 @@ def format_stats(stats: dict) -> str:
     -------
     str
     """
-    rows = [
+    rows = [("scenes", stats["scenes"])] if "scenes" in stats else []
+    rows += [
         ("observations (masks)", stats["observations"]),
         ("total planes", stats["total_planes"]),
         ("planes per observation", f"{stats['planes_per_observation']:.2f}"),

@@ -145,7 +145,9 @@ def overlay_for_frame(rgb_path: Path, result: FrameResult, colours: np.ndarray) 
     Returns
     -------
     ndarray of uint8, shape (H, W, 3)
-        The overlay on the depth grid (an RGB image of another size is resized to it).
+        The overlay on the depth grid: with a colour camera of its own (``result.colour_grid``)
+        the RGB image is resampled where each depth pixel lies in it; else an RGB image of
+        another size is resized to it.
 
     Raises
     ------
@@ -154,7 +156,9 @@ def overlay_for_frame(rgb_path: Path, result: FrameResult, colours: np.ndarray) 
     """
     rgb = read_rgb(rgb_path)
     height, width = result.labels.shape
-    if rgb.shape[:2] != (height, width):
+    if result.colour_grid is not None:
+        rgb = cv2.remap(rgb, *result.colour_grid, interpolation=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+    elif rgb.shape[:2] != (height, width):
         rgb = cv2.resize(rgb, (width, height), interpolation=cv2.INTER_AREA)
     return render_overlay(rgb, result, colours)
 

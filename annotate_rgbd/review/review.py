@@ -24,16 +24,19 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from annotate_rgbd.config.settings import config_from_dict
 from annotate_rgbd.errors import InputError
+from annotate_rgbd.geometry.camera import Camera, depth_to_metres
+from annotate_rgbd.geometry.registration import ColourCamera
 from annotate_rgbd.io.outdir import OVERLAYS, REVIEW_RECORD, OutputFolder, file_digest, read_review_record
-from annotate_rgbd.io.sequence import read_image, read_rgb
+from annotate_rgbd.io.sequence import read_depth, read_image, read_rgb
 from annotate_rgbd.io.writer import write_bytes_atomic, write_png
 from annotate_rgbd.pool import run_jobs, start_helpers
 from annotate_rgbd.report.records import FrameRecord, RunRecord
 from annotate_rgbd.segment.plane_record import PlaneRecord
 from annotate_rgbd.report.run_folder import colour_table, mask_plane_ids, read_drawn_shapes, read_report
 from annotate_rgbd.segment.frame import FrameResult
-from annotate_rgbd.segment.rasterize import rasterize_frame
+from annotate_rgbd.segment.rasterize import draw_on_depth_grid, rasterize_frame
 from .overlay import contact_sheet, overlay_for_frame
 from .page import render_review_page
 
@@ -122,9 +125,14 @@ def write_review(
         shapes = read_drawn_shapes(out_dir, {f.mask for f in written})
         keys, values = colour_table(report)
         colours = plane_colour_rows(report)
+        registration = None
+        if "colour_camera" in report.config:  # shapes drawn on a colour grid of its own
+            config = config_from_dict(report.config, out_dir / "report.json")
+            registration = (config.camera, config.colour_camera)
         tasks = [
             OverlayTask(Path(report.sequence) / f.rgb, out_dir / f.mask, tuple(shapes[f.mask]),
-                        tuple(f.kept), tuple(f.dropped), keys, values, colours, _overlay_path(out_dir, f))
+                        tuple(f.kept), tuple(f.dropped), keys, values, colours, _overlay_path(out_dir, f),
+                        Path(report.sequence) / f.depth if registration else None, registration)
             for f in written
         ]
         folder.expect(f"{OVERLAYS}/{task.path.name}" for task in tasks)
@@ -179,13 +187,24 @@ class OverlayTask:
     values: np.ndarray
     colours: np.ndarray
     path: Path
+    depth: Path | None = None
+    registration: tuple[Camera, ColourCamera] | None = None
 
 
 def write_overlay(task: OverlayTask) -> None:
-    """Draw one frame's overlay from the run's records and write it (run in a helper process)."""
+    """Draw one frame's overlay from the run's records and write it (run in a helper process).
+    With a colour camera of its own (``registration``: the depth camera and the colour camera)
+    the shapes are taken to the depth grid through the frame's depth, as the frame's job did."""
     labels = mask_plane_ids(read_image(task.mask, cv2.IMREAD_COLOR), task.keys, task.values, task.mask)
-    drawn = rasterize_frame(task.shapes, *labels.shape)
-    result = FrameResult(labels=labels, drawn=drawn, kept=list(task.kept), dropped=list(task.dropped))
+    grid = None
+    if task.registration is None:
+        drawn = rasterize_frame(task.shapes, *labels.shape)
+    else:
+        camera, colour = task.registration
+        depth_m = depth_to_metres(read_depth(task.depth), camera.depth_scale)
+        drawn, grid = draw_on_depth_grid(task.shapes, depth_m, camera, colour)
+    result = FrameResult(labels=labels, drawn=drawn, kept=list(task.kept), dropped=list(task.dropped),
+                         colour_grid=grid)
     write_png(task.path, overlay_for_frame(task.rgb, result, task.colours))
 
 

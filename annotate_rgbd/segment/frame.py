@@ -16,7 +16,7 @@ from annotate_rgbd.geometry.camera import depth_to_metres
 from annotate_rgbd.config.settings import Config
 from .filters import drop_reasons, label_histogram, plane_statistics
 from .grow import grow_connected, grow_planes
-from .rasterize import rasterize_frame
+from .rasterize import draw_on_depth_grid
 from annotate_rgbd.segment.plane_record import PlaneRecord
 from .refine import refine_planes
 
@@ -34,12 +34,17 @@ class FrameResult:
         The labeller's shapes as rasterised, before any depth check (for review overlays).
     kept, dropped : list of PlaneRecord
         One record per plane drawn on the frame.
+    colour_grid : (ndarray, ndarray) or None
+        With a colour camera of its own: where each depth pixel lies in the colour image
+        (:func:`annotate_rgbd.segment.rasterize.draw_on_depth_grid`), to resample the colour
+        image onto the depth grid; None when the two are registered.
     """
 
     labels: np.ndarray
     drawn: np.ndarray
     kept: list[PlaneRecord] = field(default_factory=list)
     dropped: list[PlaneRecord] = field(default_factory=list)
+    colour_grid: tuple[np.ndarray, np.ndarray] | None = None
 
 
 def segment_frame(
@@ -68,9 +73,8 @@ def segment_frame(
         ``labels`` holds the plane id of every pixel that lies on its plane (0 elsewhere);
         ``kept`` and ``dropped`` one record per plane drawn on the frame.
     """
-    height, width = depth_raw.shape
-    drawn = rasterize_frame(shapes, height, width)
     depth_m = depth_to_metres(depth_raw, config.camera.depth_scale)
+    drawn, colour_grid = draw_on_depth_grid(shapes, depth_m, config.camera, config.colour_camera)
     stats = plane_statistics(drawn, depth_m, config.camera)
     reasons = drop_reasons(stats, config.filter)
     kept = np.array([r is None for r in reasons], dtype=bool)
@@ -91,7 +95,7 @@ def segment_frame(
         labels, beyond = grow_connected(labels, drawn, claimed, depth_m, carried, config.camera, band.model, band.k,
                                         band.floor, band.cap, config.refine)
         grown = {plane_id: count + beyond.get(plane_id, 0) for plane_id, count in grown.items()}
-    result = FrameResult(labels=labels, drawn=drawn)
+    result = FrameResult(labels=labels, drawn=drawn, colour_grid=colour_grid)
     for i, plane_id in enumerate(stats.plane_ids.tolist()):
         measured = dict(
             plane=plane_id,

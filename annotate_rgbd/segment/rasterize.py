@@ -7,7 +7,9 @@ A centre exactly on an outline belongs to the shape on the outline's top and lef
 a pixel. Polygons are filled with the even-odd rule, as CVAT draws them.
 
 TUM and ICL-NUIM depth images are registered to the RGB images, so the labeller's pixel
-coordinates carry over to the depth grid unchanged.
+coordinates carry over to the depth grid unchanged. When a colour camera of its own is
+configured, the shapes are drawn on the colour grid and every depth pixel takes the label of
+the colour pixel its 3-D point projects to (:func:`draw_on_depth_grid`).
 """
 
 from __future__ import annotations
@@ -18,6 +20,8 @@ import cv2
 import numpy as np
 
 from annotate_rgbd.annotation.model import Shape
+from annotate_rgbd.geometry.camera import Camera
+from annotate_rgbd.geometry.registration import ColourCamera, colour_pixel_grid, sample_labels
 
 
 def rasterize_frame(shapes: Iterable[tuple[int, Shape]], height: int, width: int) -> np.ndarray:
@@ -48,6 +52,38 @@ def rasterize_frame(shapes: Iterable[tuple[int, Shape]], height: int, width: int
         rows, cols = inside.shape
         np.copyto(labels[top : top + rows, left : left + cols], plane_id, where=inside)
     return labels
+
+
+def draw_on_depth_grid(
+    shapes: Iterable[tuple[int, Shape]], depth_m: np.ndarray, depth_camera: Camera, colour: ColourCamera | None
+) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray] | None]:
+    """Draw one frame's shapes, drawn on the colour image, onto the depth grid.
+
+    Parameters
+    ----------
+    shapes : iterable of (int, Shape)
+        ``(plane id, shape)`` pairs in track order, in colour image coordinates.
+    depth_m : ndarray of float, shape (H, W)
+        The depth frame in metres (NaN where invalid).
+    depth_camera : Camera
+    colour : ColourCamera or None
+        None: colour and depth share one pixel grid (registered).
+
+    Returns
+    -------
+    labels : ndarray, shape (H, W)
+        As :func:`rasterize_frame` on the depth grid. With a colour camera, the shapes are
+        rasterised on the colour grid and each depth pixel takes the label at its position
+        there (:func:`annotate_rgbd.geometry.registration.colour_pixel_grid`).
+    grid : (ndarray, ndarray) or None
+        That position, ``(map_x, map_y)`` of float32 (H, W), for resampling the colour image
+        onto the depth grid; None without a colour camera.
+    """
+    height, width = depth_m.shape
+    if colour is None:
+        return rasterize_frame(shapes, height, width), None
+    map_x, map_y = colour_pixel_grid(depth_m, depth_camera, colour)
+    return sample_labels(rasterize_frame(shapes, colour.height, colour.width), map_x, map_y), (map_x, map_y)
 
 
 def label_dtype(largest: int) -> np.dtype:

@@ -1,0 +1,137 @@
+"""A finished run as the plane-GT exports see it: its written frames, each with its mask's plane
+ids, the equations of its kept planes and, when the camera trajectory is known, its pose.
+
+The plane equations are those refinement kept (``report.json``: per frame and kept plane,
+``equation`` = ``(a, b, c, d)``, ``a x + b y + c z + d = 0`` in the depth camera's frame, metres,
+unit normal pointing towards the camera, so ``d > 0`` is the camera's distance to the plane).
+Poses are camera-to-world (``X_world = R X_camera + t``), read from the run's trajectory (or
+another one) at each depth frame's timestamp, as ``cvat2mask`` reads them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from annotate_rgbd.errors import InputError
+from annotate_rgbd.geometry.lift import plane_to_world
+from annotate_rgbd.io.poses import DEFAULT_MAX_POSE_GAP, poses_at, read_trajectory
+from annotate_rgbd.io.sequence import read_image
+from annotate_rgbd.report.records import RunRecord
+from annotate_rgbd.report.run_folder import colour_table, mask_plane_ids, read_report
+from annotate_rgbd.segment.plane_record import PlaneRecord
+
+
+@dataclass(frozen=True)
+class ExportFrame:
+    """One written frame of a run.
+
+    Parameters
+    ----------
+    name : str
+        The depth file's name without its suffix (``1305031102.160407``, ``0``): the name of
+        the frame's files in every export.
+    depth, rgb : str
+        The depth and RGB files, relative to the sequence folder.
+    timestamp : float
+        The depth frame's timestamp, seconds.
+    mask : Path
+        The colour mask.
+    planes : tuple of PlaneRecord
+        The planes kept in the mask, with their camera-frame equations.
+    pose : (ndarray (3, 3), ndarray (3,)) or None
+        Camera-to-world rotation and camera centre (m); None without a trajectory, or where the
+        trajectory has no pose for the frame.
+    """
+
+    name: str
+    depth: str
+    rgb: str
+    timestamp: float
+    mask: Path
+    planes: tuple[PlaneRecord, ...]
+    pose: tuple[np.ndarray, np.ndarray] | None = None
+
+    def world_planes(self) -> dict[int, np.ndarray]:
+        """Plane id -> its equation in the world frame (empty without a pose): unit normal
+        ``R n`` (towards the camera that saw it), offset ``d - (R n) . t``."""
+        if self.pose is None:
+            return {}
+        return {p.plane: plane_to_world(np.array(p.equation), *self.pose) for p in self.planes if p.equation}
+
+
+@dataclass
+class ExportRun:
+    """The written frames of a run and where its plane ids come from.
+
+    Parameters
+    ----------
+    run_dir : Path
+    report : RunRecord
+    frames : list of ExportFrame
+        The written frames, in sequence order.
+    trajectory : str or None
+        The trajectory the poses come from; None: no poses.
+    """
+
+    run_dir: Path
+    report: RunRecord
+    frames: list[ExportFrame]
+    trajectory: str | None = None
+
+    @property
+    def labels(self) -> dict[int, str]:
+        """Plane id -> its CVAT label (``planes.csv``)."""
+        return {p.plane: p.label for p in self.report.planes}
+
+    def plane_ids(self, frame: ExportFrame) -> np.ndarray:
+        """The plane id of every pixel of the frame's mask (0: no plane), int64 (H, W).
+
+        Raises
+        ------
+        InputError
+            The mask is missing, unreadable, or holds a colour that is no plane of the run.
+        """
+        return mask_plane_ids(read_image(frame.mask, cv2.IMREAD_COLOR), *colour_table(self.report), frame.mask)
+
+
+def read_run(run_dir: str | Path, poses: str | Path | None = None) -> ExportRun:
+    """Read a finished run for an export.
+
+    Parameters
+    ----------
+    run_dir : str or Path
+        Output folder of a finished ``cvat2mask`` run.
+    poses : str or Path, optional
+        A camera trajectory (TUM format, camera to world); default: the one the run used
+        (``report.json``: ``propagation.poses``), if any.
+
+    Returns
+    -------
+    ExportRun
+
+    Raises
+    ------
+    InputError
+        No report, a bad trajectory, or the run's trajectory is gone.
+    """
+    run_dir = Path(run_dir)
+    report = read_report(run_dir)
+    trajectory = str(poses) if poses is not None else (report.propagation or {}).get("poses")
+    written = [f for f in report.frames if f.written and f.mask]
+    frame_poses = None
+    if trajectory:
+        if poses is None and not Path(trajectory).is_file():
+            raise InputError(run_dir / "report.json", f"the run's trajectory {trajectory} is gone: give it with --poses")
+        gap = report.config.get("sequence", {}).get("max_pose_gap", DEFAULT_MAX_POSE_GAP)
+        frame_poses = poses_at(read_trajectory(trajectory), np.array([f.depth_timestamp for f in written]), gap)
+    frames = []
+    for i, f in enumerate(written):
+        pose = None
+        if frame_poses is not None and frame_poses.ok[i]:
+            pose = (frame_poses.rotations[i], frame_poses.translations[i])
+        frames.append(ExportFrame(Path(f.depth).stem, f.depth, f.rgb, f.depth_timestamp, run_dir / f.mask, f.kept, pose))
+    return ExportRun(run_dir, report, frames, trajectory or None)

@@ -1,0 +1,227 @@
+"""Plane-GT exports read back with each consumer's own decoding, written out here independently:
+PlaneRCNN's segmentation decoding and plane transform (its datasets/scannet_scene.py), COCO's RLE
+and PlaneRecNet's plane check (point . normal - offset), EVOPS per-point label arrays; and the
+planes against the rendered scene's true planes."""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from annotate_rgbd.cli import app
+from annotate_rgbd.config.settings import load_config
+from annotate_rgbd.cvat.writer import write_cvat_video
+from annotate_rgbd.errors import InputError, OutputError
+from annotate_rgbd.evaluate.metrics import frame_statistics
+from annotate_rgbd.export import export_run
+from annotate_rgbd.geometry.camera import Camera
+from annotate_rgbd.pipeline.scene import run_cvat2mask
+from annotate_rgbd.synthetic import make_sequence, room_scene
+
+CAMERA = Camera(fx=262.5, fy=262.5, cx=159.5, cy=119.5, depth_scale=5000.0)
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    """A rendered room walk with its exact trajectory, relabelled with poses."""
+    root = tmp_path_factory.mktemp("exports")
+    annotation = make_sequence(root / "sequence", n_frames=6, width=320, height=240, camera=CAMERA, seed=5,
+                               dropped_rgb_frames=(), write_trajectory=True)
+    xml = root / "annotations.xml"
+    write_cvat_video(annotation, xml, width=320, height=240)
+    config = load_config(None, {"camera.fx": 262.5, "camera.fy": 262.5, "camera.cx": 159.5, "camera.cy": 119.5})
+    run_cvat2mask(root / "sequence", [xml], root / "run", config, poses=root / "sequence" / "groundtruth.txt")
+    run_cvat2mask(root / "sequence", [xml], root / "flat", config)
+    return root
+
+
+def plane_table(run_dir: Path) -> dict[int, dict]:
+    with open(run_dir / "planes.csv", newline="") as handle:
+        return {int(row["plane_id"]): row for row in csv.DictReader(handle)}
+
+
+def mask_ids(run_dir: Path, name: str) -> np.ndarray:
+    """Plane ids of a colour mask, decoded through planes.csv's r, g, b."""
+    image = cv2.imread(str(run_dir / "masks" / f"{name}.png"), cv2.IMREAD_COLOR)[..., ::-1].astype(np.int64)
+    ids = np.zeros(image.shape[:2], dtype=np.int64)
+    for plane, row in plane_table(run_dir).items():
+        ids[(image == (int(row["r"]), int(row["g"]), int(row["b"]))).all(axis=2)] = plane
+    return ids
+
+
+def true_world_planes(run_dir: Path) -> dict[int, tuple[np.ndarray, float]]:
+    """Plane id -> (unit normal, offset) with normal . X = offset, from the rendered scene."""
+    by_label = {p.label: p for p in room_scene().planes}
+    planes = {}
+    for plane, row in plane_table(run_dir).items():
+        scene_plane = by_label[row["label"]]
+        normal = np.cross(scene_plane.edge_u, scene_plane.edge_v)
+        normal /= np.linalg.norm(normal)
+        planes[plane] = (normal, float(normal @ np.asarray(scene_plane.centre)))
+    return planes
+
+
+def written_frames(run_dir: Path) -> list[dict]:
+    report = json.loads((run_dir / "report.json").read_text())
+    return [f for f in report["frames"] if f["status"] == "written"]
+
+
+def test_planercnn_layout_reads_back_with_its_decoding(run, tmp_path):
+    out = tmp_path / "annotation"
+    result = CliRunner().invoke(app, ["export", str(run / "run"), "--format", "planercnn", str(out)])
+    assert result.exit_code == 0, result.output
+    planes = np.load(out / "planes.npy")
+    table = plane_table(run / "run")
+    assert planes.shape == (len(table), 3)
+    frames = written_frames(run / "run")
+    kept = {p["plane"] for f in frames for p in f["kept"]}
+    truth = true_world_planes(run / "run")
+    for plane in kept:
+        normal, offset = truth[plane]
+        # normal * offset: the same vector whichever way the normal points.
+        assert np.linalg.norm(planes[plane - 1] - normal * offset) < 0.03, table[plane]["label"]
+    assert not planes[[p - 1 for p in table if p not in kept]].any()  # never kept: 0 0 0, skipped by the loader
+    for frame in frames:
+        name = Path(frame["depth"]).stem
+        segmentation = cv2.imread(str(out / "segmentation" / f"{name}.png"), -1).astype(np.int32)
+        decoded = (segmentation[:, :, 2] * 256 * 256 + segmentation[:, :, 1] * 256 + segmentation[:, :, 0]) // 100 - 1
+        np.testing.assert_array_equal(decoded, mask_ids(run / "run", name) - 1)
+    record = json.loads((out / "export.json").read_text())
+    assert record["complete"] and record["frames_with_pose"] == len(frames) == 6
+    assert "d > 0" in record["conventions"]["plane_equation"]
+
+
+def planercnn_transform(extrinsics: np.ndarray, planes: np.ndarray) -> np.ndarray:
+    """PlaneRCNN's ScanNetScene.transformPlanes (world -> camera with a world-to-camera matrix),
+    rewritten: the plane's foot point and a point one normal towards the origin, transformed."""
+    offsets = np.linalg.norm(planes, axis=-1, keepdims=True)
+    centres = planes @ extrinsics[:3, :3].T + extrinsics[:3, 3]
+    references = (planes - planes / np.maximum(offsets, 1e-4)) @ extrinsics[:3, :3].T + extrinsics[:3, 3]
+    normals = references - centres
+    normals /= np.linalg.norm(normals, axis=-1, keepdims=True)
+    return normals * np.sum(centres * normals, axis=-1, keepdims=True)
+
+
+def test_planercnn_planes_come_back_to_each_frames_own_plane(run, tmp_path):
+    export_run(run / "run", "planercnn", tmp_path / "p")
+    export_run(run / "run", "planes", tmp_path / "f")
+    planes = np.load(tmp_path / "p" / "planes.npy")
+    for frame in written_frames(run / "run"):
+        per_frame = json.loads((tmp_path / "f" / "frames" / f"{Path(frame['depth']).stem}.json").read_text())
+        world_to_camera = np.linalg.inv(np.array(per_frame["camera_to_world"]))
+        for entry in per_frame["planes"]:
+            camera = np.array(entry["camera"])
+            expected = -camera[3] * camera[:3]  # normal * offset of a . X + d = 0 in the camera
+            found = planercnn_transform(world_to_camera, planes[entry["plane"] - 1][None])[0]
+            assert np.linalg.norm(found - expected) < 0.03
+
+
+def test_frame_planes_in_camera_and_world(run, tmp_path):
+    export_run(run / "run", "planes", tmp_path / "f")
+    truth = true_world_planes(run / "run")
+    for frame in written_frames(run / "run"):
+        entry = json.loads((tmp_path / "f" / "frames" / f"{Path(frame['depth']).stem}.json").read_text())
+        assert [p["plane"] for p in entry["planes"]] == [p["plane"] for p in frame["kept"]]
+        assert [p["camera"] for p in entry["planes"]] == [p["equation"] for p in frame["kept"]]
+        pose = np.array(entry["camera_to_world"])
+        for plane in entry["planes"]:
+            camera, world = np.array(plane["camera"]), np.array(plane["world"])
+            assert camera[3] > 0  # the normal points towards the camera
+            # Points of the camera-frame plane, taken to the world with the pose, lie on the world plane.
+            basis = np.linalg.svd(camera[None, :3])[2][1:]
+            points = -camera[3] * camera[:3] + np.array([[0, 0], [1, 0], [0, 1], [2, 3]]) @ basis
+            in_world = points @ pose[:3, :3].T + pose[:3, 3]
+            assert np.abs(in_world @ world[:3] + world[3]).max() < 1e-6
+            normal, offset = truth[plane["plane"]]
+            assert abs(abs(world[:3] @ normal) - 1) < 1e-3 and abs(abs(world[3]) - abs(offset)) < 0.03
+
+
+def test_frame_planes_without_poses(run, tmp_path):
+    result = export_run(run / "flat", "planes", tmp_path / "f")
+    assert result.posed == 0
+    entry = json.loads(next((tmp_path / "f" / "frames").iterdir()).read_text())
+    assert entry["camera_to_world"] is None and all(p["world"] is None for p in entry["planes"])
+    assert "d > 0" in entry["convention"]
+    with pytest.raises(InputError, match="give the camera trajectory with --poses"):
+        export_run(run / "flat", "planercnn", tmp_path / "p")
+    # A trajectory given to the export puts them in the world frame.
+    result = export_run(run / "flat", "planercnn", tmp_path / "p", poses=run / "sequence" / "groundtruth.txt")
+    assert result.posed == 6
+
+
+def test_evops_labels_score_like_the_masks(run, tmp_path):
+    export_run(run / "run", "evops", tmp_path / "posed")
+    export_run(run / "flat", "evops", tmp_path / "flat")
+    for frame in written_frames(run / "run"):
+        name = Path(frame["depth"]).stem
+        labels = np.load(tmp_path / "posed" / "labels" / f"{name}.npy")
+        ids = mask_ids(run / "run", name)
+        assert labels.dtype == np.int32 and labels.shape == (ids.size,)
+        np.testing.assert_array_equal(labels, ids.ravel())  # row-major, 0 = unsegmented
+        other = np.load(tmp_path / "flat" / "labels" / f"{name}.npy")
+        # Scored as 1-D point arrays exactly as the two masks are.
+        assert frame_statistics(labels, other) == frame_statistics(ids, mask_ids(run / "flat", name))
+        truth = cv2.imread(str(run / "sequence" / "ground_truth" / f"{name}.png"), cv2.IMREAD_UNCHANGED)
+        assert frame_statistics(truth.ravel().astype(np.int32), labels).precision > 0.8
+
+
+def decode_rle(segmentation: dict) -> np.ndarray:
+    """COCO's uncompressed RLE: alternating background / foreground runs, column-major."""
+    height, width = segmentation["size"]
+    flat = np.repeat(np.arange(len(segmentation["counts"])) % 2, segmentation["counts"]).astype(bool)
+    return flat.reshape((width, height)).T
+
+
+def test_coco_instances_with_plane_paras(run, tmp_path):
+    export_run(run / "run", "coco", tmp_path / "c")
+    document = json.loads((tmp_path / "c" / "annotations.json").read_text())
+    frames = written_frames(run / "run")
+    assert len(document["images"]) == len(frames)
+    assert document["categories"] == [{"id": 1, "name": "plane", "supercategory": "plane"}]
+    by_image = {}
+    for annotation in document["annotations"]:
+        by_image.setdefault(annotation["image_id"], []).append(annotation)
+    for image, frame in zip(document["images"], frames):
+        assert image["depth_file_name"] == frame["depth"] and image["file_name"] == frame["rgb"]
+        ids = mask_ids(run / "run", image["frame"])
+        depth = cv2.imread(str(run / "sequence" / frame["depth"]), cv2.IMREAD_UNCHANGED) / 5000.0
+        rows, cols = np.indices(depth.shape)
+        points = np.stack([(cols - 159.5) / 262.5 * depth, (rows - 119.5) / 262.5 * depth, depth], axis=-1)
+        assert sorted(a["plane_id"] for a in by_image[image["id"]]) == sorted(p["plane"] for p in frame["kept"])
+        for annotation in by_image[image["id"]]:
+            mask = decode_rle(annotation["segmentation"])
+            np.testing.assert_array_equal(mask, ids == annotation["plane_id"])
+            ys, xs = np.nonzero(mask)
+            assert annotation["bbox"] == [xs.min(), ys.min(), xs.max() - xs.min() + 1, ys.max() - ys.min() + 1]
+            assert annotation["area"] == mask.sum()
+            # PlaneRecNet's own check: |X . normal - offset| over the instance's points.
+            normal, offset = np.array(annotation["plane_paras"][:3]), annotation["plane_paras"][3]
+            assert offset > 0 and abs(np.linalg.norm(normal) - 1) < 1e-6
+            assert np.mean(np.abs(points[mask] @ normal - offset)) < 0.01
+
+
+def test_export_folder_contract(run, tmp_path):
+    foreign = tmp_path / "foreign"
+    foreign.mkdir()
+    (foreign / "notes.txt").write_text("mine")
+    with pytest.raises(OutputError, match="no export wrote"):
+        export_run(run / "run", "evops", foreign)
+    with pytest.raises(OutputError, match="the run's folder"):
+        export_run(run / "run", "evops", run / "run")
+    with pytest.raises(InputError, match="unknown export format 'png'"):
+        export_run(run / "run", "png", tmp_path / "x")
+    out = tmp_path / "again"
+    export_run(run / "run", "evops", out)
+    (out / "labels" / "old_frame.npy").write_bytes(b"")
+    record = json.loads((out / "export.json").read_text())
+    record["files"].append("labels/old_frame.npy")
+    (out / "export.json").write_text(json.dumps(record))
+    result = export_run(run / "run", "planes", out)  # another format into the same folder: the old files go
+    assert "labels/old_frame.npy" in result.removed
+    assert not list((out / "labels").glob("*.npy")) and len(list((out / "frames").iterdir())) == 6

@@ -1,0 +1,313 @@
+"""Colour and depth on different pixel grids: labels drawn on an offset colour camera of another
+resolution land on the right depth pixels.
+
+The expected labels are computed independently of annotate_rgbd.geometry.registration: homogeneous
+4 x 4 matrices and intrinsic matrices, and scikit-image's point-in-polygon test at the exact
+projected point (no rasterisation).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from skimage.measure import points_in_poly
+from typer.testing import CliRunner
+
+from annotate_rgbd.annotation.model import Annotation, Shape, Track
+from annotate_rgbd.cli import app
+from annotate_rgbd.config.settings import Config, config_from_dict, config_to_dict, load_config
+from annotate_rgbd.cvat.writer import write_cvat_video
+from annotate_rgbd.errors import InputError
+from annotate_rgbd.geometry.camera import Camera, depth_to_metres
+from annotate_rgbd.geometry.registration import colour_camera_from_mapping, sample_labels
+from annotate_rgbd.segment.frame import segment_frame
+from annotate_rgbd.segment.rasterize import draw_on_depth_grid
+from annotate_rgbd.synthetic import (
+    Pose, plane_polygon, render, render_frame, room_scene, room_trajectory, write_tum_trajectory,
+)
+
+DEPTH_CAMERA = Camera(fx=262.5, fy=262.5, cx=159.5, cy=119.5, depth_scale=5000.0)
+DEPTH_SIZE = (320, 240)
+COLOUR_SIZE = (424, 300)
+#: A wider field of view than the depth camera's, as ScanNet's colour camera has.
+COLOUR_K = np.array([[290.0, 0.0, 211.0], [0.0, 288.0, 150.5], [0.0, 0.0, 1.0]])
+ANGLE = np.deg2rad(3.0)
+#: Depth camera frame -> colour camera frame: 3 degrees about y, 5 cm to the side.
+EXTRINSIC = np.array([
+    [np.cos(ANGLE), 0.0, np.sin(ANGLE), 0.052],
+    [0.0, 1.0, 0.0, -0.011],
+    [-np.sin(ANGLE), 0.0, np.cos(ANGLE), 0.004],
+    [0.0, 0.0, 0.0, 1.0],
+])
+COLOUR_TABLE = {"fx": 290.0, "fy": 288.0, "cx": 211.0, "cy": 150.5, "width": COLOUR_SIZE[0],
+                "height": COLOUR_SIZE[1], "extrinsic": EXTRINSIC.tolist()}
+COLOUR_TOML = (
+    "[colour_camera]\nfx = 290.0\nfy = 288.0\ncx = 211.0\ncy = 150.5\nwidth = 424\nheight = 300\n"
+    f"extrinsic = {json.dumps(EXTRINSIC.tolist())}\n"
+)
+
+
+def colour_view(depth_pose: Pose) -> tuple[Pose, Camera]:
+    """The colour camera's pose (camera to world) and intrinsics for a depth camera pose."""
+    depth_to_world = np.eye(4)
+    depth_to_world[:3, :3], depth_to_world[:3, 3] = depth_pose.rotation, depth_pose.position
+    colour_to_world = depth_to_world @ np.linalg.inv(EXTRINSIC)
+    camera = Camera(fx=COLOUR_K[0, 0], fy=COLOUR_K[1, 1], cx=COLOUR_K[0, 2], cy=COLOUR_K[1, 2], depth_scale=5000.0)
+    return Pose(colour_to_world[:3, :3], colour_to_world[:3, 3]), camera
+
+
+def colour_frame(index: int, n_frames: int = 8):
+    """Depth rendered from the depth camera, colour image and polygons from the colour camera."""
+    scene = room_scene()
+    pose = room_trajectory(n_frames)[index]
+    depth = render_frame(scene, pose, DEPTH_CAMERA, *DEPTH_SIZE, np.random.default_rng(index))
+    view, camera = colour_view(pose)
+    seen = render(scene, view, camera, *COLOUR_SIZE)
+    counts = np.bincount(seen.object_index.ravel() + 1, minlength=len(scene.planes) + 1)[1 : len(scene.planes) + 1]
+    shapes = []
+    for k in np.flatnonzero(counts >= 0.002 * COLOUR_SIZE[0] * COLOUR_SIZE[1]):
+        polygon = plane_polygon(scene.planes[k], view, camera, *COLOUR_SIZE)
+        if polygon is not None:
+            shapes.append((int(k) + 1, Shape("polygon", polygon, z_order=scene.planes[k].z_order)))
+    return scene, depth, seen, shapes
+
+
+def in_colour_image(depth_raw: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each valid depth pixel (rows, cols) and its point's colour image position (N, 2; pixel
+    centres at integers), with homogeneous matrices."""
+    rows, cols = np.nonzero(depth_raw > 0)
+    z = depth_raw[rows, cols] / DEPTH_CAMERA.depth_scale
+    k_depth = np.array([[DEPTH_CAMERA.fx, 0, DEPTH_CAMERA.cx], [0, DEPTH_CAMERA.fy, DEPTH_CAMERA.cy], [0, 0, 1]])
+    points = np.linalg.solve(k_depth, np.stack([cols, rows, np.ones_like(cols)]).astype(float)) * z
+    colour_points = (EXTRINSIC @ np.vstack([points, np.ones(len(z))]))[:3]
+    pixels = COLOUR_K @ colour_points
+    return rows, cols, (pixels[:2] / pixels[2]).T
+
+
+def expected_drawn(depth_raw: np.ndarray, shapes) -> np.ndarray:
+    """Independent expectation: each valid depth pixel's point in the colour image, tested against
+    the polygons in z-order (later on top at equal z_order)."""
+    rows, cols, xy = in_colour_image(depth_raw)
+    cvat_xy = xy + 0.5  # CVAT puts pixel centres at +0.5
+    labels = np.zeros(depth_raw.shape, dtype=np.int32)
+    for plane_id, shape in sorted(shapes, key=lambda item: item[1].z_order):
+        inside = points_in_poly(cvat_xy, shape.points)
+        labels[rows[inside], cols[inside]] = plane_id
+    return labels
+
+
+def seen_by_both(depth, seen, plane_ids) -> np.ndarray:
+    """Ground truth: a depth pixel shows plane k when the depth camera sees k there and the colour
+    camera sees the same surface where that point lies in its image (not beyond its view, not
+    behind an occluder), for the given planes (ids = scene plane index + 1)."""
+    rows, cols, xy = in_colour_image(depth.depth_raw)
+    at = np.rint(xy).astype(int)
+    inside = (at[:, 0] >= 0) & (at[:, 0] < COLOUR_SIZE[0]) & (at[:, 1] >= 0) & (at[:, 1] < COLOUR_SIZE[1])
+    seen_there = np.full(len(rows), -2)
+    seen_there[inside] = seen.object_index[at[inside, 1], at[inside, 0]]
+    visible = depth.visible[rows, cols]
+    same = (seen_there == visible) & np.isin(visible + 1, plane_ids)
+    truth = np.zeros(depth.depth_raw.shape, dtype=np.int32)
+    truth[rows[same], cols[same]] = visible[same] + 1
+    return truth
+
+
+def edge_distance(points: np.ndarray, polygons) -> np.ndarray:
+    """Distance of each point (N, 2) to the nearest edge of any polygon."""
+    nearest = np.full(len(points), np.inf)
+    for polygon in polygons:
+        start, end = polygon, np.roll(polygon, -1, axis=0)
+        edge = end - start
+        u = np.clip(np.einsum("nek,ek->ne", points[:, None] - start[None], edge) / (edge ** 2).sum(1), 0, 1)
+        foot = start[None] + u[..., None] * edge[None]
+        nearest = np.minimum(nearest, np.linalg.norm(points[:, None] - foot, axis=2).min(axis=1))
+    return nearest
+
+
+def mean_iou(found: np.ndarray, expected: np.ndarray, ids) -> float:
+    ious = [np.count_nonzero((found == i) & (expected == i)) / np.count_nonzero((found == i) | (expected == i))
+            for i in ids]
+    return float(np.mean(ious))
+
+
+def test_shapes_land_where_the_depth_pixels_project():
+    _, depth, _, shapes = colour_frame(3)
+    colour = colour_camera_from_mapping(COLOUR_TABLE)
+    depth_m = depth_to_metres(depth.depth_raw, DEPTH_CAMERA.depth_scale)
+    drawn, grid = draw_on_depth_grid(shapes, depth_m, DEPTH_CAMERA, colour)
+    expected = expected_drawn(depth.depth_raw, shapes)
+    valid = depth.depth_raw > 0
+    assert grid is not None and grid[0].shape == depth.depth_raw.shape
+    assert np.mean(drawn[valid] == expected[valid]) > 0.995
+    # Rasterising on the colour grid (the label of the colour pixel nearest the point) moves a
+    # label only where the point lies within half a colour pixel's diagonal of an outline.
+    rows, cols, xy = in_colour_image(depth.depth_raw)
+    differ = drawn[rows, cols] != expected[rows, cols]
+    assert 0 < np.count_nonzero(differ)
+    assert (edge_distance(xy[differ] + 0.5, [shape.points for _, shape in shapes]) <= np.sqrt(0.5) + 1e-6).all()
+    ids = np.unique(expected[expected > 0])
+    assert len(ids) >= 4
+    assert mean_iou(np.where(valid, drawn, 0), expected, ids) > 0.97
+    # The registered assumption (the colour coordinates taken as depth coordinates) is far off.
+    registered, none = draw_on_depth_grid(shapes, depth_m, DEPTH_CAMERA, None)
+    assert none is None and mean_iou(np.where(valid, registered, 0), expected, ids) < 0.8
+
+
+@pytest.mark.parametrize("index", [1, 5])
+def test_refined_masks_match_the_rendered_ground_truth(index):
+    scene, depth, seen, shapes = colour_frame(index)
+    config = Config(camera=DEPTH_CAMERA, colour_camera=colour_camera_from_mapping(COLOUR_TABLE))
+    result = segment_frame(depth.depth_raw, shapes, config)
+    truth = seen_by_both(depth, seen, [plane_id for plane_id, _ in shapes])
+    kept = [r.plane for r in result.kept]
+    assert {scene.planes[r.plane - 1].label for r in result.dropped} <= {"wall_corridor", "window"}  # far, glass
+    assert len(kept) >= 6
+    assert mean_iou(result.labels, truth, kept) >= 0.95
+    assert not result.labels[depth.depth_raw == 0].any()  # pixels without depth get no label
+
+
+def test_pixels_without_depth_count_for_the_invalid_depth_rule():
+    _, depth, _, shapes = colour_frame(3)
+    config = Config(camera=DEPTH_CAMERA, colour_camera=colour_camera_from_mapping(COLOUR_TABLE))
+    before = segment_frame(depth.depth_raw, shapes, config)
+    largest = max(before.kept, key=lambda r: r.inliers).plane
+    holes = depth.depth_raw.copy()
+    holes[depth.visible == largest - 1] = 0  # the sensor returns nothing from that plane (glass)
+    after = segment_frame(holes, shapes, config)
+    dropped = {r.plane: r for r in after.dropped}
+    assert dropped[largest].reason == "invalid_depth" and dropped[largest].invalid_ratio > 0.8
+
+
+def test_colour_camera_configuration(tmp_path):
+    path = tmp_path / "c.toml"
+    path.write_text(COLOUR_TOML, encoding="utf-8")
+    config = load_config(path)
+    assert config.colour_camera is not None and config.colour_camera.width == 424
+    np.testing.assert_allclose(config.colour_camera.extrinsic, EXTRINSIC)
+    # The report's configuration reads back to the same camera; a registered one has no section.
+    assert config_from_dict(config_to_dict(config)).colour_camera == config.colour_camera
+    assert "colour_camera" not in config_to_dict(Config())
+    rotation = EXTRINSIC[:3, :3].tolist()
+    path.write_text(COLOUR_TOML.split("extrinsic")[0] + f"rotation = {json.dumps(rotation)}\n"
+                    "translation = [0.052, -0.011, 0.004]\n", encoding="utf-8")
+    np.testing.assert_allclose(load_config(path).colour_camera.extrinsic, EXTRINSIC)
+    bad = {
+        "rotation = [[1, 0, 0], [0, 1, 0], [0, 0, 2]]\n": "not a rotation",
+        "extrinsic = [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 1, 1]]\n": "0, 0, 0, 1",
+        "extrinsic = [[1, 0, 0], [0, 1, 0], [0, 0, 1]]\n": "4 x 4",
+        "translation = [0, 0]\n": "3 numbers",
+        "skew = 0\n": "unknown key 'colour_camera.skew'",
+    }
+    base = COLOUR_TOML.split("extrinsic")[0]
+    for line, message in bad.items():
+        path.write_text(base + line, encoding="utf-8")
+        with pytest.raises(InputError, match=message):
+            load_config(path)
+    path.write_text(base.replace("width = 424\n", ""), encoding="utf-8")
+    with pytest.raises(InputError, match="'colour_camera.width' is missing"):
+        load_config(path)
+
+
+def write_sequence(folder: Path, frames=(2, 3, 4), n_frames: int = 8, keyframe_step: int = 1) -> Path:
+    """A TUM-layout sequence whose RGB images come from the offset colour camera, with the
+    labeller's polygons drawn on them as a CVAT video export (keyframes every ``keyframe_step``
+    frames and the last, the API's way) and the depth camera's trajectory."""
+    (folder / "rgb").mkdir(parents=True)
+    (folder / "depth").mkdir()
+    tracks: dict[int, dict[int, Shape]] = {}
+    rgb_lines, depth_lines, stamps = [], [], []
+    for i, index in enumerate(frames):
+        _, depth, seen, shapes = colour_frame(index, n_frames)
+        stamp = f"{1700000000 + i / 10:.6f}"
+        stamps.append(float(stamp))
+        cv2.imwrite(str(folder / "rgb" / f"{stamp}.png"), cv2.cvtColor(seen.rgb, cv2.COLOR_RGB2BGR))
+        cv2.imwrite(str(folder / "depth" / f"{stamp}.png"), depth.depth_raw)
+        rgb_lines.append(f"{stamp} rgb/{stamp}.png")
+        depth_lines.append(f"{stamp} depth/{stamp}.png")
+        for plane_id, shape in shapes:
+            tracks.setdefault(plane_id, {})[i] = shape
+    (folder / "rgb.txt").write_text("\n".join(rgb_lines) + "\n")
+    (folder / "depth.txt").write_text("\n".join(depth_lines) + "\n")
+    write_tum_trajectory(folder / "groundtruth.txt", stamps, [room_trajectory(n_frames)[i] for i in frames])
+    scene = room_scene()
+    annotation = Annotation(
+        path=str(folder), format="video", frames=list(range(len(frames))),
+        tracks=[Track(plane_id, scene.planes[plane_id - 1].label, shapes) for plane_id, shapes in sorted(tracks.items())],
+        image_size={f: COLOUR_SIZE for f in range(len(frames))},
+    )
+    xml = folder / "annotations.xml"
+    write_cvat_video(annotation, xml, width=COLOUR_SIZE[0], height=COLOUR_SIZE[1], keyframe_step=keyframe_step,
+                     keyframes_only=keyframe_step > 1)
+    return xml
+
+
+def test_cvat2mask_with_a_colour_camera(tmp_path):
+    xml = write_sequence(tmp_path / "seq")
+    camera = (f"[camera]\nfx = {DEPTH_CAMERA.fx}\nfy = {DEPTH_CAMERA.fy}\ncx = {DEPTH_CAMERA.cx}\n"
+              f"cy = {DEPTH_CAMERA.cy}\ndepth_scale = 5000.0\n")
+    registered = tmp_path / "registered.toml"
+    registered.write_text(camera, encoding="utf-8")
+    runner = CliRunner()
+    result = runner.invoke(app, ["cvat2mask", str(tmp_path / "seq"), str(xml), "--config", str(registered),
+                                 "--out", str(tmp_path / "out0"), "-j", "1"])
+    assert result.exit_code == 1 and "depth image is 320x240 but annotations.xml annotates 424x300" in result.output
+    config = tmp_path / "colour.toml"
+    config.write_text(camera + COLOUR_TOML, encoding="utf-8")
+    out = tmp_path / "out"
+    result = runner.invoke(app, ["cvat2mask", str(tmp_path / "seq"), str(xml), "--config", str(config),
+                                 "--out", str(out), "-j", "1", "--overlays"])
+    assert result.exit_code == 0, result.output
+    report = json.loads((out / "report.json").read_text())
+    assert report["config"]["colour_camera"]["width"] == 424
+    assert load_config(config).colour_camera == config_from_dict(report["config"]).colour_camera
+    masks = sorted((out / "masks").iterdir())
+    overlays = sorted((out / "overlays").iterdir())
+    assert len(masks) == len(overlays) == 3
+    assert cv2.imread(str(masks[0])).shape[:2] == cv2.imread(str(overlays[0])).shape[:2] == (240, 320)
+    assert all(f["kept"] for f in report["frames"])
+    # review draws them again from the run's records: the same overlays as the frames' jobs drew.
+    made = {p.name: p.read_bytes() for p in overlays}
+    result = runner.invoke(app, ["review", str(out), "-j", "1"])
+    assert result.exit_code == 0, result.output
+    assert {p.name: p.read_bytes() for p in (out / "overlays").iterdir()} == made
+
+
+def test_poses_carry_keyframes_drawn_on_the_colour_camera(tmp_path):
+    frames = list(range(20, 27))
+    xml = write_sequence(tmp_path / "seq", frames=frames, n_frames=48, keyframe_step=6)
+    config = tmp_path / "colour.toml"
+    config.write_text(f"[camera]\nfx = {DEPTH_CAMERA.fx}\nfy = {DEPTH_CAMERA.fy}\ncx = {DEPTH_CAMERA.cx}\n"
+                      f"cy = {DEPTH_CAMERA.cy}\ndepth_scale = 5000.0\n" + COLOUR_TOML, encoding="utf-8")
+    out = tmp_path / "out"
+    result = CliRunner().invoke(app, ["cvat2mask", str(tmp_path / "seq"), str(xml), "--config", str(config), "--out",
+                                      str(out), "-j", "1", "--instance-ids", "--poses",
+                                      str(tmp_path / "seq" / "groundtruth.txt")])
+    assert result.exit_code == 0, result.output
+    report = json.loads((out / "report.json").read_text())
+    track_of = {p["plane"]: p["track_id"] for p in report["planes"]}
+    ious = []
+    for i, frame in enumerate(report["frames"][1:6], start=1):  # between the keyframes 0 and 6
+        _, depth, seen, shapes = colour_frame(frames[i], 48)
+        ids = cv2.imread(str(out / "masks_id" / Path(frame["depth"]).name), cv2.IMREAD_UNCHANGED)
+        as_tracks = np.array([0] + [track_of[p] for p in range(1, len(track_of) + 1)])[ids]
+        truth = seen_by_both(depth, seen, [plane_id for plane_id, _ in shapes])
+        kept = [track_of[r["plane"]] for r in frame["kept"]]
+        assert any(r["propagated"] for r in frame["kept"])
+        ious.append(mean_iou(as_tracks, truth, kept))
+    assert np.mean(ious) >= 0.95, ious
+
+
+def test_label_sampling_is_the_nearest_colour_pixel():
+    rng = np.random.default_rng(1)
+    labels = rng.integers(0, 200, (97, 131))
+    map_x = rng.uniform(-3, 134, (50, 60)).astype(np.float32)
+    map_y = rng.uniform(-3, 100, (50, 60)).astype(np.float32)
+    cols, rows = np.floor(map_x.astype(np.float64) + 0.5).astype(int), np.floor(map_y.astype(np.float64) + 0.5).astype(int)
+    inside = (cols >= 0) & (cols < 131) & (rows >= 0) & (rows < 97)
+    expected = np.where(inside, labels[rows.clip(0, 96), cols.clip(0, 130)], 0)
+    for dtype in (np.uint8, np.uint16, np.int32):  # OpenCV's remap, and numpy for ids past 65535
+        np.testing.assert_array_equal(sample_labels(labels.astype(dtype), map_x, map_y), expected)
