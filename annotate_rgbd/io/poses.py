@@ -34,7 +34,7 @@ from annotate_rgbd.errors import InputError
 from annotate_rgbd.io.layouts.model import FRAME_NUMBERS, SECONDS
 from annotate_rgbd.io.pose_files import read_pose_files
 from annotate_rgbd.io.rotations import matrix_quaternions, quaternion_matrices, slerp
-from annotate_rgbd.io.trajectory_checks import coverage_text, motion_problem
+from annotate_rgbd.io.trajectory_checks import coverage_text, motion_problem, spacing_text
 from annotate_rgbd.io.trajectory_text import KITTI, MAX_BYTES, MAX_LINES, UNIT_TOLERANCE, read_text_poses
 
 #: Default of ``max_gap`` in :func:`poses_at`, seconds. TUM RGB-D's motion capture samples at
@@ -217,7 +217,8 @@ def load_trajectory(path: str | Path, frame_times: np.ndarray, clock: str) -> Lo
 
 def missing_poses_text(trajectory: Trajectory, times: np.ndarray, reasons: np.ndarray, clock: str) -> str:
     """Why frames have no pose, in a phrase: the two time ranges and the likely unit or offset
-    when some lie outside the trajectory; ``""`` when none does.
+    when some lie outside the trajectory; the samples' spacing (and the likely unit) when most
+    fall between samples too far apart; else ``""``.
 
     Parameters
     ----------
@@ -229,9 +230,11 @@ def missing_poses_text(trajectory: Trajectory, times: np.ndarray, reasons: np.nd
     clock : str
         What the timestamps count.
     """
-    if not np.any(reasons == OUTSIDE_TRAJECTORY):
-        return ""
-    return coverage_text(trajectory.timestamps, np.asarray(times), clock)
+    if np.any(reasons == OUTSIDE_TRAJECTORY):
+        return coverage_text(trajectory.timestamps, np.asarray(times), clock)
+    if clock == SECONDS and len(trajectory) > 1 and 2 * np.count_nonzero(reasons == POSE_GAP) > len(reasons):
+        return spacing_text(float(np.median(np.diff(trajectory.timestamps))))
+    return ""
 
 
 def poses_at(

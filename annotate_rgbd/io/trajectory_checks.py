@@ -27,6 +27,9 @@ MAX_TURN_RATE = 360.0
 #: Frame rate assumed for trajectories whose "timestamps" are frame numbers (ScanNet, 7-Scenes
 #: and KITTI-form files): 30 Hz, as both datasets were recorded.
 FRAME_RATE = 30.0
+#: Closest average spacing of a trajectory's samples or of frames, seconds, for a unit to be
+#: suggested: motion capture runs at up to about 1 kHz, cameras slower.
+MIN_SAMPLE_SPACING = 1e-4
 #: Units a trajectory's (or the frames') timestamps may be in instead of seconds.
 UNITS = ((1e9, "nanoseconds"), (1e6, "microseconds"), (1e3, "milliseconds"))
 
@@ -52,10 +55,9 @@ def motion_problem(timestamps: np.ndarray, translations: np.ndarray, quaternions
         :data:`MAX_SPEED` or turn rate above :data:`MAX_TURN_RATE` (with, when read as
         world-to-camera the speed is plausible, that suggestion).
     """
-    with np.errstate(over="ignore", invalid="ignore"):
-        farthest = float(np.max(np.linalg.norm(translations, axis=1)))
+    farthest = float(np.max(np.abs(translations)))  # a coordinate: a norm of 1e300 overflows
     if not farthest <= MAX_POSITION:
-        return (f"the camera lies up to {farthest:.3g} m from the world origin: not a camera-to-world "
+        return (f"the camera lies {farthest:.3g} m from the world origin (on an axis): not a camera-to-world "
                 "trajectory in metres (millimetres? corrupt values?)")
     if len(timestamps) < 2:
         return None
@@ -104,34 +106,47 @@ def coverage_text(stamps: np.ndarray, times: np.ndarray, clock: str) -> str:
     else:
         span = (f"the trajectory holds frames {a0:.0f} to {a1:.0f} ({len(stamps)} poses), the sequence "
                 f"depth frames {b0:.0f} to {b1:.0f}")
-    hint = coverage_hint(a0, a1, b0, b1, clock)
+    hint = coverage_hint(a0, a1, b0, b1, clock, len(stamps), len(times))
     return f"{span}: {hint}" if hint else span
 
 
-def coverage_hint(a0: float, a1: float, b0: float, b1: float, clock: str) -> str | None:
-    """The likely reason why a trajectory ``[a0, a1]`` misses frames ``[b0, b1]``, or ``None``
-    when it covers most of them.
+def coverage_hint(a0: float, a1: float, b0: float, b1: float, clock: str, n_poses: int = 2,
+                  n_frames: int = 2) -> str | None:
+    """The likely reason why a trajectory ``[a0, a1]`` of ``n_poses`` misses ``n_frames`` frames
+    ``[b0, b1]``, or ``None`` when it covers most of them.
 
     A unit: the ranges overlap once the trajectory's (or the frames') timestamps are divided by
-    1e9, 1e6 or 1e3. An offset: the durations agree (within a factor of 2, in some unit) but the
-    ranges do not overlap. Otherwise the trajectory is likely another sequence's.
+    1e9, 1e6 or 1e3, and the samples are then no closer than :data:`MIN_SAMPLE_SPACING` on
+    average (no sensor runs faster). An offset: the durations agree (within a factor of 2, in
+    some unit) but the ranges do not overlap. Otherwise the trajectory is likely another sequence's.
     """
     if _overlap(a0, a1, b0, b1) >= 0.5:
         return None
     if clock == SECONDS:
         for scale, name in UNITS:
-            if _overlap(a0 / scale, a1 / scale, b0, b1) >= 0.5:
+            spacing = ((a1 - a0) / scale / max(n_poses - 1, 1), (b1 - b0) / scale / max(n_frames - 1, 1))
+            if _overlap(a0 / scale, a1 / scale, b0, b1) >= 0.5 and spacing[0] >= MIN_SAMPLE_SPACING:
                 return f"the trajectory's timestamps look like {name}: divide them by {scale:g}"
-            if _overlap(a0, a1, b0 / scale, b1 / scale) >= 0.5:
+            if _overlap(a0, a1, b0 / scale, b1 / scale) >= 0.5 and spacing[1] >= MIN_SAMPLE_SPACING:
                 return (f"the depth frames' timestamps look like {name} and the trajectory's like seconds: "
                         "write both in one unit")
         for scale, name in ((1.0, "seconds"), *UNITS):
             da, db = (a1 - a0) / scale, b1 - b0
             if db > 0 and 0.5 <= da / db <= 2.0:
                 unit = "" if scale == 1.0 else f" with the trajectory in {name}"
-                return (f"the durations agree{unit} but the trajectory starts {b0 - a0 / scale:+.6g} s from the "
+                return (f"the durations agree{unit} but the trajectory starts {b0 - a0 / scale:+.10g} s from the "
                         "frames: a clock offset, or the trajectory of another recording of the same length")
     return "the ranges hardly overlap: is it this sequence's trajectory?"
+
+
+def spacing_text(spacing: float) -> str:
+    """Why frames inside a trajectory get no pose: its samples (``spacing`` apart, seconds, the
+    median) are too far apart; with the likely unit when that spacing is one in another unit."""
+    text = f"the trajectory's samples lie {spacing:.6g} s apart (median), too far apart to interpolate a pose"
+    for scale, name in UNITS:
+        if MIN_SAMPLE_SPACING <= spacing / scale <= 1.0:
+            return f"{text}: its timestamps look like {name}: divide them by {scale:g}"
+    return text
 
 
 def _overlap(a0: float, a1: float, b0: float, b1: float) -> float:

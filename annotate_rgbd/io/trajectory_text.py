@@ -34,7 +34,7 @@ from annotate_rgbd.io.rotations import first_rigid_problem, matrix_quaternions
 MAX_BYTES = 1 << 30
 MAX_LINES = 10_000_000
 #: Bytes read and parsed at a time.
-CHUNK_BYTES = 4 << 20
+CHUNK_BYTES = 1 << 20
 #: Longest line accepted: a pose line has about 100 bytes, with a comment a few hundred.
 MAX_LINE_BYTES = 64 << 10
 #: Largest deviation of a quaternion's norm from 1 accepted (and then renormalised). TUM writes 4
@@ -130,7 +130,7 @@ class _Parser:
         self.rows = 0  # data lines before the current block
         self.last_time: float | None = None
         self.last_line = 0
-        self.parts: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+        self.parts: tuple[list[np.ndarray], ...] = ([], [], [])  # timestamps, translations, quaternions
 
     def feed(self, data: bytes, last: bool = False) -> None:
         """Parse one block of whole lines (``last``: the file's end, its last line may lack a break)."""
@@ -216,10 +216,11 @@ class _Parser:
             times = np.arange(self.rows, self.rows + len(values), dtype=np.float64)
             translations = np.ascontiguousarray(matrices[:, :, 3])
             quaternions = matrix_quaternions(matrices[:, :, :3])
-        self.parts.append((times, translations, quaternions))
+        for column, part in zip(self.parts, (times, translations, quaternions)):
+            column.append(part)
         self.rows += len(values)
         self.last_time = float(times[-1])
-        self.last_line = line_of(len(values) - 1)
+        self.last_line = _last_data_line(text, self.lines + 1)
 
     def _tum(self, values: np.ndarray, line_of) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         norms = np.linalg.norm(values[:, 4:], axis=1)
@@ -241,12 +242,27 @@ class _Parser:
         return times, np.ascontiguousarray(values[:, 1:4]), values[:, 4:] / norms[:, None]
 
     def result(self) -> TextPoses:
-        if not self.parts:
+        if not self.parts[0]:
             raise InputError(self.path, "no poses: the file holds no 'timestamp tx ty tz qx qy qz qw' lines "
                              "(TUM) nor 12-number rows (KITTI)")
-        columns = [np.concatenate([part[k] for part in self.parts]) for k in range(3)]
-        self.parts.clear()
+        columns = []
+        for column in self.parts:  # each column's blocks are let go once joined: at most 1.5 times what is kept
+            columns.append(np.concatenate(column))
+            column.clear()
         return TextPoses(self.form, *columns)
+
+
+def _last_data_line(text: str, first: int) -> int:
+    """The number of the last line holding data in ``text``, whose first line is ``first``
+    (scanned from the end: the usual answer is the last line)."""
+    end = len(text) - 1 if text.endswith("\n") else len(text)
+    number = first + text.count("\n", 0, end)
+    while end >= 0:
+        start = text.rfind("\n", 0, end) + 1
+        if text[start:end].split("#", 1)[0].strip():
+            return number
+        end, number = start - 1, number - 1
+    return first
 
 
 def _is_number(field: str) -> bool:

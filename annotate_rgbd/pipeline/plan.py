@@ -11,6 +11,7 @@ function, then decides for every depth frame whether it gets a mask, and builds 
 from __future__ import annotations
 
 import logging
+from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Mapping, Sequence as SequenceType
@@ -276,7 +277,8 @@ def propagation_warnings(propagation: Propagation) -> list[str]:
     ]
     missing = int(np.count_nonzero(~propagation.depth_poses.ok))
     if missing:
-        line = f"{propagation.path}: {missing} depth frames have no pose; their shapes are interpolated in 2-D"
+        frames = f"{missing} depth frame{'s have' if missing > 1 else ' has'}"
+        line = f"{propagation.path}: {frames} no pose; {'their' if missing > 1 else 'its'} shapes are interpolated in 2-D"
         if propagation.trajectory is not None:
             ranges = missing_poses_text(propagation.trajectory, propagation.depth_times,
                                         propagation.depth_poses.reasons, propagation.clock)
@@ -284,9 +286,11 @@ def propagation_warnings(propagation: Propagation) -> list[str]:
         lines.append(line)
     failed = [(lift, frame, reason) for lift in propagation.lifts.values() for frame, reason in lift.failed]
     if failed and not any(lift.keyframes for lift in propagation.lifts.values()):
-        lift, frame, reason = failed[0]
+        reasons = Counter(reason for _, _, reason in failed)
+        lift, frame, reason = next(f for f in failed if f[2] == reasons.most_common(1)[0][0])
         lines.append(f"{propagation.path}: none of the {len(failed)} keyframes could be lifted onto its plane "
-                     f"(e.g. {lift.part} track {lift.track} frame {frame}: {reason}); every shape is interpolated in 2-D")
+                     f"({reasons[reason]} like {lift.part} track {lift.track} frame {frame}: {reason}); "
+                     "every shape is interpolated in 2-D")
     return lines
 
 
