@@ -178,8 +178,9 @@ def plan_run(
     """Read the inputs and decide, for every depth frame, whether and how it gets a mask.
 
     Parameters are those of :func:`annotate_rgbd.pipeline.run_cvat2mask`; ``poses`` (else the
-    configuration's ``sequence.poses``) is a TUM trajectory that carries keyframe shapes to
-    every frame (:mod:`annotate_rgbd.propagate.carry`).
+    configuration's ``sequence.poses``, else the layout's own poses) is a trajectory
+    (:func:`annotate_rgbd.io.poses.read_trajectory`) that carries keyframe shapes to every frame
+    (:mod:`annotate_rgbd.propagate.carry`).
 
     Returns
     -------
