@@ -386,3 +386,9 @@ def test_kitti_rows_on_a_timestamped_sequence_are_its_depth_frames_in_order(rend
     result = run(rendered, "cvat2mask", tmp_path / "more", kitti)
     assert result.exit_code == 1
     assert "go up to frame 12, but the sequence has 12 depth frames" in result.output.strip().splitlines()[-1]
+
+
+def test_numbered_frames_get_no_unit_hint():
+    assert coverage_hint(0, 99, 100, 300, FRAME_NUMBERS).startswith("the ranges hardly overlap: is it this sequence's")
+    assert coverage_hint(1.3e9, 1.3e9 + 30, 0, 900, FRAME_NUMBERS).endswith("must be the frame's number)")
+    assert coverage_hint(0, 600, 0, 900, FRAME_NUMBERS) is None

@@ -119,6 +119,7 @@ def coverage_hint(a0: float, a1: float, b0: float, b1: float, clock: str, n_pose
     1e9, 1e6 or 1e3, and the samples are then no closer than :data:`MIN_SAMPLE_SPACING` on
     average (no sensor runs faster). An offset: the durations agree (within a factor of 2, in
     some unit) but the ranges do not overlap. Otherwise the trajectory is likely another sequence's.
+    Frame numbers (``clock``) have no unit: only the last is said.
     """
     if _overlap(a0, a1, b0, b1) >= 0.5:
         return None
@@ -136,7 +137,9 @@ def coverage_hint(a0: float, a1: float, b0: float, b1: float, clock: str, n_pose
                 unit = "" if scale == 1.0 else f" with the trajectory in {name}"
                 return (f"the durations agree{unit} but the trajectory starts {b0 - a0 / scale:+.10g} s from the "
                         "frames: a clock offset, or the trajectory of another recording of the same length")
-    return "the ranges hardly overlap: is it this sequence's trajectory?"
+        return "the ranges hardly overlap: is it this sequence's trajectory?"
+    return ("the ranges hardly overlap: is it this sequence's trajectory? (its frames are numbers, and poses are "
+            "matched to them by frame number: a TUM line's timestamp must be the frame's number)")
 
 
 def spacing_text(spacing: float) -> str:
