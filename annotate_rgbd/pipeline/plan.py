@@ -279,7 +279,8 @@ def propagation_warnings(propagation: Propagation) -> list[str]:
     missing = int(np.count_nonzero(~propagation.depth_poses.ok))
     if missing:
         frames = f"{missing} depth frame{'s have' if missing > 1 else ' has'}"
-        line = f"{propagation.path}: {frames} no pose; {'their' if missing > 1 else 'its'} shapes are interpolated in 2-D"
+        whose = "their" if missing > 1 else "its"
+        line = f"{propagation.path}: {frames} no pose; {whose} shapes are interpolated in 2-D"
         if propagation.trajectory is not None:
             ranges = missing_poses_text(propagation.trajectory, propagation.depth_times,
                                         propagation.depth_poses.reasons, propagation.clock)

@@ -119,7 +119,8 @@ def _run(sequence, folder: OutputFolder, config, poses_path, helpers, progress) 
     settings = config.propose
     depth_times = sequence.depth.timestamps
     if sequence.rgb is None:  # depth only: the depth frames are the frames
-        nearest, time_diff, matched = np.arange(len(depth_times)), np.zeros(len(depth_times)), np.ones(len(depth_times), bool)
+        count = len(depth_times)
+        nearest, time_diff, matched = np.arange(count), np.zeros(count), np.ones(count, bool)
     else:
         nearest, time_diff, matched = associate(depth_times, sequence.rgb.timestamps, config.sequence.max_time_diff)
     chosen = np.arange(0, len(depth_times), settings.every)
@@ -198,7 +199,8 @@ def _run(sequence, folder: OutputFolder, config, poses_path, helpers, progress) 
     height, width = size if size is not None else (0, 0)
     sampled = sorted(rgb for rgb, position in key_of_rgb.items() if frames[position]["status"] == "written")
     if sampled:
-        write_polygon_tracks(ordered, out_dir / PROPOSALS_NAME, n_frames=len(sequence.depth if sequence.rgb is None else sequence.rgb),
+        n_frames = len(sequence.depth if sequence.rgb is None else sequence.rgb)
+        write_polygon_tracks(ordered, out_dir / PROPOSALS_NAME, n_frames=n_frames,
                              sampled_frames=sampled, width=width, height=height)
     result.tracks = len(ordered)
     written = {f["mask"] for f in frames if f["status"] == "written"}

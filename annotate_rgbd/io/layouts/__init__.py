@@ -1,10 +1,10 @@
 """RGB-D sequence layouts on disk, each read in one place into one format-neutral model.
 
-:func:`~annotate_rgbd.io.sequence.read_sequence` recognises the layout of a folder by the files it holds and hands it to that
-layout's reader, which fills in a :class:`~annotate_rgbd.io.layouts.model.Sequence`: its colour
-and depth frame lists, what its timestamps count (seconds or frame numbers), and what the layout
-itself states: a depth camera, a colour camera on another grid, per-frame poses. One module per
-family of layouts:
+:func:`~annotate_rgbd.io.sequence.read_sequence` recognises the layout of a folder by the files it
+holds and hands it to that layout's reader, which fills in a
+:class:`~annotate_rgbd.io.layouts.model.Sequence`: its colour and depth frame lists, what its
+timestamps count (seconds or frame numbers), and what the layout itself states: a depth camera, a
+colour camera on another grid, per-frame poses. One module per family of layouts:
 
 - :mod:`~annotate_rgbd.io.layouts.tum`: TUM RGB-D (``rgb.txt``, ``depth.txt``), ICL-NUIM in TUM
   format (``associations.txt``), ``rgb/`` and ``depth/`` folders named by timestamps, and the
