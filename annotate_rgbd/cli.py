@@ -97,6 +97,26 @@ def output_folder(out: str) -> Path:
     return Path(out)
 
 
+def _load_config(sequence_dir: Path, config: Optional[str], overrides: dict):
+    """The run's configuration: ``--config`` (else the defaults) with the overrides. Without
+    ``--config``, the depth camera the sequence's layout states (ScanNet's intrinsic_depth.txt,
+    7-Scenes' documented camera) comes before the overrides, said in one line."""
+    from annotate_rgbd.config.settings import load_config
+
+    if config is None:
+        from annotate_rgbd.io.sequence import read_sequence
+
+        sequence = read_sequence(sequence_dir, need_rgb=False)
+        log = logging.getLogger("annotate_rgbd")
+        for note in sequence.notes:
+            log.warning("%s", note)
+        if sequence.camera is not None:
+            log.info("camera: %s (%s layout): %s; give --config for another", sequence.camera.source,
+                     sequence.layout, sequence.camera.describe())
+            overrides = {**sequence.camera.overrides(), **overrides}
+    return load_config(config, overrides)
+
+
 def _version(value: bool) -> None:
     if value:
         typer.echo(f"annotate-rgbd {__version__}")
@@ -112,10 +132,16 @@ def main(
 
 @app.command()
 def cvat2mask(
-    sequence_dir: Path = typer.Argument(..., metavar="SEQUENCE_DIR", help="TUM RGB-D or ICL-NUIM (TUM format) sequence folder."),
+    sequence_dir: Path = typer.Argument(
+        ..., metavar="SEQUENCE_DIR", help="Sequence folder: TUM RGB-D, ICL-NUIM (TUM format), ScanNet export or 7-Scenes."
+    ),
     annotations: List[Path] = typer.Argument(..., metavar="ANNOTATIONS...", help="CVAT export(s): 'CVAT for video 1.1' or 'CVAT for images 1.1' XML, or CVAT's .zip of it."),
     out: str = typer.Option(..., "--out", "-o", metavar="DIR", help="Output folder for masks/, planes.csv and report.json."),
-    config: Optional[str] = typer.Option(None, "--config", "-c", metavar="FILE|PRESET", help="TOML file or preset name (see 'annotate-rgbd presets'); without it: a Kinect v1 at 640x480 (fx = fy = 525, depth in 1/5000 m, TUM's default)."),
+    config: Optional[str] = typer.Option(
+        None, "--config", "-c", metavar="FILE|PRESET",
+        help="TOML file or preset name (see 'annotate-rgbd presets'); without it: the camera the layout states "
+        "(ScanNet's intrinsic_depth.txt, 7-Scenes'), else a Kinect v1 at 640x480 (fx = fy = 525, depth in 1/5000 m, TUM's default).",
+    ),
     label: List[str] = typer.Option([], "--label", metavar="LABEL", help="Use only shapes with this CVAT label (repeatable)."),
     distance_threshold: Optional[float] = typer.Option(
         None, metavar="METRES", help="A fixed inlier band in metres at every depth, instead of the [noise] model's."
@@ -138,7 +164,9 @@ def cvat2mask(
         STALL_TIMEOUT, "--job-timeout", min=1.0, metavar="SECONDS", help="Seconds without a frame finished by the helpers before they are replaced."
     ),
     poses: Optional[Path] = typer.Option(
-        None, "--poses", metavar="FILE", help="Camera trajectory (TUM format): carry keyframe shapes to every frame by the poses."
+        None, "--poses", metavar="FILE|DIR",
+        help="Camera trajectory (TUM, KITTI rows, or a folder of per-frame pose files; default: the layout's own poses): "
+        "carry keyframe shapes to every frame by the poses.",
     ),
 ) -> None:
     """Write one colour-coded plane mask per depth frame, refined against the depth.
@@ -153,7 +181,6 @@ def cvat2mask(
         prepare_process(workers)  # the helpers' server imports Open3D while this process does
 
         from annotate_rgbd.config.command_line import parse_part_offsets, parse_settings
-        from annotate_rgbd.config.settings import load_config
         from annotate_rgbd.pipeline.scene import run_cvat2mask
         from annotate_rgbd.progress import Progress
 
@@ -169,7 +196,7 @@ def cvat2mask(
         offsets = parse_part_offsets(part)
         progress = Progress({sequence_dir.name: 0})
         report = run_cvat2mask(
-            sequence_dir, annotations, out, load_config(config, overrides), offsets=offsets,
+            sequence_dir, annotations, out, _load_config(sequence_dir, config, overrides), offsets=offsets,
             workers=workers, force=force, raw_masks=raw_masks, overlays=overlays, instance_ids=instance_ids,
             progress=progress.callback(sequence_dir.name), job_timeout=job_timeout, poses=poses,
         )
@@ -367,10 +394,21 @@ def stats(
 
 @app.command()
 def propose(
-    sequence_dir: Path = typer.Argument(..., metavar="SEQUENCE_DIR", help="TUM RGB-D or ICL-NUIM (TUM format) sequence folder."),
+    sequence_dir: Path = typer.Argument(
+        ..., metavar="SEQUENCE_DIR",
+        help="Sequence folder: TUM RGB-D, ICL-NUIM (TUM format), ScanNet export, 7-Scenes, or depth only (depth.txt or depth/).",
+    ),
     out: str = typer.Option(..., "--out", "-o", metavar="DIR", help="Output folder for proposals.xml, masks/ and report.json."),
-    config: Optional[str] = typer.Option(None, "--config", "-c", metavar="FILE|PRESET", help="TOML file or preset name (see 'annotate-rgbd presets'); without it: a Kinect v1 at 640x480 (fx = fy = 525, depth in 1/5000 m, TUM's default)."),
-    poses: Optional[Path] = typer.Option(None, "--poses", metavar="FILE", help="TUM trajectory: link planes across frames by world plane."),
+    config: Optional[str] = typer.Option(
+        None, "--config", "-c", metavar="FILE|PRESET",
+        help="TOML file or preset name (see 'annotate-rgbd presets'); without it: the camera the layout states "
+        "(ScanNet's intrinsic_depth.txt, 7-Scenes'), else a Kinect v1 at 640x480 (fx = fy = 525, depth in 1/5000 m, TUM's default).",
+    ),
+    poses: Optional[Path] = typer.Option(
+        None, "--poses", metavar="FILE|DIR",
+        help="Camera trajectory (TUM, KITTI rows, or a folder of per-frame pose files; default: the layout's own poses): "
+        "link planes across frames by world plane.",
+    ),
     every: Optional[int] = typer.Option(
         None, "--every", min=1, metavar="N", help="Process every N-th depth frame (CVAT keyframes); default: [propose] every."
     ),
@@ -396,7 +434,6 @@ def propose(
         reuse_freed_memory()
 
         from annotate_rgbd.config.command_line import parse_settings
-        from annotate_rgbd.config.settings import load_config
         from annotate_rgbd.progress import Progress
         from annotate_rgbd.config.propose import label_problem
         from annotate_rgbd.propose import run_propose
@@ -409,7 +446,7 @@ def propose(
         named = {"propose.every": every, "propose.label": label, "detect.min_area_fraction": min_area}
         overrides.update({k: v for k, v in named.items() if v is not None})
         progress = Progress({sequence_dir.name: 0})
-        result = run_propose(sequence_dir, out, load_config(config, overrides), poses=poses,
+        result = run_propose(sequence_dir, out, _load_config(sequence_dir, config, overrides), poses=poses,
                              workers=workers, progress=progress.callback(sequence_dir.name))
         progress.finish()
         typer.echo(f"{result.tracks} plane tracks on {result.frames} frames: {out / 'proposals.xml'}, "

@@ -1,29 +1,41 @@
-"""Camera trajectories in TUM format, and the camera pose at any timestamp.
+"""Camera trajectories in any of the common forms, and the camera pose at any timestamp.
 
-A trajectory file holds one pose per line, ``timestamp tx ty tz qx qy qz qw``: the camera-to-world
-transform of the camera's optical centre (TUM RGB-D ``groundtruth.txt``, ICL-NUIM's TUM-format
-trajectories, what most SLAM systems write), metres and seconds, the rotation as a unit quaternion
-with the scalar last. ``#`` starts a comment that runs to the end of the line; blank lines are
-skipped. A world point is ``X_world = R @ X_camera + t``.
+A trajectory is the camera-to-world transform of the camera's optical centre (``X_world = R @
+X_camera + t``, metres) over time. :func:`read_trajectory` reads it from
+
+* a TUM file (``timestamp tx ty tz qx qy qz qw``; TUM RGB-D, ICL-NUIM, most SLAM systems) or a
+  KITTI file (12 numbers a line: the 3 x 4 matrix, one line per frame), read streaming
+  (:mod:`annotate_rgbd.io.trajectory_text`);
+* a folder of per-frame 4 x 4 pose files, ScanNet's ``pose/<frame>.txt`` or 7-Scenes'
+  ``frame-000000.pose.txt`` (:mod:`annotate_rgbd.io.pose_files`).
+
+TUM timestamps are seconds; KITTI rows and pose files count frames (``clock``). Every pose must be
+a rigid transform; :func:`load_trajectory` then fits a trajectory to a sequence's frames and says,
+in one line each, what does not look right (:mod:`annotate_rgbd.io.trajectory_checks`): motion
+implausible for an RGB-D camera (1e300 m, millimetres, world-to-camera), and frames outside it
+with the two time ranges and the likely unit or offset (:func:`missing_poses_text`).
 
 A depth frame's pose is interpolated at its own timestamp between the two trajectory samples that
 bracket it: translation linearly, rotation by SLERP along the shorter arc (``q`` and ``-q`` are the
 same rotation). Motion capture loses the markers now and then, so a frame whose bracketing samples
-are not both close to it gets no pose (see :data:`DEFAULT_MAX_POSE_GAP`).
+are not both close to it gets no pose (see :data:`DEFAULT_MAX_POSE_GAP`). Frame-numbered poses
+are exact per frame: a frame without one (ScanNet's lost tracking) gets none.
 """
 
 from __future__ import annotations
 
-import io
-import os
-import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
 
 from annotate_rgbd.errors import InputError
+from annotate_rgbd.io.layouts.model import FRAME_NUMBERS, SECONDS
+from annotate_rgbd.io.pose_files import read_pose_files
+from annotate_rgbd.io.rotations import matrix_quaternions, quaternion_matrices, slerp
+from annotate_rgbd.io.trajectory_checks import coverage_text, motion_problem, spacing_text
+from annotate_rgbd.io.trajectory_text import KITTI, MAX_BYTES, MAX_LINES, UNIT_TOLERANCE, read_text_poses
 
 #: Default of ``max_gap`` in :func:`poses_at`, seconds. TUM RGB-D's motion capture samples at
 #: 100 Hz, so normally both samples bracketing a depth frame lie within 0.01 s of it. With 0.05 s
@@ -41,19 +53,15 @@ from annotate_rgbd.errors import InputError
 #: a 0.02 s limit, 2 with 0.1 s).
 DEFAULT_MAX_POSE_GAP = 0.05
 
-#: Largest deviation of a quaternion's norm from 1 accepted (and then renormalised). TUM writes 4
-#: decimals, which leaves deviations up to about 1e-4; anything much larger is not a rotation.
-UNIT_TOLERANCE = 1e-3
-
-#: Refuse trajectory files larger than these: a one-hour 100 Hz trajectory has 360 000 lines.
-MAX_BYTES = 1 << 30
-MAX_LINES = 10_000_000
-
 #: Reasons for a frame without a pose, as :func:`poses_at` gives them.
 OUTSIDE_TRAJECTORY = "outside_trajectory"
 POSE_GAP = "pose_gap"
 
-FIELDS = ("timestamp", "tx", "ty", "tz", "qx", "qy", "qz", "qw")
+__all__ = [
+    "DEFAULT_MAX_POSE_GAP", "FRAME_NUMBERS", "MAX_BYTES", "MAX_LINES", "OUTSIDE_TRAJECTORY", "POSE_GAP", "SECONDS",
+    "UNIT_TOLERANCE", "FramePoses", "LoadedTrajectory", "Trajectory", "load_trajectory", "matrix_quaternions",
+    "missing_poses_text", "poses_at", "quaternion_matrices", "read_trajectory", "slerp",
+]
 
 
 @dataclass(frozen=True)
@@ -63,16 +71,25 @@ class Trajectory:
     Parameters
     ----------
     timestamps : ndarray of float64, shape (N,)
-        Seconds, strictly increasing.
+        Strictly increasing: seconds, or frame numbers (``clock``).
     translations : ndarray of float64, shape (N, 3)
         Camera centre in world coordinates, metres.
     quaternions : ndarray of float64, shape (N, 4)
         Camera-to-world rotation as unit quaternions ``(x, y, z, w)``.
+    clock : str
+        :data:`SECONDS` (TUM) or :data:`FRAME_NUMBERS` (KITTI rows, pose files).
+    form : str
+        "TUM", "KITTI", "ScanNet pose files" or "7-Scenes pose files".
+    without_pose : int
+        Pose files that hold ``-inf`` or NaN (frames whose tracking was lost).
     """
 
     timestamps: np.ndarray
     translations: np.ndarray
     quaternions: np.ndarray
+    clock: str = SECONDS
+    form: str = "TUM"
+    without_pose: int = 0
 
     def __len__(self) -> int:
         return len(self.timestamps)
@@ -99,152 +116,125 @@ class FramePoses(NamedTuple):
     reasons: np.ndarray
 
 
+class LoadedTrajectory(NamedTuple):
+    """A trajectory fitted to a sequence's frames, from :func:`load_trajectory`.
+
+    Parameters
+    ----------
+    trajectory : Trajectory
+        On the sequence's clock.
+    warnings : list of str
+        One line each: implausible motion (:func:`~annotate_rgbd.io.trajectory_checks.motion_problem`).
+    notes : list of str
+        One line each: how frame-numbered poses were matched to timestamped frames, frames whose
+        pose file holds ``-inf``.
+    """
+
+    trajectory: Trajectory
+    warnings: list[str]
+    notes: list[str]
+
+
 def read_trajectory(path: str | Path) -> Trajectory:
-    """Read a TUM-format trajectory file.
+    """Read a trajectory: a TUM or KITTI file, or a folder of per-frame pose files.
 
     Parameters
     ----------
     path : str or Path
-        The file: ``timestamp tx ty tz qx qy qz qw`` per line, ``#`` comments, blank lines.
+        The file, or the folder (a ScanNet scene or its ``pose/``, a 7-Scenes sequence).
 
     Returns
     -------
     Trajectory
-        The poses, quaternions renormalised to unit length.
+        The poses, quaternions of unit length.
 
     Raises
     ------
     InputError
-        One line naming the file, the line and the problem: unreadable, too large, not UTF-8,
-        wrong number of fields, not a number, NaN or infinite, non-unit quaternion, timestamps
-        not strictly increasing, no poses at all.
+        One line naming the file (and the line) and the problem: unreadable, not a regular file
+        (a FIFO is refused), too large, not UTF-8, wrong number of fields, not a number, NaN or
+        infinite, non-unit quaternion, not a rigid transform, timestamps not strictly
+        increasing, no poses at all.
     """
     path = Path(path)
-    # One line break for both readers below: "\n", "\r\n" or a lone "\r".
-    data = _read_bytes(path).replace(b"\r\n", b"\n").replace(b"\r", b"\n")
-    if data.count(b"\n") + (not data.endswith(b"\n")) > MAX_LINES:
-        raise InputError(path, f"more than {MAX_LINES:,} lines: too large for a trajectory file")
-    try:
-        text = data.decode("utf-8")
-    except UnicodeDecodeError as error:
-        line = data[: error.start].count(b"\n") + 1
-        raise InputError(path, f"line {line}: not UTF-8 text") from None
-    values, line_numbers = _parse(path, text)
-    if len(values) == 0:
-        raise InputError(path, "no poses: the file holds no 'timestamp tx ty tz qx qy qz qw' lines")
-
-    def line_of(row: int) -> int:
-        # Line numbers are only worked out when a problem must be reported.
-        numbers = line_numbers if line_numbers is not None else _data_line_numbers(text)
-        return int(numbers[row])
-
-    finite = np.isfinite(values)
-    if not finite.all():
-        row, col = np.argwhere(~finite)[0]
-        raise InputError(path, f"line {line_of(row)}: {FIELDS[col]} is {values[row, col]}")
-    norms = np.linalg.norm(values[:, 4:], axis=1)
-    off = np.abs(norms - 1.0) > UNIT_TOLERANCE
-    if off.any():
-        row = int(np.argmax(off))
-        raise InputError(
-            path,
-            f"line {line_of(row)}: quaternion (qx qy qz qw) has length {norms[row]:.6g}, "
-            f"not 1 (tolerance {UNIT_TOLERANCE:g})",
-        )
-    timestamps = values[:, 0]
-    unordered = np.diff(timestamps) <= 0
-    if unordered.any():
-        row = int(np.argmax(unordered)) + 1
-        raise InputError(
-            path,
-            f"line {line_of(row)}: timestamp {float(timestamps[row])!r} is not after "
-            f"{float(timestamps[row - 1])!r} on line {line_of(row - 1)}; timestamps must be strictly increasing",
-        )
-    arrays = (
-        np.ascontiguousarray(timestamps),
-        np.ascontiguousarray(values[:, 1:4]),
-        values[:, 4:] / norms[:, None],
-    )
+    if path.is_dir():
+        found = read_pose_files(path)
+        arrays = (found.frames, found.translations, found.quaternions)
+        extra = {"clock": FRAME_NUMBERS, "form": found.form, "without_pose": found.without_pose}
+    else:
+        text = read_text_poses(path)
+        arrays = (text.timestamps, text.translations, text.quaternions)
+        extra = {"clock": FRAME_NUMBERS if text.form == KITTI else SECONDS, "form": text.form}
     for array in arrays:
         array.flags.writeable = False
-    return Trajectory(*arrays)
+    return Trajectory(*arrays, **extra)
 
 
-def _read_bytes(path: Path) -> bytes:
-    """The file's bytes, refusing files larger than :data:`MAX_BYTES`."""
-    try:
-        with open(path, "rb") as stream:
-            size = os.fstat(stream.fileno()).st_size
-            if size <= MAX_BYTES:  # a pipe reports 0: read at most one byte too many to tell
-                data = stream.read(MAX_BYTES + 1)
-                size = max(size, len(data))
-    except OSError as error:
-        raise InputError(path, f"cannot read the trajectory file ({error.strerror or error})") from None
-    if size > MAX_BYTES:
-        raise InputError(
-            path, f"{size / 2**30:.1f} GiB: larger than the {MAX_BYTES / 2**30:g} GiB a trajectory may have"
-        )
-    return data
+def load_trajectory(path: str | Path, frame_times: np.ndarray, clock: str) -> LoadedTrajectory:
+    """Read a trajectory for a sequence's depth frames and check it.
 
+    Frame-numbered poses (KITTI rows, pose files) on a sequence with timestamps are taken as the
+    depth frames in order: pose ``k`` is the ``k``-th depth frame's (a note says so).
 
-def _parse(path: Path, text: str) -> tuple[np.ndarray, np.ndarray | None]:
-    """The (N, 8) values of the data lines; their line numbers when already known.
+    Parameters
+    ----------
+    path : str or Path
+    frame_times : ndarray, shape (M,)
+        The depth frames' timestamps, increasing.
+    clock : str
+        What they count: :data:`SECONDS` or :data:`FRAME_NUMBERS`.
 
-    numpy's C reader takes the common case (thousands of lines in milliseconds); on anything it
-    rejects, the line-by-line reader finds the first problem and names its line.
-    """
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")  # "input contained no data": reported by the caller
-            values = np.loadtxt(io.StringIO(text), dtype=np.float64, comments="#", ndmin=2)
-    except ValueError:
-        return _parse_lines(path, text)
-    if values.shape[1] != len(FIELDS) and values.size:
-        return _parse_lines(path, text)
-    return values.reshape(-1, len(FIELDS)), None
-
-
-def _parse_lines(path: Path, text: str) -> tuple[np.ndarray, np.ndarray]:
-    """Line-by-line reader: values and line numbers (from 1) of the data lines.
+    Returns
+    -------
+    LoadedTrajectory
 
     Raises
     ------
     InputError
-        At the first line with the wrong number of fields or a field that is not a number.
+        As :func:`read_trajectory`, or frame-numbered poses beyond the sequence's depth frames.
     """
-    rows, numbers = [], []
-    for number, line in enumerate(text.split("\n"), start=1):
-        fields = line.split("#", 1)[0].split()
-        if not fields:
-            continue
-        if len(fields) != len(FIELDS):
-            raise InputError(
-                path,
-                f"line {number}: expected {len(FIELDS)} fields ({' '.join(FIELDS)}), found {len(fields)}",
-            )
-        try:
-            rows.append([float(field) for field in fields])
-        except ValueError:
-            col = next(k for k, field in enumerate(fields) if not _is_number(field))
-            raise InputError(
-                path, f"line {number}: {FIELDS[col]} {fields[col][:40]!r} is not a number"
-            ) from None
-        numbers.append(number)
-    return np.array(rows, dtype=np.float64).reshape(-1, len(FIELDS)), np.array(numbers, dtype=np.int64)
+    trajectory = read_trajectory(path)
+    notes = []
+    if trajectory.without_pose:
+        notes.append(f"{path}: {trajectory.without_pose} of {trajectory.without_pose + len(trajectory)} "
+                     f"{trajectory.form} hold -inf or NaN (tracking lost): those frames have no pose")
+    if trajectory.clock == FRAME_NUMBERS and clock == SECONDS:
+        frames = trajectory.timestamps.astype(np.int64)
+        if frames[-1] >= len(frame_times):
+            raise InputError(path, f"{trajectory.form} poses count frames (no timestamps) and go up to frame "
+                             f"{frames[-1]}, but the sequence has {len(frame_times)} depth frames: "
+                             "give this sequence's trajectory, or one with timestamps (TUM)")
+        times = np.asarray(frame_times, dtype=np.float64)[frames]
+        times.flags.writeable = False
+        trajectory = replace(trajectory, timestamps=times, clock=SECONDS)
+        notes.append(f"{path}: {trajectory.form} poses count frames (no timestamps): pose k is taken as the "
+                     "k-th depth frame's")
+    problem = motion_problem(trajectory.timestamps, trajectory.translations, trajectory.quaternions,
+                             trajectory.clock)
+    warnings = [f"{path}: {problem}"] if problem else []
+    return LoadedTrajectory(trajectory, warnings, notes)
 
 
-def _data_line_numbers(text: str) -> np.ndarray:
-    """Line numbers (from 1) of the lines holding data, as both readers see them."""
-    lines = text.split("\n")
-    return np.array([k for k, line in enumerate(lines, start=1) if line.split("#", 1)[0].strip()], dtype=np.int64)
+def missing_poses_text(trajectory: Trajectory, times: np.ndarray, reasons: np.ndarray, clock: str) -> str:
+    """Why frames have no pose, in a phrase: the two time ranges and the likely unit or offset
+    when some lie outside the trajectory; the samples' spacing (and the likely unit) when most
+    fall between samples too far apart; else ``""``.
 
-
-def _is_number(field: str) -> bool:
-    try:
-        float(field)
-    except ValueError:
-        return False
-    return True
+    Parameters
+    ----------
+    trajectory : Trajectory
+    times : ndarray, shape (M,)
+        The frames' timestamps.
+    reasons : ndarray of str, shape (M,)
+        :func:`poses_at`'s reasons for them.
+    clock : str
+        What the timestamps count.
+    """
+    if np.any(reasons == OUTSIDE_TRAJECTORY):
+        return coverage_text(trajectory.timestamps, np.asarray(times), clock)
+    if clock == SECONDS and len(trajectory) > 1 and 2 * np.count_nonzero(reasons == POSE_GAP) > len(reasons):
+        return spacing_text(float(np.median(np.diff(trajectory.timestamps))))
+    return ""
 
 
 def poses_at(
@@ -299,58 +289,3 @@ def poses_at(
     translations[~ok] = np.nan
     rotations[~ok] = np.nan
     return FramePoses(rotations, translations, ok, reasons)
-
-
-def slerp(q0: np.ndarray, q1: np.ndarray, u: np.ndarray) -> np.ndarray:
-    """Spherical linear interpolation of unit quaternions along the shorter arc.
-
-    Parameters
-    ----------
-    q0, q1 : ndarray, shape (M, 4)
-        Unit quaternions at ``u = 0`` and ``u = 1``; ``q1`` is negated where that is nearer.
-    u : ndarray, shape (M,)
-        Interpolation parameters in [0, 1].
-
-    Returns
-    -------
-    ndarray of float64, shape (M, 4)
-        Unit quaternions.
-    """
-    q0 = np.asarray(q0, dtype=np.float64)
-    q1 = np.asarray(q1, dtype=np.float64)
-    u = np.asarray(u, dtype=np.float64)[:, None]
-    q1 = np.where(np.sum(q0 * q1, axis=1, keepdims=True) < 0, -q1, q1)
-    # The angle between the two 4-vectors; atan2 of chord lengths keeps it accurate when small,
-    # which it always is between neighbouring samples (arccos of the dot product is not).
-    angle = 2.0 * np.arctan2(
-        np.linalg.norm(q0 - q1, axis=1, keepdims=True), np.linalg.norm(q0 + q1, axis=1, keepdims=True)
-    )
-    sine = np.sin(angle)
-    small = sine < 1e-12  # equal rotations: weights (1 - u, u) are the limit
-    with np.errstate(invalid="ignore", divide="ignore"):
-        w0 = np.where(small, 1.0 - u, np.sin((1.0 - u) * angle) / sine)
-        w1 = np.where(small, u, np.sin(u * angle) / sine)
-    q = w0 * q0 + w1 * q1
-    return q / np.linalg.norm(q, axis=1, keepdims=True)
-
-
-def quaternion_matrices(q: np.ndarray) -> np.ndarray:
-    """Rotation matrices of unit quaternions ``(x, y, z, w)``.
-
-    Parameters
-    ----------
-    q : ndarray, shape (M, 4)
-
-    Returns
-    -------
-    ndarray of float64, shape (M, 3, 3)
-    """
-    x, y, z, w = np.moveaxis(np.asarray(q, dtype=np.float64), -1, 0)
-    return np.stack(
-        [
-            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], axis=-1),
-            np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], axis=-1),
-            np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], axis=-1),
-        ],
-        axis=-2,
-    )

@@ -11,7 +11,8 @@ function, then decides for every depth frame whether it gets a mask, and builds 
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from collections import Counter
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Mapping, Sequence as SequenceType
 
@@ -28,7 +29,7 @@ from annotate_rgbd.io.outdir import ID_MASKS, RAW_MASKS
 from annotate_rgbd.report.palette import plane_colours
 from .part_overlap import part_pair_iou
 from annotate_rgbd.annotation.parts import Part, frame_owners, place_parts
-from annotate_rgbd.io.poses import FramePoses, poses_at, read_trajectory
+from annotate_rgbd.io.poses import FramePoses, Trajectory, load_trajectory, missing_poses_text, poses_at
 from annotate_rgbd.propagate.carry import TrackLift, lift_tracks, propagated_shapes
 from annotate_rgbd.report.records import NO_RGB_FRAME, OUTSIDE_ANNOTATION, RGB_NOT_ANNOTATED, FrameRecord
 from annotate_rgbd.io.sequence import Sequence, associate, camera_problem, read_depth, read_sequence
@@ -109,16 +110,28 @@ class Propagation:
     Parameters
     ----------
     path : str
-        The trajectory file.
+        The trajectory (a file, or a folder of pose files).
     lifts : dict of (str, int) to TrackLift
         (part, track id) -> its keyframes lifted onto their planes.
     depth_poses : FramePoses
         The pose of every depth frame (``ok`` False where the trajectory has none).
+    trajectory : Trajectory, optional
+        The poses read, on the sequence's clock.
+    clock : str
+        What the sequence's timestamps count.
+    depth_times : ndarray, optional
+        The depth frames' timestamps (for the time ranges of frames without a pose).
+    warnings : list of str
+        What reading the trajectory found implausible.
     """
 
     path: str
     lifts: dict[tuple[str, int], TrackLift]
     depth_poses: FramePoses
+    trajectory: Trajectory | None = None
+    clock: str = "seconds"
+    depth_times: np.ndarray | None = None
+    warnings: list[str] = field(default_factory=list)
 
     def to_json(self) -> dict:
         """The report's ``propagation`` section."""
@@ -165,8 +178,9 @@ def plan_run(
     """Read the inputs and decide, for every depth frame, whether and how it gets a mask.
 
     Parameters are those of :func:`annotate_rgbd.pipeline.run_cvat2mask`; ``poses`` (else the
-    configuration's ``sequence.poses``) is a TUM trajectory that carries keyframe shapes to
-    every frame (:mod:`annotate_rgbd.propagate.carry`).
+    configuration's ``sequence.poses``, else the layout's own poses) is a trajectory
+    (:func:`annotate_rgbd.io.poses.read_trajectory`) that carries keyframe shapes to every frame
+    (:mod:`annotate_rgbd.propagate.carry`).
 
     Returns
     -------
@@ -208,6 +222,10 @@ def plan_run(
     output = OutputOptions(Path(out_dir), raw_masks, overlays, instance_ids)
     propagation = None
     poses = poses or config.sequence.poses
+    if not poses and sequence.poses is not None:
+        poses = sequence.poses
+        log.info("poses: the %s layout's per-frame camera-to-world poses (%s); give --poses for another trajectory",
+                 sequence.layout, poses)
     if poses:
         propagation = plan_propagation(Path(poses), sequence, parts, tracks, depth_of_rgb, config)
         _warn(warnings, propagation_warnings(propagation))
@@ -228,7 +246,10 @@ def plan_propagation(
 ) -> Propagation:
     """Read the trajectory, give every depth and RGB frame its pose and lift every track's
     keyframes (reads the depth frames nearest the keyframes)."""
-    trajectory = read_trajectory(path)
+    loaded = load_trajectory(path, sequence.depth.timestamps, sequence.clock)
+    for note in loaded.notes:
+        log.info(note)
+    trajectory = loaded.trajectory
     gap = config.sequence.max_pose_gap
     depth_poses = poses_at(trajectory, sequence.depth.timestamps, gap)
     rgb_poses = poses_at(trajectory, sequence.rgb.timestamps, gap)
@@ -239,12 +260,16 @@ def plan_propagation(
     ]
     lifts = lift_tracks(wanted, depth_of_rgb, [sequence.root / f for f in sequence.depth.files], depth_poses,
                         rgb_poses, config)
-    return Propagation(str(Path(path).absolute()), {(lift.part, lift.track): lift for lift in lifts}, depth_poses)
+    return Propagation(str(Path(path).absolute()), {(lift.part, lift.track): lift for lift in lifts}, depth_poses,
+                       trajectory, sequence.clock, sequence.depth.timestamps, loaded.warnings)
 
 
 def propagation_warnings(propagation: Propagation) -> list[str]:
-    """A warning per track whose lifted keyframes disagree, and one for frames without a pose."""
-    lines = [
+    """What reading the trajectory found implausible, a warning per track whose lifted keyframes
+    disagree, one for frames without a pose (with the time ranges when frames lie outside the
+    trajectory) and one when no keyframe could be lifted at all."""
+    lines = list(propagation.warnings)
+    lines += [
         f"{lift.part} track {lift.track} (plane {lift.plane}): "
         f"{_keyframes_lie(lift.substantial)} off the plane its other keyframes agree on (up to {lift.angle:.1f} degrees, {100 * lift.offset:.1f} cm): "
         "a shape over another surface or clutter, two surfaces under one track, or poses that are off; "
@@ -253,7 +278,21 @@ def propagation_warnings(propagation: Propagation) -> list[str]:
     ]
     missing = int(np.count_nonzero(~propagation.depth_poses.ok))
     if missing:
-        lines.append(f"{propagation.path}: {missing} depth frames have no pose; their shapes are interpolated in 2-D")
+        frames = f"{missing} depth frame{'s have' if missing > 1 else ' has'}"
+        whose = "their" if missing > 1 else "its"
+        line = f"{propagation.path}: {frames} no pose; {whose} shapes are interpolated in 2-D"
+        if propagation.trajectory is not None:
+            ranges = missing_poses_text(propagation.trajectory, propagation.depth_times,
+                                        propagation.depth_poses.reasons, propagation.clock)
+            line += f" ({ranges})" if ranges else ""
+        lines.append(line)
+    failed = [(lift, frame, reason) for lift in propagation.lifts.values() for frame, reason in lift.failed]
+    if failed and not any(lift.keyframes for lift in propagation.lifts.values()):
+        reasons = Counter(reason for _, _, reason in failed)
+        lift, frame, reason = next(f for f in failed if f[2] == reasons.most_common(1)[0][0])
+        lines.append(f"{propagation.path}: none of the {len(failed)} keyframes could be lifted onto its plane "
+                     f"({reasons[reason]} like {lift.part} track {lift.track} frame {frame}: {reason}); "
+                     "every shape is interpolated in 2-D")
     return lines
 
 

@@ -59,19 +59,21 @@ PACKAGE = Path(__file__).resolve().parent.parent
 #: change a frame's files (:data:`NOT_MASK_CODE`). tests/pipeline/test_algorithm_digest.py checks that
 #: every module the frame job imports is in one of the two lists.
 MASK_CODE = (
-    "segment", "geometry", "pipeline/frame_job.py", "pipeline/resume.py", "io/sequence.py", "io/writer.py",
-    "report/palette.py", "report/records.py", "jsonfields.py", "review/overlay.py", "config/settings.py",
+    "segment", "geometry", "pipeline/frame_job.py", "pipeline/resume.py", "io/sequence.py", "io/images.py",
+    "io/writer.py", "report/palette.py", "report/records.py", "jsonfields.py", "review/overlay.py", "config/settings.py",
 )
 #: Modules the frame job imports whose code cannot change a frame's files: the package's and
 #: subpackages' ``__init__`` (re-exports; ``__version__`` is hashed by value), the settings'
 #: definitions and TOML reader (their values are hashed; propose's and evaluate's are not used),
-#: errors, the bounded file opener, reader and input limits, the output folder's helpers (file digests for the
-#: up-to-date check), camera poses and the shape record (hashed as data).
+#: errors, the bounded file opener (and its input wording), reader and input limits, the output
+#: folder's helpers (file digests for the up-to-date check), the sequence layouts (they list the
+#: frames), camera poses and the shape record (hashed as data).
 NOT_MASK_CODE = (
     "__init__.py", "config/__init__.py", "io/__init__.py", "pipeline/__init__.py", "report/__init__.py",
     "review/__init__.py", "annotation/__init__.py", "config/masks.py", "config/toml_input.py", "errors.py",
     "io/outdir.py", "io/poses.py", "annotation/model.py", "config/evaluate.py", "config/propose.py", "io/files.py",
-    "io/bounded.py", "io/limits.py",
+    "io/bounded.py", "io/limits.py", "io/inputs.py", "io/layouts/__init__.py", "io/layouts/lists.py",
+    "io/layouts/model.py", "io/layouts/scannet.py", "io/layouts/seven_scenes.py", "io/layouts/tum.py",
 )
 
 

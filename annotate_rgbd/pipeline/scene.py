@@ -68,8 +68,9 @@ def run_cvat2mask(
         Seconds without a frame finished by the helper processes before they are taken to hang
         and replaced (:func:`annotate_rgbd.pool.run_jobs`).
     poses : str or Path, optional
-        A camera trajectory (TUM format) that carries the keyframe shapes to every frame
-        (:mod:`annotate_rgbd.propagate.carry`); default: the configuration's ``sequence.poses``.
+        A camera trajectory (TUM, KITTI rows, a folder of pose files: :mod:`annotate_rgbd.io.poses`)
+        that carries the keyframe shapes to every frame (:mod:`annotate_rgbd.propagate.carry`); default:
+        the configuration's ``sequence.poses``, else the sequence layout's own poses (ScanNet, 7-Scenes).
     instance_ids : bool
         Also write ``masks_id/``: single-channel masks whose pixel values are the plane ids of
         ``planes.csv`` (8-bit for up to 255 planes, else 16-bit; 0 = no plane).

@@ -18,7 +18,7 @@ from annotate_rgbd.errors import InputError
 from annotate_rgbd.geometry.depth_range import depth_scale_hint, median_raw_depth
 from annotate_rgbd.geometry.lift import plane_to_world
 from annotate_rgbd.pool import default_workers, run_jobs, start_helpers
-from annotate_rgbd.io.poses import poses_at, read_trajectory
+from annotate_rgbd.io.poses import load_trajectory, missing_poses_text, poses_at
 from annotate_rgbd.io.sequence import associate, read_depth, read_sequence
 from annotate_rgbd.io.outdir import MASKS, OutputFolder, read_bounded, remove_stale_files
 from annotate_rgbd.io.writer import write_json
@@ -77,13 +77,15 @@ def run_propose(
     Parameters
     ----------
     sequence_dir : str or Path
-        TUM / ICL-NUIM sequence folder.
+        A sequence folder in any layout :func:`~annotate_rgbd.io.sequence.read_sequence` knows,
+        depth-only folders too (their frames are the depth frames; ``rgb`` is null in the report).
     out_dir : str or Path
     config : Config
         Camera, ``[sequence]`` (RGB association), ``[filter]`` (drop rules), ``[noise]``, and
         ``propose``'s own ``[detect]``, ``[propose]`` (every N-th frame, label...) and ``[link]``.
     poses : str or Path, optional
-        TUM trajectory: link tracks by world plane.
+        A trajectory (TUM, KITTI, a folder of pose files): link tracks by world plane. Default:
+        the layout's own poses (ScanNet, 7-Scenes), if any.
     workers : int, optional
         Processes in all (default: every core).
     progress : callable, optional
@@ -100,7 +102,7 @@ def run_propose(
         cannot be written, is busy, holds links where ``propose`` writes, or holds the output
         of ``cvat2mask`` (:class:`annotate_rgbd.io.outdir.OutputFolder`).
     """
-    sequence = read_sequence(sequence_dir)
+    sequence = read_sequence(sequence_dir, need_rgb=False)
     out_dir = Path(out_dir)
     workers = workers or default_workers()
     with OutputFolder(out_dir, "propose") as folder:
@@ -117,7 +119,11 @@ def _run(sequence, folder: OutputFolder, config, poses_path, helpers, progress) 
     result = ProposeResult()
     settings = config.propose
     depth_times = sequence.depth.timestamps
-    nearest, time_diff, matched = associate(depth_times, sequence.rgb.timestamps, config.sequence.max_time_diff)
+    if sequence.rgb is None:  # depth only: the depth frames are the frames
+        count = len(depth_times)
+        nearest, time_diff, matched = np.arange(count), np.zeros(count), np.ones(count, bool)
+    else:
+        nearest, time_diff, matched = associate(depth_times, sequence.rgb.timestamps, config.sequence.max_time_diff)
     chosen = np.arange(0, len(depth_times), settings.every)
     for i in chosen[~matched[chosen]]:
         result.skipped.append(f"{sequence.depth.files[i]}: no RGB frame within {config.sequence.max_time_diff} s")
@@ -130,10 +136,12 @@ def _run(sequence, folder: OutputFolder, config, poses_path, helpers, progress) 
         result.warnings.append(hint)
         log.warning("%s", hint)
     frame_poses = None
+    if poses_path is None and sequence.poses is not None:
+        poses_path = sequence.poses
+        log.info("poses: the %s layout's per-frame camera-to-world poses (%s); give --poses for another trajectory",
+                 sequence.layout, poses_path)
     if poses_path is not None:
-        frame_poses = poses_at(read_trajectory(poses_path), depth_times[chosen])
-        if not frame_poses.ok.any():
-            raise InputError(poses_path, "no processed depth frame lies within the trajectory")
+        frame_poses = _frame_poses(poses_path, sequence, depth_times[chosen], config, result.warnings)
     # Two depth frames may share their nearest RGB frame; its CVAT keyframe takes the nearer one.
     key_of_rgb: dict[int, int] = {}
     for position, i in enumerate(chosen.tolist()):
@@ -163,7 +171,8 @@ def _run(sequence, folder: OutputFolder, config, poses_path, helpers, progress) 
             item = waiting.pop(following)
             i = int(chosen[following])
             record = {"depth": sequence.depth.files[i], "depth_timestamp": float(depth_times[i]),
-                      "rgb": sequence.rgb.files[int(nearest[i])], "rgb_index": int(nearest[i]),
+                      "rgb": None if sequence.rgb is None else sequence.rgb.files[int(nearest[i])],
+                      "rgb_index": int(nearest[i]),
                       "time_offset": float(time_diff[i])}
             if not isinstance(item, InputError) and size is not None and item.labels.shape != size:
                 item = FrameTooSmall(  # the exports hold frames of one size, the first frame's
@@ -208,7 +217,8 @@ def _run(sequence, folder: OutputFolder, config, poses_path, helpers, progress) 
     height, width = size if size is not None else (0, 0)
     sampled = sorted(rgb for rgb, position in key_of_rgb.items() if frames[position]["status"] == "written")
     if sampled:
-        write_polygon_tracks(ordered, out_dir / PROPOSALS_NAME, n_frames=len(sequence.rgb),
+        n_frames = len(sequence.depth if sequence.rgb is None else sequence.rgb)
+        write_polygon_tracks(ordered, out_dir / PROPOSALS_NAME, n_frames=n_frames,
                              sampled_frames=sampled, width=width, height=height)
     result.tracks = len(ordered)
     written = {f["mask"] for f in frames if f["status"] == "written"}
@@ -260,6 +270,34 @@ def _depth_scale_hint(sequence, chosen: np.ndarray, config: Config) -> str | Non
             continue  # reported with its frame
     hint = depth_scale_hint(medians, config.camera.depth_scale)
     return None if hint is None else f"{sequence.root / Path(sequence.depth.files[0]).parent}: {hint}"
+
+
+def _frame_poses(path, sequence, times: np.ndarray, config: Config, warnings: list[str]):
+    """The poses of the processed depth frames; a warning for an implausible trajectory and for
+    frames without a pose (with the two time ranges when they lie outside it).
+
+    Raises
+    ------
+    InputError
+        No processed frame has a pose (the time ranges, and the likely unit or offset, said).
+    """
+    loaded = load_trajectory(path, sequence.depth.timestamps, sequence.clock)
+    for note in loaded.notes:
+        log.info("%s", note)
+    for line in loaded.warnings:
+        warnings.append(line)
+        log.warning("%s", line)
+    frame_poses = poses_at(loaded.trajectory, times, config.sequence.max_pose_gap)
+    ranges = missing_poses_text(loaded.trajectory, times, frame_poses.reasons, sequence.clock)
+    if not frame_poses.ok.any():
+        raise InputError(path, f"no processed depth frame has a pose{': ' + ranges if ranges else ''}")
+    missing = int(np.count_nonzero(~frame_poses.ok))
+    if missing:
+        line = (f"{path}: {missing} of {len(times)} processed depth frames have no pose; they are linked "
+                f"without poses (camera-frame planes, image overlap){' (' + ranges + ')' if ranges else ''}")
+        warnings.append(line)
+        log.warning("%s", line)
+    return frame_poses
 
 
 def _plane_records(item: FrameProposal, ids: np.ndarray) -> list[dict]:

@@ -11,7 +11,7 @@ import pytest
 from conftest import reference_data
 from scipy.spatial.transform import Rotation, Slerp
 
-from annotate_rgbd.io import poses
+from annotate_rgbd.io import trajectory_text
 from annotate_rgbd.errors import InputError
 from annotate_rgbd.io.poses import (
     DEFAULT_MAX_POSE_GAP,
@@ -148,23 +148,24 @@ def test_not_utf8_names_the_line(tmp_path):
         read_trajectory(path)
 
 
-@pytest.mark.parametrize("make", [lambda tmp: tmp / "missing.txt", lambda tmp: tmp])
-def test_unreadable(tmp_path, make):
+@pytest.mark.parametrize(("make", "words"), [(lambda tmp: tmp / "missing.txt", "cannot read the trajectory file"),
+                                              (lambda tmp: tmp, "holds no pose files")])
+def test_unreadable(tmp_path, make, words):
     path = make(tmp_path)
-    with pytest.raises(InputError, match="cannot read the trajectory file") as caught:
+    with pytest.raises(InputError, match=words) as caught:
         read_trajectory(path)
     assert caught.value.path == path and "\n" not in str(caught.value)
 
 
 def test_too_many_lines_or_bytes_are_refused(tmp_path, monkeypatch):
     path = write(tmp_path, GOOD + "\r\n\r# comment")  # four lines, the last without a break
-    monkeypatch.setattr(poses, "MAX_LINES", 4)
+    monkeypatch.setattr(trajectory_text, "MAX_LINES", 4)
     assert len(read_trajectory(path)) == 1
-    monkeypatch.setattr(poses, "MAX_LINES", 3)
+    monkeypatch.setattr(trajectory_text, "MAX_LINES", 3)
     with pytest.raises(InputError, match="more than 3 lines"):
         read_trajectory(path)
-    monkeypatch.setattr(poses, "MAX_LINES", 10)
-    monkeypatch.setattr(poses, "MAX_BYTES", path.stat().st_size - 1)
+    monkeypatch.setattr(trajectory_text, "MAX_LINES", 10)
+    monkeypatch.setattr(trajectory_text, "MAX_BYTES", path.stat().st_size - 1)
     with pytest.raises(InputError, match="GiB: larger than"):
         read_trajectory(path)
 
