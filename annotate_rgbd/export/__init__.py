@@ -25,11 +25,11 @@ from pathlib import Path
 
 from annotate_rgbd import __version__
 from annotate_rgbd.errors import InputError, OutputError
-from annotate_rgbd.io.outdir import check_not_link, read_bounded
+from annotate_rgbd.io.outdir import check_not_link, read_bounded, reading
 from annotate_rgbd.io.writer import prepare_output, write_json
 from .coco import write_coco
 from .evops import write_evops
-from .frames import read_run
+from .frames import ExportRun, read_run
 from .planercnn import write_planercnn
 from .planes import EQUATION_CONVENTION, write_frame_planes
 
@@ -97,12 +97,16 @@ def export_run(run_dir: str | Path, fmt: str, out: str | Path, poses: str | Path
     InputError
         Unknown format, no report, a missing or unreadable mask, no pose for a world-frame layout.
     OutputError
-        The folder holds files no export wrote, is the run's folder, or cannot be written.
+        The folder holds files no export wrote, is the run's folder, or cannot be written; a
+        run is writing to ``run_dir``.
     """
     if fmt not in FORMATS:
         raise InputError(None, f"unknown export format {fmt!r} (formats: {', '.join(FORMATS)})")
-    run = read_run(run_dir, poses)
-    out = Path(out)
+    with reading(Path(run_dir)):  # never a run half-way through
+        return _export(read_run(run_dir, poses), fmt, Path(out))
+
+
+def _export(run: ExportRun, fmt: str, out: Path) -> ExportResult:
     if out.resolve() == run.run_dir.resolve():
         raise OutputError(out, "is the run's folder: export into a folder of its own")
     previous = _previous_files(out)
