@@ -85,15 +85,13 @@ def segment_frame(
     )
     inlier_count = label_histogram(refined, int(drawn.max(initial=0)) + 1)
     equations = {plane_id: fit.equation for plane_id, fit in fits.items()}
-    labels, grown = grow_planes(refined, drawn, depth_m, equations, config.camera, band.model, band.k, band.floor,
-                                band.cap, config.refine.grow_pixels)
+    labels, grown = grow_planes(refined, drawn, depth_m, equations, config.camera, band, config.refine.grow_pixels)
     carried = {plane_id: equation for plane_id, equation in equations.items() if plane_id in propagated}
     if carried and config.refine.grow_pixels:
         # Where a plane went on beyond every keyframe's view, nobody outlined it; shapes carried
         # by poses (an outline's extension past a keyframe's border above all) are guesses.
         claimed = (drawn > 0) & ~np.isin(drawn, list(propagated))
-        labels, beyond = grow_connected(labels, drawn, claimed, depth_m, carried, config.camera, band.model, band.k,
-                                        band.floor, band.cap, config.refine)
+        labels, beyond = grow_connected(labels, drawn, claimed, depth_m, carried, config.camera, band, config.refine)
         grown = {plane_id: count + beyond.get(plane_id, 0) for plane_id, count in grown.items()}
     result = FrameResult(labels=labels, drawn=drawn, colour_grid=colour_grid)
     for i, plane_id in enumerate(stats.plane_ids.tolist()):

@@ -15,7 +15,7 @@ import numpy as np
 
 from annotate_rgbd.config.settings import RefineConfig
 from annotate_rgbd.geometry.camera import Camera, backproject
-from annotate_rgbd.geometry.noise import NoiseModel, inlier_band
+from annotate_rgbd.geometry.noise import NoiseSettings
 from .refine import ids_nearby, signed_distances, window_scores
 
 
@@ -25,10 +25,7 @@ def grow_planes(
     depth_m: np.ndarray,
     equations: Mapping[int, np.ndarray],
     camera: Camera,
-    model: NoiseModel,
-    k: float,
-    floor: float,
-    cap: float,
+    noise: NoiseSettings,
     grow_pixels: int,
 ) -> tuple[np.ndarray, dict[int, int]]:
     """Grow each plane into the pixels around its drawn shape that lie on it.
@@ -62,9 +59,8 @@ def grow_planes(
         The plane ``(a, b, c, d)`` of each plane to grow (unit normal), e.g. from refinement.
     camera : Camera
         Intrinsics (``fy`` may be negative).
-    model : ConstantNoise or QuadraticNoise
-    k, floor, cap : float
-        The band, as in :func:`annotate_rgbd.geometry.noise.inlier_band`.
+    noise : NoiseSettings
+        The inlier band (:meth:`annotate_rgbd.geometry.noise.NoiseSettings.band`).
     grow_pixels : int
         Largest distance in pixels from the drawn shape; 0 returns ``refined`` unchanged.
 
@@ -97,7 +93,7 @@ def grow_planes(
     if rows.size == 0:
         return labels, grown
     points = backproject(cols, rows, z, camera)
-    band = inlier_band(z, model, k, floor, cap)
+    band = noise.band(z)
     table = np.zeros((top + 1, 4))
     for plane_id, equation in equations.items():
         table[int(plane_id)] = equation
@@ -124,10 +120,7 @@ def grow_connected(
     depth_m: np.ndarray,
     equations: Mapping[int, np.ndarray],
     camera: Camera,
-    model: NoiseModel,
-    k: float,
-    floor: float,
-    cap: float,
+    noise: NoiseSettings,
     refine: RefineConfig = RefineConfig(),
 ) -> tuple[np.ndarray, dict[int, int]]:
     """Grow each plane of ``equations``, without a distance limit, over the pixels that lie on it
@@ -158,9 +151,8 @@ def grow_connected(
     equations : mapping of int to ndarray, shape (4,)
         The planes to grow (unit normal, camera frame).
     camera : Camera
-    model : ConstantNoise or QuadraticNoise
-    k, floor, cap : float
-        The band, as in :func:`annotate_rgbd.geometry.noise.inlier_band`.
+    noise : NoiseSettings
+        The inlier band (:meth:`annotate_rgbd.geometry.noise.NoiseSettings.band`).
     refine : RefineConfig
         The window test's tunables (``coherence_window``, ``min_window_inliers``,
         ``coherence_limit``).
@@ -182,7 +174,7 @@ def grow_connected(
     if not free.any():
         return labels, grown
     drawn = np.asarray(drawn)
-    band = np.asarray(inlier_band(depth, model, k, floor, cap), dtype=np.float32)
+    band = np.asarray(noise.band(depth), dtype=np.float32)
     ids = sorted(grown)
     candidate = np.zeros(labels.shape, dtype=np.int64)
     best = np.full(labels.shape, np.inf, dtype=np.float32)
@@ -197,7 +189,7 @@ def grow_connected(
         candidate[closer] = plane_id
         best[closer] = np.abs(signed[closer])
         scored = closer | ((labels == plane_id) & np.isfinite(signed))
-        residual[scored] = signed[scored] * np.float32(k) / band[scored]
+        residual[scored] = signed[scored] * np.float32(noise.k) / band[scored]
     # The window test of refinement (a doormat on the floor lies within its band): residuals in
     # noise units, averaged over each candidate's window, must look like the plane's noise.
     score, usable = window_scores(residual, own | (candidate > 0), refine.coherence_window, refine.min_window_inliers)

@@ -9,7 +9,7 @@ from typing import Collection, Mapping
 import cv2
 import numpy as np
 
-from annotate_rgbd.geometry.camera import Camera, backproject
+from annotate_rgbd.geometry.camera import Camera, backproject, ray_grid
 from annotate_rgbd.config.settings import PropagateConfig, RansacConfig, RefineConfig
 from annotate_rgbd.geometry.noise import ConstantNoise, NoiseSettings
 from annotate_rgbd.geometry.planes import weighted_plane_fit
@@ -214,10 +214,9 @@ def signed_distances(
     one plane, or one per pixel as images): ``z (a x_n + b y_n + c) + d`` with ``x_n = (col -
     cx) / fx``, ``y_n = (row - cy) / fy`` the pixel's ray at ``z = 1``. float32 is ample: depth
     has 0.2 mm steps, and bands are millimetres or more. NaN where the depth is."""
-    x_n = ((np.arange(depth_m.shape[1], dtype=np.float32) - np.float32(camera.cx)) / np.float32(camera.fx))[None, :]
-    y_n = ((np.arange(depth_m.shape[0], dtype=np.float32) - np.float32(camera.cy)) / np.float32(camera.fy))[:, None]
+    ray_x, ray_y = ray_grid(camera, *depth_m.shape, np.float32)
     with np.errstate(invalid="ignore"):
-        return depth_m * (a * x_n + b * y_n + c) + d
+        return depth_m * (a * ray_x[None, :] + b * ray_y[:, None] + c) + d
 
 
 #: The core re-fits (``refine.core_refits``) stop once no plane's normal or offset moved by this

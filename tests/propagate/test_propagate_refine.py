@@ -74,8 +74,8 @@ def floor_depth(rng=None, height=1.0):
 def grow(labels, drawn, claimed, depth, height=1.0):
     """:func:`grow_connected` of the floor ``height`` m below the camera as plane 1."""
     floor = np.array([0.0, -1.0, 0.0, height])  # normal towards the camera
-    return grow_connected(labels, drawn, claimed, depth, {1: floor}, CAMERA, SENSOR_MODELS["kinect_v1"], 3.0, 0.002,
-                          0.1)
+    return grow_connected(labels, drawn, claimed, depth, {1: floor}, CAMERA,
+                          NoiseSettings(SENSOR_MODELS["kinect_v1"], 3.0, 0.002, 0.1))
 
 
 def test_a_carried_plane_takes_the_pixels_on_it_that_connect_to_it():

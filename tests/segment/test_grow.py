@@ -8,7 +8,7 @@ from scipy import ndimage
 
 from annotate_rgbd.geometry.camera import Camera
 from annotate_rgbd.segment.grow import grow_planes
-from annotate_rgbd.geometry.noise import SENSOR_MODELS, ConstantNoise
+from annotate_rgbd.geometry.noise import SENSOR_MODELS, ConstantNoise, NoiseSettings
 
 KINECT = SENSOR_MODELS["kinect_v1"]
 K, FLOOR, CAP = 3.0, 0.002, 0.10
@@ -80,7 +80,7 @@ def scene(camera, seed=0):
 
 
 def grow(refined, drawn, depth, camera, equations, grow_pixels, model=KINECT):
-    return grow_planes(refined, drawn, depth, equations, camera, model, K, FLOOR, CAP, grow_pixels)
+    return grow_planes(refined, drawn, depth, equations, camera, NoiseSettings(model, K, FLOOR, CAP), grow_pixels)
 
 
 @pytest.mark.parametrize("name", ["tum", "icl"])
@@ -229,6 +229,6 @@ def test_zero_depth_is_invalid_too():
     drawn = np.zeros((H, W), dtype=np.uint8)
     drawn[50:70, 60:90] = 1
     depth[45:50, 60:90] = 0.0
-    labels, grown = grow_planes(drawn.copy(), drawn, depth, {1: TILTED}, camera, ConstantNoise(0.6), K, FLOOR, 2.0, 5)
+    labels, grown = grow_planes(drawn.copy(), drawn, depth, {1: TILTED}, camera, NoiseSettings(ConstantNoise(0.6), K, FLOOR, 2.0), 5)
     assert not labels[45:50, 60:90].any()
     assert (labels[70:75, 60:90] == 1).all()
