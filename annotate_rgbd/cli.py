@@ -100,7 +100,9 @@ def output_folder(out: str) -> Path:
 def _load_config(sequence_dir: Path, config: Optional[str], overrides: dict):
     """The run's configuration: ``--config`` (else the defaults) with the overrides. Without
     ``--config``, the depth camera the sequence's layout states (ScanNet's intrinsic_depth.txt,
-    7-Scenes' documented camera) comes before the overrides, said in one line."""
+    7-Scenes' documented camera) and its colour camera when colour is on another grid
+    (ScanNet's intrinsic_color.txt and extrinsics: ``[colour_camera]``) come before the
+    overrides, each said in one line."""
     from annotate_rgbd.config.settings import load_config
 
     if config is None:
@@ -114,7 +116,20 @@ def _load_config(sequence_dir: Path, config: Optional[str], overrides: dict):
             log.info("camera: %s (%s layout): %s; give --config for another", sequence.camera.source,
                      sequence.layout, sequence.camera.describe())
             overrides = {**sequence.camera.overrides(), **overrides}
+        colour = sequence.colour_camera
+        if colour is not None and not colour.on_depth_grid(sequence.camera, *_depth_size(sequence)):
+            log.info("colour camera: %s (%s layout): %s; shapes are drawn on it", colour.source, sequence.layout,
+                     colour.describe())
+            overrides = {**colour.overrides(), **overrides}
     return load_config(config, overrides)
+
+
+def _depth_size(sequence) -> tuple[int, int]:
+    """(width, height) of the sequence's first depth image, from its PNG header."""
+    from annotate_rgbd.io.images import png_size, read_bytes
+
+    path = sequence.root / sequence.depth.files[0]
+    return png_size(read_bytes(path), path)
 
 
 def _version(value: bool) -> None:

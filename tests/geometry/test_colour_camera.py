@@ -311,3 +311,55 @@ def test_label_sampling_is_the_nearest_colour_pixel():
     expected = np.where(inside, labels[rows.clip(0, 96), cols.clip(0, 130)], 0)
     for dtype in (np.uint8, np.uint16, np.int32):  # OpenCV's remap, and numpy for ids past 65535
         np.testing.assert_array_equal(sample_labels(labels.astype(dtype), map_x, map_y), expected)
+
+
+def save_matrix(path: Path, matrix: np.ndarray) -> None:
+    """A 4 x 4 matrix as ScanNet's SensReader writes it: one row a line."""
+    path.write_text("".join(" ".join(f"{v:f}" for v in row) + "\n" for row in matrix))
+
+
+def test_scannet_layout_with_its_colour_camera(tmp_path):
+    """A ScanNet export whose colour images come from the offset colour camera (another size,
+    intrinsics and pose): without --config, the layout's colour camera is used, and the shapes
+    drawn on the colour images land on the right depth pixels."""
+    root, frames = tmp_path / "scene0000_00", (2, 3, 4)
+    for name in ("color", "depth", "pose", "intrinsic"):
+        (root / name).mkdir(parents=True)
+    tracks: dict[int, dict[int, Shape]] = {}
+    for i, index in enumerate(frames):
+        _, depth, seen, shapes = colour_frame(index)
+        cv2.imwrite(str(root / "color" / f"{i}.jpg"), seen.rgb[:, :, ::-1], [cv2.IMWRITE_JPEG_QUALITY, 95])
+        cv2.imwrite(str(root / "depth" / f"{i}.png"), np.round(depth.depth_raw / 5.0).astype(np.uint16))  # mm
+        pose = room_trajectory(8)[index]
+        save_matrix(root / "pose" / f"{i}.txt", np.vstack([np.c_[pose.rotation, pose.position], [0, 0, 0, 1]]))
+        for plane_id, shape in shapes:
+            tracks.setdefault(plane_id, {})[i] = shape
+    k_depth = np.array([[DEPTH_CAMERA.fx, 0, DEPTH_CAMERA.cx, 0], [0, DEPTH_CAMERA.fy, DEPTH_CAMERA.cy, 0],
+                        [0, 0, 1, 0], [0, 0, 0, 1]])
+    save_matrix(root / "intrinsic" / "intrinsic_depth.txt", k_depth)
+    save_matrix(root / "intrinsic" / "intrinsic_color.txt", np.pad(COLOUR_K, (0, 1)) + np.diag([0, 0, 0, 1]))
+    save_matrix(root / "intrinsic" / "extrinsic_color.txt", EXTRINSIC)
+    save_matrix(root / "intrinsic" / "extrinsic_depth.txt", np.eye(4))
+    scene = room_scene()
+    annotation = Annotation(
+        path=str(root), format="video", frames=list(range(len(frames))),
+        tracks=[Track(p, scene.planes[p - 1].label, shapes) for p, shapes in sorted(tracks.items())],
+        image_size={f: COLOUR_SIZE for f in range(len(frames))},
+    )
+    xml = tmp_path / "annotations.xml"
+    write_cvat_video(annotation, xml, width=COLOUR_SIZE[0], height=COLOUR_SIZE[1])
+    out = tmp_path / "out"
+    result = CliRunner().invoke(app, ["cvat2mask", str(root), str(xml), "--out", str(out), "-j", "1", "--instance-ids"])
+    assert result.exit_code == 0, result.output
+    assert "colour camera: " in result.output and "424x300" in result.output
+    report = json.loads((out / "report.json").read_text())
+    np.testing.assert_allclose(report["config"]["colour_camera"]["extrinsic"], EXTRINSIC, atol=1e-6)
+    track_of = {p["plane"]: p["track_id"] for p in report["planes"]}
+    ious = []
+    for index, frame in zip(frames, report["frames"]):
+        _, depth, seen, shapes = colour_frame(index)
+        ids = cv2.imread(str(out / "masks_id" / Path(frame["mask"]).name), cv2.IMREAD_UNCHANGED)
+        as_tracks = np.array([0] + [track_of[p] for p in range(1, len(track_of) + 1)])[ids]
+        truth = seen_by_both(depth, seen, [plane_id for plane_id, _ in shapes])
+        ious.append(mean_iou(as_tracks, truth, [track_of[r["plane"]] for r in frame["kept"]]))
+    assert np.mean(ious) >= 0.95, ious

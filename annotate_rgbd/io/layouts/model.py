@@ -96,6 +96,28 @@ class ColourCamera:
     depth_to_colour: np.ndarray = field(default_factory=lambda: np.eye(4))
     source: str = ""
 
+    def on_depth_grid(self, camera: LayoutCamera | None, width: int, height: int) -> bool:
+        """Whether colour and depth share one pixel grid: the depth images' size, the depth
+        camera's intrinsics and no rotation or shift between the two (then nothing is to map)."""
+        if camera is None or (self.width, self.height) != (width, height):
+            return False
+        same = np.allclose((self.fx, self.fy, self.cx, self.cy), (camera.fx, camera.fy, camera.cx, camera.cy), atol=1e-6)
+        return bool(same and np.allclose(self.depth_to_colour, np.eye(4), atol=1e-9))
+
+    def overrides(self) -> dict[str, object]:
+        """The ``[colour_camera]`` keys, as ``--set`` overrides (``"colour_camera.fx" -> value``)."""
+        values: dict[str, object] = {f"colour_camera.{key}": getattr(self, key) for key in ("fx", "fy", "cx", "cy")}
+        values.update({"colour_camera.width": self.width, "colour_camera.height": self.height,
+                       "colour_camera.extrinsic": np.asarray(self.depth_to_colour, dtype=np.float64).tolist()})
+        return values
+
+    def describe(self) -> str:
+        """``1296x968, fx 1170.19, fy 1170.19, cx 647.75, cy 483.75, 2.1 cm and 0.3 degrees from the depth camera``."""
+        rotation, shift = self.depth_to_colour[:3, :3], self.depth_to_colour[:3, 3]
+        angle = np.degrees(np.arccos(np.clip((np.trace(rotation) - 1) / 2, -1.0, 1.0)))
+        return (f"{self.width}x{self.height}, " + ", ".join(f"{key} {getattr(self, key):g}" for key in ("fx", "fy", "cx", "cy"))
+                + f", {100 * np.linalg.norm(shift):.1f} cm and {angle:.1f} degrees from the depth camera")
+
 
 @dataclass(frozen=True)
 class Sequence:
