@@ -27,7 +27,7 @@ from typing import Any, Mapping
 import cv2
 import numpy as np
 
-from .camera import Camera
+from .camera import Camera, ray_grid
 
 #: Largest colour image side accepted (pixels): beyond any RGB-D sensor, and a bound on the
 #: label image a frame rasterises.
@@ -172,8 +172,7 @@ def colour_pixel_grid(depth_m: np.ndarray, depth_camera: Camera, colour: ColourC
         z, translation = np.ones((height, width), dtype=np.float32), np.zeros(3, dtype=np.float32)
     else:
         z = np.where(valid, depth_m, np.float32(fill)).astype(np.float32, copy=False)
-    ray_x = ((np.arange(width) - depth_camera.cx) / depth_camera.fx).astype(np.float32)
-    ray_y = ((np.arange(height) - depth_camera.cy) / depth_camera.fy).astype(np.float32)
+    ray_x, ray_y = (ray.astype(np.float32) for ray in ray_grid(depth_camera, height, width))
     rotation = np.asarray(colour.rotation, dtype=np.float32)
     # X_colour = R @ (z * ray) + t, one component at a time, in place (float32: 0.001 px at
     # 10,000 px); then the colour pinhole projection.
