@@ -174,6 +174,42 @@ def propose_planes(
     )
 
 
+def keep_planes(proposal: FrameProposal, keep: np.ndarray, reason: str) -> FrameProposal:
+    """The proposal with only the planes ``keep`` selects, renumbered 1.. in their order; the
+    others join ``dropped`` with ``reason``.
+
+    Parameters
+    ----------
+    proposal : FrameProposal
+    keep : ndarray of bool, shape (K,)
+    reason : str
+        Why the others are not proposed.
+
+    Returns
+    -------
+    FrameProposal
+    """
+    keep = np.asarray(keep, dtype=bool)
+    if keep.all():
+        return proposal
+    table = np.zeros(len(keep) + 1, dtype=proposal.labels.dtype)
+    table[1:][keep] = np.arange(1, np.count_nonzero(keep) + 1)
+    dropped = [{"area": int(proposal.areas[k]), "reason": reason,
+                "mean_distance": _finite(proposal.mean_distance[k]), "invalid_ratio": None,
+                "equation": [float(v) for v in proposal.planes[k]]} for k in np.flatnonzero(~keep)]
+    return FrameProposal(
+        position=proposal.position,
+        labels=relabel(proposal.labels, table, proposal.labels.dtype),
+        planes=proposal.planes[keep],
+        areas=proposal.areas[keep],
+        centroids=proposal.centroids[keep],
+        mean_distance=proposal.mean_distance[keep],
+        outlines=[proposal.outlines[k] for k in np.flatnonzero(keep)],
+        z_order=np.argsort(np.argsort(proposal.z_order[keep], kind="stable"), kind="stable").astype(np.int64),
+        dropped=proposal.dropped + dropped,
+    )
+
+
 @dataclass(frozen=True)
 class Moments:
     """First and second moments of each label's 3-D points (label k in row k - 1).

@@ -19,8 +19,9 @@ from annotate_rgbd.pool import default_workers, run_jobs, start_helpers
 from annotate_rgbd.io.poses import poses_at, read_trajectory
 from annotate_rgbd.io.sequence import associate, read_sequence
 from annotate_rgbd.io.writer import prepare_output, write_json
-from .detect_job import DetectJob, FrameProposal, propose_frame
+from .detect_job import DetectJob, FrameProposal, keep_planes, propose_frame
 from .link import TrackLinker
+from .persist import PersistenceFilter
 from .output import TrackShapes, equation_text, track_colour, write_colour_mask, write_polygon_tracks
 from .settings import ProposeConfig
 
@@ -133,11 +134,32 @@ def _run(sequence, out_dir, config, settings, poses_path, helpers, progress) -> 
         for position, i in enumerate(chosen.tolist())
     ]
     linker = TrackLinker(settings.link, config.noise, config.camera)
+    # A track must be found on min_track_frames processed frames (fewer when fewer are processed).
+    persistence = PersistenceFilter(min(settings.min_track_frames, len(chosen)), settings.link.max_gap)
     tracks: dict[int, TrackShapes] = {}
     best: dict[int, tuple[int, np.ndarray, str]] = {}  # track -> (area, equation, frame) for the attribute
     frames: list[dict] = []
     waiting: dict[int, FrameProposal | InputError] = {}
     size = None
+
+    def emit(decided) -> None:
+        """Write a frame whose tracks' fates are known (frames come in order)."""
+        nonlocal size
+        record, item, pose, i = decided.payload
+        if isinstance(item, InputError):
+            frames.append({**record, "status": "failed", "error": str(item)})
+            return
+        item = keep_planes(item, decided.keep, "flicker")
+        ids = decided.ids[decided.keep]
+        size = item.labels.shape
+        mask_name = Path(sequence.depth.files[i]).name
+        write_colour_mask(out_dir / MASKS_DIR / mask_name, item.labels, ids)
+        keyframe = key_of_rgb[int(nearest[i])] == decided.position
+        frames.append({**record, "status": "written", "mask": f"{MASKS_DIR}/{mask_name}",
+                       "cvat_keyframe": keyframe, "planes": _plane_records(item, ids), "dropped": item.dropped})
+        _collect(item, ids, int(nearest[i]), keyframe, pose, settings.label, tracks, best)
+        result.frames += 1
+
     following = 0
     for outcome in run_jobs(jobs, propose_frame, helpers):
         waiting[outcome.index] = outcome.value if outcome.error is None else outcome.error
@@ -147,27 +169,21 @@ def _run(sequence, out_dir, config, settings, poses_path, helpers, progress) -> 
             record = {"depth": sequence.depth.files[i], "depth_timestamp": float(depth_times[i]),
                       "rgb": sequence.rgb.files[int(nearest[i])], "rgb_index": int(nearest[i]),
                       "time_offset": float(time_diff[i])}
+            pose, found = None, np.zeros(0, dtype=np.int64)
             if isinstance(item, InputError):
                 result.failed.append(f"{sequence.depth.files[i]}: {item}")
                 log.warning("%s", item)
-                frames.append({**record, "status": "failed", "error": str(item)})
             else:
-                pose = None
                 if frame_poses is not None and frame_poses.ok[following]:
                     pose = (frame_poses.rotations[following], frame_poses.translations[following])
-                size = item.labels.shape
-                ids = linker.add(item, float(depth_times[i]), pose)
-                mask_name = Path(sequence.depth.files[i]).name
-                write_colour_mask(out_dir / MASKS_DIR / mask_name, item.labels, ids)
-                frames.append({**record, "status": "written", "mask": f"{MASKS_DIR}/{mask_name}",
-                               "cvat_keyframe": key_of_rgb[int(nearest[i])] == following,
-                               "planes": _plane_records(item, ids), "dropped": item.dropped})
-                _collect(item, ids, int(nearest[i]), key_of_rgb[int(nearest[i])] == following, pose,
-                         settings.label, tracks, best)
-                result.frames += 1
+                found = linker.add(item, float(depth_times[i]), pose)
+            for decided in persistence.add(following, found, (record, item, pose, i)):
+                emit(decided)
             following += 1
             if progress is not None:
                 progress(following, len(jobs))
+    for decided in persistence.finish():
+        emit(decided)
     for track, (_, equation, where) in best.items():
         tracks[track].attributes = {"equation": equation_text(equation), "equation_frame": where}
     ordered = [tracks[t] for t in sorted(tracks)]
@@ -181,7 +197,8 @@ def _run(sequence, out_dir, config, settings, poses_path, helpers, progress) -> 
         "tool": "annotate-rgbd propose", "version": __version__,
         "inputs": {"sequence": str(sequence.root), "poses": None if poses_path is None else str(poses_path),
                    "every": settings.every, "label": settings.label,
-                   "min_area_fraction": settings.detector.min_area_fraction},
+                   "min_area_fraction": settings.detector.min_area_fraction,
+                   "min_track_frames": settings.min_track_frames},
         "config": config_to_dict(config),
         "summary": {"frames_processed": result.frames, "frames_skipped": len(result.skipped),
                     "frames_failed": len(result.failed), "tracks": result.tracks,

@@ -88,6 +88,11 @@ class ProposeConfig:
         merging is not proposed.
     outline_tolerance_px : float
         Douglas-Peucker tolerance of the polygons (``plane_outlines``): a pixel or two of error.
+    min_track_frames : int
+        A plane is proposed only when its track is found on at least this many processed frames
+        (all of them when fewer are processed): a plane that flickers for one frame is a fragment
+        or noise, not a surface (issue 26). 2: the least that tells a surface that stays in view
+        from a one-frame flicker at any ``every``.
     """
 
     detector: DetectorConfig = field(default_factory=DetectorConfig)
@@ -97,9 +102,12 @@ class ProposeConfig:
     merge_excess: float = 1.0
     piece_fraction: float = 0.5
     outline_tolerance_px: float = 1.5
+    min_track_frames: int = 2
 
     def __post_init__(self):
         if not isinstance(self.every, int) or self.every < 1:
             raise ValueError(f"every must be an integer >= 1, got {self.every!r}")
+        if not isinstance(self.min_track_frames, int) or self.min_track_frames < 1:
+            raise ValueError(f"min_track_frames must be an integer >= 1, got {self.min_track_frames!r}")
         if not self.label.strip():
             raise ValueError("the label must not be empty")
