@@ -80,3 +80,62 @@ def test_bad_settings_are_refused():
         PersistenceFilter(0, 2)
     with pytest.raises(ValueError):
         PersistenceFilter(2, -1)
+
+
+# Objects on planes ------------------------------------------------------------------------
+
+from annotate_rgbd.config.settings import FilterConfig  # noqa: E402
+from annotate_rgbd.geometry.camera import Camera  # noqa: E402
+from annotate_rgbd.geometry.noise import NoiseSettings  # noqa: E402
+from annotate_rgbd.propose import ProposeConfig  # noqa: E402
+from annotate_rgbd.propose.detect_job import propose_planes  # noqa: E402
+from annotate_rgbd.propose.objects import objects_on_planes  # noqa: E402
+
+CAMERA = Camera(fx=525.0, fy=525.0, cx=319.5, cy=239.5, depth_scale=5000.0)
+
+
+def wall_with_things(rng):
+    """A wall 2 m away facing the camera, a picture 3 cm proud of it, a panel 25 cm before it,
+    Kinect noise (computed here: sigma = 1.2 mm + 1.9 mm (z - 0.4)^2)."""
+    depth = np.full((480, 640), 2.0)
+    depth[150:300, 150:350] = 1.97   # picture: 3 cm proud, 5 sigma at 2 m
+    depth[120:260, 430:600] = 1.75   # panel: 25 cm before the wall
+    sigma = 0.0012 + 0.0019 * (depth - 0.4) ** 2
+    return (depth + rng.normal(0, 1, depth.shape) * sigma).astype(np.float32)
+
+
+def test_a_picture_on_a_wall_is_not_proposed_and_a_panel_before_it_is():
+    depth = wall_with_things(np.random.default_rng(3))
+    found = propose_planes(depth, CAMERA, ProposeConfig(), NoiseSettings(), FilterConfig())
+    z = np.array([c[2] for c in found.centroids])
+    assert sorted(np.round(z, 1).tolist()) == [1.8, 2.0]  # the panel and the wall (its mean over the picture's hole)
+    dropped = [d for d in found.dropped if d["reason"] == "on_plane"]
+    assert len(dropped) == 1 and dropped[0]["area"] == pytest.approx(150 * 200, rel=0.1)
+    assert dropped[0]["equation"][3] == pytest.approx(1.97, abs=0.01)
+    # The picture's pixels are nobody's.
+    assert np.count_nonzero(found.labels[160:290, 160:340]) < 0.02 * 130 * 180
+    # Allowed 2 cm only, the picture is a plane of its own again.
+    high = propose_planes(depth, CAMERA, ProposeConfig(object_height=0.02), NoiseSettings(), FilterConfig())
+    assert len(high.areas) == 3 and not high.dropped
+
+
+def test_objects_rule_needs_every_condition():
+    wall = [0.0, 0.0, -1.0, 2.0]
+    planes = np.array([wall, [0.0, 0.0, -1.0, 1.95], wall])
+    areas = np.array([10000, 1000, 500])
+    centroids = np.array([[0.0, 0.0, 2.0], [0.0, 0.0, 1.95], [0.5, 0.0, 2.0]])
+    coverage = np.array([[10000, 900, 0], [0, 1000, 0], [0, 0, 500]])  # [p, q]: q's pixels in p's polygon
+    args = dict(max_height=0.1, min_inside=0.5, angle_deg=10.0)
+    assert objects_on_planes(planes, areas, centroids, coverage, **args).tolist() == [False, True, False]
+    # Too far before the wall; behind it (a recess); not inside its polygon; tilted; larger.
+    assert not objects_on_planes(planes, areas, centroids, coverage, **{**args, "max_height": 0.04})[1]
+    behind = centroids.copy()
+    behind[1, 2] = 2.05
+    assert not objects_on_planes(planes, areas, behind, coverage, **args)[1]
+    outside = coverage.copy()
+    outside[0, 1] = 400
+    assert not objects_on_planes(planes, areas, centroids, outside, **args)[1]
+    tilted = planes.copy()
+    tilted[1, :3] = [0.0, np.sin(np.radians(15)), -np.cos(np.radians(15))]
+    assert not objects_on_planes(tilted, areas, centroids, coverage, **args)[1]
+    assert not objects_on_planes(planes, np.array([10000, 20000, 500]), centroids, coverage, **args)[1]

@@ -20,6 +20,7 @@ from annotate_rgbd.errors import InputError
 from annotate_rgbd.segment.filters import camera_distances, drop_reasons, statistics_of_distances
 from annotate_rgbd.geometry.noise import NoiseSettings
 from annotate_rgbd.io.sequence import read_depth
+from .objects import objects_on_planes, polygon_coverage
 from .outlines import fill_window, piece_outlines
 from .settings import ProposeConfig
 
@@ -138,13 +139,25 @@ def propose_planes(
     if len(outlines) != len(areas):  # pragma: no cover - every label has pixels
         raise InputError(None, "a proposed plane has no outline")
     polygons = [outlines[k] for k in range(1, len(areas) + 1)]
+    windows = [fill_window(p, *labels.shape) for p in polygons]
+    coverage = polygon_coverage(labels, windows)
+    objects = objects_on_planes(planes, areas, centroids, coverage, settings.object_height,
+                                settings.object_inside, settings.detector.min_angle_deg)
+    early = [{"area": int(areas[k]), "reason": "on_plane", "mean_distance": None, "invalid_ratio": None,
+              "equation": [float(v) for v in planes[k]]} for k in np.flatnonzero(objects)]
+    if objects.any():
+        kept = np.flatnonzero(~objects)
+        table = np.zeros(len(areas) + 1, dtype=labels.dtype)
+        table[kept + 1] = np.arange(1, len(kept) + 1)
+        labels, planes, areas, centroids = relabel(labels, table, labels.dtype), planes[kept], areas[kept], centroids[kept]
+        polygons, windows = [polygons[k] for k in kept], [windows[k] for k in kept]
+        coverage = coverage[np.ix_(kept, kept)]
     # What plane_statistics computes, with the distance image shared by its two uses.
     ray_distance = camera_distances(depth, camera)
     valid = ~np.isnan(depth)
     # Every pixel of the detector's labels has valid depth: the mean needs only the sums.
     distance = np.bincount(labels.ravel(), weights=ray_distance.ravel(), minlength=len(areas) + 1)[1:] / areas
-    windows = [fill_window(p, *labels.shape) for p in polygons]
-    z_order = draw_order(labels, windows, distance)
+    z_order = draw_order(labels, windows, distance, coverage)
     drawn = paint(windows, z_order, labels.shape)
     stats = statistics_of_distances(drawn, ray_distance, valid)
     reasons = dict(zip(stats.plane_ids.tolist(), drop_reasons(stats, rules)))
@@ -152,7 +165,7 @@ def propose_planes(
     drawn_invalid = dict(zip(stats.plane_ids.tolist(), stats.invalid_ratio.tolist()))
     # A polygon covered entirely by nearer ones is not drawn at all: nothing of it would reach a mask.
     keep = np.array([reasons.get(k + 1, "hidden") is None for k in range(len(areas))], dtype=bool)
-    dropped = [
+    dropped = early + [
         {"area": int(areas[k]), "reason": reasons.get(k + 1) or "hidden",
          "mean_distance": _finite(drawn_distance.get(k + 1)), "invalid_ratio": _finite(drawn_invalid.get(k + 1)),
          "equation": [float(v) for v in planes[k]]}
@@ -308,7 +321,7 @@ def _apply_groups(labels, moments: Moments, group: np.ndarray, min_area: float):
     return relabel(labels, table, labels.dtype), planes, area[order], mean[order]
 
 
-def draw_order(labels: np.ndarray, windows: list, distance: np.ndarray) -> np.ndarray:
+def draw_order(labels: np.ndarray, windows: list, distance: np.ndarray, coverage: np.ndarray | None = None) -> np.ndarray:
     """``z_order`` of the polygons so that, where two overlap, the plane whose pixels fill the
     overlap is drawn on top: the nearer one where one plane occludes the other, the inner one
     where a polygon's filled holes hold another plane (a picture on a wall).
@@ -327,19 +340,17 @@ def draw_order(labels: np.ndarray, windows: list, distance: np.ndarray) -> np.nd
         :func:`annotate_rgbd.rasterize.shape_mask` gives them: ``(top, left, window)``.
     distance : ndarray of float, shape (K,)
         Mean camera distance of each plane (NaN: farthest).
+    coverage : ndarray of int, shape (K, K), optional
+        :func:`annotate_rgbd.propose.objects.polygon_coverage` of ``labels`` and ``windows``,
+        when already computed.
 
     Returns
     -------
     ndarray of int64, shape (K,)
         0 (bottom) .. K - 1 (top).
     """
-    k = len(windows)
-    inside = np.zeros((k, k + 1), dtype=np.int64)  # [p, q]: pixels of plane q inside polygon p
-    for p, (top, left, window) in enumerate(windows):
-        rows, cols = window.shape
-        covered = labels[top : top + rows, left : left + cols][window]
-        inside[p] = np.bincount(covered.astype(np.intp), minlength=k + 1)[: k + 1]
-    counts = inside[:, 1:]
+    counts = polygon_coverage(labels, windows) if coverage is None else np.asarray(coverage)
+    k = len(counts)
     below = counts.T > counts  # below[q, p]: q must be drawn above p
     farthest = np.nan_to_num(np.asarray(distance, dtype=np.float64), nan=np.inf)
     z = np.zeros(k, dtype=np.int64)

@@ -88,6 +88,16 @@ class ProposeConfig:
         merging is not proposed.
     outline_tolerance_px : float
         Douglas-Peucker tolerance of the polygons (``plane_outlines``): a pixel or two of error.
+    object_height : float
+        A plane parallel to a larger one (within ``detector.min_angle_deg``), in front of it by at
+        most this many metres and mostly inside its polygon is an object on it, not proposed
+        (:mod:`annotate_rgbd.propose.objects`). 0.10 m: what lies or hangs on a plane (papers,
+        books, keyboards, frames, whiteboards, racks: 0.1-6 cm) stands less off it, the planes a
+        labeller draws apart (a seat or shelf over the floor, a monitor before a wall, a table
+        top: 20 cm and more) stand more.
+    object_inside : float
+        Share of the smaller plane's pixels that must lie inside the larger one's polygon (holes
+        filled): a majority, 0.5.
     min_track_frames : int
         A plane is proposed only when its track is found on at least this many processed frames
         (all of them when fewer are processed): a plane that flickers for one frame is a fragment
@@ -102,11 +112,15 @@ class ProposeConfig:
     merge_excess: float = 1.0
     piece_fraction: float = 0.5
     outline_tolerance_px: float = 1.5
+    object_height: float = 0.10
+    object_inside: float = 0.5
     min_track_frames: int = 2
 
     def __post_init__(self):
         if not isinstance(self.every, int) or self.every < 1:
             raise ValueError(f"every must be an integer >= 1, got {self.every!r}")
+        if not (self.object_height >= 0 and 0 <= self.object_inside <= 1):
+            raise ValueError("object_height must be >= 0 and object_inside in [0, 1]")
         if not isinstance(self.min_track_frames, int) or self.min_track_frames < 1:
             raise ValueError(f"min_track_frames must be an integer >= 1, got {self.min_track_frames!r}")
         if not self.label.strip():
