@@ -125,17 +125,85 @@ def test_objects_rule_needs_every_condition():
     areas = np.array([10000, 1000, 500])
     centroids = np.array([[0.0, 0.0, 2.0], [0.0, 0.0, 1.95], [0.5, 0.0, 2.0]])
     coverage = np.array([[10000, 900, 0], [0, 1000, 0], [0, 0, 500]])  # [p, q]: q's pixels in p's polygon
+    alone = np.zeros((3, 3))  # no plane next to another
     args = dict(max_height=0.1, min_inside=0.5, angle_deg=10.0)
-    assert objects_on_planes(planes, areas, centroids, coverage, **args).tolist() == [False, True, False]
+    assert objects_on_planes(planes, areas, centroids, coverage, alone, **args).tolist() == [False, True, False]
     # Too far before the wall; behind it (a recess); not inside its polygon; tilted; larger.
-    assert not objects_on_planes(planes, areas, centroids, coverage, **{**args, "max_height": 0.04})[1]
+    assert not objects_on_planes(planes, areas, centroids, coverage, alone, **{**args, "max_height": 0.04})[1]
     behind = centroids.copy()
     behind[1, 2] = 2.05
-    assert not objects_on_planes(planes, areas, behind, coverage, **args)[1]
+    assert not objects_on_planes(planes, areas, behind, coverage, alone, **args)[1]
     outside = coverage.copy()
     outside[0, 1] = 400
-    assert not objects_on_planes(planes, areas, centroids, outside, **args)[1]
+    assert not objects_on_planes(planes, areas, centroids, outside, alone, **args)[1]
+    # Not inside the wall's polygon but surrounded by the wall (at its edge): on it.
+    surrounded = alone.copy()
+    surrounded[1] = [0.7, 0.0, 0.3]
+    assert objects_on_planes(planes, areas, centroids, outside, surrounded, **args)[1]
     tilted = planes.copy()
     tilted[1, :3] = [0.0, np.sin(np.radians(15)), -np.cos(np.radians(15))]
-    assert not objects_on_planes(tilted, areas, centroids, coverage, **args)[1]
-    assert not objects_on_planes(planes, np.array([10000, 20000, 500]), centroids, coverage, **args)[1]
+    assert not objects_on_planes(tilted, areas, centroids, coverage, alone, **args)[1]
+    assert not objects_on_planes(planes, np.array([10000, 20000, 500]), centroids, coverage, alone, **args)[1]
+
+
+def test_neighbour_shares_count_the_labelled_ring_only():
+    from annotate_rgbd.propose.objects import neighbour_shares
+
+    labels = np.zeros((60, 80), np.uint8)
+    labels[:, :40] = 1               # a desk on the left
+    labels[:, 40:] = 2               # the floor on the right
+    labels[20:30, 25:40] = 3         # a book at the desk's edge, touching the floor
+    labels[18:32, 23:42] = np.where(labels[18:32, 23:42] == 3, 3, 0)  # its unlabelled rims
+    labels[20:30, 25:40] = 3
+    shares = neighbour_shares(labels, 4)
+    # Around the book within 4 px: rows 16..33, cols 21..43 minus the book and its rims.
+    ring = np.zeros_like(labels, bool)
+    ring[16:34, 21:44] = True
+    ring[18:32, 23:42] = False
+    expected_desk = np.count_nonzero(ring & (labels == 1)) / np.count_nonzero(ring & (labels > 0))
+    assert shares[2, 0] == pytest.approx(expected_desk)
+    assert shares[2, 1] == pytest.approx(1 - expected_desk)
+    assert shares[2, 2] == 0
+
+
+# Pieces of one bent surface ----------------------------------------------------------------
+
+from annotate_rgbd.propose.seams import seam_groups, seam_pairs  # noqa: E402
+
+
+def two_pieces(turn_deg, step, rng):
+    """A wall 1.5 m away: the left half facing the camera, the right half turned by ``turn_deg``
+    about the vertical line where they meet (x = 0) and moved ``step`` metres towards the camera;
+    labels 1 (left) and 2 (right), depth with Kinect noise; the planes fitted here."""
+    rows, cols = np.mgrid[0:480, 0:640].astype(np.float64)
+    x, y = (cols - CAMERA.cx) / CAMERA.fx, (rows - CAMERA.cy) / CAMERA.fy
+    turn = np.radians(turn_deg)
+    normal_right = np.array([-np.sin(turn), 0.0, -np.cos(turn)])
+    z_left = np.full(x.shape, 1.5)
+    z_right = (1.5 - step) / (np.sin(turn) * x + np.cos(turn))  # n . X + d = 0 through (0, *, 1.5 - step)
+    depth = np.where(cols < 320, z_left, z_right)
+    depth = depth + rng.normal(0, 1, depth.shape) * (0.0012 + 0.0019 * (depth - 0.4) ** 2)
+    labels = np.where(cols < 320, 1, 2).astype(np.uint8)
+    planes = np.array([[0.0, 0.0, -1.0, 1.5], [*normal_right, (1.5 - step) * np.cos(turn)]])
+    return labels, depth, planes
+
+
+@pytest.mark.parametrize("turn_deg, step, joined", [(4.0, 0.0, True), (0.0, 0.0, True), (0.0, 0.03, False),
+                                                     (30.0, 0.0, False), (4.0, 0.02, False)])
+def test_pieces_meeting_without_step_or_crease_are_joined(turn_deg, step, joined):
+    labels, depth, planes = two_pieces(turn_deg, step, np.random.default_rng(7))
+    sigma = NoiseSettings().model.sigma
+    groups = seam_groups(labels, depth, planes, CAMERA, sigma, band_k=3.0, angle_deg=10.0, min_seam=20, reach=2)
+    assert bool(groups[1] == groups[0]) is joined
+
+
+def test_seam_pairs_find_the_pixels_along_the_border_only():
+    labels = np.zeros((10, 12), np.uint8)
+    labels[:, :5] = 1
+    labels[:, 7:] = 2          # two columns of nothing between them
+    labels[8:, :] = 3          # a strip along the bottom touching both
+    pairs = seam_pairs(labels, reach=2)
+    assert set(pairs) == {(1, 3), (2, 3)}  # 1 and 2 are three pixels apart
+    left, right = seam_pairs(labels, reach=3)[(1, 2)]
+    np.testing.assert_array_equal(np.unravel_index(left, labels.shape)[1], np.full(8, 4))
+    np.testing.assert_array_equal(np.unravel_index(right, labels.shape)[1], np.full(8, 7))

@@ -20,8 +20,9 @@ from annotate_rgbd.errors import InputError
 from annotate_rgbd.segment.filters import camera_distances, drop_reasons, statistics_of_distances
 from annotate_rgbd.geometry.noise import NoiseSettings
 from annotate_rgbd.io.sequence import read_depth
-from .objects import objects_on_planes, polygon_coverage
+from .objects import neighbour_shares, objects_on_planes, polygon_coverage
 from .outlines import fill_window, piece_outlines
+from .seams import seam_groups
 from .settings import ProposeConfig
 
 
@@ -133,7 +134,12 @@ def propose_planes(
     detection = detect_planes(depth, camera, pieces, noise=sigma)
     # The detector's own moments of its final pixels: exact, and already paid for.
     moments = Moments(detection.areas.astype(np.float64), detection.means, detection.scatters)
-    groups = merge_groups(moments, sigma, settings.merge_excess)
+    # Pieces of one bent surface that meet without a step or a crease, then coplanar pieces
+    # apart from each other (a floor on both sides of a table).
+    seams = seam_groups(detection.labels, depth, detection.planes, camera, sigma, settings.detector.band_k,
+                        settings.detector.min_angle_deg, settings.seam_min_px, settings.seam_reach_px)
+    joined = join_moments(moments, seams)
+    groups = merge_groups(joined, sigma, settings.merge_excess)[seams]
     labels, planes, areas, centroids = _apply_groups(detection.labels, moments, groups, min_area)
     outlines = piece_outlines(labels, settings.outline_tolerance_px)
     if len(outlines) != len(areas):  # pragma: no cover - every label has pixels
@@ -141,8 +147,8 @@ def propose_planes(
     polygons = [outlines[k] for k in range(1, len(areas) + 1)]
     windows = [fill_window(p, *labels.shape) for p in polygons]
     coverage = polygon_coverage(labels, windows)
-    objects = objects_on_planes(planes, areas, centroids, coverage, settings.object_height,
-                                settings.object_inside, settings.detector.min_angle_deg)
+    objects = objects_on_planes(planes, areas, centroids, coverage, neighbour_shares(labels, settings.object_ring_px),
+                                settings.object_height, settings.object_inside, settings.detector.min_angle_deg)
     early = [{"area": int(areas[k]), "reason": "on_plane", "mean_distance": None, "invalid_ratio": None,
               "equation": [float(v) for v in planes[k]]} for k in np.flatnonzero(objects)]
     if objects.any():
@@ -238,6 +244,34 @@ class Moments:
     count: np.ndarray
     mean: np.ndarray
     scatter: np.ndarray
+
+
+def join_moments(moments: Moments, group: np.ndarray) -> Moments:
+    """Moments of groups of labels, held by each group's head (the label ``group`` names); the
+    other members get a count of 0.
+
+    Parameters
+    ----------
+    moments : Moments
+        ``K`` labels.
+    group : ndarray of int, shape (K,)
+        Head (0-based label) of each label's group; a head is its own head.
+
+    Returns
+    -------
+    Moments
+        ``K`` rows.
+    """
+    group = np.asarray(group)
+    count = np.bincount(group, weights=moments.count, minlength=len(group))
+    total = np.stack([np.bincount(group, weights=moments.count * moments.mean[:, i], minlength=len(group))
+                      for i in range(3)], axis=1)
+    mean = np.where(count[:, None] > 0, total / np.maximum(count, 1)[:, None], moments.mean)
+    offset = moments.mean - mean[group]
+    spread = moments.scatter + moments.count[:, None, None] * offset[:, :, None] * offset[:, None, :]
+    scatter = np.zeros_like(moments.scatter)
+    np.add.at(scatter, group, spread)
+    return Moments(count, mean, scatter)
 
 
 def fit(count: np.ndarray, mean: np.ndarray, scatter: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -88,6 +88,15 @@ class ProposeConfig:
         merging is not proposed.
     outline_tolerance_px : float
         Douglas-Peucker tolerance of the polygons (``plane_outlines``): a pixel or two of error.
+    seam_min_px : int
+        Two detected planes that meet along at least this many pixels, with normals within
+        ``detector.min_angle_deg`` and each one's seam pixels on the other's plane within the
+        noise band, are pieces of one gently bent surface and are joined
+        (:mod:`annotate_rgbd.propose.seams`: real depth sensors bend large flat surfaces by a
+        centimetre or more). 20: the detector's cell side, the shortest stretch it tests a plane on.
+    seam_reach_px : int
+        Pixels between two planes that still meet: the detector leaves a pixel or two unassigned
+        along a bend where the noise takes it off both bands. 2.
     object_height : float
         A plane parallel to a larger one (within ``detector.min_angle_deg``), in front of it by at
         most this many metres and mostly inside its polygon is an object on it, not proposed
@@ -96,8 +105,13 @@ class ProposeConfig:
         labeller draws apart (a seat or shelf over the floor, a monitor before a wall, a table
         top: 20 cm and more) stand more.
     object_inside : float
-        Share of the smaller plane's pixels that must lie inside the larger one's polygon (holes
-        filled): a majority, 0.5.
+        The larger plane holds the smaller one when this share of the smaller one's pixels lie
+        inside its polygon (holes filled), or of the planes' pixels around it are its: a
+        majority, 0.5.
+    object_ring_px : int
+        Width of the ring around a plane whose planes surround it, pixels: 10, half the
+        detector's cell, wider than the unlabelled rims of a few-centimetre object seen at an
+        angle from a metre or more.
     min_track_frames : int
         A plane is proposed only when its track is found on at least this many processed frames
         (all of them when fewer are processed): a plane that flickers for one frame is a fragment
@@ -112,8 +126,11 @@ class ProposeConfig:
     merge_excess: float = 1.0
     piece_fraction: float = 0.5
     outline_tolerance_px: float = 1.5
+    seam_min_px: int = 20
+    seam_reach_px: int = 2
     object_height: float = 0.10
     object_inside: float = 0.5
+    object_ring_px: int = 10
     min_track_frames: int = 2
 
     def __post_init__(self):
