@@ -12,7 +12,7 @@ from annotate_rgbd.geometry.camera import Camera
 from annotate_rgbd.cvat import read_cvat, write_cvat_video
 from annotate_rgbd.propose.outlines import piece_outlines
 from annotate_rgbd.geometry.noise import NoiseSettings
-from annotate_rgbd.propose import FrameProposal, LinkConfig, link_proposals
+from annotate_rgbd.propose import FrameProposal, LinkConfig, ProposeConfig, link_proposals
 from annotate_rgbd.propose.detect_job import Moments, draw_order, merge_groups, paint
 from annotate_rgbd.propose.link import shifted_iou
 from annotate_rgbd.segment.rasterize import rasterize_frame, shape_mask
@@ -79,7 +79,7 @@ def test_pieces_of_one_plane_merge_and_parallel_planes_do_not():
     labels[420:470, 100:500] = 3
     depth[420:470, 100:500] = step[420:470, 100:500]
     moments = label_moments(labels, depth, CAMERA)
-    groups = merge_groups(moments, sigma, 1.0)
+    groups = merge_groups(moments, sigma, ProposeConfig().merge_excess)
     assert groups[0] == groups[1]
     assert groups[2] != groups[0]
 
@@ -118,8 +118,8 @@ def proposal(position, masks, planes, labels_shape=(H, W)):
         ray = np.array([(c - CAMERA.cx) / CAMERA.fx, (r - CAMERA.cy) / CAMERA.fy, 1.0])
         centroids.append(ray * (-plane[3] / (plane[:3] @ ray)))
     areas = np.bincount(labels.ravel(), minlength=len(masks) + 1)[1:]
-    return FrameProposal(position, labels, planes.reshape(-1, 4), areas, np.array(centroids).reshape(-1, 3), np.ones(len(masks)),
-                         outlines, np.arange(len(masks)), [])
+    return FrameProposal(position, labels, planes.reshape(-1, 4), areas, np.array(centroids).reshape(-1, 3),
+                         np.ones(len(masks)), np.ones(len(masks)), outlines, np.arange(len(masks)), [])
 
 
 WALL = [0.0, 0.0, -1.0, 2.0]  # z = 2 m, facing the camera

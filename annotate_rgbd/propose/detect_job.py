@@ -15,6 +15,7 @@ import numpy as np
 from annotate_rgbd.geometry.camera import Camera, depth_to_metres
 from annotate_rgbd.config.settings import FilterConfig
 from annotate_rgbd.detect import detect_planes
+from annotate_rgbd.detect.cells import pixel_rays
 from annotate_rgbd.detect.refine import relabel
 from annotate_rgbd.errors import InputError
 from annotate_rgbd.segment.filters import camera_distances, drop_reasons, statistics_of_distances
@@ -22,6 +23,7 @@ from annotate_rgbd.geometry.noise import NoiseSettings
 from annotate_rgbd.io.sequence import read_depth
 from .objects import neighbour_shares, objects_on_planes, polygon_coverage
 from .outlines import fill_window, piece_outlines
+from .extent import assign_in_outlines, plane_scales
 from .seams import seam_groups
 from .settings import ProposeConfig
 
@@ -67,6 +69,8 @@ class FrameProposal:
         Mask pixels.
     centroids : ndarray of float64, shape (K, 3)
         Mean 3-D point of each mask, camera frame, metres.
+    surfaces : ndarray of float64, shape (K,)
+        Area of the surface each mask covers, square metres (:func:`surface_areas`).
     mean_distance : ndarray of float64, shape (K,)
         Mean camera distance of the valid pixels inside each polygon (the filter's measure).
     outlines : list of ndarray, shape (V, 2)
@@ -83,6 +87,7 @@ class FrameProposal:
     planes: np.ndarray
     areas: np.ndarray
     centroids: np.ndarray
+    surfaces: np.ndarray
     mean_distance: np.ndarray
     outlines: list
     z_order: np.ndarray
@@ -139,7 +144,12 @@ def propose_planes(
     seams = seam_groups(detection.labels, depth, detection.planes, camera, sigma, settings.detector.band_k,
                         settings.detector.min_angle_deg, settings.seam_min_px, settings.seam_reach_px)
     joined = join_moments(moments, seams)
-    groups = merge_groups(joined, sigma, settings.merge_excess)[seams]
+    ray_x, ray_y = pixel_rays(*depth.shape, camera)
+    points = np.stack(np.broadcast_arrays(ray_x[None, :] * depth, ray_y[:, None] * depth, depth), axis=-1)
+    # Real sensors are noisier than their published noise, and so are the pieces' joint fits:
+    # each piece's measured noise scale widens the tolerance as it widens cvat2mask's band.
+    scales = plane_scales(detection.labels, points, detection.planes, noise) if settings.widen_to_noise else None
+    groups = merge_groups(joined, sigma, settings.merge_excess, scales)[seams]
     labels, planes, areas, centroids = _apply_groups(detection.labels, moments, groups, min_area)
     outlines = piece_outlines(labels, settings.outline_tolerance_px)
     if len(outlines) != len(areas):  # pragma: no cover - every label has pixels
@@ -151,12 +161,33 @@ def propose_planes(
                                 settings.object_height, settings.object_inside, settings.detector.min_angle_deg)
     early = [{"area": int(areas[k]), "reason": "on_plane", "mean_distance": None, "invalid_ratio": None,
               "equation": [float(v) for v in planes[k]]} for k in np.flatnonzero(objects)]
-    if objects.any():
-        kept = np.flatnonzero(~objects)
+    kept = np.flatnonzero(~objects)
+    planes, windows = planes[kept], [windows[k] for k in kept]
+    if settings.widen_to_noise:
+        # Each plane's pixels inside its outline, within its own (scaled) noise band.
         table = np.zeros(len(areas) + 1, dtype=labels.dtype)
         table[kept + 1] = np.arange(1, len(kept) + 1)
-        labels, planes, areas, centroids = relabel(labels, table, labels.dtype), planes[kept], areas[kept], centroids[kept]
-        polygons, windows = [polygons[k] for k in kept], [windows[k] for k in kept]
+        scales = plane_scales(relabel(labels, table, labels.dtype), points, planes, noise)
+        labels = assign_in_outlines(points, planes, windows, scales, noise)
+        counts = np.bincount(labels.ravel(), minlength=len(kept) + 1)[1:]
+        small = counts < min_area
+        early += [{"area": int(counts[k]), "reason": "small", "mean_distance": None, "invalid_ratio": None,
+                   "equation": [float(v) for v in planes[k]]} for k in np.flatnonzero(small)]
+        table = np.zeros(len(kept) + 1, dtype=labels.dtype)
+        table[1:][~small] = np.arange(1, np.count_nonzero(~small) + 1)
+        labels, planes, areas = relabel(labels, table, labels.dtype), planes[~small], counts[~small].astype(np.int64)
+        flat = labels.ravel()
+        centroids = np.stack([np.bincount(flat, weights=np.nan_to_num(points[..., i]).ravel(), minlength=len(areas) + 1)[1:]
+                              for i in range(3)], axis=1) / np.maximum(areas, 1)[:, None]
+        outlines = piece_outlines(labels, settings.outline_tolerance_px)
+        polygons = [outlines[k] for k in range(1, len(areas) + 1)]
+        windows = [fill_window(p, *labels.shape) for p in polygons]
+        coverage = polygon_coverage(labels, windows)
+    elif objects.any():
+        table = np.zeros(len(areas) + 1, dtype=labels.dtype)
+        table[kept + 1] = np.arange(1, len(kept) + 1)
+        labels, areas, centroids = relabel(labels, table, labels.dtype), areas[kept], centroids[kept]
+        polygons = [polygons[k] for k in kept]
         coverage = coverage[np.ix_(kept, kept)]
     # What plane_statistics computes, with the distance image shared by its two uses.
     ray_distance = camera_distances(depth, camera)
@@ -180,12 +211,14 @@ def propose_planes(
     table = np.zeros(len(areas) + 1, dtype=labels.dtype)
     table[1:][keep] = np.arange(1, np.count_nonzero(keep) + 1)
     mean_distance = np.array([drawn_distance[k + 1] for k in np.flatnonzero(keep)], dtype=np.float64)
+    labels = relabel(labels, table, labels.dtype)
     return FrameProposal(
         position=position,
-        labels=relabel(labels, table, labels.dtype),
+        labels=labels,
         planes=planes[keep],
         areas=areas[keep],
         centroids=centroids[keep],
+        surfaces=surface_areas(labels, depth, planes[keep], camera),
         mean_distance=mean_distance,
         outlines=[polygons[k] for k in np.flatnonzero(keep)],
         z_order=np.argsort(np.argsort(z_order[keep], kind="stable"), kind="stable").astype(np.int64),
@@ -193,16 +226,50 @@ def propose_planes(
     )
 
 
-def keep_planes(proposal: FrameProposal, keep: np.ndarray, reason: str) -> FrameProposal:
+def surface_areas(labels: np.ndarray, depth: np.ndarray, planes: np.ndarray, camera: Camera) -> np.ndarray:
+    """Area of the surface each label covers on its plane, square metres.
+
+    A pixel looking along ``r = ((u - cx) / fx, (v - cy) / fy, 1)`` at depth ``z`` covers
+    ``z**2 / (|fx fy| |n . r|)`` of a plane with unit normal ``n`` (``z**2 / |fx fy|`` facing the
+    camera; more as the plane turns away, up to grazing rays at ``|n . r| = 0.1``, where the
+    depth itself is unreliable).
+
+    Parameters
+    ----------
+    labels : ndarray of int, shape (H, W)
+        Planes 1..K (labelled pixels have valid depth).
+    depth : ndarray of float, shape (H, W)
+        z depth, metres.
+    planes : ndarray of float, shape (K, 4)
+    camera : Camera
+
+    Returns
+    -------
+    ndarray of float64, shape (K,)
+    """
+    k = len(planes)
+    rows, cols = np.nonzero(labels)
+    if k == 0 or rows.size == 0:
+        return np.zeros(k)
+    which = labels[rows, cols].astype(np.intp) - 1
+    normals = np.asarray(planes, dtype=np.float64)[which, :3]
+    facing = np.abs(normals[:, 0] * (cols - camera.cx) / camera.fx + normals[:, 1] * (rows - camera.cy) / camera.fy
+                    + normals[:, 2])
+    z = depth[rows, cols].astype(np.float64)
+    patch = z * z / abs(camera.fx * camera.fy) / np.maximum(facing, 0.1)
+    return np.bincount(which, weights=patch, minlength=k)[:k]
+
+
+def keep_planes(proposal: FrameProposal, keep: np.ndarray, reason) -> FrameProposal:
     """The proposal with only the planes ``keep`` selects, renumbered 1.. in their order; the
-    others join ``dropped`` with ``reason``.
+    others join ``dropped`` with their reason.
 
     Parameters
     ----------
     proposal : FrameProposal
     keep : ndarray of bool, shape (K,)
-    reason : str
-        Why the others are not proposed.
+    reason : str or sequence of str
+        Why the others are not proposed: one for all, or one per plane.
 
     Returns
     -------
@@ -213,7 +280,8 @@ def keep_planes(proposal: FrameProposal, keep: np.ndarray, reason: str) -> Frame
         return proposal
     table = np.zeros(len(keep) + 1, dtype=proposal.labels.dtype)
     table[1:][keep] = np.arange(1, np.count_nonzero(keep) + 1)
-    dropped = [{"area": int(proposal.areas[k]), "reason": reason,
+    reasons = [reason] * len(keep) if isinstance(reason, str) else list(reason)
+    dropped = [{"area": int(proposal.areas[k]), "reason": reasons[k],
                 "mean_distance": _finite(proposal.mean_distance[k]), "invalid_ratio": None,
                 "equation": [float(v) for v in proposal.planes[k]]} for k in np.flatnonzero(~keep)]
     return FrameProposal(
@@ -222,6 +290,7 @@ def keep_planes(proposal: FrameProposal, keep: np.ndarray, reason: str) -> Frame
         planes=proposal.planes[keep],
         areas=proposal.areas[keep],
         centroids=proposal.centroids[keep],
+        surfaces=proposal.surfaces[keep],
         mean_distance=proposal.mean_distance[keep],
         outlines=[proposal.outlines[k] for k in np.flatnonzero(keep)],
         z_order=np.argsort(np.argsort(proposal.z_order[keep], kind="stable"), kind="stable").astype(np.int64),
@@ -285,9 +354,10 @@ def fit(count: np.ndarray, mean: np.ndarray, scatter: np.ndarray) -> tuple[np.nd
     return planes, np.maximum(values[:, 0], 0) / np.maximum(count, 1)
 
 
-def merge_groups(moments: Moments, sigma, excess_k: float) -> np.ndarray:
+def merge_groups(moments: Moments, sigma, excess_k: float, scales: np.ndarray | None = None) -> np.ndarray:
     """Which labels are one plane: greedy merging of the pair whose joint fit adds the least
-    residual, while it adds at most ``excess_k * sigma(z)**2`` (z: the pair's mean depth).
+    residual, while it adds at most ``excess_k * (s * sigma(z))**2`` (z: the pair's mean depth;
+    ``s``: the pair's noise scale, the pixel-weighted root mean square of its labels' ``scales``).
 
     Parameters
     ----------
@@ -295,6 +365,9 @@ def merge_groups(moments: Moments, sigma, excess_k: float) -> np.ndarray:
     sigma : callable
         Axial noise standard deviation at a depth, metres.
     excess_k : float
+    scales : ndarray of float, shape (K,), optional
+        How much noisier than ``sigma`` each label's pixels are
+        (:func:`annotate_rgbd.propose.extent.plane_scales`); default 1.
 
     Returns
     -------
@@ -305,6 +378,7 @@ def merge_groups(moments: Moments, sigma, excess_k: float) -> np.ndarray:
     n = len(moments.count)
     group = np.arange(n)
     count, mean, scatter = moments.count.copy(), moments.mean.copy(), moments.scatter.copy()
+    scale2 = np.ones(n) if scales is None else np.asarray(scales, dtype=np.float64) ** 2
     alive = count > 0
     while alive.sum() > 1:
         idx = np.flatnonzero(alive)
@@ -318,12 +392,13 @@ def merge_groups(moments: Moments, sigma, excess_k: float) -> np.ndarray:
         _, ms_a = fit(count[a], mean[a], scatter[a])
         _, ms_b = fit(count[b], mean[b], scatter[b])
         added = joint_ms - (count[a] * ms_a + count[b] * ms_b) / c
-        ratio = added / (excess_k * sigma(m[:, 2]) ** 2)
+        pair_scale2 = (count[a] * scale2[a] + count[b] * scale2[b]) / c
+        ratio = added / (excess_k * pair_scale2 * sigma(m[:, 2]) ** 2)
         best = int(np.argmin(ratio))  # first minimum: deterministic
         if ratio[best] > 1:
             break
         keep, gone = min(a[best], b[best]), max(a[best], b[best])
-        count[keep], mean[keep], scatter[keep] = c[best], m[best], joint[best]
+        count[keep], mean[keep], scatter[keep], scale2[keep] = c[best], m[best], joint[best], pair_scale2[best]
         alive[gone] = False
         group[group == gone] = keep
     return group

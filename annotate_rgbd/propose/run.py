@@ -135,7 +135,8 @@ def _run(sequence, out_dir, config, settings, poses_path, helpers, progress) -> 
     ]
     linker = TrackLinker(settings.link, config.noise, config.camera)
     # A track must be found on min_track_frames processed frames (fewer when fewer are processed).
-    persistence = PersistenceFilter(min(settings.min_track_frames, len(chosen)), settings.link.max_gap)
+    persistence = PersistenceFilter(min(settings.min_track_frames, len(chosen)), settings.link.max_gap,
+                                    settings.min_surface_m2)
     tracks: dict[int, TrackShapes] = {}
     best: dict[int, tuple[int, np.ndarray, str]] = {}  # track -> (area, equation, frame) for the attribute
     frames: list[dict] = []
@@ -149,7 +150,7 @@ def _run(sequence, out_dir, config, settings, poses_path, helpers, progress) -> 
         if isinstance(item, InputError):
             frames.append({**record, "status": "failed", "error": str(item)})
             return
-        item = keep_planes(item, decided.keep, "flicker")
+        item = keep_planes(item, decided.keep, decided.reasons)
         ids = decided.ids[decided.keep]
         size = item.labels.shape
         mask_name = Path(sequence.depth.files[i]).name
@@ -169,15 +170,15 @@ def _run(sequence, out_dir, config, settings, poses_path, helpers, progress) -> 
             record = {"depth": sequence.depth.files[i], "depth_timestamp": float(depth_times[i]),
                       "rgb": sequence.rgb.files[int(nearest[i])], "rgb_index": int(nearest[i]),
                       "time_offset": float(time_diff[i])}
-            pose, found = None, np.zeros(0, dtype=np.int64)
+            pose, found, sizes = None, np.zeros(0, dtype=np.int64), None
             if isinstance(item, InputError):
                 result.failed.append(f"{sequence.depth.files[i]}: {item}")
                 log.warning("%s", item)
             else:
                 if frame_poses is not None and frame_poses.ok[following]:
                     pose = (frame_poses.rotations[following], frame_poses.translations[following])
-                found = linker.add(item, float(depth_times[i]), pose)
-            for decided in persistence.add(following, found, (record, item, pose, i)):
+                found, sizes = linker.add(item, float(depth_times[i]), pose), item.surfaces
+            for decided in persistence.add(following, found, (record, item, pose, i), sizes):
                 emit(decided)
             following += 1
             if progress is not None:
@@ -198,7 +199,7 @@ def _run(sequence, out_dir, config, settings, poses_path, helpers, progress) -> 
         "inputs": {"sequence": str(sequence.root), "poses": None if poses_path is None else str(poses_path),
                    "every": settings.every, "label": settings.label,
                    "min_area_fraction": settings.detector.min_area_fraction,
-                   "min_track_frames": settings.min_track_frames},
+                   "min_track_frames": settings.min_track_frames, "min_surface_m2": settings.min_surface_m2},
         "config": config_to_dict(config),
         "summary": {"frames_processed": result.frames, "frames_skipped": len(result.skipped),
                     "frames_failed": len(result.failed), "tracks": result.tracks,
