@@ -70,7 +70,7 @@ class FrameProposal:
     centroids : ndarray of float64, shape (K, 3)
         Mean 3-D point of each mask, camera frame, metres.
     surfaces : ndarray of float64, shape (K,)
-        Area of the surface each mask covers, square metres (:func:`surface_areas`).
+        Area of each plane inside its outline, square metres (:func:`surface_areas`).
     mean_distance : ndarray of float64, shape (K,)
         Mean camera distance of the valid pixels inside each polygon (the filter's measure).
     outlines : list of ndarray, shape (V, 2)
@@ -218,7 +218,7 @@ def propose_planes(
         planes=planes[keep],
         areas=areas[keep],
         centroids=centroids[keep],
-        surfaces=surface_areas(labels, depth, planes[keep], camera),
+        surfaces=surface_areas([windows[k] for k in np.flatnonzero(keep)], planes[keep], camera),
         mean_distance=mean_distance,
         outlines=[polygons[k] for k in np.flatnonzero(keep)],
         z_order=np.argsort(np.argsort(z_order[keep], kind="stable"), kind="stable").astype(np.int64),
@@ -226,38 +226,36 @@ def propose_planes(
     )
 
 
-def surface_areas(labels: np.ndarray, depth: np.ndarray, planes: np.ndarray, camera: Camera) -> np.ndarray:
-    """Area of the surface each label covers on its plane, square metres.
+def surface_areas(windows: list, planes: np.ndarray, camera: Camera) -> np.ndarray:
+    """Area of each plane inside its outline, square metres: what the polygon covers on the
+    plane, whether or not the sensor returned depth there (a black screen's depth is speckled).
 
-    A pixel looking along ``r = ((u - cx) / fx, (v - cy) / fy, 1)`` at depth ``z`` covers
-    ``z**2 / (|fx fy| |n . r|)`` of a plane with unit normal ``n`` (``z**2 / |fx fy|`` facing the
-    camera; more as the plane turns away, up to grazing rays at ``|n . r| = 0.1``, where the
-    depth itself is unreliable).
+    A pixel looking along ``r = ((u - cx) / fx, (v - cy) / fy, 1)`` meets the plane ``n . X + d
+    = 0`` at depth ``z = d / |n . r|`` and covers ``z**2 / (|fx fy| |n . r|)`` of it (``z**2 /
+    |fx fy|`` where the plane faces the camera; more as it turns away, counted up to grazing
+    rays at ``|n . r| = 0.1``).
 
     Parameters
     ----------
-    labels : ndarray of int, shape (H, W)
-        Planes 1..K (labelled pixels have valid depth).
-    depth : ndarray of float, shape (H, W)
-        z depth, metres.
+    windows : list of (int, int, ndarray of bool)
+        The filled outline of plane ``k`` at position ``k - 1`` as ``(top, left, window)``.
     planes : ndarray of float, shape (K, 4)
+        Unit normals, ``d > 0``.
     camera : Camera
 
     Returns
     -------
     ndarray of float64, shape (K,)
     """
-    k = len(planes)
-    rows, cols = np.nonzero(labels)
-    if k == 0 or rows.size == 0:
-        return np.zeros(k)
-    which = labels[rows, cols].astype(np.intp) - 1
-    normals = np.asarray(planes, dtype=np.float64)[which, :3]
-    facing = np.abs(normals[:, 0] * (cols - camera.cx) / camera.fx + normals[:, 1] * (rows - camera.cy) / camera.fy
-                    + normals[:, 2])
-    z = depth[rows, cols].astype(np.float64)
-    patch = z * z / abs(camera.fx * camera.fy) / np.maximum(facing, 0.1)
-    return np.bincount(which, weights=patch, minlength=k)[:k]
+    areas = np.zeros(len(planes))
+    for k, (top, left, window) in enumerate(windows):
+        rows, cols = np.nonzero(window)
+        if rows.size == 0:
+            continue
+        a, b, c, d = np.asarray(planes[k], dtype=np.float64)
+        facing = np.abs(a * (cols + left - camera.cx) / camera.fx + b * (rows + top - camera.cy) / camera.fy + c)
+        areas[k] = d * d / abs(camera.fx * camera.fy) * np.sum(np.maximum(facing, 0.1) ** -3.0)
+    return areas
 
 
 def keep_planes(proposal: FrameProposal, keep: np.ndarray, reason) -> FrameProposal:
