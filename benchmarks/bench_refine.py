@@ -59,6 +59,7 @@ from annotate_rgbd.pipeline.scene import run_cvat2mask
 from annotate_rgbd.segment.rasterize import rasterize_frame
 from annotate_rgbd.synthetic import kinect_noise_sigma, make_sequence
 from annotate_rgbd.synthetic.contact import contact_scene, contact_trajectory
+from annotate_rgbd.synthetic.wall_objects import wall_objects_scene
 
 ROOT = Path(__file__).resolve().parent.parent
 #: z-depth bands of the miss statistics, metres (the issue's 1-3 m, plus what lies outside).
@@ -89,15 +90,29 @@ def _cut_part():
     return module.cut_part
 
 
-def make_contact_sequence(folder: Path, frames: int, width: int, height: int, jitter: float, seed: int) -> Rendered:
-    """Render the contact scene and write its single and two-part exports; reuse them when there."""
+#: Scenes the contact walk can be rendered in (``--scene`` of the benchmarks that use it).
+SCENES = {"contact": contact_scene, "wall-objects": wall_objects_scene}
+
+
+def make_contact_sequence(folder: Path, frames: int, width: int, height: int, jitter: float, seed: int,
+                          scene: str = "contact", pose_noise: tuple[float, float] | None = None,
+                          time_offset: float = 0.0) -> Rendered:
+    """Render the contact scene and write its single and two-part exports; reuse them when there.
+
+    ``scene``: a key of :data:`SCENES`; ``pose_noise`` (median metres, median degrees) and
+    ``time_offset`` (seconds) make the written ``groundtruth.txt`` as inexact as a real
+    trajectory (``make_sequence``'s ``trajectory_noise`` and ``trajectory_time_offset``).
+    """
     scale = width / 640
     camera = Camera(fx=525.0 * scale, fy=525.0 * scale, cx=width / 2 - 0.5, cy=height / 2 - 0.5, depth_scale=5000.0)
     # The renderer's source is part of the name: a changed renderer renders afresh.
     source = hashlib.blake2b(digest_size=4)
     for path in sorted((ROOT / "annotate_rgbd" / "synthetic").glob("*.py")):
         source.update(path.read_bytes())
-    tag = folder / f"contact_{frames}_{width}x{height}_jitter{jitter:g}_seed{seed}_{source.hexdigest()}"
+    extra = "" if scene == "contact" else f"_{scene}"
+    extra += "" if pose_noise is None else f"_posenoise{pose_noise[0]:g}m{pose_noise[1]:g}deg"
+    extra += "" if time_offset == 0 else f"_offset{time_offset:g}s"
+    tag = folder / f"contact_{frames}_{width}x{height}_jitter{jitter:g}_seed{seed}{extra}_{source.hexdigest()}"
     # Parts as a long sequence is annotated: a few frames in both (the names give the offsets).
     spans = ((0, frames // 2 + 2), (frames // 2 - 3, frames - 1))
     parts = [tag / "parts" / f"{a}-{b}.xml" for a, b in spans]
@@ -108,9 +123,9 @@ def make_contact_sequence(folder: Path, frames: int, width: int, height: int, ji
     started = time.perf_counter()
     annotation = make_sequence(
         rendered.sequence, n_frames=frames, width=width, height=height, camera=camera, seed=seed,
-        scene=contact_scene(), poses=contact_trajectory(frames), dropped_rgb_frames=(),
+        scene=SCENES[scene](), poses=contact_trajectory(frames), dropped_rgb_frames=(),
         ground_truth_dir=rendered.ground_truth, polygon_jitter_px=jitter, object_index_dir=rendered.objects,
-        write_trajectory=True,
+        write_trajectory=True, trajectory_noise=pose_noise, trajectory_time_offset=time_offset,
     )
     write_cvat_video(annotation, rendered.single[0], width=width, height=height)
     parts[0].parent.mkdir()

@@ -152,9 +152,11 @@ class ProposeConfig:
         Process every N-th depth frame (keyframes); 1: all (``--every``).
     merge_excess : float
         Two detected planes that do not touch (a floor on both sides of a table, a wall behind
-        a cabinet) are one plane when fitting one plane to both raises the mean squared
-        residual by at most ``merge_excess * sigma(z)**2`` over their own fits: for two
-        parallel planes of equal size, an offset of up to 2 sigma at 1.
+        a cabinet, the near and far ends of a desk the sensor bends) are one plane when fitting
+        one plane to both raises the mean squared residual by at most ``merge_excess * (s *
+        sigma(z))**2`` over their own fits (``s``: the pieces' measured noise scale, 1 where they
+        are as noisy as the model). ``(band_k / 2)**2`` = 2.25: two parallel planes of equal
+        size merge when their offset is within the noise band, ``band_k * s * sigma``.
     piece_fraction : float
         The detector keeps pieces down to this fraction of the smallest plane, for the merge
         (0.5: a floor cut in two by a table adds up; 0.25 found nothing more on the rendered
@@ -163,13 +165,60 @@ class ProposeConfig:
     outline_tolerance_px : float
         Douglas-Peucker tolerance of the polygons
         (:func:`annotate_rgbd.cvat.from_masks.piece_outlines`): a pixel or two of error.
+    widen_to_noise : bool
+        Give each plane the pixels inside its outline that lie within its own noise band, the
+        model's noise scaled by the plane's residuals as ``cvat2mask`` scales it
+        (:mod:`annotate_rgbd.propose.extent`): real sensors are noisier than their published
+        noise, and a desk cut at the model's band comes out speckled and frayed.
+    seam_min_px : int
+        Two detected planes that meet along at least this many pixels, with normals within
+        ``detector.min_angle_deg`` and each one's seam pixels on the other's plane within the
+        noise band, are pieces of one gently bent surface and are joined
+        (:mod:`annotate_rgbd.propose.seams`: real depth sensors bend large flat surfaces by a
+        centimetre or more). 20: the detector's cell side, the shortest stretch it tests a plane on.
+    seam_reach_px : int
+        Pixels between two planes that still meet: the detector leaves a pixel or two unassigned
+        along a bend where the noise takes it off both bands. 2.
+    object_height : float
+        A plane parallel to a larger one (within ``detector.min_angle_deg``), in front of it by at
+        most this many metres and mostly inside its polygon is an object on it, not proposed
+        (:mod:`annotate_rgbd.propose.objects`). 0.10 m: what lies or hangs on a plane (papers,
+        books, keyboards, frames, whiteboards, racks: 0.1-6 cm) stands less off it, the planes a
+        labeller draws apart (a seat or shelf over the floor, a monitor before a wall, a table
+        top: 20 cm and more) stand more.
+    object_inside : float
+        The larger plane holds the smaller one when this share of the smaller one's pixels lie
+        inside its polygon (holes filled), or of the planes' pixels around it are its: a
+        majority, 0.5.
+    object_ring_px : int
+        Width of the ring around a plane whose planes surround it, pixels: 10, half the
+        detector's cell, wider than the unlabelled rims of a few-centimetre object seen at an
+        angle from a metre or more.
+    min_track_frames : int
+        A plane is proposed only when its track is found on at least this many processed frames
+        (all of them when fewer are processed): a plane that flickers for one frame is a fragment
+        or noise, not a surface (issue 26). 2: the least that tells a surface that stays in view
+        from a one-frame flicker at any ``every``.
+    min_surface_m2 : float
+        A track is proposed only when the surface its largest detection covers reaches this
+        many square metres: ScanNet-style plane ground truth keeps only mesh planes of 0.1 m2
+        (and at least 0.2 m across) or more, the real-data ground truth of issue 26 0.15 m2;
+        0.1, as the largest part of a plane a track sees may be less than the whole.
     """
 
     label: str = DEFAULT_LABEL
     every: int = 1
-    merge_excess: float = 1.0
+    merge_excess: float = (DetectorConfig().band_k / 2) ** 2
     piece_fraction: float = 0.5
     outline_tolerance_px: float = 1.5
+    widen_to_noise: bool = True
+    seam_min_px: int = 20
+    seam_reach_px: int = 2
+    object_height: float = 0.10
+    object_inside: float = 0.5
+    object_ring_px: int = 10
+    min_track_frames: int = 2
+    min_surface_m2: float = 0.1
 
     def __post_init__(self):
         check_section("propose", self, [
@@ -178,6 +227,13 @@ class ProposeConfig:
             ("merge_excess", lambda v: v > 0, "must be > 0"),
             ("piece_fraction", lambda v: 0 < v <= 1, "must be in (0, 1]"),
             ("outline_tolerance_px", lambda v: v >= 0, "must be >= 0"),
+            ("seam_min_px", lambda v: v >= 1, "must be an integer >= 1"),
+            ("seam_reach_px", lambda v: v >= 0, "must be an integer >= 0"),
+            ("object_height", lambda v: v >= 0, "must be >= 0"),
+            ("object_inside", lambda v: 0 <= v <= 1, "must be in [0, 1]"),
+            ("object_ring_px", lambda v: v >= 1, "must be an integer >= 1"),
+            ("min_track_frames", lambda v: v >= 1, "must be an integer >= 1"),
+            ("min_surface_m2", lambda v: v >= 0, "must be >= 0"),
         ])
 
 

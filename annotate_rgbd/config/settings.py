@@ -444,7 +444,11 @@ def _coerce(key: str, default: Any, value: Any, origin: str | Path | None) -> An
         if not isinstance(value, (list, tuple)) or not all(isinstance(v, str) for v in value):
             raise InputError(origin, f"'{key}' must be a list of strings")
         return tuple(value)
-    if isinstance(default, bool) or isinstance(value, bool):
+    if isinstance(default, bool):
+        if not isinstance(value, bool):
+            raise InputError(origin, f"'{key}' must be true or false, got {value!r}")
+        return value
+    if isinstance(value, bool):
         raise InputError(origin, f"'{key}' must be a number, got {value!r}")
     if isinstance(default, int):
         if isinstance(value, float) and value.is_integer():

@@ -219,7 +219,32 @@ def bridge(polygons: list[np.ndarray]) -> np.ndarray:
     return result
 
 
-def draw_order(labels: np.ndarray, windows: list, distance: np.ndarray) -> np.ndarray:
+def polygon_coverage(labels: np.ndarray, windows: list) -> np.ndarray:
+    """How many pixels of each plane lie inside each plane's polygon.
+
+    Parameters
+    ----------
+    labels : ndarray of int, shape (H, W)
+        Planes 1..K, 0 for none.
+    windows : list of (int, int, ndarray of bool)
+        The filled polygon of plane ``k`` at position ``k - 1`` as ``(top, left, window)``
+        (:func:`annotate_rgbd.segment.rasterize.fill_window`).
+
+    Returns
+    -------
+    ndarray of int64, shape (K, K)
+        ``[p, q]``: pixels of plane ``q + 1`` inside the polygon of plane ``p + 1``.
+    """
+    k = len(windows)
+    inside = np.zeros((k, k + 1), dtype=np.int64)
+    for p, (top, left, window) in enumerate(windows):
+        rows, cols = window.shape
+        covered = labels[top : top + rows, left : left + cols][window]
+        inside[p] = np.bincount(covered.astype(np.intp), minlength=k + 1)[: k + 1]
+    return inside[:, 1:]
+
+
+def draw_order(labels: np.ndarray, windows: list, distance: np.ndarray, coverage: np.ndarray | None = None) -> np.ndarray:
     """``z_order`` of the polygons so that, where two overlap, the plane whose pixels fill the
     overlap is drawn on top: the nearer one where one plane occludes the other, the inner one
     where a polygon's filled holes hold another plane (a picture on a wall).
@@ -239,19 +264,16 @@ def draw_order(labels: np.ndarray, windows: list, distance: np.ndarray) -> np.nd
         :func:`~annotate_rgbd.segment.rasterize.fill_window`) gives them: ``(top, left, window)``.
     distance : ndarray of float, shape (K,)
         Mean camera distance of each plane (NaN: farthest).
+    coverage : ndarray of int, shape (K, K), optional
+        :func:`polygon_coverage` of ``labels`` and ``windows``, when already computed.
 
     Returns
     -------
     ndarray of int64, shape (K,)
         0 (bottom) .. K - 1 (top).
     """
-    k = len(windows)
-    inside = np.zeros((k, k + 1), dtype=np.int64)  # [p, q]: pixels of plane q inside polygon p
-    for p, (top, left, window) in enumerate(windows):
-        rows, cols = window.shape
-        covered = labels[top : top + rows, left : left + cols][window]
-        inside[p] = np.bincount(covered.astype(np.intp), minlength=k + 1)[: k + 1]
-    counts = inside[:, 1:]
+    counts = polygon_coverage(labels, windows) if coverage is None else np.asarray(coverage)
+    k = len(counts)
     below = counts.T > counts  # below[q, p]: q must be drawn above p
     farthest = np.nan_to_num(np.asarray(distance, dtype=np.float64), nan=np.inf)
     z = np.zeros(k, dtype=np.int64)

@@ -13,17 +13,21 @@ from pathlib import Path
 import numpy as np
 
 from annotate_rgbd.config.propose import DetectorConfig, ProposeConfig
+from annotate_rgbd.config.masks import RansacConfig
 from annotate_rgbd.config.settings import FilterConfig
-from annotate_rgbd.cvat.from_masks import draw_order, piece_outlines
+from annotate_rgbd.cvat.from_masks import draw_order, piece_outlines, polygon_coverage
 from annotate_rgbd.detect import detect_planes
 from annotate_rgbd.detect.refine import relabel
 from annotate_rgbd.errors import InputError
-from annotate_rgbd.geometry.camera import Camera, depth_to_metres
+from annotate_rgbd.geometry.camera import Camera, depth_to_metres, ray_grid
 from annotate_rgbd.geometry.noise import NoiseSettings
 from annotate_rgbd.geometry.planes import Moments, fit_planes, merge_pairs, pool_groups, residual_ms
 from annotate_rgbd.io.sequence import read_depth
 from annotate_rgbd.segment.filters import camera_distances, drop_reasons, statistics_of_distances
 from annotate_rgbd.segment.rasterize import fill_window
+from .extent import assign_in_outlines, plane_scales
+from .objects import neighbour_shares, objects_on_planes
+from .seams import seam_groups
 
 
 @dataclass(frozen=True)
@@ -44,6 +48,8 @@ class DetectJob:
         The sensor's noise model (``[noise]``): the detector's ``sigma(z)``.
     filter : FilterConfig
         The drop rules (``[filter]``), as ``cvat2mask`` applies them.
+    ransac : RansacConfig
+        Its noise-scale limits (``[ransac]``), as ``cvat2mask``'s fits use them.
     """
 
     position: int
@@ -53,6 +59,7 @@ class DetectJob:
     settings: ProposeConfig
     noise: NoiseSettings
     filter: FilterConfig
+    ransac: RansacConfig = RansacConfig()
 
 
 @dataclass(frozen=True)
@@ -71,6 +78,8 @@ class FrameProposal:
         Mask pixels.
     centroids : ndarray of float64, shape (K, 3)
         Mean 3-D point of each mask, camera frame, metres.
+    surfaces : ndarray of float64, shape (K,)
+        Area of each plane inside its outline, square metres (:func:`surface_areas`).
     mean_distance : ndarray of float64, shape (K,)
         Mean camera distance of the valid pixels inside each polygon (the filter's measure).
     outlines : list of ndarray, shape (V, 2)
@@ -87,6 +96,7 @@ class FrameProposal:
     planes: np.ndarray
     areas: np.ndarray
     centroids: np.ndarray
+    surfaces: np.ndarray
     mean_distance: np.ndarray
     outlines: list
     z_order: np.ndarray
@@ -113,7 +123,7 @@ def propose_frame(job: DetectJob) -> FrameProposal:
             job.depth_path, f"depth image is {raw.shape[1]} x {raw.shape[0]} pixels, smaller than the detector's {cell}-pixel cells"
         )
     depth = depth_to_metres(raw, job.camera.depth_scale)
-    return propose_planes(depth, job.camera, job.detector, job.settings, job.noise, job.filter, job.position)
+    return propose_planes(depth, job.camera, job.detector, job.settings, job.noise, job.filter, job.position, job.ransac)
 
 
 def propose_planes(
@@ -124,6 +134,7 @@ def propose_planes(
     noise: NoiseSettings,
     rules: FilterConfig,
     position: int = 0,
+    ransac: RansacConfig | None = None,
 ) -> FrameProposal:
     """Planes of a depth image as a labeller would draw them.
 
@@ -139,6 +150,8 @@ def propose_planes(
     rules : FilterConfig
     position : int
         Stored in the result.
+    ransac : RansacConfig, optional
+        Its noise-scale limits (defaults when not given).
 
     Returns
     -------
@@ -152,19 +165,62 @@ def propose_planes(
     detection = detect_planes(depth, camera, pieces, noise=sigma)
     # The detector's own moments of its final pixels: exact, and already paid for.
     moments = detection.moments
-    groups = merge_groups(moments, sigma, settings.merge_excess)
+    # Pieces of one bent surface that meet without a step or a crease, then coplanar pieces
+    # apart from each other (a floor on both sides of a table).
+    seams = seam_groups(detection.labels, depth, detection.planes, camera, sigma, detector.band_k,
+                        detector.min_angle_deg, settings.seam_min_px, settings.seam_reach_px)
+    joined = join_moments(moments, seams)
+    ray_x, ray_y = (rays.astype(np.float32) for rays in ray_grid(camera, *depth.shape))
+    points = np.stack(np.broadcast_arrays(ray_x[None, :] * depth, ray_y[:, None] * depth, depth), axis=-1)
+    # Real sensors are noisier than their published noise, and so are the pieces' joint fits:
+    # each piece's measured noise scale widens the tolerance as it widens cvat2mask's band.
+    scales = plane_scales(detection.labels, points, detection.planes, noise, ransac) if settings.widen_to_noise else None
+    groups = merge_groups(joined, sigma, settings.merge_excess, scales)[seams]
     labels, planes, areas, centroids = _apply_groups(detection.labels, moments, groups, min_area)
     outlines = piece_outlines(labels, settings.outline_tolerance_px)
     if len(outlines) != len(areas):  # pragma: no cover - every label has pixels
         raise InputError(None, "a proposed plane has no outline")
     polygons = [outlines[k] for k in range(1, len(areas) + 1)]
+    windows = [fill_window(p, *labels.shape) for p in polygons]
+    coverage = polygon_coverage(labels, windows)
+    objects = objects_on_planes(planes, areas, centroids, coverage, neighbour_shares(labels, settings.object_ring_px),
+                                settings.object_height, settings.object_inside, detector.min_angle_deg)
+    early = [{"area": int(areas[k]), "reason": "on_plane", "mean_distance": None, "invalid_ratio": None,
+              "equation": [float(v) for v in planes[k]]} for k in np.flatnonzero(objects)]
+    kept = np.flatnonzero(~objects)
+    planes, windows = planes[kept], [windows[k] for k in kept]
+    if settings.widen_to_noise:
+        # Each plane's pixels inside its outline, within its own (scaled) noise band.
+        table = np.zeros(len(areas) + 1, dtype=labels.dtype)
+        table[kept + 1] = np.arange(1, len(kept) + 1)
+        scales = plane_scales(relabel(labels, table, labels.dtype), points, planes, noise, ransac)
+        labels = assign_in_outlines(points, planes, windows, scales, noise)
+        counts = np.bincount(labels.ravel(), minlength=len(kept) + 1)[1:]
+        small = counts < min_area
+        early += [{"area": int(counts[k]), "reason": "small", "mean_distance": None, "invalid_ratio": None,
+                   "equation": [float(v) for v in planes[k]]} for k in np.flatnonzero(small)]
+        table = np.zeros(len(kept) + 1, dtype=labels.dtype)
+        table[1:][~small] = np.arange(1, np.count_nonzero(~small) + 1)
+        labels, planes, areas = relabel(labels, table, labels.dtype), planes[~small], counts[~small].astype(np.int64)
+        flat = labels.ravel()
+        centroids = np.stack([np.bincount(flat, weights=np.nan_to_num(points[..., i]).ravel(), minlength=len(areas) + 1)[1:]
+                              for i in range(3)], axis=1) / np.maximum(areas, 1)[:, None]
+        outlines = piece_outlines(labels, settings.outline_tolerance_px)
+        polygons = [outlines[k] for k in range(1, len(areas) + 1)]
+        windows = [fill_window(p, *labels.shape) for p in polygons]
+        coverage = polygon_coverage(labels, windows)
+    elif objects.any():
+        table = np.zeros(len(areas) + 1, dtype=labels.dtype)
+        table[kept + 1] = np.arange(1, len(kept) + 1)
+        labels, areas, centroids = relabel(labels, table, labels.dtype), areas[kept], centroids[kept]
+        polygons = [polygons[k] for k in kept]
+        coverage = coverage[np.ix_(kept, kept)]
     # What plane_statistics computes, with the distance image shared by its two uses.
     ray_distance = camera_distances(depth, camera)
     valid = ~np.isnan(depth)
     # Every pixel of the detector's labels has valid depth: the mean needs only the sums.
     distance = np.bincount(labels.ravel(), weights=ray_distance.ravel(), minlength=len(areas) + 1)[1:] / areas
-    windows = [fill_window(p, *labels.shape) for p in polygons]
-    z_order = draw_order(labels, windows, distance)
+    z_order = draw_order(labels, windows, distance, coverage)
     drawn = paint(windows, z_order, labels.shape)
     stats = statistics_of_distances(drawn, ray_distance, valid)
     reasons = dict(zip(stats.plane_ids.tolist(), drop_reasons(stats, rules)))
@@ -172,7 +228,7 @@ def propose_planes(
     drawn_invalid = dict(zip(stats.plane_ids.tolist(), stats.invalid_ratio.tolist()))
     # A polygon covered entirely by nearer ones is not drawn at all: nothing of it would reach a mask.
     keep = np.array([reasons.get(k + 1, "hidden") is None for k in range(len(areas))], dtype=bool)
-    dropped = [
+    dropped = early + [
         {"area": int(areas[k]), "reason": reasons.get(k + 1) or "hidden",
          "mean_distance": _finite(drawn_distance.get(k + 1)), "invalid_ratio": _finite(drawn_invalid.get(k + 1)),
          "equation": [float(v) for v in planes[k]]}
@@ -181,12 +237,14 @@ def propose_planes(
     table = np.zeros(len(areas) + 1, dtype=labels.dtype)
     table[1:][keep] = np.arange(1, np.count_nonzero(keep) + 1)
     mean_distance = np.array([drawn_distance[k + 1] for k in np.flatnonzero(keep)], dtype=np.float64)
+    labels = relabel(labels, table, labels.dtype)
     return FrameProposal(
         position=position,
-        labels=relabel(labels, table, labels.dtype),
+        labels=labels,
         planes=planes[keep],
         areas=areas[keep],
         centroids=centroids[keep],
+        surfaces=surface_areas([windows[k] for k in np.flatnonzero(keep)], planes[keep], camera),
         mean_distance=mean_distance,
         outlines=[polygons[k] for k in np.flatnonzero(keep)],
         z_order=np.argsort(np.argsort(z_order[keep], kind="stable"), kind="stable").astype(np.int64),
@@ -194,9 +252,104 @@ def propose_planes(
     )
 
 
-def merge_groups(moments: Moments, sigma, excess_k: float) -> np.ndarray:
+def surface_areas(windows: list, planes: np.ndarray, camera: Camera) -> np.ndarray:
+    """Area of each plane inside its outline, square metres: what the polygon covers on the
+    plane, whether or not the sensor returned depth there (a black screen's depth is speckled).
+
+    A pixel looking along ``r = ((u - cx) / fx, (v - cy) / fy, 1)`` meets the plane ``n . X + d
+    = 0`` at depth ``z = d / |n . r|`` and covers ``z**2 / (|fx fy| |n . r|)`` of it (``z**2 /
+    |fx fy|`` where the plane faces the camera; more as it turns away, counted up to grazing
+    rays at ``|n . r| = 0.1``).
+
+    Parameters
+    ----------
+    windows : list of (int, int, ndarray of bool)
+        The filled outline of plane ``k`` at position ``k - 1`` as ``(top, left, window)``.
+    planes : ndarray of float, shape (K, 4)
+        Unit normals, ``d > 0``.
+    camera : Camera
+
+    Returns
+    -------
+    ndarray of float64, shape (K,)
+    """
+    areas = np.zeros(len(planes))
+    for k, (top, left, window) in enumerate(windows):
+        rows, cols = np.nonzero(window)
+        if rows.size == 0:
+            continue
+        a, b, c, d = np.asarray(planes[k], dtype=np.float64)
+        facing = np.abs(a * (cols + left - camera.cx) / camera.fx + b * (rows + top - camera.cy) / camera.fy + c)
+        areas[k] = d * d / abs(camera.fx * camera.fy) * np.sum(np.maximum(facing, 0.1) ** -3.0)
+    return areas
+
+
+def keep_planes(proposal: FrameProposal, keep: np.ndarray, reason) -> FrameProposal:
+    """The proposal with only the planes ``keep`` selects, renumbered 1.. in their order; the
+    others join ``dropped`` with their reason.
+
+    Parameters
+    ----------
+    proposal : FrameProposal
+    keep : ndarray of bool, shape (K,)
+    reason : str or sequence of str
+        Why the others are not proposed: one for all, or one per plane.
+
+    Returns
+    -------
+    FrameProposal
+    """
+    keep = np.asarray(keep, dtype=bool)
+    if keep.all():
+        return proposal
+    table = np.zeros(len(keep) + 1, dtype=proposal.labels.dtype)
+    table[1:][keep] = np.arange(1, np.count_nonzero(keep) + 1)
+    reasons = [reason] * len(keep) if isinstance(reason, str) else list(reason)
+    dropped = [{"area": int(proposal.areas[k]), "reason": reasons[k],
+                "mean_distance": _finite(proposal.mean_distance[k]), "invalid_ratio": None,
+                "equation": [float(v) for v in proposal.planes[k]]} for k in np.flatnonzero(~keep)]
+    return FrameProposal(
+        position=proposal.position,
+        labels=relabel(proposal.labels, table, proposal.labels.dtype),
+        planes=proposal.planes[keep],
+        areas=proposal.areas[keep],
+        centroids=proposal.centroids[keep],
+        surfaces=proposal.surfaces[keep],
+        mean_distance=proposal.mean_distance[keep],
+        outlines=[proposal.outlines[k] for k in np.flatnonzero(keep)],
+        z_order=np.argsort(np.argsort(proposal.z_order[keep], kind="stable"), kind="stable").astype(np.int64),
+        dropped=proposal.dropped + dropped,
+    )
+
+
+def join_moments(moments: Moments, group: np.ndarray) -> Moments:
+    """Moments of groups of labels, held by each group's head (the label ``group`` names); the
+    other members get a count of 0.
+
+    Parameters
+    ----------
+    moments : Moments
+        ``K`` labels.
+    group : ndarray of int, shape (K,)
+        Head (0-based label) of each label's group; a head is its own head.
+
+    Returns
+    -------
+    Moments
+        ``K`` rows.
+    """
+    group = np.asarray(group)
+    heads = np.unique(group)
+    pooled = pool_groups(moments, group, heads)
+    count, mean, scatter = np.zeros_like(moments.count), moments.mean.copy(), np.zeros_like(moments.scatter)
+    count[heads], mean[heads], scatter[heads] = pooled.count, pooled.mean, pooled.scatter
+    return Moments(count, mean, scatter)
+
+
+def merge_groups(moments: Moments, sigma, excess_k: float, scales: np.ndarray | None = None) -> np.ndarray:
     """Which labels are one plane: greedy merging of the pair whose joint fit adds the least
-    residual, while it adds at most ``excess_k * sigma(z)**2`` (z: the pair's mean depth).
+    residual, while it adds at most ``excess_k * (s * sigma(z))**2`` (z: the pair's mean depth;
+    ``s``: the pair's noise scale, the pixel-weighted root mean square of its labels' ``scales``).
 
     Parameters
     ----------
@@ -205,6 +358,9 @@ def merge_groups(moments: Moments, sigma, excess_k: float) -> np.ndarray:
     sigma : callable
         Axial noise standard deviation at a depth, metres.
     excess_k : float
+    scales : ndarray of float, shape (K,), optional
+        How much noisier than ``sigma`` each label's pixels are
+        (:func:`annotate_rgbd.propose.extent.plane_scales`); default 1.
 
     Returns
     -------
@@ -215,6 +371,7 @@ def merge_groups(moments: Moments, sigma, excess_k: float) -> np.ndarray:
     n = len(moments.count)
     group = np.arange(n)
     current = Moments(moments.count.copy(), moments.mean.copy(), moments.scatter.copy())
+    scale2 = np.ones(n) if scales is None else np.asarray(scales, dtype=np.float64) ** 2
     alive = current.count > 0
     while alive.sum() > 1:
         idx = np.flatnonzero(alive)
@@ -225,13 +382,15 @@ def merge_groups(moments: Moments, sigma, excess_k: float) -> np.ndarray:
         ms_a = residual_ms(current.count[a], fit_planes(current.mean[a], current.scatter[a])[1])
         ms_b = residual_ms(current.count[b], fit_planes(current.mean[b], current.scatter[b])[1])
         added = joint_ms - (current.count[a] * ms_a + current.count[b] * ms_b) / joint.count
-        ratio = added / (excess_k * sigma(joint.mean[:, 2]) ** 2)
+        pair_scale2 = (current.count[a] * scale2[a] + current.count[b] * scale2[b]) / joint.count
+        ratio = added / (excess_k * pair_scale2 * sigma(joint.mean[:, 2]) ** 2)
         best = int(np.argmin(ratio))  # first minimum: deterministic
         if ratio[best] > 1:
             break
         keep, gone = min(a[best], b[best]), max(a[best], b[best])
         current.count[keep], current.mean[keep], current.scatter[keep] = (
             joint.count[best], joint.mean[best], joint.scatter[best])
+        scale2[keep] = pair_scale2[best]
         alive[gone] = False
         group[group == gone] = keep
     return group

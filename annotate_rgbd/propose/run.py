@@ -23,8 +23,9 @@ from annotate_rgbd.io.sequence import associate, read_depth, read_sequence
 from annotate_rgbd.io.outdir import MASKS, OutputFolder, read_bounded, remove_stale_files
 from annotate_rgbd.io.writer import write_json
 from annotate_rgbd.logs import group_problems
-from .detect_job import DetectJob, FrameProposal, FrameTooSmall, propose_frame
+from .detect_job import DetectJob, FrameProposal, FrameTooSmall, keep_planes, propose_frame
 from .link import TrackLinker
+from .persist import PersistenceFilter
 from .output import TrackShapes, equation_text, track_colour, write_colour_mask, write_polygon_tracks
 
 log = logging.getLogger("annotate_rgbd")
@@ -154,16 +155,42 @@ def _run(sequence, folder: OutputFolder, config, poses_path, helpers, progress) 
 
     jobs = [
         DetectJob(position, sequence.root / sequence.depth.files[i], config.camera, config.detect, settings, config.noise,
-                  config.filter)
+                  config.filter, config.ransac)
         for position, i in enumerate(chosen.tolist())
     ]
     linker = TrackLinker(config.link, config.noise, config.camera)
+    # A track must be found on min_track_frames processed frames (fewer when fewer are processed).
+    persistence = PersistenceFilter(min(settings.min_track_frames, len(chosen)), config.link.max_gap,
+                                    settings.min_surface_m2)
     tracks: dict[int, TrackShapes] = {}
     best: dict[int, tuple[int, np.ndarray, str]] = {}  # track -> (area, equation, frame) for the attribute
     frames: list[dict] = []
     waiting: dict[int, FrameProposal | InputError] = {}
     size = None
     problems: list[tuple[str, str, str]] = []  # (depth file, problem, outcome): said once per problem
+    first_size = None  # the exports hold frames of one size, the first linked frame's
+
+    def emit(decided) -> None:
+        """Record and write a frame whose tracks' fates are known (frames come in order)."""
+        nonlocal size
+        record, item, pose, i = decided.payload
+        if isinstance(item, FrameTooSmall):
+            frames.append({**record, "status": "skipped", "reason": "frame_size", "error": item.message})
+            return
+        if isinstance(item, InputError):
+            frames.append({**record, "status": "failed", "error": str(item)})
+            return
+        item = keep_planes(item, decided.keep, decided.reasons)
+        ids = decided.ids[decided.keep]
+        size = item.labels.shape
+        mask_name = Path(sequence.depth.files[i]).name
+        write_colour_mask(out_dir / MASKS_DIR / mask_name, item.labels, ids)
+        keyframe = key_of_rgb[int(nearest[i])] == decided.position
+        frames.append({**record, "status": "written", "mask": f"{MASKS_DIR}/{mask_name}",
+                       "cvat_keyframe": keyframe, "planes": _plane_records(item, ids), "dropped": item.dropped})
+        _collect(item, ids, int(nearest[i]), keyframe, pose, settings.label, tracks, best)
+        result.frames += 1
+
     following = 0
     for outcome in run_jobs(jobs, propose_frame, helpers):
         waiting[outcome.index] = outcome.value if outcome.error is None else outcome.error
@@ -174,37 +201,31 @@ def _run(sequence, folder: OutputFolder, config, poses_path, helpers, progress) 
                       "rgb": None if sequence.rgb is None else sequence.rgb.files[int(nearest[i])],
                       "rgb_index": int(nearest[i]),
                       "time_offset": float(time_diff[i])}
-            if not isinstance(item, InputError) and size is not None and item.labels.shape != size:
-                item = FrameTooSmall(  # the exports hold frames of one size, the first frame's
+            pose, found, sizes = None, np.zeros(0, dtype=np.int64), None
+            if not isinstance(item, InputError) and first_size is not None and item.labels.shape != first_size:
+                item = FrameTooSmall(
                     jobs[following].depth_path,
                     f"depth image is {item.labels.shape[1]} x {item.labels.shape[0]} pixels, not "
-                    f"{size[1]} x {size[0]} as the first processed frame",
+                    f"{first_size[1]} x {first_size[0]} as the first processed frame",
                 )
             if isinstance(item, FrameTooSmall):
                 result.skipped.append(f"{sequence.depth.files[i]}: {item.message}")
                 problems.append((str(item.path), item.message, "skipped"))
-                frames.append({**record, "status": "skipped", "reason": "frame_size", "error": item.message})
             elif isinstance(item, InputError):
                 result.failed.append(f"{sequence.depth.files[i]}: {item}")
                 problems.append((str(item.path or jobs[following].depth_path), item.message, "failed"))
-                frames.append({**record, "status": "failed", "error": str(item)})
             else:
-                pose = None
                 if frame_poses is not None and frame_poses.ok[following]:
                     pose = (frame_poses.rotations[following], frame_poses.translations[following])
-                size = item.labels.shape
-                ids = linker.add(item, float(depth_times[i]), pose)
-                mask_name = Path(sequence.depth.files[i]).name
-                write_colour_mask(out_dir / MASKS_DIR / mask_name, item.labels, ids)
-                frames.append({**record, "status": "written", "mask": f"{MASKS_DIR}/{mask_name}",
-                               "cvat_keyframe": key_of_rgb[int(nearest[i])] == following,
-                               "planes": _plane_records(item, ids), "dropped": item.dropped})
-                _collect(item, ids, int(nearest[i]), key_of_rgb[int(nearest[i])] == following, pose,
-                         settings.label, tracks, best)
-                result.frames += 1
+                first_size = item.labels.shape if first_size is None else first_size
+                found, sizes = linker.add(item, float(depth_times[i]), pose), item.surfaces
+            for decided in persistence.add(following, found, (record, item, pose, i), sizes):
+                emit(decided)
             following += 1
             if progress is not None:
                 progress(following, len(jobs))
+    for decided in persistence.finish():
+        emit(decided)
     if result.frames == 0:
         lines = group_problems((file, problem) for file, problem, _ in problems)
         more = f" (and {len(lines) - 1} other problem{'s' if len(lines) > 2 else ''})" if len(lines) > 1 else ""
@@ -233,7 +254,8 @@ def _run(sequence, folder: OutputFolder, config, poses_path, helpers, progress) 
         "tool": "annotate-rgbd propose", "version": __version__,
         "inputs": {"sequence": str(sequence.root), "poses": None if poses_path is None else str(poses_path),
                    "every": settings.every, "label": settings.label,
-                   "min_area_fraction": config.detect.min_area_fraction},
+                   "min_area_fraction": config.detect.min_area_fraction,
+                   "min_track_frames": settings.min_track_frames, "min_surface_m2": settings.min_surface_m2},
         "config": config_to_dict(config, leave_out=("evaluate",)),
         "summary": {"frames_processed": result.frames, "frames_skipped": len(result.skipped),
                     "frames_failed": len(result.failed), "tracks": result.tracks,

@@ -42,7 +42,7 @@ class PlaneRecord:
         at their depth (about 1 when the noise model fits).
     noise_scale : float, optional
         Kept planes: how much noisier than the model the plane's points are (the band is
-        widened by it; 1 when the model fits, :data:`annotate_rgbd.segment.ransac.MAX_NOISE_SCALE` at most).
+        widened by it; 1 when the model fits, ``ransac.max_noise_scale`` at most).
     fit_points, fit_inliers_ransac, fit_inliers_refit : int, optional
         Kept planes: the grid points the plane was fitted to, and how many of them lie within
         the band of RANSAC's plane (or of the surface behind that replaced it) and of the plane

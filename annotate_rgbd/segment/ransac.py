@@ -10,7 +10,7 @@ import open3d as o3d
 
 from annotate_rgbd.config.settings import PropagateConfig, RansacConfig
 from annotate_rgbd.geometry.lift import plane_agreement
-from annotate_rgbd.geometry.noise import NoiseSettings
+from annotate_rgbd.geometry.noise import NoiseSettings, noise_scale
 from annotate_rgbd.geometry.planes import refit_plane
 
 
@@ -199,35 +199,3 @@ def _ransac(sample: np.ndarray, threshold: float, config: RansacConfig, exhausti
     equation = np.asarray(model, dtype=np.float64)
     equation = equation / np.linalg.norm(equation[:3])
     return (-equation if equation[3] < 0 else equation), len(inliers)
-
-
-def noise_scale(points: np.ndarray, equation: np.ndarray, noise: NoiseSettings) -> float:
-    """How much noisier than ``noise`` a plane's points are: ``1.4826 median(|d| / sigma(z))``
-    over the points within its band on the side of the plane where that is smaller (``d`` the
-    signed distance to the plane, ``z`` the depth), at least 1; 1 for a fixed band or fewer than
-    5 points on either side.
-
-    Parameters
-    ----------
-    points : ndarray of float64, shape (N, 3)
-    equation : ndarray, shape (4,)
-    noise : NoiseSettings
-
-    Returns
-    -------
-    float
-    """
-    if noise.floor >= noise.cap:
-        return 1.0  # a fixed band: nothing to adapt
-    z = points[:, 2]
-    sigma = noise.model.sigma(z)
-    signed = np.einsum("ij,j->i", points, equation[:3]) + equation[3]
-    with np.errstate(invalid="ignore"):
-        inside = np.abs(signed) <= np.clip(noise.k * sigma, noise.floor, noise.cap)
-    residual = signed[inside] / np.maximum(sigma[inside], 1e-9)
-    front, behind = residual[residual > 0], -residual[residual < 0]
-    if min(front.size, behind.size) < 5:
-        return 1.0
-    # Each side of the plane on its own: a surface in the band on one side (a whiteboard on a
-    # wall, a book on a table) widens that side only; the narrower side is the plane's noise.
-    return max(1.0, 1.4826 * float(min(np.median(front), np.median(behind))))

@@ -20,6 +20,12 @@ scene
     Scene description (planes, clutter, poses), the default room and its camera path.
 contact
     The room with clutter in contact with its planes and a walk from 3 m to 0.8 m.
+wall_objects
+    The contact room with near-coplanar wall objects: posters, a picture, a switch, a rack, a
+    shelf with books.
+pose_error
+    Trajectory error as real published poses carry it (per-pose noise; the clock offset is
+    applied by ``make_sequence``).
 raycast
     Ray casting of one noise-free frame: z depth, visible object, shaded RGB.
 sensor
@@ -39,10 +45,12 @@ from .contact import contact_scene, contact_trajectory
 from .frame import Frame, jitter_polygons, render_frame
 from .ground_truth import MAX_INVALID_RATIO, MAX_MEAN_DISTANCE
 from .polygons import plane_polygon
+from .pose_error import perturb_poses
 from .raycast import Render, render
 from .scene import NEAR, Box, Clutter, Cylinder, Plane, Pose, Scene, Sphere, look_at, room_scene, room_trajectory
 from .sensor import MAX_DEPTH, MIN_DEPTH, kinect_noise_sigma, sensor_depth
 from .sequence import make_sequence, write_tum_trajectory
+from .wall_objects import wall_objects_scene
 
 __all__ = [
     "MAX_DEPTH",
@@ -65,11 +73,13 @@ __all__ = [
     "jitter_polygons",
     "look_at",
     "make_sequence",
+    "perturb_poses",
     "plane_polygon",
     "render",
     "render_frame",
     "room_scene",
     "room_trajectory",
     "sensor_depth",
+    "wall_objects_scene",
     "write_tum_trajectory",
 ]

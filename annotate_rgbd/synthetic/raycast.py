@@ -223,6 +223,34 @@ def _plane_texture(kind: str, u: np.ndarray, v: np.ndarray) -> np.ndarray:
     return np.ones_like(u)
 
 
+def _paint_decals(base: np.ndarray, seen: np.ndarray, plane: Plane, pose: Pose, camera: Camera) -> None:
+    """Give the pixels of ``plane`` (``seen``) that fall on one of its decals the decal's colour.
+
+    Parameters
+    ----------
+    base : ndarray of float32, shape (H, W, 3)
+        Unshaded colour of every pixel, changed in place.
+    seen : ndarray of bool, shape (H, W)
+        Where the plane is the visible object.
+    plane : Plane
+    pose : Pose
+    camera : Camera
+    """
+    rows, cols = np.nonzero(seen)
+    if rows.size == 0:
+        return
+    rays = np.column_stack([(cols - camera.cx) / camera.fx, (rows - camera.cy) / camera.fy, np.ones(rows.size)])
+    centre = pose.to_camera(np.asarray([plane.centre]))[0]
+    edge_u, edge_v = pose.direction_to_camera(np.asarray([plane.edge_u, plane.edge_v]))
+    normal = np.cross(edge_u, edge_v)
+    points = rays * ((normal @ centre) / (rays @ normal))[:, None]
+    a = (points - centre) @ edge_u / (edge_u @ edge_u)
+    b = (points - centre) @ edge_v / (edge_v @ edge_v)
+    for a0, a1, b0, b1, colour in plane.decals:
+        on = (a > a0) & (a < a1) & (b > b0) & (b < b1)
+        base[rows[on], cols[on]] = colour
+
+
 def render(scene: Scene, pose: Pose, camera: Camera, width: int, height: int) -> Render:
     """Ray-cast one noise-free frame.
 
@@ -264,7 +292,11 @@ def render(scene: Scene, pose: Pose, camera: Camera, width: int, height: int) ->
         np.copyto(index[r0:r1, c0:c1], k, where=closer)
         np.copyto(shade[r0:r1, c0:c1], brightness, where=closer)
     colours = np.array([item.colour for item in items] + [(40, 40, 45)], dtype=np.float32)
-    rgb = np.take(colours, index, axis=0) * shade[:, :, None]
+    base = np.take(colours, index, axis=0)
+    for k, plane in enumerate(scene.planes):
+        if plane.decals:
+            _paint_decals(base, index == k, plane, pose, camera)
+    rgb = base * shade[:, :, None]
     depth[index < 0] = 0.0
     return Render(depth, index, np.clip(rgb + 0.5, 0, 255).astype(np.uint8))
 

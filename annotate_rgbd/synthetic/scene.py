@@ -39,6 +39,10 @@ class Plane:
         Share of its pixels where the sensor returns depth (glass: about 0.1).
     texture : {"plain", "plaster", "tiles", "wood", "glass"}
         Mild shading pattern of its RGB colour.
+    decals : tuple of (a0, a1, b0, b1, colour)
+        Rectangles of the plane in ``(a, b)`` coordinates painted in another RGB colour, with no
+        depth of their own: a poster or a sheet of paper flat on a wall, part of the plane for
+        the depth and the ground truth, a colour edge for the RGB image.
     """
 
     label: str
@@ -50,6 +54,7 @@ class Plane:
     openings: tuple[tuple[float, float, float, float], ...] = ()
     valid_fraction: float = 1.0
     texture: str = "plain"
+    decals: tuple[tuple[float, float, float, float, tuple[int, int, int]], ...] = ()
 
     def outline(self) -> np.ndarray:
         """The outline a labeller draws, as world points, shape (N, 3)."""

@@ -13,7 +13,12 @@ from annotate_rgbd.annotation.model import Annotation, Shape, Track
 from annotate_rgbd.geometry.camera import Camera
 from .frame import render_frame
 from .ground_truth import depth_statistics, plane_record
+from .pose_error import perturb_poses
 from .scene import Pose, Scene, room_scene, room_trajectory
+
+#: Second seed word of the generator of the trajectory's error (frames use ``[seed, i]``, i <
+#: n_frames): any value beyond a frame count keeps the two streams apart.
+TRAJECTORY_STREAM = 2**31 - 1
 
 
 def _timestamps(
@@ -64,6 +69,8 @@ def make_sequence(
     polygon_jitter_px: float = 0.0,
     object_index_dir: str | Path | None = None,
     write_trajectory: bool = False,
+    trajectory_noise: tuple[float, float] | None = None,
+    trajectory_time_offset: float = 0.0,
 ) -> Annotation:
     """Render a synthetic sequence in TUM RGB-D layout with plane ground truth.
 
@@ -109,6 +116,17 @@ def make_sequence(
         (``timestamp tx ty tz qx qy qz qw``, camera to world), at the RGB and the depth
         frames' timestamps (both images of a frame are rendered at one pose), as TUM RGB-D ships
         a trajectory with its sequences.
+    trajectory_noise : (float, float), optional
+        Make the written trajectory as inexact as real published poses: every frame's pose moved
+        and turned by Gaussian errors of these median sizes (metres, degrees; real Kinect
+        trajectories: about 0.004 and 0.2), drawn by
+        :func:`~annotate_rgbd.synthetic.pose_error.perturb_poses` from a generator of its own
+        (the rendered images do not change). Both samples of a frame carry its error.
+    trajectory_time_offset : float
+        The trajectory's clock runs this many seconds ahead of the camera's: the pose of the
+        frame captured at ``t`` is written at ``t + trajectory_time_offset`` (TUM's motion
+        capture: about -0.02 s on freiburg1), so that a reader interpolating the trajectory at a
+        frame's timestamp gets the pose of a moment before or after it.
     object_index_dir : str or Path, optional
         When given, also write there per depth frame ``<depth file name>``: 16-bit, the index
         + 1 of the scene object seen at each pixel whatever its depth (planes 1..P in
@@ -168,9 +186,14 @@ def make_sequence(
     _write_list(out_dir / "depth.txt", "depth maps", "depth", depth_names, seed)
     if write_trajectory:
         # Frame i's RGB and depth images are both rendered at pose i, so the trajectory holds
-        # pose i at both their timestamps: it is exact wherever a frame was captured.
-        samples = sorted({**{float(t): p for t, p in zip(rgb_times, poses)},
-                          **{float(t): p for t, p in zip(depth_times, poses)}}.items())
+        # pose i at both their timestamps: it is exact wherever a frame was captured (unless
+        # made inexact on purpose).
+        written = poses
+        if trajectory_noise is not None:
+            written = perturb_poses(poses, np.random.default_rng([seed, TRAJECTORY_STREAM]), *trajectory_noise)
+        shift = float(trajectory_time_offset)
+        samples = sorted({**{float(t) + shift: p for t, p in zip(rgb_times, written)},
+                          **{float(t) + shift: p for t, p in zip(depth_times, written)}}.items())
         write_tum_trajectory(out_dir / "groundtruth.txt", [t for t, _ in samples], [p for _, p in samples])
     order = [k for k in np.argsort(track_ids) if shapes[k]]
     description = {

@@ -10,7 +10,7 @@ from lxml import etree
 from annotate_rgbd.annotation.model import Annotation, Shape, Track
 from annotate_rgbd.geometry.camera import Camera
 from annotate_rgbd.cvat import read_cvat, write_cvat_video
-from annotate_rgbd.config.propose import LinkConfig
+from annotate_rgbd.config.propose import LinkConfig, ProposeConfig
 from annotate_rgbd.cvat.from_masks import draw_order, piece_outlines
 from annotate_rgbd.geometry.noise import NoiseSettings
 from annotate_rgbd.geometry.planes import Moments
@@ -81,7 +81,7 @@ def test_pieces_of_one_plane_merge_and_parallel_planes_do_not():
     labels[420:470, 100:500] = 3
     depth[420:470, 100:500] = step[420:470, 100:500]
     moments = label_moments(labels, depth, CAMERA)
-    groups = merge_groups(moments, sigma, 1.0)
+    groups = merge_groups(moments, sigma, ProposeConfig().merge_excess)
     assert groups[0] == groups[1]
     assert groups[2] != groups[0]
 
@@ -120,8 +120,8 @@ def proposal(position, masks, planes, labels_shape=(H, W)):
         ray = np.array([(c - CAMERA.cx) / CAMERA.fx, (r - CAMERA.cy) / CAMERA.fy, 1.0])
         centroids.append(ray * (-plane[3] / (plane[:3] @ ray)))
     areas = np.bincount(labels.ravel(), minlength=len(masks) + 1)[1:]
-    return FrameProposal(position, labels, planes.reshape(-1, 4), areas, np.array(centroids).reshape(-1, 3), np.ones(len(masks)),
-                         outlines, np.arange(len(masks)), [])
+    return FrameProposal(position, labels, planes.reshape(-1, 4), areas, np.array(centroids).reshape(-1, 3),
+                         np.ones(len(masks)), np.ones(len(masks)), outlines, np.arange(len(masks)), [])
 
 
 WALL = [0.0, 0.0, -1.0, 2.0]  # z = 2 m, facing the camera

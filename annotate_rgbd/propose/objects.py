@@ -1,0 +1,105 @@
+"""Planes that are objects on a larger plane: a book on a desk, a picture or a rack on a wall.
+
+Real scenes are full of flat things that lie on or hang on a plane a few centimetres proud of it:
+books, keyboards and papers on desks, posters, frames, whiteboards and racks on walls. The
+detector finds their tops as planes of their own, parallel to the plane they are on, inside its
+outline, within a few centimetres in front of it. A labeller annotating a room's planes does not
+draw them (the plane-instance ground truth of ScanNet-style benchmarks has them as clutter: the
+depth there is not the plane's), so they are not proposed (:func:`objects_on_planes`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def neighbour_shares(labels: np.ndarray, ring_px: int) -> np.ndarray:
+    """Which planes surround each plane: of the labelled pixels within ``ring_px`` pixels around
+    a plane's mask (other planes' pixels; unlabelled ones, such as an object's rims, do not
+    count), the share each plane holds.
+
+    Parameters
+    ----------
+    labels : ndarray of int, shape (H, W)
+        Planes 1..K, 0 for none.
+    ring_px : int
+        Width of the ring, pixels (>= 1).
+
+    Returns
+    -------
+    ndarray of float64, shape (K, K)
+        ``[p, q]``: share of plane ``p + 1``'s ring held by plane ``q + 1`` (a row of zeros when
+        no other plane is near).
+    """
+    from scipy import ndimage
+    import cv2
+
+    labels = np.asarray(labels)
+    k = int(labels.max(initial=0))
+    shares = np.zeros((k, k))
+    height, width = labels.shape
+    kernel = np.ones((2 * ring_px + 1, 2 * ring_px + 1), np.uint8)
+    for p, window in enumerate(ndimage.find_objects(labels, max_label=k)):
+        if window is None:
+            continue
+        rows = slice(max(window[0].start - ring_px, 0), min(window[0].stop + ring_px, height))
+        cols = slice(max(window[1].start - ring_px, 0), min(window[1].stop + ring_px, width))
+        around = labels[rows, cols]
+        mask = (around == p + 1).view(np.uint8)
+        ring = (cv2.dilate(mask, kernel) > 0) & (mask == 0)
+        counts = np.bincount(around[ring].astype(np.intp), minlength=k + 1)[1 : k + 1]
+        if counts.sum():
+            shares[p] = counts / counts.sum()
+    return shares
+
+
+def objects_on_planes(
+    planes: np.ndarray,
+    areas: np.ndarray,
+    centroids: np.ndarray,
+    coverage: np.ndarray,
+    neighbours: np.ndarray,
+    max_height: float,
+    min_inside: float,
+    angle_deg: float,
+) -> np.ndarray:
+    """Which planes are objects on a larger plane.
+
+    Plane ``p`` is an object on plane ``q`` when ``q`` has more pixels, their normals agree within
+    ``angle_deg``, ``p``'s centroid stands in front of ``q`` (on the camera's side) by more than 0
+    and at most ``max_height`` metres, and ``q`` holds ``p``: at least ``min_inside`` of ``p``'s
+    pixels lie inside ``q``'s polygon (holes filled: a picture lies in the wall's outline, not
+    on its pixels), or at least ``min_inside`` of the planes around ``p`` are ``q`` (a book at
+    the desk's edge is not inside the desk's outline, but the desk is all around it).
+
+    Parameters
+    ----------
+    planes : ndarray of float, shape (K, 4)
+        ``(a, b, c, d)``, unit normal towards the camera, ``d > 0``: ``n . x + d > 0`` on the
+        camera's side.
+    areas : ndarray of int, shape (K,)
+        Pixels of each plane.
+    centroids : ndarray of float, shape (K, 3)
+        Camera frame, metres.
+    coverage : ndarray of int, shape (K, K)
+        :func:`annotate_rgbd.cvat.from_masks.polygon_coverage`.
+    neighbours : ndarray of float, shape (K, K)
+        :func:`neighbour_shares`.
+    max_height, min_inside, angle_deg : float
+
+    Returns
+    -------
+    ndarray of bool, shape (K,)
+    """
+    k = len(areas)
+    if k < 2:
+        return np.zeros(k, dtype=bool)
+    planes = np.asarray(planes, dtype=np.float64)
+    # height[p, q]: how far p's centroid stands in front of q's plane.
+    height = centroids @ planes[:, :3].T + planes[:, 3][None, :]
+    parallel = planes[:, :3] @ planes[:, :3].T >= np.cos(np.radians(angle_deg))
+    larger = np.asarray(areas)[None, :] > np.asarray(areas)[:, None]
+    inside = coverage.T / np.maximum(np.asarray(areas), 1)[:, None]  # [p, q]: share of p inside q's polygon
+    held = (inside >= min_inside) | (np.asarray(neighbours) >= min_inside)
+    on = parallel & larger & (height > 0) & (height <= max_height) & held
+    return on.any(axis=1)

@@ -1,0 +1,209 @@
+"""What ``propose`` leaves out: tracks that flicker for a frame (the persistence filter)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from annotate_rgbd.propose.persist import PersistenceFilter
+
+
+def run_filter(sequence, min_frames, max_gap):
+    """Feed a sequence of per-frame track lists; return {position: (keep, ids, handed back at)}."""
+    gate = PersistenceFilter(min_frames, max_gap)
+    out = {}
+    for position, tracks in enumerate(sequence):
+        for d in gate.add(position, np.array(tracks, dtype=np.int64), f"frame {position}"):
+            assert d.payload == f"frame {d.position}"
+            out[d.position] = (d.keep.tolist(), d.ids.tolist(), position)
+    for d in gate.finish():
+        out[d.position] = (d.keep.tolist(), d.ids.tolist(), len(sequence))
+    return out
+
+
+def test_a_track_found_once_is_left_out_and_the_others_numbered_in_order():
+    sequence = [[1, 2], [1], [1, 3], [], [3]]
+    out = run_filter(sequence, min_frames=2, max_gap=1)
+    assert [out[p][:2] for p in range(5)] == [
+        ([True, False], [1, 0]), ([True], [1]), ([True, True], [1, 2]), ([], []), ([True], [2])]
+    # Frame 0 waits until track 2 can no longer be continued (position 2), frame 2 until
+    # track 3 is found again (position 4).
+    assert [out[p][2] for p in range(5)] == [2, 2, 4, 4, 4]
+
+
+def test_min_frames_one_holds_nothing_back():
+    out = run_filter([[5, 7], [7], [9]], min_frames=1, max_gap=2)
+    assert out == {0: ([True, True], [1, 2], 0), 1: ([True], [2], 1), 2: ([True], [3], 2)}
+
+
+def reference(sequence, min_frames):
+    """Keep and ids from the whole sequence at once: a track is kept when found on at least
+    ``min_frames`` frames; kept tracks numbered by first appearance."""
+    found = {}
+    for tracks in sequence:
+        for t in tracks:
+            found[t] = found.get(t, 0) + 1
+    ids, result = {}, []
+    for tracks in sequence:
+        keep = [found[t] >= min_frames for t in tracks]
+        for t, k in zip(tracks, keep):
+            if k and t not in ids:
+                ids[t] = len(ids) + 1
+        result.append((keep, [ids[t] if k else 0 for t, k in zip(tracks, keep)]))
+    return result
+
+
+@pytest.mark.parametrize("min_frames, max_gap", [(2, 0), (2, 2), (3, 1), (4, 2)])
+def test_streaming_decisions_equal_the_whole_sequence_ones(min_frames, max_gap):
+    rng = np.random.default_rng(min_frames * 10 + max_gap)
+    for _ in range(20):
+        # Tracks as a linker makes them: each found on runs of frames at most max_gap + 1 apart.
+        sequence = [[] for _ in range(40)]
+        next_track, position = 1, 0
+        for track in range(1, 30):
+            position = int(rng.integers(0, 40))
+            for _ in range(int(rng.integers(1, 6))):
+                if position >= 40:
+                    break
+                sequence[position].append(track)
+                position += int(rng.integers(1, max_gap + 2))
+        out = run_filter(sequence, min_frames, max_gap)
+        assert [out[p][:2] for p in range(40)] == reference(sequence, min_frames)
+        # A frame is handed back once its tracks are decided: at the latest when each has had
+        # min_frames chances (max_gap + 1 positions apart) or can no longer be continued.
+        for p in range(40):
+            assert out[p][2] <= p + min_frames * (max_gap + 1)
+
+
+def test_bad_settings_are_refused():
+    with pytest.raises(ValueError):
+        PersistenceFilter(0, 2)
+    with pytest.raises(ValueError):
+        PersistenceFilter(2, -1)
+
+
+# Objects on planes ------------------------------------------------------------------------
+
+from annotate_rgbd.config.settings import FilterConfig  # noqa: E402
+from annotate_rgbd.geometry.camera import Camera  # noqa: E402
+from annotate_rgbd.geometry.noise import NoiseSettings  # noqa: E402
+from annotate_rgbd.config.propose import DetectorConfig, ProposeConfig  # noqa: E402
+from annotate_rgbd.propose.detect_job import propose_planes  # noqa: E402
+from annotate_rgbd.propose.objects import objects_on_planes  # noqa: E402
+
+CAMERA = Camera(fx=525.0, fy=525.0, cx=319.5, cy=239.5, depth_scale=5000.0)
+
+
+def wall_with_things(rng):
+    """A wall 2 m away facing the camera, a picture 3 cm proud of it, a panel 25 cm before it,
+    Kinect noise (computed here: sigma = 1.2 mm + 1.9 mm (z - 0.4)^2)."""
+    depth = np.full((480, 640), 2.0)
+    depth[150:300, 150:350] = 1.97   # picture: 3 cm proud, 5 sigma at 2 m
+    depth[120:260, 430:600] = 1.75   # panel: 25 cm before the wall
+    sigma = 0.0012 + 0.0019 * (depth - 0.4) ** 2
+    return (depth + rng.normal(0, 1, depth.shape) * sigma).astype(np.float32)
+
+
+def test_a_picture_on_a_wall_is_not_proposed_and_a_panel_before_it_is():
+    depth = wall_with_things(np.random.default_rng(3))
+    found = propose_planes(depth, CAMERA, DetectorConfig(), ProposeConfig(), NoiseSettings(), FilterConfig())
+    z = np.array([c[2] for c in found.centroids])
+    assert sorted(np.round(z, 1).tolist()) == [1.8, 2.0]  # the panel and the wall (its mean over the picture's hole)
+    dropped = [d for d in found.dropped if d["reason"] == "on_plane"]
+    assert len(dropped) == 1 and dropped[0]["area"] == pytest.approx(150 * 200, rel=0.1)
+    assert dropped[0]["equation"][3] == pytest.approx(1.97, abs=0.01)
+    # The picture's pixels are nobody's.
+    assert np.count_nonzero(found.labels[160:290, 160:340]) < 0.02 * 130 * 180
+    # Allowed 2 cm only, the picture is a plane of its own again.
+    high = propose_planes(depth, CAMERA, DetectorConfig(), ProposeConfig(object_height=0.02), NoiseSettings(), FilterConfig())
+    assert len(high.areas) == 3 and not high.dropped
+
+
+def test_objects_rule_needs_every_condition():
+    wall = [0.0, 0.0, -1.0, 2.0]
+    planes = np.array([wall, [0.0, 0.0, -1.0, 1.95], wall])
+    areas = np.array([10000, 1000, 500])
+    centroids = np.array([[0.0, 0.0, 2.0], [0.0, 0.0, 1.95], [0.5, 0.0, 2.0]])
+    coverage = np.array([[10000, 900, 0], [0, 1000, 0], [0, 0, 500]])  # [p, q]: q's pixels in p's polygon
+    alone = np.zeros((3, 3))  # no plane next to another
+    args = dict(max_height=0.1, min_inside=0.5, angle_deg=10.0)
+    assert objects_on_planes(planes, areas, centroids, coverage, alone, **args).tolist() == [False, True, False]
+    # Too far before the wall; behind it (a recess); not inside its polygon; tilted; larger.
+    assert not objects_on_planes(planes, areas, centroids, coverage, alone, **{**args, "max_height": 0.04})[1]
+    behind = centroids.copy()
+    behind[1, 2] = 2.05
+    assert not objects_on_planes(planes, areas, behind, coverage, alone, **args)[1]
+    outside = coverage.copy()
+    outside[0, 1] = 400
+    assert not objects_on_planes(planes, areas, centroids, outside, alone, **args)[1]
+    # Not inside the wall's polygon but surrounded by the wall (at its edge): on it.
+    surrounded = alone.copy()
+    surrounded[1] = [0.7, 0.0, 0.3]
+    assert objects_on_planes(planes, areas, centroids, outside, surrounded, **args)[1]
+    tilted = planes.copy()
+    tilted[1, :3] = [0.0, np.sin(np.radians(15)), -np.cos(np.radians(15))]
+    assert not objects_on_planes(tilted, areas, centroids, coverage, alone, **args)[1]
+    assert not objects_on_planes(planes, np.array([10000, 20000, 500]), centroids, coverage, alone, **args)[1]
+
+
+def test_neighbour_shares_count_the_labelled_ring_only():
+    from annotate_rgbd.propose.objects import neighbour_shares
+
+    labels = np.zeros((60, 80), np.uint8)
+    labels[:, :40] = 1               # a desk on the left
+    labels[:, 40:] = 2               # the floor on the right
+    labels[20:30, 25:40] = 3         # a book at the desk's edge, touching the floor
+    labels[18:32, 23:42] = np.where(labels[18:32, 23:42] == 3, 3, 0)  # its unlabelled rims
+    labels[20:30, 25:40] = 3
+    shares = neighbour_shares(labels, 4)
+    # Around the book within 4 px: rows 16..33, cols 21..43 minus the book and its rims.
+    ring = np.zeros_like(labels, bool)
+    ring[16:34, 21:44] = True
+    ring[18:32, 23:42] = False
+    expected_desk = np.count_nonzero(ring & (labels == 1)) / np.count_nonzero(ring & (labels > 0))
+    assert shares[2, 0] == pytest.approx(expected_desk)
+    assert shares[2, 1] == pytest.approx(1 - expected_desk)
+    assert shares[2, 2] == 0
+
+
+# Pieces of one bent surface ----------------------------------------------------------------
+
+from annotate_rgbd.propose.seams import seam_groups, seam_pairs  # noqa: E402
+
+
+def two_pieces(turn_deg, step, rng):
+    """A wall 1.5 m away: the left half facing the camera, the right half turned by ``turn_deg``
+    about the vertical line where they meet (x = 0) and moved ``step`` metres towards the camera;
+    labels 1 (left) and 2 (right), depth with Kinect noise; the planes fitted here."""
+    rows, cols = np.mgrid[0:480, 0:640].astype(np.float64)
+    x, y = (cols - CAMERA.cx) / CAMERA.fx, (rows - CAMERA.cy) / CAMERA.fy
+    turn = np.radians(turn_deg)
+    normal_right = np.array([-np.sin(turn), 0.0, -np.cos(turn)])
+    z_left = np.full(x.shape, 1.5)
+    z_right = (1.5 - step) / (np.sin(turn) * x + np.cos(turn))  # n . X + d = 0 through (0, *, 1.5 - step)
+    depth = np.where(cols < 320, z_left, z_right)
+    depth = depth + rng.normal(0, 1, depth.shape) * (0.0012 + 0.0019 * (depth - 0.4) ** 2)
+    labels = np.where(cols < 320, 1, 2).astype(np.uint8)
+    planes = np.array([[0.0, 0.0, -1.0, 1.5], [*normal_right, (1.5 - step) * np.cos(turn)]])
+    return labels, depth, planes
+
+
+@pytest.mark.parametrize("turn_deg, step, joined", [(4.0, 0.0, True), (0.0, 0.0, True), (0.0, 0.03, False),
+                                                     (30.0, 0.0, False), (4.0, 0.02, False)])
+def test_pieces_meeting_without_step_or_crease_are_joined(turn_deg, step, joined):
+    labels, depth, planes = two_pieces(turn_deg, step, np.random.default_rng(7))
+    sigma = NoiseSettings().model.sigma
+    groups = seam_groups(labels, depth, planes, CAMERA, sigma, band_k=3.0, angle_deg=10.0, min_seam=20, reach=2)
+    assert bool(groups[1] == groups[0]) is joined
+
+
+def test_seam_pairs_find_the_pixels_along_the_border_only():
+    labels = np.zeros((10, 12), np.uint8)
+    labels[:, :5] = 1
+    labels[:, 7:] = 2          # two columns of nothing between them
+    labels[8:, :] = 3          # a strip along the bottom touching both
+    pairs = seam_pairs(labels, reach=2)
+    assert set(pairs) == {(1, 3), (2, 3)}  # 1 and 2 are three pixels apart
+    left, right = seam_pairs(labels, reach=3)[(1, 2)]
+    np.testing.assert_array_equal(np.unravel_index(left, labels.shape)[1], np.full(8, 4))
+    np.testing.assert_array_equal(np.unravel_index(right, labels.shape)[1], np.full(8, 7))
