@@ -32,6 +32,13 @@ that is not listed is an error, so a typo never goes unnoticed::
     rim_pixels = 2
     [stitch]            # several annotation parts of one sequence
     min_iou = 0.5
+    [propagate]         # --poses: keyframes carried to every frame
+    time_offset = 0.0
+    time_offset_search = 0.1
+    time_offset_step = 0.005
+    exclude = true      # carry what keyframe outlines left out, too
+    exclude_margin = 4
+    outline_tolerance = 1.0
     [[parts]]           # where a part starts in the RGB list (repeat per part)
     file = "950-1900.xml"
     offset = 950
@@ -173,6 +180,46 @@ class RefineConfig:
 
 
 @dataclass(frozen=True)
+class PropagateConfig:
+    """How camera poses carry keyframes to the other frames (``--poses``,
+    :mod:`annotate_rgbd.propagate`).
+
+    Parameters
+    ----------
+    time_offset : float
+        Seconds added to every frame's timestamp before the trajectory is read, when known
+        (TUM freiburg1: about -0.02 s, the offset that makes its fused surfaces sharpest).
+    time_offset_search : float
+        Estimate a further offset within +-this many seconds from the keyframes' planes
+        (:func:`annotate_rgbd.propagate.timing.estimate_time_offset`): motion-capture clocks
+        are off from camera clocks by tens of milliseconds (TUM freiburg1_rpy: 0.02 s, found by
+        the sharpest fusion of its depth; 0.1 s covers five times that). 0: no estimate.
+    time_offset_step : float
+        The grid of that search (s); it is refined to a tenth of it around the best point. At
+        70 degrees per second (TUM fr1's hand-held sweeps) 5 ms is 0.35 degrees, 3 px at fx 517.
+    exclude : bool
+        Carry what each keyframe's outline left out as well as what it holds
+        (:mod:`annotate_rgbd.propagate.evidence`): the surfaces touching the plane, within
+        ``noise.cap`` of it, that the labeller saw and did not draw are not the plane on other
+        frames either.
+    exclude_margin : int
+        Pixels next to a keyframe's outline that are never excluded: the labeller's outline is
+        up to 2 px off the real edge (the kit's simulated labeller and this project's renderer
+        jitter by +-2 px) and the poses put it another 1-2 px off (TUM fr1_rpy's mocap against
+        ICP on the fused mesh: median 0.2 degrees, 1.8 px at fx 517).
+    outline_tolerance : float
+        Largest distance (px) of a carried exclusion outline from the traced one.
+    """
+
+    time_offset: float = 0.0
+    time_offset_search: float = 0.1
+    time_offset_step: float = 0.005
+    exclude: bool = True
+    exclude_margin: int = 4
+    outline_tolerance: float = 1.0
+
+
+@dataclass(frozen=True)
 class StitchConfig:
     """How tracks of consecutive annotation parts are matched into one plane.
 
@@ -249,6 +296,7 @@ class Config:
     noise: NoiseSettings = field(default_factory=NoiseSettings)
     refine: RefineConfig = field(default_factory=RefineConfig)
     stitch: StitchConfig = field(default_factory=StitchConfig)
+    propagate: PropagateConfig = field(default_factory=PropagateConfig)
     parts: tuple[PartConfig, ...] = ()
     matches: tuple[MatchConfig, ...] = ()
 
@@ -511,7 +559,11 @@ def _coerce(key: str, default: Any, value: Any, origin: str | Path | None) -> An
         if not isinstance(value, (list, tuple)) or not all(isinstance(v, str) for v in value):
             raise InputError(origin, f"'{key}' must be a list of strings")
         return tuple(value)
-    if isinstance(default, bool) or isinstance(value, bool):
+    if isinstance(default, bool):
+        if not isinstance(value, bool):
+            raise InputError(origin, f"'{key}' must be true or false, got {value!r}")
+        return value
+    if isinstance(value, bool):
         raise InputError(origin, f"'{key}' must be a number, got {value!r}")
     if isinstance(default, int):
         if isinstance(value, float) and value.is_integer():
@@ -554,6 +606,10 @@ def _check_ranges(config: Config, origin: str | Path | None) -> None:
         ("ransac.seed", config.ransac.seed >= 0, "must be >= 0"),
         ("ransac.max_points", config.ransac.max_points == 0 or config.ransac.max_points >= 3, "must be 0 or >= 3"),
         ("stitch.min_iou", 0 < config.stitch.min_iou <= 1, "must be in (0, 1]"),
+        ("propagate.time_offset_search", 0 <= config.propagate.time_offset_search <= 1, "must be in [0, 1] s"),
+        ("propagate.time_offset_step", config.propagate.time_offset_step > 0, "must be > 0"),
+        ("propagate.exclude_margin", 0 <= config.propagate.exclude_margin <= 50, "must be in [0, 50]"),
+        ("propagate.outline_tolerance", config.propagate.outline_tolerance > 0, "must be > 0"),
     ]
     for key, ok, rule in checks:
         if not ok:

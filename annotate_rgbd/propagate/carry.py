@@ -13,7 +13,7 @@ out. The lifted planes of one track must agree: a track whose keyframes disagree
 under one track, or wrong poses) is listed for review.
 
 Reading depth for the fits is the only I/O here (:func:`lift_tracks`); projecting is pure
-(:func:`propagated_shapes`).
+(:func:`carried_layers`).
 """
 
 from __future__ import annotations
@@ -36,6 +36,8 @@ from annotate_rgbd.segment.rasterize import rasterize_frame
 from annotate_rgbd.segment.ransac import fit_plane
 from annotate_rgbd.segment.refine import grid_pixels
 from annotate_rgbd.io.sequence import read_depth
+from .evidence import excluded_regions, region_outlines
+from .timing import KeyframeSample
 
 #: A keyframe off its track's agreed plane makes the track "inconsistent" (a warning, the
 #: review queue) only when its shape holds at least this share of the valid depth pixels of
@@ -61,6 +63,9 @@ class LiftedKeyframe:
     beyond : tuple of ndarray, shape (4, 3)
         World quads that carry the outline past the keyframe image's border, where it was cut by
         the edge of the view rather than by the plane's end (:func:`beyond_the_border`).
+    excluded : tuple of ndarray, shape (V, 3)
+        World outlines of what the keyframe's labeller saw touching the plane and left out
+        (:mod:`annotate_rgbd.propagate.evidence`).
     """
 
     frame: int
@@ -68,6 +73,7 @@ class LiftedKeyframe:
     plane: np.ndarray
     z_order: int
     beyond: tuple = ()
+    excluded: tuple = ()
 
 
 @dataclass
@@ -140,10 +146,9 @@ def keyframe_planes(
     shapes: list[tuple[int, Shape]],
     wanted: list[int],
     depth_path: Path,
-    depth_pose: tuple[np.ndarray, np.ndarray],
     config: Config,
 ) -> tuple[dict[int, tuple[np.ndarray, int] | str], tuple[int, int]]:
-    """Fit the planes under the keyframe shapes of one frame, in world coordinates.
+    """Fit the planes under the keyframe shapes of one frame, in its camera frame.
 
     The frame's shapes are drawn in ``z_order`` as refinement draws them, so that each plane is
     fitted to the pixels where its shape is on top (a floor drawn under a table is fitted to the
@@ -157,16 +162,18 @@ def keyframe_planes(
         The keys of the keyframe shapes to fit (polygons or boxes).
     depth_path : Path
         The depth frame nearest the keyframe.
-    depth_pose : (ndarray (3, 3), ndarray (3,))
-        That depth frame's camera-to-world pose.
     config : Config
-        Camera, filter (``min_valid_pixels``) and the noise-aware fit of refinement.
+        Camera, filter (``min_valid_pixels``), the noise-aware fit of refinement and
+        ``[propagate]``: what a shape excluded reaches ``noise.cap`` off its plane (the widest
+        band any frame's refinement uses: a surface that close is inside some frame's band).
 
     Returns
     -------
-    planes : dict of int to ((ndarray (4,), int) or str)
-        For each wanted key: the world plane and the number of valid depth pixels it was
-        fitted to, or why there is none.
+    planes : dict of int to ((ndarray (4,), int, list of ndarray) or str)
+        For each wanted key: the camera-frame plane, the number of valid depth pixels it was
+        fitted to and the outlines (V, 2) of what the shape excluded
+        (:func:`annotate_rgbd.propagate.evidence.excluded_regions`, with ``[propagate]
+        exclude``), or why there is none.
     size : (int, int)
         (width, height) of the depth frame.
 
@@ -178,15 +185,24 @@ def keyframe_planes(
     depth_m = depth_to_metres(read_depth(depth_path), config.camera.depth_scale)
     drawn = rasterize_frame(shapes, *depth_m.shape)
     on_valid = np.where(np.isfinite(depth_m), drawn, 0)
-    planes: dict[int, tuple[np.ndarray, int] | str] = {}
+    shape_of = dict(shapes)
+    settings = config.propagate
+    planes: dict[int, tuple[np.ndarray, int, list[np.ndarray]] | str] = {}
     for key in wanted:
         valid = int(np.count_nonzero(on_valid == key))
         if valid < config.filter.min_valid_pixels:
             planes[key] = f"too little valid depth where the shape is on top ({valid} pixels)"
             continue
         rows, cols = grid_pixels(on_valid, key, valid, config.ransac.max_points)
-        fit = fit_plane(backproject(cols, rows, depth_m[rows, cols], config.camera), config.ransac, config.inlier_band())
-        planes[key] = (plane_to_world(fit.equation, *depth_pose), valid)
+        band = config.inlier_band()
+        fit = fit_plane(backproject(cols, rows, depth_m[rows, cols], config.camera), config.ransac, band)
+        excluded = []
+        if settings.exclude:
+            own = rasterize_frame([(1, shape_of[key])], *depth_m.shape) > 0
+            region = excluded_regions(own, depth_m, fit.equation, config.camera, band.scaled(fit.noise_scale),
+                                      band.cap, settings.exclude_margin)
+            excluded = region_outlines(region, config.filter.min_valid_pixels, settings.outline_tolerance)
+        planes[key] = (fit.equation, valid, excluded)
     return planes, (depth_m.shape[1], depth_m.shape[0])
 
 
@@ -237,8 +253,16 @@ def consensus_plane(
     return planes[best], support[best]
 
 
-def propagated_shapes(lift: TrackLift, frame: int, config: Config, pose: tuple[np.ndarray, np.ndarray]) -> list[Shape]:
-    """The shapes a track gets on one frame from its neighbouring lifted keyframes.
+def carried_layers(
+    lift: TrackLift, frame: int, config: Config, pose: tuple[np.ndarray, np.ndarray]
+) -> tuple[tuple[tuple[int, np.ndarray], ...], list[Shape]]:
+    """What a track's lifted keyframes say about its plane on a frame it was not drawn on.
+
+    Every keyframe outlines the part of the plane in view when it was drawn, and (with
+    ``[propagate] exclude``) what touched the plane there and was left out. Projected with the
+    frame's pose, they are layers for :func:`annotate_rgbd.segment.rasterize.paint_layers`,
+    the farthest keyframe (in frames) first: where keyframes disagree about a pixel, the nearest
+    one that saw it decides; a pixel no keyframe saw is the plane where any outline holds it.
 
     Parameters
     ----------
@@ -252,30 +276,32 @@ def propagated_shapes(lift: TrackLift, frame: int, config: Config, pose: tuple[n
 
     Returns
     -------
-    list of Shape
-        The keyframe's own polygon on a keyframe; on other frames the polygons of all the
-        track's keyframes (drawn as one plane: the region seen on any of them); empty when none
-        projects into the image.
+    layers : tuple of (int, ndarray of shape (V, 2))
+        ``(+1, outline)`` or ``(-1, excluded outline)`` in CVAT image coordinates, farthest
+        keyframe first; empty when nothing projects into the image.
+    beyond : list of Shape
+        Where a keyframe's view ended, the plane went on: below every drawn shape
+        (``BEYOND_Z_ORDER``), so that these only take pixels no other shape claims (and
+        refinement keeps the plane's own).
     """
-    own = [k for k in lift.keyframes if k.frame == frame]
-    shapes = []
-    # Drawn on this very frame: its own outline. Elsewhere every keyframe's: each outlines the
-    # part of the plane in view when it was drawn, and their union is the plane as the labeller
-    # saw it (measured on benchmarks/bench_propagate.py, keyframe every 30th frame: mean IoU
-    # 0.71 with the two neighbouring keyframes, 0.87 with all).
-    for keyframe in own or lift.keyframes:
-        polygon = project_polygon(keyframe.world, config.camera, *pose)
-        if len(polygon) >= 3 and np.isfinite(polygon).all():
-            shapes.append(Shape("polygon", polygon, z_order=keyframe.z_order))
-    if not own:
-        # Where a keyframe's view ended, the plane went on: below every drawn shape, so that
-        # these only take pixels no other shape claims (and refinement keeps the plane's own).
-        for keyframe in lift.keyframes:
-            for quad in keyframe.beyond:
-                polygon = project_polygon(quad, config.camera, *pose)
+    # All keyframes, not the two nearest: each outlines the part of the plane in view when it
+    # was drawn, and their union is the plane as the labeller saw it (measured on
+    # benchmarks/bench_propagate.py, keyframe every 30th frame: mean IoU 0.71 with the two
+    # neighbouring keyframes, 0.87 with all).
+    layers = []
+    for keyframe in sorted(lift.keyframes, key=lambda k: (-abs(k.frame - frame), k.frame)):
+        for sign, polygons in ((-1, keyframe.excluded), (1, (keyframe.world,))):
+            for world in polygons:
+                polygon = project_polygon(world, config.camera, *pose)
                 if len(polygon) >= 3 and np.isfinite(polygon).all():
-                    shapes.append(Shape("polygon", polygon, z_order=BEYOND_Z_ORDER))
-    return shapes
+                    layers.append((sign, polygon))
+    beyond = []
+    for keyframe in lift.keyframes:
+        for quad in keyframe.beyond:
+            polygon = project_polygon(quad, config.camera, *pose)
+            if len(polygon) >= 3 and np.isfinite(polygon).all():
+                beyond.append(Shape("polygon", polygon, z_order=BEYOND_Z_ORDER))
+    return tuple(layers), beyond
 
 
 #: Vertices this close to the keyframe image's edge (px) lie on it (CVAT clamps drawn vertices
@@ -337,23 +363,42 @@ def _lift_beyond(outline: np.ndarray, image_size, plane_camera: np.ndarray, pose
     return tuple(lifted)
 
 
-def lift_tracks(
+@dataclass
+class FittedTrack:
+    """A track's keyframe planes as their depth frames saw them (camera frames), before poses.
+
+    Parameters
+    ----------
+    part : str
+    track : Track
+    plane : int
+        Its global plane id.
+    keyframes : list of (int, ndarray, int, (ndarray, int) or str)
+        Per keyframe with an outline: its CVAT frame, the outline (V, 2) px, the depth frame
+        nearest it (-1: none), and the camera-frame plane with the number of valid depth pixels
+        it was fitted to and the outlines of what it excluded (:func:`keyframe_planes`), or why
+        there is none.
+    failed : list of (int, str)
+        Keyframes that cannot be lifted whatever the poses (mask shapes).
+    sizes : dict of int to (int, int)
+        CVAT frame -> (width, height) of the keyframe's depth frame.
+    """
+
+    part: str
+    track: Track
+    plane: int
+    keyframes: list = field(default_factory=list)
+    failed: list = field(default_factory=list)
+    sizes: dict = field(default_factory=dict)
+
+
+def fit_keyframes(
     parts: list[tuple[str, list[Track], list[int], dict[int, int]]],
     depth_of_rgb: dict[int, int],
     depth_files: list[Path],
-    depth_poses: FramePoses,
-    rgb_poses: FramePoses,
     config: Config,
-) -> list[TrackLift]:
-    """Lift the keyframes of every track (reads the depth frames nearest the keyframes).
-
-    Each keyframe's plane is fitted to the depth where its shape is on top
-    (:func:`keyframe_planes`) and its outline lifted onto it with the RGB camera's pose at the
-    keyframe's time. A plane is rigid and static, so a keyframe whose plane disagrees with the
-    one the track's keyframes agree on (:func:`consensus_plane`, weighted by their depth
-    pixels: the shape lay mostly over clutter or another surface) is lifted onto that
-    consensus plane instead, and listed; the track is flagged (``consistent`` False) when such
-    a keyframe holds a good share of the track's depth (:data:`MIN_KEYFRAME_WEIGHT`).
+) -> list[FittedTrack]:
+    """Fit the plane under every keyframe shape on its depth frame (reads those depth frames).
 
     Parameters
     ----------
@@ -364,51 +409,106 @@ def lift_tracks(
         RGB index -> the depth frame that shows it.
     depth_files : list of Path
         The sequence's depth files, in depth order.
-    depth_poses, rgb_poses : FramePoses
-        The poses of every depth and every RGB frame.
+    config : Config
+
+    Returns
+    -------
+    list of FittedTrack
+        Part by part, in track order; a track drawn on every frame of its life (nothing to carry
+        anywhere) has no keyframes.
+    """
+    fitted_tracks = []
+    for part, tracks, plane_ids, rgb_of_frame in parts:
+        part_tracks = [FittedTrack(part, track, plane) for track, plane in zip(tracks, plane_ids)]
+        keyframes_at: dict[int, list[int]] = {}
+        for i, track in enumerate(tracks):
+            drawn = keyframe_frames(track)
+            if len(drawn) == len(track.shapes):
+                continue  # drawn on every frame of its life: nothing to carry
+            for frame in drawn:
+                keyframes_at.setdefault(frame, []).append(i)
+        for frame in sorted(keyframes_at):
+            wanted = []
+            rgb = rgb_of_frame.get(frame)
+            depth = depth_of_rgb.get(rgb, -1) if rgb is not None else -1
+            for i in keyframes_at[frame]:
+                outline = outline_of(tracks[i].shapes[frame])
+                if outline is None:
+                    part_tracks[i].failed.append((frame, "mask shapes are not propagated"))
+                elif depth < 0:
+                    part_tracks[i].keyframes.append((frame, outline, depth, "no depth frame near the keyframe"))
+                else:
+                    wanted.append(i)
+            if not wanted:
+                continue
+            shapes = [(i + 1, t.shapes[frame]) for i, t in enumerate(tracks) if frame in t.shapes]
+            try:
+                planes, size = keyframe_planes(shapes, [i + 1 for i in wanted], depth_files[depth], config)
+            except InputError as exc:
+                planes, size = {i + 1: f"unreadable depth ({exc.message})" for i in wanted}, None
+            for i in wanted:
+                part_tracks[i].keyframes.append((frame, outline_of(tracks[i].shapes[frame]), depth, planes[i + 1]))
+                if size is not None:
+                    part_tracks[i].sizes[frame] = size
+        fitted_tracks += part_tracks
+    return fitted_tracks
+
+
+def time_samples(fitted: list[FittedTrack], depth_timestamps: np.ndarray, config: Config) -> list[KeyframeSample]:
+    """Every fitted keyframe as a :class:`~annotate_rgbd.propagate.timing.KeyframeSample`: its
+    outline lifted onto its plane in its camera frame (one group per track)."""
+    samples = []
+    identity = (np.eye(3), np.zeros(3))
+    for group, track in enumerate(fitted):
+        for frame, outline, depth, result in track.keyframes:
+            if isinstance(result, str):
+                continue
+            lifted = lift_polygon(outline, result[0], config.camera, *identity)
+            if lifted.ok:
+                samples.append(KeyframeSample(group, float(depth_timestamps[depth]), lifted.world, result[0]))
+    return samples
+
+
+def lift_tracks(fitted: list[FittedTrack], depth_poses: FramePoses, config: Config) -> list[TrackLift]:
+    """Lift the fitted keyframes of every track onto their planes, in world coordinates.
+
+    Each keyframe's plane (:func:`fit_keyframes`) is taken to the world and its outline lifted
+    onto it with the pose of the depth frame it was fitted on: on its own keyframe a shape is
+    used as drawn on that depth frame (:mod:`annotate_rgbd.pipeline.plan`), so it is that frame's
+    view the outline stands for. A plane is rigid and static, so a keyframe whose plane
+    disagrees with the one the track's keyframes agree on (:func:`consensus_plane`, weighted
+    by their depth pixels: the shape lay mostly over clutter or another surface) is lifted onto
+    that consensus plane instead, and listed; the track is flagged (``consistent`` False) when
+    such a keyframe holds a good share of the track's depth (:data:`MIN_KEYFRAME_WEIGHT`).
+
+    Parameters
+    ----------
+    fitted : list of FittedTrack
+    depth_poses : FramePoses
+        The pose of every depth frame.
     config : Config
 
     Returns
     -------
     list of TrackLift
-        Part by part, in track order.
+        In the order of ``fitted``.
     """
     lifts = []
-    for part, tracks, plane_ids, rgb_of_frame in parts:
-        part_lifts = [TrackLift(part, track.track_id, plane) for track, plane in zip(tracks, plane_ids)]
-        # (track index) -> list of (frame, outline px, rgb pose, fitted (plane, pixels) or reason)
-        fitted: dict[int, list] = {i: [] for i in range(len(tracks))}
-        keyframes_at: dict[int, list[int]] = {}
-        sizes: dict[int, tuple[int, int]] = {}  # CVAT frame -> image size, from the depth frame
-        for i, track in enumerate(tracks):
-            for frame in keyframe_frames(track):
-                keyframes_at.setdefault(frame, []).append(i)
-        for frame in sorted(keyframes_at):
-            wanted = []
-            rgb = rgb_of_frame.get(frame)
-            depth = depth_of_rgb.get(rgb) if rgb is not None else None
-            for i in keyframes_at[frame]:
-                if outline_of(tracks[i].shapes[frame]) is None:
-                    part_lifts[i].failed.append((frame, "mask shapes are not propagated"))
-                elif depth is None or not depth_poses.ok[depth]:
-                    why = "no depth frame near the keyframe" if depth is None else depth_poses.reasons[depth]
-                    part_lifts[i].failed.append((frame, f"no pose ({why})"))
-                else:
-                    wanted.append(i)
-            if not wanted:
+    for track in fitted:
+        lift = TrackLift(track.part, track.track.track_id, track.plane, failed=list(track.failed))
+        posed = []
+        for frame, outline, depth, result in track.keyframes:
+            if depth < 0 or not depth_poses.ok[depth]:
+                why = result if depth < 0 else f"no pose ({depth_poses.reasons[depth]})"
+                lift.failed.append((frame, why))
                 continue
-            depth_pose = (depth_poses.rotations[depth], depth_poses.translations[depth])
-            rgb_pose = (rgb_poses.rotations[rgb], rgb_poses.translations[rgb]) if rgb_poses.ok[rgb] else depth_pose
-            shapes = [(i + 1, t.shapes[frame]) for i, t in enumerate(tracks) if frame in t.shapes]
-            try:
-                planes, sizes[frame] = keyframe_planes(shapes, [i + 1 for i in wanted], depth_files[depth], depth_pose, config)
-            except InputError as exc:
-                planes = {i + 1: f"unreadable depth ({exc.message})" for i in wanted}
-            for i in wanted:
-                fitted[i].append((frame, outline_of(tracks[i].shapes[frame]), rgb_pose, planes[i + 1]))
-        for i, track in enumerate(tracks):
-            _lift_onto_planes(part_lifts[i], track, fitted[i], config, sizes)
-        lifts += part_lifts
+            pose = (depth_poses.rotations[depth], depth_poses.translations[depth])
+            if not isinstance(result, str):
+                result = (plane_to_world(result[0], *pose), *result[1:])
+            posed.append((frame, outline, pose, result))
+        _lift_onto_planes(lift, track.track, posed, config, track.sizes)
+        lift.failed.sort()
+        lifts.append(lift)
     return lifts
 
 
@@ -436,7 +536,12 @@ def _lift_onto_planes(lift: TrackLift, track: Track, fitted: list, config: Confi
             lift.failed.append((frame, f"the outline cannot be lifted onto its plane ({lifted.reason})"))
             continue
         beyond = _lift_beyond(outline, sizes[frame], plane_to_camera(target, *pose), pose, config) if frame in sizes else ()
-        lift.keyframes.append(LiftedKeyframe(frame, lifted.world, target, track.shapes[frame].z_order, beyond))
+        excluded = ()
+        if target is plane:  # what the outline left out, judged against its own plane
+            found = [lift_polygon(o, plane_to_camera(target, *pose), config.camera, *pose) for o in result[2]]
+            excluded = tuple(f.world for f in found if f.ok)
+        lift.keyframes.append(LiftedKeyframe(frame, lifted.world, target, track.shapes[frame].z_order, beyond,
+                                             excluded))
         if plane is not None and target is consensus and not agrees.get(frame, False):
             lift.off_plane.append(frame)
             if weight[frame] >= MIN_KEYFRAME_WEIGHT * largest:

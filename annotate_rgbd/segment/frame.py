@@ -16,7 +16,7 @@ from annotate_rgbd.geometry.camera import depth_to_metres
 from annotate_rgbd.config.settings import Config
 from .filters import drop_reasons, label_histogram, plane_statistics
 from .grow import grow_connected, grow_planes
-from .rasterize import rasterize_frame
+from .rasterize import paint_layers, rasterize_frame
 from annotate_rgbd.report.records import PlaneRecord
 from .refine import refine_planes
 
@@ -44,7 +44,7 @@ class FrameResult:
 
 def segment_frame(
     depth_raw: np.ndarray, shapes: Sequence[tuple[int, Shape]], config: Config, propagated: Collection[int] = (),
-    expected: Mapping[int, np.ndarray] | None = None,
+    expected: Mapping[int, np.ndarray] | None = None, carried: Sequence[tuple] = (),
 ) -> FrameResult:
     """Rasterise, filter and refine the planes of one depth frame.
 
@@ -61,6 +61,11 @@ def segment_frame(
         ``look_behind``).
     expected : mapping of int to ndarray, shape (4,), optional
         Where camera poses put those planes in this frame (camera frame, metres).
+    carried : sequence of (int, int, int, layers)
+        ``(position, plane id, z_order, layers)``: what the keyframes of a plane carried here
+        say it covers and excludes (:func:`annotate_rgbd.propagate.carry.carried_layers`). What
+        they say it covers is drawn among ``shapes`` before the one at ``position`` (in order of
+        ``position``); what they say it excludes the plane does not grow into.
 
     Returns
     -------
@@ -69,6 +74,7 @@ def segment_frame(
         ``kept`` and ``dropped`` one record per plane drawn on the frame.
     """
     height, width = depth_raw.shape
+    shapes, excluded = _with_carried(shapes, carried, height, width)
     drawn = rasterize_frame(shapes, height, width)
     depth_m = depth_to_metres(depth_raw, config.camera.depth_scale)
     stats = plane_statistics(drawn, depth_m, config.camera)
@@ -89,7 +95,7 @@ def segment_frame(
         # by poses (an outline's extension past a keyframe's border above all) are guesses.
         claimed = (drawn > 0) & ~np.isin(drawn, list(propagated))
         labels, beyond = grow_connected(labels, drawn, claimed, depth_m, carried, config.camera, band.model, band.k,
-                                        band.floor, band.cap)
+                                        band.floor, band.cap, excluded)
         grown = {plane_id: count + beyond.get(plane_id, 0) for plane_id, count in grown.items()}
     result = FrameResult(labels=labels, drawn=drawn)
     for i, plane_id in enumerate(stats.plane_ids.tolist()):
@@ -120,6 +126,22 @@ def segment_frame(
                 **measured, reason=reasons[i], invalid_ratio=round(float(stats.invalid_ratio[i]), 6)
             ))
     return result
+
+
+def _with_carried(
+    shapes: Sequence[tuple[int, Shape]], carried: Sequence[tuple], height: int, width: int
+) -> tuple[list[tuple[int, Shape]], dict[int, np.ndarray]]:
+    """The frame's shapes with each carried plane's covered pixels among them (a mask shape),
+    and each carried plane's excluded pixels."""
+    shapes = list(shapes)
+    excluded: dict[int, np.ndarray] = {}
+    for position, plane_id, z_order, layers in reversed(list(carried)):  # later positions first
+        inside, outside = paint_layers(layers, height, width)
+        if inside.any():
+            shapes.insert(position, (plane_id, Shape("mask", np.zeros((1, 2)), z_order=z_order, bitmap=inside)))
+        if outside.any():
+            excluded[plane_id] = outside | excluded[plane_id] if plane_id in excluded else outside
+    return shapes, excluded
 
 
 def _rounded(value: float) -> float | None:

@@ -127,6 +127,7 @@ def grow_connected(
     k: float,
     floor: float,
     cap: float,
+    excluded: Mapping[int, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, dict[int, int]]:
     """Grow each plane of ``equations``, without a distance limit, over the pixels that lie on it
     and connect to it: for planes whose shapes camera poses carried from keyframes, where the
@@ -159,6 +160,9 @@ def grow_connected(
     model : ConstantNoise or QuadraticNoise
     k, floor, cap : float
         The band, as in :func:`annotate_rgbd.noise.inlier_band`.
+    excluded : mapping of int to ndarray of bool, shape (H, W), optional
+        Pixels a plane may not take (what its keyframes' labellers left out,
+        :mod:`annotate_rgbd.propagate.evidence`); growth does not pass through them.
 
     Returns
     -------
@@ -189,6 +193,8 @@ def grow_connected(
         signed = signed_distances(depth, *(np.float32(v) for v in equations[plane_id]), camera)
         with np.errstate(invalid="ignore"):
             closer = free & (np.abs(signed) <= band) & (np.abs(signed) < best) & (drawn != plane_id)
+        if excluded and plane_id in excluded:
+            closer &= ~excluded[plane_id]
         candidate[closer] = plane_id
         best[closer] = np.abs(signed[closer])
         scored = closer | ((labels == plane_id) & np.isfinite(signed))

@@ -150,3 +150,29 @@ def _span(low: float, high: float, size: int) -> tuple[int, int]:
     first = min(max(int(np.ceil(low - 0.5)), 0), size)
     stop = min(max(int(np.ceil(high - 0.5)), 0), size)
     return first, stop
+
+
+def paint_layers(layers: Iterable[tuple[int, np.ndarray]], height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
+    """Paint signed polygons in order, each over the ones before: what the last one covering a
+    pixel says decides it.
+
+    Parameters
+    ----------
+    layers : iterable of (int, ndarray of shape (V, 2))
+        ``(+1, polygon)`` (the plane is there) or ``(-1, polygon)`` (it is not), in CVAT image
+        coordinates, the least trusted first.
+    height, width : int
+        Image size.
+
+    Returns
+    -------
+    inside, excluded : ndarray of bool, shape (height, width)
+        Pixels whose last covering polygon is positive, and negative; neither where none
+        covers them.
+    """
+    verdict = np.zeros((height, width), dtype=np.int8)
+    for sign, polygon in layers:
+        top, left, inside = polygon_window(np.asarray(polygon, dtype=np.float64), height, width)
+        rows, cols = inside.shape
+        np.copyto(verdict[top : top + rows, left : left + cols], np.int8(1 if sign > 0 else -1), where=inside)
+    return verdict > 0, verdict < 0
