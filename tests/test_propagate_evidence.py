@@ -133,10 +133,10 @@ def test_a_carried_plane_does_not_grow_into_what_its_keyframes_excluded():
     config = load_config(None, {"camera.fx": 262.5, "camera.fy": 262.5, "camera.cx": 159.5, "camera.cy": 119.5})
     wall = np.array([[0, 0], [200, 0], [200, 200], [0, 200]], dtype=np.float64)
     expected = {1: np.array([0.0, 0.0, -1.0, 2.0])}
-    grown = segment_frame(depth_raw, [], config, {1}, expected, [(0, 1, 0, ((1, wall),))])
+    grown = segment_frame(depth_raw, [], config, {1}, expected, [(0, 1, 0, ((1, wall),), ())])
     assert (grown.labels[:200, 290:] == 1).all()  # beyond its keyframe's view, the wall went on
     excluded = np.array([[204, 0], [320, 0], [320, 240], [204, 240]], dtype=np.float64)
-    kept = segment_frame(depth_raw, [], config, {1}, expected, [(0, 1, 0, ((-1, excluded), (1, wall)))])
+    kept = segment_frame(depth_raw, [], config, {1}, expected, [(0, 1, 0, ((-1, excluded), (1, wall)), ())])
     assert not (kept.labels[:, 210:] == 1).any() and (kept.labels[10:190, 30:190] == 1).all()
 
 

@@ -36,6 +36,7 @@ that is not listed is an error, so a typo never goes unnoticed::
     time_offset = 0.0
     time_offset_search = 0.1
     time_offset_step = 0.005
+    keyframes_each_side = 3
     exclude = true      # carry what keyframe outlines left out, too
     exclude_margin = 4
     outline_tolerance = 1.0
@@ -197,6 +198,11 @@ class PropagateConfig:
     time_offset_step : float
         The grid of that search (s); it is refined to a tenth of it around the best point. At
         70 degrees per second (TUM fr1's hand-held sweeps) 5 ms is 0.35 degrees, 3 px at fx 517.
+    keyframes_each_side : int
+        A frame between keyframes gets what the nearest this many keyframes before it and after
+        it say about each plane (the nearest one that saw a pixel decides it): each outlines the
+        part of the plane in view when it was drawn, and farther ones add only what the nearer
+        ones did not see. On benchmarks/bench_propagate.py's walk ... (measured in the README).
     exclude : bool
         Carry what each keyframe's outline left out as well as what it holds
         (:mod:`annotate_rgbd.propagate.evidence`): the surfaces touching the plane, within
@@ -214,6 +220,7 @@ class PropagateConfig:
     time_offset: float = 0.0
     time_offset_search: float = 0.1
     time_offset_step: float = 0.005
+    keyframes_each_side: int = 3
     exclude: bool = True
     exclude_margin: int = 4
     outline_tolerance: float = 1.0
@@ -608,6 +615,7 @@ def _check_ranges(config: Config, origin: str | Path | None) -> None:
         ("stitch.min_iou", 0 < config.stitch.min_iou <= 1, "must be in (0, 1]"),
         ("propagate.time_offset_search", 0 <= config.propagate.time_offset_search <= 1, "must be in [0, 1] s"),
         ("propagate.time_offset_step", config.propagate.time_offset_step > 0, "must be > 0"),
+        ("propagate.keyframes_each_side", 1 <= config.propagate.keyframes_each_side <= 1000, "must be in [1, 1000]"),
         ("propagate.exclude_margin", 0 <= config.propagate.exclude_margin <= 50, "must be in [0, 50]"),
         ("propagate.outline_tolerance", config.propagate.outline_tolerance > 0, "must be > 0"),
     ]

@@ -57,10 +57,11 @@ class FrameJob:
     expected_planes : tuple of (int, (float, float, float, float))
         Where the poses put each of those planes in this depth frame's camera frame (metres):
         refinement looks for it behind what RANSAC finds (:func:`annotate_rgbd.ransac.fit_plane`).
-    carried : tuple of (int, int, int, tuple of (int, ndarray))
-        ``(position, plane id, z_order, layers)`` of each plane the poses carried here: what its
-        keyframes say it covers and excludes (:func:`annotate_rgbd.propagate.carry.carried_layers`),
-        drawn among ``shapes`` before the one at ``position``.
+    carried : tuple of (int, int, int, tuple of (int, ndarray), tuple of ndarray)
+        ``(position, plane id, z_order, layers, beyond)`` of each plane the poses carried here:
+        what its keyframes say it covers and excludes, and what lies past their views
+        (:func:`annotate_rgbd.propagate.carry.carried_layers`), drawn among ``shapes`` before the
+        one at ``position``.
     """
 
     depth_path: Path

@@ -245,7 +245,7 @@ def plan_propagation(
     offset = TimeOffset()
     if settings.time_offset_search > 0:
         offset = estimate_time_offset(trajectory, time_samples(fitted, times, config), settings.time_offset_search,
-                                      settings.time_offset_step, gap, SAME_SURFACE_OFFSET)
+                                      settings.time_offset_step, gap, SAME_SURFACE_OFFSET, config.inlier_band().model.sigma)
     depth_poses = poses_at(trajectory, times + offset.offset, gap)
     lifts = lift_tracks(fitted, depth_poses, config)
     return Propagation(str(path), {(lift.part, lift.track): lift for lift in lifts}, depth_poses,
@@ -359,7 +359,7 @@ def _frame_shapes(
     """The ``(plane id, shape)`` pairs of one frame, in track order, the planes whose shapes the
     poses carried there from other frames, ``(plane id, (a, b, c, d))`` where the poses put
     each of those (its nearest keyframe's plane, in the depth frame's camera frame), and
-    ``(position, plane id, z_order, layers)`` of each: what its keyframes say about it
+    ``(position, plane id, z_order, layers, beyond)`` of each: what its keyframes say about it
     (:func:`annotate_rgbd.propagate.carry.carried_layers`), to go among the shapes at
     ``position``."""
     shapes, propagated, expected, carried = [], set(), [], []
@@ -377,9 +377,8 @@ def _frame_shapes(
         pose = (propagation.depth_poses.rotations[depth], propagation.depth_poses.translations[depth])
         layers, beyond = carried_layers(lift, frame, config, pose)
         nearest = min(lift.keyframes, key=lambda k: (abs(k.frame - frame), k.frame))
-        if layers:
-            carried.append((len(shapes), plane, nearest.z_order, layers))
-        shapes += [(plane, shape) for shape in beyond]
+        if layers or beyond:
+            carried.append((len(shapes), plane, nearest.z_order, layers, beyond))
         propagated.add(plane)
         expected.append((plane, tuple(float(v) for v in plane_to_camera(nearest.plane, *pose))))
     return (tuple(shapes), (frozenset(propagated) if propagation is not None else None), tuple(expected),

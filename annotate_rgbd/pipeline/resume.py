@@ -64,7 +64,7 @@ def fingerprint(
         The planes whose shapes camera poses carried to the frame.
     expected_planes : sequence of (int, (a, b, c, d))
         Where the poses put them (:class:`annotate_rgbd.frame_job.FrameJob`).
-    carried : sequence of (int, int, int, layers)
+    carried : sequence of (int, int, int, layers, beyond)
         What their keyframes say about them (``FrameJob.carried``).
 
     Returns
@@ -86,9 +86,9 @@ def fingerprint(
     for plane_id, equation in expected_planes:
         digest.update(f"expected:{plane_id}:".encode())
         digest.update(np.asarray(equation, dtype=np.float64).tobytes())
-    for position, plane_id, z_order, layers in carried:
+    for position, plane_id, z_order, layers, beyond in carried:
         digest.update(f"carried:{position}:{plane_id}:{z_order}:".encode())
-        for sign, polygon in layers:
+        for sign, polygon in (*layers, *((0, quad) for quad in beyond)):
             digest.update(f"{sign}:{len(polygon)}:".encode())
             digest.update(np.ascontiguousarray(polygon, dtype=np.float64).tobytes())
     return digest.hexdigest()

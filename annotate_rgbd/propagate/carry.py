@@ -29,7 +29,7 @@ from annotate_rgbd.config.settings import Config
 from annotate_rgbd.errors import InputError
 from annotate_rgbd.geometry.lift import (
     SAME_SURFACE_ANGLE, SAME_SURFACE_OFFSET, lift_polygon, plane_agreement, plane_to_camera, plane_to_world,
-    project_polygon,
+    project_polygons,
 )
 from annotate_rgbd.io.poses import FramePoses
 from annotate_rgbd.segment.rasterize import rasterize_frame
@@ -169,11 +169,12 @@ def keyframe_planes(
 
     Returns
     -------
-    planes : dict of int to ((ndarray (4,), int, list of ndarray) or str)
+    planes : dict of int to ((ndarray (4,), int, list of ndarray, ndarray) or str)
         For each wanted key: the camera-frame plane, the number of valid depth pixels it was
-        fitted to and the outlines (V, 2) of what the shape excluded
+        fitted to, the outlines (V, 2) of what the shape excluded
         (:func:`annotate_rgbd.propagate.evidence.excluded_regions`, with ``[propagate]
-        exclude``), or why there is none.
+        exclude``) and the fit's inliers among its grid points (camera frame, m: at most about
+        ``ransac.max_points``), or why there is none.
     size : (int, int)
         (width, height) of the depth frame.
 
@@ -195,14 +196,16 @@ def keyframe_planes(
             continue
         rows, cols = grid_pixels(on_valid, key, valid, config.ransac.max_points)
         band = config.inlier_band()
-        fit = fit_plane(backproject(cols, rows, depth_m[rows, cols], config.camera), config.ransac, band)
+        points = backproject(cols, rows, depth_m[rows, cols], config.camera)
+        fit = fit_plane(points, config.ransac, band)
+        on_plane = points[fit.inliers]
         excluded = []
         if settings.exclude:
             own = rasterize_frame([(1, shape_of[key])], *depth_m.shape) > 0
             region = excluded_regions(own, depth_m, fit.equation, config.camera, band.scaled(fit.noise_scale),
                                       band.cap, settings.exclude_margin)
             excluded = region_outlines(region, config.filter.min_valid_pixels, settings.outline_tolerance)
-        planes[key] = (fit.equation, valid, excluded)
+        planes[key] = (fit.equation, valid, excluded, on_plane)
     return planes, (depth_m.shape[1], depth_m.shape[0])
 
 
@@ -240,14 +243,12 @@ def consensus_plane(
     plane : ndarray, shape (4,)
     agree : list of bool
     """
-    centroids = [outline.mean(axis=0) for outline in outlines]
+    centroids = np.array([outline.mean(axis=0) for outline in outlines])
+    stacked = np.array(planes, dtype=np.float64)
     support = []
     for candidate in planes:
-        agree = []
-        for plane, centroid in zip(planes, centroids):
-            angle, offset = plane_agreement(candidate, plane, at=centroid)
-            agree.append(angle <= SAME_SURFACE_ANGLE and offset <= SAME_SURFACE_OFFSET)
-        support.append(agree)
+        angle, offset = plane_agreement(candidate, stacked, at=centroids)
+        support.append([bool(ok) for ok in (angle <= SAME_SURFACE_ANGLE) & (offset <= SAME_SURFACE_OFFSET)])
     weights = [1.0] * len(planes) if weights is None else weights
     best = max(range(len(planes)), key=lambda i: (sum(w for w, ok in zip(weights, support[i]) if ok), -i))
     return planes[best], support[best]
@@ -255,7 +256,7 @@ def consensus_plane(
 
 def carried_layers(
     lift: TrackLift, frame: int, config: Config, pose: tuple[np.ndarray, np.ndarray]
-) -> tuple[tuple[tuple[int, np.ndarray], ...], list[Shape]]:
+) -> tuple[tuple[tuple[int, np.ndarray], ...], tuple[np.ndarray, ...]]:
     """What a track's lifted keyframes say about its plane on a frame it was not drawn on.
 
     Every keyframe outlines the part of the plane in view when it was drawn, and (with
@@ -279,29 +280,37 @@ def carried_layers(
     layers : tuple of (int, ndarray of shape (V, 2))
         ``(+1, outline)`` or ``(-1, excluded outline)`` in CVAT image coordinates, farthest
         keyframe first; empty when nothing projects into the image.
-    beyond : list of Shape
-        Where a keyframe's view ended, the plane went on: below every drawn shape
-        (``BEYOND_Z_ORDER``), so that these only take pixels no other shape claims (and
-        refinement keeps the plane's own).
+    beyond : list of ndarray, shape (V, 2)
+        Where a keyframe's view ended, the plane went on: drawn below every other shape
+        (:data:`annotate_rgbd.segment.rasterize.BOTTOM_Z_ORDER`), so that these only take pixels
+        no other shape claims and no keyframe excluded (and refinement keeps the plane's own).
     """
-    # All keyframes, not the two nearest: each outlines the part of the plane in view when it
-    # was drawn, and their union is the plane as the labeller saw it (measured on
+    # Several keyframes, not the two nearest: each outlines the part of the plane in view when
+    # it was drawn, and their union is the plane as the labeller saw it (measured on
     # benchmarks/bench_propagate.py, keyframe every 30th frame: mean IoU 0.71 with the two
     # neighbouring keyframes, 0.87 with all).
-    layers = []
-    for keyframe in sorted(lift.keyframes, key=lambda k: (-abs(k.frame - frame), k.frame)):
-        for sign, polygons in ((-1, keyframe.excluded), (1, (keyframe.world,))):
-            for world in polygons:
-                polygon = project_polygon(world, config.camera, *pose)
-                if len(polygon) >= 3 and np.isfinite(polygon).all():
-                    layers.append((sign, polygon))
-    beyond = []
-    for keyframe in lift.keyframes:
-        for quad in keyframe.beyond:
-            polygon = project_polygon(quad, config.camera, *pose)
-            if len(polygon) >= 3 and np.isfinite(polygon).all():
-                beyond.append(Shape("polygon", polygon, z_order=BEYOND_Z_ORDER))
-    return tuple(layers), beyond
+    nearest = nearest_keyframes(lift.keyframes, frame, config.propagate.keyframes_each_side)
+    signs, worlds = [], []
+    for keyframe in sorted(nearest, key=lambda k: (-abs(k.frame - frame), k.frame)):
+        for world in keyframe.excluded:
+            signs.append(-1)
+            worlds.append(world)
+        signs.append(1)
+        worlds.append(keyframe.world)
+    quads = [quad for keyframe in nearest for quad in keyframe.beyond]
+    projected = project_polygons(worlds + quads, config.camera, *pose)
+    usable = [len(polygon) >= 3 and np.isfinite(polygon).all() for polygon in projected]
+    layers = [(sign, polygon) for sign, polygon, ok in zip(signs, projected, usable) if ok]
+    beyond = [polygon for polygon, ok in zip(projected[len(worlds):], usable[len(worlds):]) if ok]
+    return tuple(layers), tuple(beyond)
+
+
+def nearest_keyframes(keyframes: list[LiftedKeyframe], frame: int, each_side: int) -> list[LiftedKeyframe]:
+    """The ``each_side`` keyframes nearest a frame before it and after it (fewer where there are
+    fewer), in frame order."""
+    before = [k for k in keyframes if k.frame <= frame][-each_side:] if each_side > 0 else []
+    after = [k for k in keyframes if k.frame > frame][:each_side] if each_side > 0 else []
+    return before + after
 
 
 #: Vertices this close to the keyframe image's edge (px) lie on it (CVAT clamps drawn vertices
@@ -309,8 +318,6 @@ def carried_layers(
 BORDER_MARGIN = 4.0
 #: How far past the border (as a share of the image's size) an outline is carried, at most.
 BEYOND_REACH = 0.5
-#: The drawing order of what lies beyond a keyframe's border: below any drawn shape.
-BEYOND_Z_ORDER = -(2**31)
 
 
 def beyond_the_border(outline: np.ndarray, image_size: tuple[int, int]) -> list[np.ndarray]:
@@ -456,16 +463,15 @@ def fit_keyframes(
 
 def time_samples(fitted: list[FittedTrack], depth_timestamps: np.ndarray, config: Config) -> list[KeyframeSample]:
     """Every fitted keyframe as a :class:`~annotate_rgbd.propagate.timing.KeyframeSample`: its
-    outline lifted onto its plane in its camera frame (one group per track)."""
+    plane and points of it where the depth supports it, in its camera frame (one group per
+    track)."""
     samples = []
-    identity = (np.eye(3), np.zeros(3))
     for group, track in enumerate(fitted):
         for frame, outline, depth, result in track.keyframes:
             if isinstance(result, str):
                 continue
-            lifted = lift_polygon(outline, result[0], config.camera, *identity)
-            if lifted.ok:
-                samples.append(KeyframeSample(group, float(depth_timestamps[depth]), lifted.world, result[0]))
+            if len(result[3]) >= 3:
+                samples.append(KeyframeSample(group, float(depth_timestamps[depth]), result[3], result[0]))
     return samples
 
 

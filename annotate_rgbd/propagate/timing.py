@@ -128,17 +128,20 @@ def pair_residuals(samples: list[KeyframeSample], first: np.ndarray, second: np.
 
 def estimate_time_offset(
     trajectory: Trajectory, samples: list[KeyframeSample], search: float, step: float, max_gap: float,
-    same_surface: float, max_per_group: int = 12, min_gain: float = 0.2,
+    same_surface: float, sigma=None, max_per_group: int = 12,
 ) -> TimeOffset:
     """The offset to add to the depth timestamps under which the keyframes' planes agree best.
 
     Every pair of keyframes of one group (track) is compared (:func:`pair_residuals`); pairs
     whose planes lie more than ``same_surface`` apart at every tried offset are not the same
-    surface (a shape drawn over another one) and are left out. The score of an offset is the
-    mean over the pairs of their residual clipped at ``same_surface``; the offset is searched on
-    a grid of ``step`` over ``[-search, search]``, then refined around the best grid point on a
-    grid a tenth as fine. It is kept only when it lowers the score by ``min_gain`` of the score
-    at 0 (exact poses: the score is flat around 0 and the offset stays 0).
+    surface (a shape drawn over another one) and are left out. A pair's residual is counted in
+    units of the sensor's noise at the farther keyframe's depth (a plane 3 m away is fitted to
+    points ten times noisier than one at 1 m) and clipped at ``same_surface``; the score of an
+    offset is the mean over the pairs. The offset is searched on a grid of ``step`` over
+    ``[-search, search]``, then on a grid a tenth as fine around the best point. It is kept only
+    when it brings more of the pairs closer than chance would: a sign test at two standard
+    deviations (share of pairs closer than at 0 above ``1/2 + 1/sqrt(pairs)``); with exact poses
+    the best offset is about 0 and about half the pairs move either way.
 
     Parameters
     ----------
@@ -150,10 +153,11 @@ def estimate_time_offset(
         As in :func:`annotate_rgbd.poses.poses_at`.
     same_surface : float
         Residual (m) beyond which a pair counts as two surfaces.
+    sigma : callable, optional
+        The sensor's noise (m) at a depth (m), vectorised (:meth:`NoiseModel.sigma`); None: every
+        pair counts the same.
     max_per_group : int
         Keyframes of a group compared pairwise, at most (taken evenly in time).
-    min_gain : float
-        Share of the score at 0 an offset must remove to be kept.
 
     Returns
     -------
@@ -163,6 +167,8 @@ def estimate_time_offset(
     if len(first) == 0 or step <= 0 or search <= 0:
         return TimeOffset(pairs=0)
     times = np.array([s.time for s in samples])
+    depths = np.array([float(np.median(s.points[:, 2])) for s in samples])
+    scale = np.ones(len(first)) if sigma is None else np.asarray(sigma(np.maximum(depths[first], depths[second])))
 
     def residuals(offset: float) -> np.ndarray:
         poses = poses_at(trajectory, times + offset, max_gap)
@@ -170,23 +176,24 @@ def estimate_time_offset(
         found[~(poses.ok[first] & poses.ok[second])] = np.nan
         return found
 
-    coarse = np.arange(-search, search + step / 2, step)
-    coarse = np.unique(np.append(coarse, 0.0))
+    coarse = np.unique(np.append(np.arange(-search, search + step / 2, step), 0.0))
     table = np.array([residuals(float(offset)) for offset in coarse])  # (offsets, pairs)
     usable = np.isfinite(table).all(axis=0) & (np.where(np.isfinite(table), table, np.inf).min(axis=0) <= same_surface)
+    zero = table[int(np.flatnonzero(coarse == 0.0)[0])]
     if not usable.any():
         return TimeOffset(pairs=0)
 
     def score(found: np.ndarray) -> float:
-        return float(np.mean(np.minimum(found[usable], same_surface)))
+        return float(np.mean(np.minimum(found[usable], same_surface) / scale[usable]))
 
-    scores = [score(row) for row in table]
-    best = float(coarse[int(np.argmin(scores))])
+    best = float(coarse[int(np.argmin([score(row) for row in table]))])
     fine = np.arange(best - step, best + step + step / 20, step / 10)
-    fine_scores = [score(residuals(float(offset))) for offset in fine]
-    best = float(fine[int(np.argmin(fine_scores))])
-    at_zero = float(np.median(table[coarse == 0.0][0][usable]))
-    zero_score, best_score = scores[int(np.flatnonzero(coarse == 0.0)[0])], min(fine_scores)
-    if best_score > (1.0 - min_gain) * zero_score:
-        return TimeOffset(0.0, at_zero, at_zero, int(np.count_nonzero(usable)))
-    return TimeOffset(round(best, 6), at_zero, float(np.median(residuals(best)[usable])), int(np.count_nonzero(usable)))
+    fine_rows = [residuals(float(offset)) for offset in fine]
+    best_index = int(np.argmin([score(row) for row in fine_rows]))
+    best, at_best = float(fine[best_index]), fine_rows[best_index]
+    pairs = int(np.count_nonzero(usable))
+    at_zero = float(np.median(zero[usable]))
+    closer = float(np.mean(at_best[usable] < zero[usable]))
+    if closer <= 0.5 + 1.0 / np.sqrt(pairs):
+        return TimeOffset(0.0, at_zero, at_zero, pairs)
+    return TimeOffset(round(best, 6), at_zero, float(np.median(at_best[usable])), pairs)

@@ -14,9 +14,9 @@ import numpy as np
 from annotate_rgbd.annotation.model import Shape
 from annotate_rgbd.geometry.camera import depth_to_metres
 from annotate_rgbd.config.settings import Config
-from .filters import drop_reasons, label_histogram, plane_statistics
+from .filters import NOT_WHERE_EXPECTED, drop_reasons, label_histogram, plane_statistics
 from .grow import grow_connected, grow_planes
-from .rasterize import paint_layers, rasterize_frame
+from .rasterize import BOTTOM_Z_ORDER, paint_layers, rasterize_frame
 from annotate_rgbd.report.records import PlaneRecord
 from .refine import refine_planes
 
@@ -61,11 +61,13 @@ def segment_frame(
         ``look_behind``).
     expected : mapping of int to ndarray, shape (4,), optional
         Where camera poses put those planes in this frame (camera frame, metres).
-    carried : sequence of (int, int, int, layers)
-        ``(position, plane id, z_order, layers)``: what the keyframes of a plane carried here
-        say it covers and excludes (:func:`annotate_rgbd.propagate.carry.carried_layers`). What
-        they say it covers is drawn among ``shapes`` before the one at ``position`` (in order of
-        ``position``); what they say it excludes the plane does not grow into.
+    carried : sequence of (int, int, int, layers, beyond)
+        ``(position, plane id, z_order, layers, beyond)``: what the keyframes of a plane carried
+        here say it covers and excludes, and polygons past their views
+        (:func:`annotate_rgbd.propagate.carry.carried_layers`). What they say it covers is drawn
+        among ``shapes`` before the one at ``position`` (in order of ``position``), what lies
+        beyond (but for what they exclude) below every shape; what they exclude the plane does
+        not grow into.
 
     Returns
     -------
@@ -85,16 +87,19 @@ def segment_frame(
         drawn, depth_m, stats.plane_ids[kept], config.camera, config.ransac, band, stats.valid_pixels[kept],
         config.refine.rim_pixels, propagated, expected,
     )
+    # A carried plane that is not where the poses put it (refine_planes gave it no fit).
+    reasons = [NOT_WHERE_EXPECTED if r is None and plane_id not in fits else r
+               for plane_id, r in zip(stats.plane_ids.tolist(), reasons)]
     inlier_count = label_histogram(refined, int(drawn.max(initial=0)) + 1)
     equations = {plane_id: fit.equation for plane_id, fit in fits.items()}
     labels, grown = grow_planes(refined, drawn, depth_m, equations, config.camera, band.model, band.k, band.floor,
                                 band.cap, config.refine.grow_pixels)
-    carried = {plane_id: equation for plane_id, equation in equations.items() if plane_id in propagated}
-    if carried and config.refine.grow_pixels:
+    growing = {plane_id: equation for plane_id, equation in equations.items() if plane_id in propagated}
+    if growing and config.refine.grow_pixels:
         # Where a plane went on beyond every keyframe's view, nobody outlined it; shapes carried
         # by poses (an outline's extension past a keyframe's border above all) are guesses.
         claimed = (drawn > 0) & ~np.isin(drawn, list(propagated))
-        labels, beyond = grow_connected(labels, drawn, claimed, depth_m, carried, config.camera, band.model, band.k,
+        labels, beyond = grow_connected(labels, drawn, claimed, depth_m, growing, config.camera, band.model, band.k,
                                         band.floor, band.cap, excluded)
         grown = {plane_id: count + beyond.get(plane_id, 0) for plane_id, count in grown.items()}
     result = FrameResult(labels=labels, drawn=drawn)
@@ -131,14 +136,18 @@ def segment_frame(
 def _with_carried(
     shapes: Sequence[tuple[int, Shape]], carried: Sequence[tuple], height: int, width: int
 ) -> tuple[list[tuple[int, Shape]], dict[int, np.ndarray]]:
-    """The frame's shapes with each carried plane's covered pixels among them (a mask shape),
-    and each carried plane's excluded pixels."""
+    """The frame's shapes with each carried plane's pixels among them as mask shapes (what its
+    keyframes say it covers, and below every other shape what lies beyond their views but for
+    what they exclude), and each carried plane's excluded pixels."""
     shapes = list(shapes)
     excluded: dict[int, np.ndarray] = {}
-    for position, plane_id, z_order, layers in reversed(list(carried)):  # later positions first
+    for position, plane_id, z_order, layers, beyond in reversed(list(carried)):  # later positions first
         inside, outside = paint_layers(layers, height, width)
-        if inside.any():
-            shapes.insert(position, (plane_id, Shape("mask", np.zeros((1, 2)), z_order=z_order, bitmap=inside)))
+        further, _ = paint_layers([(1, quad) for quad in beyond], height, width)
+        further &= ~inside & ~outside
+        for mask, z in ((further, BOTTOM_Z_ORDER), (inside, z_order)):  # inserted in reverse
+            if mask.any():
+                shapes.insert(position, (plane_id, Shape("mask", np.zeros((1, 2)), z_order=z, bitmap=mask)))
         if outside.any():
             excluded[plane_id] = outside | excluded[plane_id] if plane_id in excluded else outside
     return shapes, excluded

@@ -200,15 +200,17 @@ def _surface_behind(
         on_candidate = np.abs(signed) <= threshold
         in_front = np.count_nonzero(on_plane & (signed < -band)) <= IN_FRONT_SLACK * np.count_nonzero(on_plane)
         near = -np.median(sample[on_candidate] @ equation[:3] + equation[3]) <= MAX_BEHIND_DEPTH
-        if in_front and near and (expected is None or _same_surface(candidate, expected, sample[on_candidate])):
+        if in_front and near and (expected is None or same_surface(candidate, expected, sample[on_candidate])):
             return candidate, found
         behind &= np.abs(signed) > threshold  # set that plane aside
     return None
 
 
-def _same_surface(plane: np.ndarray, expected: np.ndarray, points: np.ndarray) -> bool:
-    """Whether ``plane`` is the ``expected`` one, compared at the centre of its ``points``."""
-    angle, offset = plane_agreement(expected, plane, at=points.mean(axis=0))
+def same_surface(plane: np.ndarray, expected: np.ndarray, points: np.ndarray) -> bool:
+    """Whether ``plane`` is the ``expected`` one, compared at the centre of its ``points`` (at
+    the origin when there are none)."""
+    at = points.mean(axis=0) if len(points) else None
+    angle, offset = plane_agreement(expected, plane, at=at)
     return angle <= SAME_SURFACE_ANGLE and offset <= SAME_SURFACE_OFFSET
 
 

@@ -19,6 +19,10 @@ import numpy as np
 from annotate_rgbd.annotation.model import Shape
 
 
+#: The drawing order below every drawn shape (CVAT's z_order is a 32-bit integer).
+BOTTOM_Z_ORDER = -(2**31)
+
+
 def rasterize_frame(shapes: Iterable[tuple[int, Shape]], height: int, width: int) -> np.ndarray:
     """Draw one frame's shapes into a label image.
 
