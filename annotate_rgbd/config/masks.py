@@ -180,6 +180,34 @@ class PropagateConfig:
     beyond_reach : float
         How far past a keyframe image's border an outline that the border cut is carried, at
         most, as a share of the image's size (:func:`annotate_rgbd.propagate.carry.beyond_the_border`).
+    time_offset : float
+        Seconds added to every frame's timestamp before the trajectory is read, when known
+        (TUM freiburg1: about -0.02 s, the offset that makes its fused surfaces sharpest).
+    time_offset_search : float
+        Estimate a further offset within +-this many seconds from the keyframes' planes
+        (:func:`annotate_rgbd.propagate.timing.estimate_time_offset`): motion-capture clocks
+        are off from camera clocks by tens of milliseconds (TUM freiburg1_rpy: 0.02 s, found by
+        the sharpest fusion of its depth; 0.1 s covers five times that). 0: no estimate.
+    time_offset_step : float
+        The grid of that search (s); it is refined to a tenth of it around the best point. At
+        70 degrees per second (TUM fr1's hand-held sweeps) 5 ms is 0.35 degrees, 3 px at fx 517.
+    keyframes_each_side : int
+        A frame between keyframes gets what the nearest this many keyframes before it and after
+        it say about each plane (the nearest one that saw a pixel decides it): each outlines the
+        part of the plane in view when it was drawn, and farther ones add only what the nearer
+        ones did not see. On benchmarks/bench_propagate.py's walk ... (measured in the README).
+    exclude : bool
+        Carry what each keyframe's outline left out as well as what it holds
+        (:mod:`annotate_rgbd.propagate.evidence`): the surfaces touching the plane, within
+        ``noise.cap`` of it, that the labeller saw and did not draw are not the plane on other
+        frames either.
+    exclude_margin : int
+        Pixels next to a keyframe's outline that are never excluded: the labeller's outline is
+        up to 2 px off the real edge (the kit's simulated labeller and this project's renderer
+        jitter by +-2 px) and the poses put it another 1-2 px off (TUM fr1_rpy's mocap against
+        ICP on the fused mesh: median 0.2 degrees, 1.8 px at fx 517).
+    outline_tolerance : float
+        Largest distance (px) of a carried exclusion outline from the traced one.
     """
 
     same_surface_angle: float = 5.0
@@ -187,6 +215,13 @@ class PropagateConfig:
     min_keyframe_weight: float = 0.25
     border_margin: float = 4.0
     beyond_reach: float = 0.5
+    time_offset: float = 0.0
+    time_offset_search: float = 0.1
+    time_offset_step: float = 0.005
+    keyframes_each_side: int = 3
+    exclude: bool = True
+    exclude_margin: int = 4
+    outline_tolerance: float = 1.0
 
 
 def range_checks(config: Any) -> list[tuple[str, bool, str]]:
@@ -226,4 +261,9 @@ def range_checks(config: Any) -> list[tuple[str, bool, str]]:
         ("propagate.min_keyframe_weight", 0 <= propagate.min_keyframe_weight <= 1, "must be in [0, 1]"),
         ("propagate.border_margin", propagate.border_margin >= 0, "must be >= 0"),
         ("propagate.beyond_reach", 0 <= propagate.beyond_reach <= 10, "must be in [0, 10]"),
+        ("propagate.time_offset_search", 0 <= propagate.time_offset_search <= 1, "must be in [0, 1] s"),
+        ("propagate.time_offset_step", propagate.time_offset_step > 0, "must be > 0"),
+        ("propagate.keyframes_each_side", 1 <= propagate.keyframes_each_side <= 1000, "must be in [1, 1000]"),
+        ("propagate.exclude_margin", 0 <= propagate.exclude_margin <= 50, "must be in [0, 50]"),
+        ("propagate.outline_tolerance", propagate.outline_tolerance > 0, "must be > 0"),
     ]

@@ -33,10 +33,17 @@ that is not listed is an error, so a typo never goes unnoticed::
     grow_pixels = 3
     rim_pixels = 2
     coherence_limit = 5.0   # ... and the window test's tunables (masks.RefineConfig)
-    [propagate]         # with camera poses (masks.PropagateConfig)
-    same_surface_angle = 5.0
     [stitch]            # several annotation parts of one sequence
     min_iou = 0.5
+    [propagate]         # --poses: keyframes carried to every frame (masks.PropagateConfig)
+    same_surface_angle = 5.0
+    time_offset = 0.0
+    time_offset_search = 0.1
+    time_offset_step = 0.005
+    keyframes_each_side = 3
+    exclude = true      # carry what keyframe outlines left out, too
+    exclude_margin = 4
+    outline_tolerance = 1.0
     [[parts]]           # where a part starts in the RGB list (repeat per part)
     file = "950-1900.xml"
     offset = 950
@@ -196,6 +203,7 @@ class Config:
     refine: RefineConfig = field(default_factory=RefineConfig)
     propagate: PropagateConfig = field(default_factory=PropagateConfig)
     stitch: StitchConfig = field(default_factory=StitchConfig)
+    propagate: PropagateConfig = field(default_factory=PropagateConfig)
     parts: tuple[PartConfig, ...] = ()
     matches: tuple[MatchConfig, ...] = ()
     detect: DetectorConfig = field(default_factory=DetectorConfig)

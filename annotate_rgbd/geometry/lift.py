@@ -213,6 +213,43 @@ def project_polygon(
     return project(clipped, camera) + 0.5
 
 
+def project_polygons(
+    polygons: list[np.ndarray],
+    camera: Camera,
+    rotation: np.ndarray,
+    translation: np.ndarray,
+    near: float = NEAR,
+) -> list[np.ndarray]:
+    """:func:`project_polygon` for many polygons at once (one transform and one projection for
+    all their vertices; only polygons that reach in front of ``near`` are clipped one by one).
+
+    Returns
+    -------
+    list of ndarray of float64, shape (K, 2)
+        One per polygon, as :func:`project_polygon` gives it.
+    """
+    if not near > 0:
+        raise ValueError(f"near must be positive, not {near!r}")
+    if not polygons:
+        return []
+    sizes = [len(p) for p in polygons]
+    camera_points = world_to_camera(np.concatenate([np.asarray(p, dtype=np.float64).reshape(-1, 3) for p in polygons]),
+                                    rotation, translation)
+    ends = np.cumsum(sizes)
+    behind = np.add.reduceat(camera_points[:, 2] < near, np.r_[0, ends[:-1]]) if camera_points.size else np.zeros(0)
+    projected = project(np.where(camera_points[:, 2:3] < near, np.array([0.0, 0.0, 1.0]), camera_points), camera) + 0.5
+    result = []
+    for i, (start, end) in enumerate(zip(np.r_[0, ends[:-1]], ends)):
+        if sizes[i] == 0:
+            result.append(np.empty((0, 2)))
+        elif behind[i]:
+            clipped = clip_near(camera_points[start:end], near)
+            result.append(project(clipped, camera) + 0.5 if len(clipped) else np.empty((0, 2)))
+        else:
+            result.append(projected[start:end])
+    return result
+
+
 def plane_to_world(equation: np.ndarray, rotation: np.ndarray, translation: np.ndarray) -> np.ndarray:
     """A camera-frame plane in world coordinates.
 

@@ -22,7 +22,7 @@ def finish_scene(scene: SceneRun) -> None:
     plan = scene.plan
     keep = remove_stale_outputs(scene)
     write_tables(scene.out_dir, plan.tracks, plan.colours)
-    write_drawn_shapes(scene.out_dir, ((plan.frames[i].mask, job.shapes) for i, job in plan.jobs
+    write_drawn_shapes(scene.out_dir, ((plan.frames[i].mask, job.shapes, job.carried) for i, job in plan.jobs
                                        if plan.frames[i].written))
     record = run_record(plan, scene.config)
     write_json(scene.out_dir / REPORT, record.to_json())

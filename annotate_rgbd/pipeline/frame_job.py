@@ -58,6 +58,11 @@ class FrameJob:
     expected_planes : tuple of (int, (float, float, float, float))
         Where the poses put each of those planes in this depth frame's camera frame (metres):
         refinement looks for it behind what RANSAC finds (:func:`annotate_rgbd.segment.ransac.fit_plane`).
+    carried : tuple of (int, int, int, tuple of (int, ndarray), tuple of ndarray)
+        ``(position, plane id, z_order, layers, beyond)`` of each plane the poses carried here:
+        what its keyframes say it covers and excludes, and what lies past their views
+        (:func:`annotate_rgbd.propagate.carry.carried_layers`), drawn among ``shapes`` before the
+        one at ``position``.
     """
 
     depth_path: Path
@@ -71,6 +76,7 @@ class FrameJob:
     id_mask_path: Path | None = None
     propagated: frozenset[int] | None = None
     expected_planes: tuple[tuple[int, tuple[float, float, float, float]], ...] = ()
+    carried: tuple = ()
 
     @property
     def outputs(self) -> list[Path]:
@@ -161,7 +167,7 @@ def segment_job(job: FrameJob, config: Config, depth_file: np.ndarray | None = N
     depth_raw = read_depth(job.depth_path, depth_file)
     check_size(job, depth_raw.shape, config.colour_camera)
     expected = {plane: np.array(equation) for plane, equation in job.expected_planes}
-    return segment_frame(depth_raw, job.shapes, config, job.propagated or (), expected)
+    return segment_frame(depth_raw, job.shapes, config, job.propagated or (), expected, job.carried)
 
 
 def check_size(job: FrameJob, shape: tuple[int, ...], colour: ColourCamera | None = None) -> None:
@@ -203,7 +209,8 @@ def run_frame_job(task: FrameTask) -> FrameOutcome:
     """
     job, colours = task.job, task.colours
     depth_file = read_bytes(job.depth_path)
-    made_from = fingerprint(job.shapes, job.image_size, task.config, depth_file, job.propagated, job.expected_planes)
+    made_from = fingerprint(job.shapes, job.image_size, task.config, depth_file, job.propagated, job.expected_planes,
+                            job.carried)
     if up_to_date(job, made_from, task.recorded):
         return FrameOutcome(made_from)
     result = segment_job(job, task.config, depth_file)

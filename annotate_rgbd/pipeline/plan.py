@@ -30,7 +30,8 @@ from annotate_rgbd.report.palette import plane_colours
 from .part_overlap import part_pair_iou
 from annotate_rgbd.annotation.parts import Part, frame_owners, place_parts
 from annotate_rgbd.io.poses import FramePoses, Trajectory, load_trajectory, missing_poses_text, poses_at
-from annotate_rgbd.propagate.carry import TrackLift, lift_tracks, propagated_shapes
+from annotate_rgbd.propagate.carry import TrackLift, carried_layers, fit_keyframes, keyframe_frames, lift_tracks, time_samples
+from annotate_rgbd.propagate.timing import TimeOffset, estimate_time_offset
 from annotate_rgbd.report.records import NO_RGB_FRAME, OUTSIDE_ANNOTATION, RGB_NOT_ANNOTATED, FrameRecord
 from annotate_rgbd.io.sequence import Sequence, associate, camera_problem, read_depth, read_sequence
 from annotate_rgbd.annotation.stitch import PartTracks, TrackPlane, assign_planes, label_conflicts
@@ -123,6 +124,10 @@ class Propagation:
         The depth frames' timestamps (for the time ranges of frames without a pose).
     warnings : list of str
         What reading the trajectory found implausible.
+    time_offset : float
+        Seconds added to the depth timestamps to read the trajectory (configured plus estimated).
+    estimate : TimeOffset, optional
+        What the estimate of the offset found.
     """
 
     path: str
@@ -132,11 +137,15 @@ class Propagation:
     clock: str = "seconds"
     depth_times: np.ndarray | None = None
     warnings: list[str] = field(default_factory=list)
+    time_offset: float = 0.0
+    estimate: TimeOffset | None = None
 
     def to_json(self) -> dict:
         """The report's ``propagation`` section."""
         return {
             "poses": self.path,
+            "time_offset_s": round(self.time_offset, 4),
+            "time_offset_estimate": self.estimate.to_json() if self.estimate is not None else None,
             "frames_with_pose": int(np.count_nonzero(self.depth_poses.ok)),
             "tracks": [lift.to_json() for lift in self.lifts.values()],
             "inconsistent_tracks": [f"{lift.part}:{lift.track}" for lift in self.lifts.values() if not lift.consistent],
@@ -244,24 +253,33 @@ def plan_propagation(
     path: Path, sequence: Sequence, parts: SequenceType[Part], tracks: SequenceType[TrackPlane],
     depth_of_rgb: dict[int, int], config: Config,
 ) -> Propagation:
-    """Read the trajectory, give every depth and RGB frame its pose and lift every track's
-    keyframes (reads the depth frames nearest the keyframes)."""
+    """Read the trajectory, fit every track's keyframe planes (reads the depth frames nearest
+    the keyframes), estimate the trajectory's time offset from them
+    (:func:`annotate_rgbd.propagate.timing.estimate_time_offset`), give every depth frame its
+    pose and lift the keyframes."""
     loaded = load_trajectory(path, sequence.depth.timestamps, sequence.clock)
     for note in loaded.notes:
         log.info(note)
     trajectory = loaded.trajectory
     gap = config.sequence.max_pose_gap
-    depth_poses = poses_at(trajectory, sequence.depth.timestamps, gap)
-    rgb_poses = poses_at(trajectory, sequence.rgb.timestamps, gap)
     plane_of = {(t.part, t.track): t.plane for t in tracks}
     wanted = [
         (p.name, p.annotation.tracks, [plane_of[(p.name, t.track_id)] for t in p.annotation.tracks], p.rgb_of_frame)
         for p in parts
     ]
-    lifts = lift_tracks(wanted, depth_of_rgb, [sequence.root / f for f in sequence.depth.files], depth_poses,
-                        rgb_poses, config)
+    fitted = fit_keyframes(wanted, depth_of_rgb, [sequence.root / f for f in sequence.depth.files], config)
+    settings = config.propagate
+    times = np.asarray(sequence.depth.timestamps, dtype=np.float64) + settings.time_offset
+    offset = TimeOffset()
+    if settings.time_offset_search > 0:
+        offset = estimate_time_offset(trajectory, time_samples(fitted, times, config), settings.time_offset_search,
+                                      settings.time_offset_step, gap, settings.same_surface_offset,
+                                      config.inlier_band().model.sigma)
+    depth_poses = poses_at(trajectory, times + offset.offset, gap)
+    lifts = lift_tracks(fitted, depth_poses, config)
     return Propagation(str(Path(path).absolute()), {(lift.part, lift.track): lift for lift in lifts}, depth_poses,
-                       trajectory, sequence.clock, sequence.depth.timestamps, loaded.warnings)
+                       trajectory, sequence.clock, sequence.depth.timestamps, loaded.warnings,
+                       settings.time_offset + offset.offset, offset)
 
 
 def propagation_warnings(propagation: Propagation) -> list[str]:
@@ -380,41 +398,49 @@ def plan_frames(
             part = parts[owners[rgb]]
             frame = part.frame_of_rgb[rgb]
             record.part, record.cvat_frame = part.name, frame
-            shapes, propagated, expected = _frame_shapes(part, frame, plane_of, propagation, config, d)
+            shapes, propagated, expected, carried = _frame_shapes(part, frame, plane_of, propagation, config, d)
             if propagation is not None:
                 record.pose = "ok" if propagation.depth_poses.ok[d] else str(propagation.depth_poses.reasons[d])
-            jobs.append((d, _frame_job(sequence, part, frame, rgb, depth_file, shapes, propagated, expected, output)))
+            jobs.append((d, _frame_job(sequence, part, frame, rgb, depth_file, shapes, propagated, expected, output,
+                                       carried)))
     return frames, jobs, warnings
 
 
 def _frame_shapes(
     part: Part, frame: int, plane_of: dict, propagation: Propagation | None, config: Config | None, depth: int
-) -> tuple[tuple, frozenset[int] | None, tuple]:
+) -> tuple[tuple, frozenset[int] | None, tuple, tuple]:
     """The ``(plane id, shape)`` pairs of one frame, in track order, the planes whose shapes the
-    poses carried there from other frames, and ``(plane id, (a, b, c, d))`` where the poses put
-    each of those (its nearest keyframe's plane, in the depth frame's camera frame)."""
-    shapes, propagated, expected = [], set(), []
+    poses carried there from other frames, ``(plane id, (a, b, c, d))`` where the poses put
+    each of those (its nearest keyframe's plane, in the depth frame's camera frame), and
+    ``(position, plane id, z_order, layers, beyond)`` of each: what its keyframes say about it
+    (:func:`annotate_rgbd.propagate.carry.carried_layers`), to go among the shapes at
+    ``position``."""
+    shapes, propagated, expected, carried = [], set(), [], []
     has_pose = propagation is not None and bool(propagation.depth_poses.ok[depth])
     for track in part.annotation.tracks:
         if frame not in track.shapes:
             continue  # outside the track's life
         plane = plane_of[(part.name, track.track_id)]
         lift = propagation.lifts.get((part.name, track.track_id)) if has_pose else None
-        if lift is None or not lift.keyframes:
-            shapes.append((plane, track.shapes[frame]))  # 2-D, as drawn or interpolated
+        if lift is None or not lift.keyframes or frame in keyframe_frames(track):
+            # 2-D: as drawn (on its own keyframe the labeller's shape is the best evidence there
+            # is, and poses change nothing where every frame is drawn) or interpolated.
+            shapes.append((plane, track.shapes[frame]))
             continue
         pose = (propagation.depth_poses.rotations[depth], propagation.depth_poses.translations[depth])
-        shapes += [(plane, shape) for shape in propagated_shapes(lift, frame, config, pose)]
-        if frame not in {k.frame for k in lift.keyframes}:
-            propagated.add(plane)
-            nearest = min(lift.keyframes, key=lambda k: (abs(k.frame - frame), k.frame))
-            expected.append((plane, tuple(float(v) for v in plane_to_camera(nearest.plane, *pose))))
-    return tuple(shapes), (frozenset(propagated) if propagation is not None else None), tuple(expected)
+        layers, beyond = carried_layers(lift, frame, config, pose)
+        nearest = min(lift.keyframes, key=lambda k: (abs(k.frame - frame), k.frame))
+        if layers or beyond:
+            carried.append((len(shapes), plane, nearest.z_order, layers, beyond))
+        propagated.add(plane)
+        expected.append((plane, tuple(float(v) for v in plane_to_camera(nearest.plane, *pose))))
+    return (tuple(shapes), (frozenset(propagated) if propagation is not None else None), tuple(expected),
+            tuple(carried))
 
 
 def _frame_job(
     sequence: Sequence, part: Part, frame: int, rgb: int, depth_file: str, shapes: tuple,
-    propagated: frozenset[int] | None, expected: tuple, output: OutputOptions,
+    propagated: frozenset[int] | None, expected: tuple, output: OutputOptions, carried: tuple = (),
 ) -> FrameJob:
     name = Path(depth_file).name
     return FrameJob(
@@ -423,6 +449,7 @@ def _frame_job(
         shapes=shapes,
         propagated=propagated,
         expected_planes=expected,
+        carried=carried,
         image_size=part.annotation.image_size.get(frame),
         part_path=part.annotation.path,
         raw_mask_path=output.out_dir / RAW_MASKS / name if output.raw_masks else None,

@@ -80,6 +80,7 @@ NOT_MASK_CODE = (
 def fingerprint(
     shapes: Sequence[tuple[int, Shape]], image_size: tuple[int, int] | None, config: Config, depth: bytes | np.ndarray,
     propagated: Collection[int] | None = None, expected_planes: Sequence[tuple[int, Sequence[float]]] = (),
+    carried: Sequence[tuple] = (),
 ) -> str:
     """Hash of everything one mask depends on.
 
@@ -96,6 +97,8 @@ def fingerprint(
         The planes whose shapes camera poses carried to the frame.
     expected_planes : sequence of (int, (a, b, c, d))
         Where the poses put them (:class:`annotate_rgbd.pipeline.frame_job.FrameJob`).
+    carried : sequence of (int, int, int, layers, beyond)
+        What their keyframes say about them (``FrameJob.carried``).
 
     Returns
     -------
@@ -116,6 +119,11 @@ def fingerprint(
     for plane_id, equation in expected_planes:
         digest.update(f"expected:{plane_id}:".encode())
         digest.update(np.asarray(equation, dtype=np.float64).tobytes())
+    for position, plane_id, z_order, layers, beyond in carried:
+        digest.update(f"carried:{position}:{plane_id}:{z_order}:".encode())
+        for sign, polygon in (*layers, *((0, quad) for quad in beyond)):
+            digest.update(f"{sign}:{len(polygon)}:".encode())
+            digest.update(np.ascontiguousarray(polygon, dtype=np.float64).tobytes())
     return digest.hexdigest()
 
 

@@ -17,7 +17,7 @@ poses: outlines are lifted and projected with the colour camera's intrinsics and
 (:func:`rgb_view`), so that carried shapes stay in colour image coordinates like drawn ones.
 
 Reading depth for the fits is the only I/O here (:func:`lift_tracks`); projecting is pure
-(:func:`propagated_shapes`).
+(:func:`carried_layers`).
 """
 
 from __future__ import annotations
@@ -31,15 +31,15 @@ from annotate_rgbd.annotation.model import Shape, Track
 from annotate_rgbd.geometry.camera import Camera, backproject, depth_to_metres
 from annotate_rgbd.config.settings import Config, PropagateConfig
 from annotate_rgbd.errors import InputError
-from annotate_rgbd.geometry.lift import (
-    lift_polygon, plane_agreement, plane_to_camera, plane_to_world, project_polygon,
-)
+from annotate_rgbd.geometry.lift import lift_polygon, plane_agreement, plane_to_camera, plane_to_world, project_polygons
 from annotate_rgbd.geometry.registration import colour_pose
 from annotate_rgbd.io.poses import FramePoses
 from annotate_rgbd.segment.rasterize import draw_on_depth_grid
 from annotate_rgbd.segment.ransac import fit_plane
 from annotate_rgbd.segment.refine import grid_pixels
 from annotate_rgbd.io.sequence import read_depth
+from .evidence import excluded_regions, region_outlines
+from .timing import KeyframeSample
 
 @dataclass(frozen=True)
 class LiftedKeyframe:
@@ -58,6 +58,9 @@ class LiftedKeyframe:
     beyond : tuple of ndarray, shape (4, 3)
         World quads that carry the outline past the keyframe image's border, where it was cut by
         the edge of the view rather than by the plane's end (:func:`beyond_the_border`).
+    excluded : tuple of ndarray, shape (V, 3)
+        World outlines of what the keyframe's labeller saw touching the plane and left out
+        (:mod:`annotate_rgbd.propagate.evidence`).
     """
 
     frame: int
@@ -65,6 +68,7 @@ class LiftedKeyframe:
     plane: np.ndarray
     z_order: int
     beyond: tuple = ()
+    excluded: tuple = ()
 
 
 @dataclass
@@ -137,10 +141,9 @@ def keyframe_planes(
     shapes: list[tuple[int, Shape]],
     wanted: list[int],
     depth_path: Path,
-    depth_pose: tuple[np.ndarray, np.ndarray],
     config: Config,
 ) -> tuple[dict[int, tuple[np.ndarray, int] | str], tuple[int, int]]:
-    """Fit the planes under the keyframe shapes of one frame, in world coordinates.
+    """Fit the planes under the keyframe shapes of one frame, in its camera frame.
 
     The frame's shapes are drawn in ``z_order`` as refinement draws them, so that each plane is
     fitted to the pixels where its shape is on top (a floor drawn under a table is fitted to the
@@ -154,16 +157,19 @@ def keyframe_planes(
         The keys of the keyframe shapes to fit (polygons or boxes).
     depth_path : Path
         The depth frame nearest the keyframe.
-    depth_pose : (ndarray (3, 3), ndarray (3,))
-        That depth frame's camera-to-world pose.
     config : Config
-        Camera, filter (``min_valid_pixels``) and the noise-aware fit of refinement.
+        Camera, filter (``min_valid_pixels``), the noise-aware fit of refinement and
+        ``[propagate]``: what a shape excluded reaches ``noise.cap`` off its plane (the widest
+        band any frame's refinement uses: a surface that close is inside some frame's band).
 
     Returns
     -------
-    planes : dict of int to ((ndarray (4,), int) or str)
-        For each wanted key: the world plane and the number of valid depth pixels it was
-        fitted to, or why there is none.
+    planes : dict of int to ((ndarray (4,), int, list of ndarray, ndarray) or str)
+        For each wanted key: the camera-frame plane, the number of valid depth pixels it was
+        fitted to, the outlines (V, 2) of what the shape excluded
+        (:func:`annotate_rgbd.propagate.evidence.excluded_regions`, with ``[propagate]
+        exclude``) and the fit's inliers among its grid points (camera frame, m: at most about
+        ``ransac.max_points``), or why there is none.
     size : (int, int)
         (width, height) of the keyframe image: the depth frame's, or the colour camera's.
 
@@ -173,19 +179,45 @@ def keyframe_planes(
         The depth frame is unreadable.
     """
     depth_m = depth_to_metres(read_depth(depth_path), config.camera.depth_scale)
-    drawn, _ = draw_on_depth_grid(shapes, depth_m, config.camera, config.colour_camera)
+    drawn, grid = draw_on_depth_grid(shapes, depth_m, config.camera, config.colour_camera)
     on_valid = np.where(np.isfinite(depth_m), drawn, 0)
-    planes: dict[int, tuple[np.ndarray, int] | str] = {}
+    shape_of = dict(shapes)
+    settings = config.propagate
+    planes: dict[int, tuple[np.ndarray, int, list[np.ndarray]] | str] = {}
     for key in wanted:
         valid = int(np.count_nonzero(on_valid == key))
         if valid < config.filter.min_valid_pixels:
             planes[key] = f"too little valid depth where the shape is on top ({valid} pixels)"
             continue
         rows, cols = grid_pixels(on_valid, key, valid, config.ransac.max_points)
-        fit = fit_plane(backproject(cols, rows, depth_m[rows, cols], config.camera), config.ransac, config.inlier_band())
-        planes[key] = (plane_to_world(fit.equation, *depth_pose), valid)
+        band = config.inlier_band()
+        points = backproject(cols, rows, depth_m[rows, cols], config.camera)
+        fit = fit_plane(points, config.ransac, band)
+        on_plane = points[fit.inliers]
+        excluded = []
+        if settings.exclude:
+            own, _ = draw_on_depth_grid([(1, shape_of[key])], depth_m, config.camera, config.colour_camera)
+            own = own > 0
+            region = excluded_regions(own, depth_m, fit.equation, config.camera, band.scaled(fit.noise_scale),
+                                      band.cap, settings.exclude_margin)
+            if grid is not None:  # outlines in colour image coordinates, like the shapes
+                region = _on_colour_grid(region, grid, config.colour_camera.width, config.colour_camera.height)
+            excluded = region_outlines(region, config.filter.min_valid_pixels, settings.outline_tolerance)
+        planes[key] = (fit.equation, valid, excluded, on_plane)
     colour = config.colour_camera
     return planes, (depth_m.shape[1], depth_m.shape[0]) if colour is None else (colour.width, colour.height)
+
+
+def _on_colour_grid(region: np.ndarray, grid: tuple[np.ndarray, np.ndarray], width: int, height: int) -> np.ndarray:
+    """A depth-grid pixel set on the colour grid: the colour pixels the set's depth pixels land
+    on (``grid``: each depth pixel's colour position, :func:`draw_on_depth_grid`'s)."""
+    map_x, map_y = grid
+    u = np.rint(map_x[region]).astype(np.int64)
+    v = np.rint(map_y[region]).astype(np.int64)
+    inside = (u >= 0) & (u < width) & (v >= 0) & (v < height)
+    out = np.zeros((height, width), dtype=bool)
+    out[v[inside], u[inside]] = True
+    return out
 
 
 def rgb_view(config: Config, pose: tuple[np.ndarray, np.ndarray]) -> tuple[Camera, tuple[np.ndarray, np.ndarray]]:
@@ -208,11 +240,6 @@ def rgb_view(config: Config, pose: tuple[np.ndarray, np.ndarray]) -> tuple[Camer
     if colour is None:
         return config.camera, pose
     return colour.intrinsics, colour_pose(*pose, colour)
-
-
-def rgb_camera(config: Config) -> Camera:
-    """The intrinsics of the camera the labeller's shapes are drawn in (:func:`rgb_view`)."""
-    return config.camera if config.colour_camera is None else config.colour_camera.intrinsics
 
 
 def outline_of(shape: Shape) -> np.ndarray | None:
@@ -252,21 +279,27 @@ def consensus_plane(
     plane : ndarray, shape (4,)
     agree : list of bool
     """
-    centroids = [outline.mean(axis=0) for outline in outlines]
+    centroids = np.array([outline.mean(axis=0) for outline in outlines])
+    stacked = np.array(planes, dtype=np.float64)
     support = []
     for candidate in planes:
-        agree = []
-        for plane, centroid in zip(planes, centroids):
-            angle, offset = plane_agreement(candidate, plane, at=centroid)
-            agree.append(angle <= propagate.same_surface_angle and offset <= propagate.same_surface_offset)
-        support.append(agree)
+        angle, offset = plane_agreement(candidate, stacked, at=centroids)
+        support.append([bool(ok) for ok in (angle <= propagate.same_surface_angle) & (offset <= propagate.same_surface_offset)])
     weights = [1.0] * len(planes) if weights is None else weights
     best = max(range(len(planes)), key=lambda i: (sum(w for w, ok in zip(weights, support[i]) if ok), -i))
     return planes[best], support[best]
 
 
-def propagated_shapes(lift: TrackLift, frame: int, config: Config, pose: tuple[np.ndarray, np.ndarray]) -> list[Shape]:
-    """The shapes a track gets on one frame from its neighbouring lifted keyframes.
+def carried_layers(
+    lift: TrackLift, frame: int, config: Config, pose: tuple[np.ndarray, np.ndarray]
+) -> tuple[tuple[tuple[int, np.ndarray], ...], tuple[np.ndarray, ...]]:
+    """What a track's lifted keyframes say about its plane on a frame it was not drawn on.
+
+    Every keyframe outlines the part of the plane in view when it was drawn, and (with
+    ``[propagate] exclude``) what touched the plane there and was left out. Projected with the
+    frame's pose, they are layers for :func:`annotate_rgbd.segment.rasterize.paint_layers`,
+    the farthest keyframe (in frames) first: where keyframes disagree about a pixel, the nearest
+    one that saw it decides; a pixel no keyframe saw is the plane where any outline holds it.
 
     Parameters
     ----------
@@ -280,35 +313,41 @@ def propagated_shapes(lift: TrackLift, frame: int, config: Config, pose: tuple[n
 
     Returns
     -------
-    list of Shape
-        The keyframe's own polygon on a keyframe; on other frames the polygons of all the
-        track's keyframes (drawn as one plane: the region seen on any of them); empty when none
-        projects into the image.
+    layers : tuple of (int, ndarray of shape (V, 2))
+        ``(+1, outline)`` or ``(-1, excluded outline)`` in CVAT image coordinates, farthest
+        keyframe first; empty when nothing projects into the image.
+    beyond : list of ndarray, shape (V, 2)
+        Where a keyframe's view ended, the plane went on: drawn below every other shape
+        (:data:`annotate_rgbd.segment.rasterize.BOTTOM_Z_ORDER`), so that these only take pixels
+        no other shape claims and no keyframe excluded (and refinement keeps the plane's own).
     """
-    own = [k for k in lift.keyframes if k.frame == frame]
-    shapes = []
-    # Drawn on this very frame: its own outline. Elsewhere every keyframe's: each outlines the
-    # part of the plane in view when it was drawn, and their union is the plane as the labeller
-    # saw it (measured on benchmarks/bench_propagate.py, keyframe every 30th frame: mean IoU
-    # 0.71 with the two neighbouring keyframes, 0.87 with all).
+    # Several keyframes, not the two nearest: each outlines the part of the plane in view when
+    # it was drawn, and their union is the plane as the labeller saw it (measured on
+    # benchmarks/bench_propagate.py, keyframe every 30th frame: mean IoU 0.71 with the two
+    # neighbouring keyframes, 0.87 with all).
+    nearest = nearest_keyframes(lift.keyframes, frame, config.propagate.keyframes_each_side)
+    signs, worlds = [], []
+    for keyframe in sorted(nearest, key=lambda k: (-abs(k.frame - frame), k.frame)):
+        for world in keyframe.excluded:
+            signs.append(-1)
+            worlds.append(world)
+        signs.append(1)
+        worlds.append(keyframe.world)
+    quads = [quad for keyframe in nearest for quad in keyframe.beyond]
     camera, pose = rgb_view(config, pose)
-    for keyframe in own or lift.keyframes:
-        polygon = project_polygon(keyframe.world, camera, *pose)
-        if len(polygon) >= 3 and np.isfinite(polygon).all():
-            shapes.append(Shape("polygon", polygon, z_order=keyframe.z_order))
-    if not own:
-        # Where a keyframe's view ended, the plane went on: below every drawn shape, so that
-        # these only take pixels no other shape claims (and refinement keeps the plane's own).
-        for keyframe in lift.keyframes:
-            for quad in keyframe.beyond:
-                polygon = project_polygon(quad, camera, *pose)
-                if len(polygon) >= 3 and np.isfinite(polygon).all():
-                    shapes.append(Shape("polygon", polygon, z_order=BEYOND_Z_ORDER))
-    return shapes
+    projected = project_polygons(worlds + quads, camera, *pose)
+    usable = [len(polygon) >= 3 and np.isfinite(polygon).all() for polygon in projected]
+    layers = [(sign, polygon) for sign, polygon, ok in zip(signs, projected, usable) if ok]
+    beyond = [polygon for polygon, ok in zip(projected[len(worlds):], usable[len(worlds):]) if ok]
+    return tuple(layers), tuple(beyond)
 
 
-#: The drawing order of what lies beyond a keyframe's border: below any drawn shape.
-BEYOND_Z_ORDER = -(2**31)
+def nearest_keyframes(keyframes: list[LiftedKeyframe], frame: int, each_side: int) -> list[LiftedKeyframe]:
+    """The ``each_side`` keyframes nearest a frame before it and after it (fewer where there are
+    fewer), in frame order."""
+    before = [k for k in keyframes if k.frame <= frame][-each_side:] if each_side > 0 else []
+    after = [k for k in keyframes if k.frame > frame][:each_side] if each_side > 0 else []
+    return before + after
 
 
 def beyond_the_border(
@@ -332,8 +371,8 @@ def beyond_the_border(
     Returns
     -------
     list of ndarray, shape (4, 2)
-        For every edge whose two ends lie within ``margin`` of the same image side: the edge and
-        its copy moved ``reach`` of the image's size straight out.
+        For every edge whose two ends lie within ``margin`` of the same image side: the edge
+        and its copy moved ``reach`` of the image's size straight out.
     """
     width, height = image_size
     outline = np.asarray(outline, dtype=np.float64)
@@ -357,9 +396,10 @@ def _lift_beyond(outline: np.ndarray, image_size, plane_camera: np.ndarray, pose
     """:func:`beyond_the_border` lifted onto the plane: each quad shortened (halved, a few times)
     until its far corners meet the plane in front of the camera within the distance rule."""
     farthest = 1.5 * config.filter.max_mean_distance
-    camera = rgb_camera(config)
     lifted = []
-    for quad in beyond_the_border(outline, image_size, config.propagate.border_margin, config.propagate.beyond_reach):
+    camera = rgb_view(config, pose)[0]
+    settings = config.propagate
+    for quad in beyond_the_border(outline, image_size, settings.border_margin, settings.beyond_reach):
         for _ in range(4):
             world = lift_polygon(quad, plane_camera, camera, *pose)
             depth = (world.world - pose[1]) @ pose[0][:, 2] if world.ok else None
@@ -370,23 +410,42 @@ def _lift_beyond(outline: np.ndarray, image_size, plane_camera: np.ndarray, pose
     return tuple(lifted)
 
 
-def lift_tracks(
+@dataclass
+class FittedTrack:
+    """A track's keyframe planes as their depth frames saw them (camera frames), before poses.
+
+    Parameters
+    ----------
+    part : str
+    track : Track
+    plane : int
+        Its global plane id.
+    keyframes : list of (int, ndarray, int, (ndarray, int) or str)
+        Per keyframe with an outline: its CVAT frame, the outline (V, 2) px, the depth frame
+        nearest it (-1: none), and the camera-frame plane with the number of valid depth pixels
+        it was fitted to and the outlines of what it excluded (:func:`keyframe_planes`), or why
+        there is none.
+    failed : list of (int, str)
+        Keyframes that cannot be lifted whatever the poses (mask shapes).
+    sizes : dict of int to (int, int)
+        CVAT frame -> (width, height) of the keyframe's depth frame.
+    """
+
+    part: str
+    track: Track
+    plane: int
+    keyframes: list = field(default_factory=list)
+    failed: list = field(default_factory=list)
+    sizes: dict = field(default_factory=dict)
+
+
+def fit_keyframes(
     parts: list[tuple[str, list[Track], list[int], dict[int, int]]],
     depth_of_rgb: dict[int, int],
     depth_files: list[Path],
-    depth_poses: FramePoses,
-    rgb_poses: FramePoses,
     config: Config,
-) -> list[TrackLift]:
-    """Lift the keyframes of every track (reads the depth frames nearest the keyframes).
-
-    Each keyframe's plane is fitted to the depth where its shape is on top
-    (:func:`keyframe_planes`) and its outline lifted onto it with the RGB camera's pose at the
-    keyframe's time. A plane is rigid and static, so a keyframe whose plane disagrees with the
-    one the track's keyframes agree on (:func:`consensus_plane`, weighted by their depth
-    pixels: the shape lay mostly over clutter or another surface) is lifted onto that
-    consensus plane instead, and listed; the track is flagged (``consistent`` False) when such
-    a keyframe holds a good share of the track's depth (``propagate.min_keyframe_weight``).
+) -> list[FittedTrack]:
+    """Fit the plane under every keyframe shape on its depth frame (reads those depth frames).
 
     Parameters
     ----------
@@ -397,60 +456,113 @@ def lift_tracks(
         RGB index -> the depth frame that shows it.
     depth_files : list of Path
         The sequence's depth files, in depth order.
-    depth_poses, rgb_poses : FramePoses
-        The poses of every depth and every RGB frame.
+    config : Config
+
+    Returns
+    -------
+    list of FittedTrack
+        Part by part, in track order; a track drawn on every frame of its life (nothing to carry
+        anywhere) has no keyframes.
+    """
+    fitted_tracks = []
+    for part, tracks, plane_ids, rgb_of_frame in parts:
+        part_tracks = [FittedTrack(part, track, plane) for track, plane in zip(tracks, plane_ids)]
+        keyframes_at: dict[int, list[int]] = {}
+        for i, track in enumerate(tracks):
+            drawn = keyframe_frames(track)
+            if len(drawn) == len(track.shapes):
+                continue  # drawn on every frame of its life: nothing to carry
+            for frame in drawn:
+                keyframes_at.setdefault(frame, []).append(i)
+        for frame in sorted(keyframes_at):
+            wanted = []
+            rgb = rgb_of_frame.get(frame)
+            depth = depth_of_rgb.get(rgb, -1) if rgb is not None else -1
+            for i in keyframes_at[frame]:
+                outline = outline_of(tracks[i].shapes[frame])
+                if outline is None:
+                    part_tracks[i].failed.append((frame, "mask shapes are not propagated"))
+                elif depth < 0:
+                    part_tracks[i].keyframes.append((frame, outline, depth, "no depth frame near the keyframe"))
+                else:
+                    wanted.append(i)
+            if not wanted:
+                continue
+            shapes = [(i + 1, t.shapes[frame]) for i, t in enumerate(tracks) if frame in t.shapes]
+            try:
+                planes, size = keyframe_planes(shapes, [i + 1 for i in wanted], depth_files[depth], config)
+            except InputError as exc:
+                planes, size = {i + 1: f"unreadable depth ({exc.message})" for i in wanted}, None
+            for i in wanted:
+                part_tracks[i].keyframes.append((frame, outline_of(tracks[i].shapes[frame]), depth, planes[i + 1]))
+                if size is not None:
+                    part_tracks[i].sizes[frame] = size
+        fitted_tracks += part_tracks
+    return fitted_tracks
+
+
+def time_samples(fitted: list[FittedTrack], depth_timestamps: np.ndarray, config: Config) -> list[KeyframeSample]:
+    """Every fitted keyframe as a :class:`~annotate_rgbd.propagate.timing.KeyframeSample`: its
+    plane and points of it where the depth supports it, in its camera frame (one group per
+    track)."""
+    samples = []
+    for group, track in enumerate(fitted):
+        for frame, outline, depth, result in track.keyframes:
+            if isinstance(result, str):
+                continue
+            if len(result[3]) >= 3:
+                samples.append(KeyframeSample(group, float(depth_timestamps[depth]), result[3], result[0]))
+    return samples
+
+
+def lift_tracks(fitted: list[FittedTrack], depth_poses: FramePoses, config: Config) -> list[TrackLift]:
+    """Lift the fitted keyframes of every track onto their planes, in world coordinates.
+
+    Each keyframe's plane (:func:`fit_keyframes`) is taken to the world and its outline lifted
+    onto it with the pose of the depth frame it was fitted on: on its own keyframe a shape is
+    used as drawn on that depth frame (:mod:`annotate_rgbd.pipeline.plan`), so it is that frame's
+    view the outline stands for. A plane is rigid and static, so a keyframe whose plane
+    disagrees with the one the track's keyframes agree on (:func:`consensus_plane`, weighted
+    by their depth pixels: the shape lay mostly over clutter or another surface) is lifted onto
+    that consensus plane instead, and listed; the track is flagged (``consistent`` False) when
+    such a keyframe holds a good share of the track's depth (``propagate.min_keyframe_weight``).
+
+    Parameters
+    ----------
+    fitted : list of FittedTrack
+    depth_poses : FramePoses
+        The pose of every depth frame.
     config : Config
 
     Returns
     -------
     list of TrackLift
-        Part by part, in track order.
+        In the order of ``fitted``.
     """
     lifts = []
-    for part, tracks, plane_ids, rgb_of_frame in parts:
-        part_lifts = [TrackLift(part, track.track_id, plane) for track, plane in zip(tracks, plane_ids)]
-        # (track index) -> list of (frame, outline px, rgb pose, fitted (plane, pixels) or reason)
-        fitted: dict[int, list] = {i: [] for i in range(len(tracks))}
-        keyframes_at: dict[int, list[int]] = {}
-        sizes: dict[int, tuple[int, int]] = {}  # CVAT frame -> image size, from the depth frame
-        for i, track in enumerate(tracks):
-            for frame in keyframe_frames(track):
-                keyframes_at.setdefault(frame, []).append(i)
-        for frame in sorted(keyframes_at):
-            wanted = []
-            rgb = rgb_of_frame.get(frame)
-            depth = depth_of_rgb.get(rgb) if rgb is not None else None
-            for i in keyframes_at[frame]:
-                if outline_of(tracks[i].shapes[frame]) is None:
-                    part_lifts[i].failed.append((frame, "mask shapes are not propagated"))
-                elif depth is None or not depth_poses.ok[depth]:
-                    why = "no depth frame near the keyframe" if depth is None else depth_poses.reasons[depth]
-                    part_lifts[i].failed.append((frame, f"no pose ({why})"))
-                else:
-                    wanted.append(i)
-            if not wanted:
+    for track in fitted:
+        lift = TrackLift(track.part, track.track.track_id, track.plane, failed=list(track.failed))
+        posed = []
+        for frame, outline, depth, result in track.keyframes:
+            if depth < 0 or not depth_poses.ok[depth]:
+                why = result if depth < 0 else f"no pose ({depth_poses.reasons[depth]})"
+                lift.failed.append((frame, why))
                 continue
-            depth_pose = (depth_poses.rotations[depth], depth_poses.translations[depth])
-            rgb_pose = (rgb_poses.rotations[rgb], rgb_poses.translations[rgb]) if rgb_poses.ok[rgb] else depth_pose
-            rgb_pose = rgb_view(config, rgb_pose)[1]  # the colour camera's, when it has its own
-            shapes = [(i + 1, t.shapes[frame]) for i, t in enumerate(tracks) if frame in t.shapes]
-            try:
-                planes, sizes[frame] = keyframe_planes(shapes, [i + 1 for i in wanted], depth_files[depth], depth_pose, config)
-            except InputError as exc:
-                planes = {i + 1: f"unreadable depth ({exc.message})" for i in wanted}
-            for i in wanted:
-                fitted[i].append((frame, outline_of(tracks[i].shapes[frame]), rgb_pose, planes[i + 1]))
-        for i, track in enumerate(tracks):
-            _lift_onto_planes(part_lifts[i], track, fitted[i], config, sizes)
-        lifts += part_lifts
+            pose = (depth_poses.rotations[depth], depth_poses.translations[depth])
+            if not isinstance(result, str):
+                result = (plane_to_world(result[0], *pose), *result[1:])
+            posed.append((frame, outline, rgb_view(config, pose)[1], result))
+        _lift_onto_planes(lift, track.track, posed, config, track.sizes)
+        lift.failed.sort()
+        lifts.append(lift)
     return lifts
 
 
 def _lift_onto_planes(lift: TrackLift, track: Track, fitted: list, config: Config, sizes: dict) -> None:
     """Lift a track's fitted keyframes onto their own plane, or the track's consensus plane
     (``sizes``: CVAT frame -> (width, height) of the keyframe image, to carry outlines past it)."""
+    camera = rgb_view(config, (np.eye(3), np.zeros(3)))[0]  # the camera the outlines were drawn in
     own = [(frame, outline, pose, result) for frame, outline, pose, result in fitted if not isinstance(result, str)]
-    camera = rgb_camera(config)
     lifted_own = [lift_polygon(o, plane_to_camera(r[0], *p), camera, *p) for _, o, p, r in own]
     usable = [(entry, lifted) for entry, lifted in zip(own, lifted_own) if lifted.ok]
     consensus, agree = None, []
@@ -471,7 +583,12 @@ def _lift_onto_planes(lift: TrackLift, track: Track, fitted: list, config: Confi
             lift.failed.append((frame, f"the outline cannot be lifted onto its plane ({lifted.reason})"))
             continue
         beyond = _lift_beyond(outline, sizes[frame], plane_to_camera(target, *pose), pose, config) if frame in sizes else ()
-        lift.keyframes.append(LiftedKeyframe(frame, lifted.world, target, track.shapes[frame].z_order, beyond))
+        excluded = ()
+        if target is plane:  # what the outline left out, judged against its own plane
+            found = [lift_polygon(o, plane_to_camera(target, *pose), camera, *pose) for o in result[2]]
+            excluded = tuple(f.world for f in found if f.ok)
+        lift.keyframes.append(LiftedKeyframe(frame, lifted.world, target, track.shapes[frame].z_order, beyond,
+                                             excluded))
         if plane is not None and target is consensus and not agrees.get(frame, False):
             lift.off_plane.append(frame)
             if weight[frame] >= config.propagate.min_keyframe_weight * largest:

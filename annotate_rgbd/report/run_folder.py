@@ -7,14 +7,16 @@ here, from the run's own records, never by running any stage again:
 * the colour masks, decoded to plane ids through the run's plane colours (:func:`mask_plane_ids`);
 * the drawn shapes of every written frame (:data:`annotate_rgbd.io.outdir.SHAPES_RECORD`, one
   JSON line per mask, written by :func:`write_drawn_shapes` when the run finishes and read by
-  :func:`read_drawn_shapes`): what the labeller drew, or the poses carried, exactly as the
-  frame's job rasterised it.
+  :func:`read_drawn_shapes`): what the labeller drew and what the poses carried (the keyframes'
+  signed layers, :func:`annotate_rgbd.segment.rasterize.carried_shapes`), as the frame's job
+  drew them.
 """
 
 from __future__ import annotations
 
 import base64
 import json
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterable, Sequence
 
@@ -32,7 +34,24 @@ MAX_REPORT_BYTES = 1 << 30
 #: Reading bound of one line of the shapes record (thousands of vertices per frame fit easily).
 MAX_SHAPES_LINE = 64 << 20
 SHAPES_FORMAT = "annotate-rgbd drawn shapes"
-SHAPES_VERSION = 1
+SHAPES_VERSION = 2
+
+
+@dataclass(frozen=True)
+class DrawnFrame:
+    """What one frame's job drew: the shapes, and what camera poses carried to it.
+
+    Attributes
+    ----------
+    shapes : list of (int, Shape)
+        ``(plane id, shape)`` in track order.
+    carried : list of (int, int, int, tuple, tuple)
+        ``(position, plane id, z_order, layers, beyond)`` per carried plane
+        (:func:`annotate_rgbd.segment.rasterize.carried_shapes`); empty without poses.
+    """
+
+    shapes: list
+    carried: list = field(default_factory=list)
 
 
 def read_report(out_dir: str | Path) -> RunRecord:
@@ -147,8 +166,39 @@ def shapes_from_json(entries: object) -> list[tuple[int, Shape]]:
     return shapes
 
 
-def write_drawn_shapes(out_dir: Path, frames: Iterable[tuple[str, Sequence[tuple[int, Shape]]]]) -> None:
-    """Write the shapes record: one JSON line per written mask (``masks/<name>``, shapes).
+def carried_to_json(carried: Sequence[tuple]) -> list[dict]:
+    """A frame's carried planes (:class:`DrawnFrame`) as JSON values (exact: floats round-trip)."""
+    return [{"position": int(position), "plane": int(plane), "z_order": int(z_order),
+             "layers": [[int(sign), np.asarray(polygon, dtype=np.float64).tolist()] for sign, polygon in layers],
+             "beyond": [np.asarray(polygon, dtype=np.float64).tolist() for polygon in beyond]}
+            for position, plane, z_order, layers, beyond in carried]
+
+
+def carried_from_json(entries: object) -> list[tuple]:
+    """Inverse of :func:`carried_to_json`.
+
+    Raises
+    ------
+    RecordError
+        An entry of the wrong layout.
+    """
+    if not isinstance(entries, list):
+        raise RecordError("carried: not a list")
+    carried = []
+    try:
+        for entry in entries:
+            layers = tuple((1 if int(sign) > 0 else -1, np.asarray(points, dtype=np.float64).reshape(-1, 2))
+                           for sign, points in entry["layers"])
+            beyond = tuple(np.asarray(points, dtype=np.float64).reshape(-1, 2) for points in entry["beyond"])
+            carried.append((int(entry["position"]), int(entry["plane"]), int(entry["z_order"]), layers, beyond))
+    except (KeyError, TypeError, ValueError) as exc:
+        raise RecordError(f"carried entry: {exc}") from None
+    return carried
+
+
+def write_drawn_shapes(out_dir: Path, frames: Iterable[tuple[str, Sequence[tuple[int, Shape]], Sequence[tuple]]]) -> None:
+    """Write the shapes record: one JSON line per written mask (``masks/<name>``, shapes, what
+    the poses carried).
 
     Raises
     ------
@@ -158,12 +208,14 @@ def write_drawn_shapes(out_dir: Path, frames: Iterable[tuple[str, Sequence[tuple
     from annotate_rgbd.io.writer import write_bytes_atomic  # OpenCV: not at import time
 
     lines = [json.dumps({"format": SHAPES_FORMAT, "version": SHAPES_VERSION})]
-    lines += [json.dumps({"mask": mask, "shapes": shapes_to_json(shapes)}) for mask, shapes in frames]
+    lines += [json.dumps({"mask": mask, "shapes": shapes_to_json(shapes),
+                          **({"carried": carried_to_json(carried)} if carried else {})})
+              for mask, shapes, carried in frames]
     write_bytes_atomic(out_dir / SHAPES_RECORD, ("\n".join(lines) + "\n").encode("utf-8"))
 
 
-def read_drawn_shapes(out_dir: Path, masks: set[str]) -> dict[str, list[tuple[int, Shape]]]:
-    """The drawn shapes of the masks ``masks`` (``masks/<name>``), from the shapes record.
+def read_drawn_shapes(out_dir: Path, masks: set[str]) -> dict[str, DrawnFrame]:
+    """What the jobs of the masks ``masks`` (``masks/<name>``) drew, from the shapes record.
 
     Raises
     ------
@@ -172,7 +224,7 @@ def read_drawn_shapes(out_dir: Path, masks: set[str]) -> dict[str, list[tuple[in
         one, or a mask it does not hold.
     """
     path = Path(out_dir) / SHAPES_RECORD
-    found: dict[str, list[tuple[int, Shape]]] = {}
+    found: dict[str, DrawnFrame] = {}
     try:
         handle = open_regular(path, follow_links=False)
     except OSError as exc:
@@ -182,12 +234,16 @@ def read_drawn_shapes(out_dir: Path, masks: set[str]) -> dict[str, list[tuple[in
         header = _json_line(handle.readline(MAX_SHAPES_LINE + 1), path, 1)
         if not isinstance(header, dict) or header.get("format") != SHAPES_FORMAT:
             raise InputError(path, "not a drawn-shapes record")
+        if header.get("version") != SHAPES_VERSION:
+            raise InputError(path, f"a drawn-shapes record of another version ({header.get('version')!r}, "
+                                   f"this is {SHAPES_VERSION}); run cvat2mask again into this folder")
         for number, line in enumerate(iter(lambda: handle.readline(MAX_SHAPES_LINE + 1), b""), start=2):
             entry = _json_line(line, path, number)
             mask = entry.get("mask") if isinstance(entry, dict) else None
             if mask in masks:
                 try:
-                    found[mask] = shapes_from_json(entry.get("shapes"))
+                    found[mask] = DrawnFrame(shapes_from_json(entry.get("shapes")),
+                                             carried_from_json(entry.get("carried", [])))
                 except RecordError as exc:
                     raise InputError(path, f"line {number}: {exc}") from None
     missing = sorted(masks - found.keys())

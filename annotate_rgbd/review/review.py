@@ -36,7 +36,7 @@ from annotate_rgbd.report.records import FrameRecord, RunRecord
 from annotate_rgbd.segment.plane_record import PlaneRecord
 from annotate_rgbd.report.run_folder import colour_table, mask_plane_ids, read_drawn_shapes, read_report
 from annotate_rgbd.segment.frame import FrameResult
-from annotate_rgbd.segment.rasterize import draw_on_depth_grid, rasterize_frame
+from annotate_rgbd.segment.rasterize import carried_shapes, draw_on_depth_grid, rasterize_frame
 from .overlay import contact_sheet, overlay_for_frame
 from .page import render_review_page
 
@@ -130,9 +130,10 @@ def write_review(
             config = config_from_dict(report.config, out_dir / "report.json")
             registration = (config.camera, config.colour_camera)
         tasks = [
-            OverlayTask(Path(report.sequence) / f.rgb, out_dir / f.mask, tuple(shapes[f.mask]),
+            OverlayTask(Path(report.sequence) / f.rgb, out_dir / f.mask, tuple(shapes[f.mask].shapes),
                         tuple(f.kept), tuple(f.dropped), keys, values, colours, _overlay_path(out_dir, f),
-                        Path(report.sequence) / f.depth if registration else None, registration)
+                        Path(report.sequence) / f.depth if registration else None, registration,
+                        tuple(shapes[f.mask].carried))
             for f in written
         ]
         folder.expect(f"{OVERLAYS}/{task.path.name}" for task in tasks)
@@ -189,6 +190,7 @@ class OverlayTask:
     path: Path
     depth: Path | None = None
     registration: tuple[Camera, ColourCamera] | None = None
+    carried: tuple = ()
 
 
 def write_overlay(task: OverlayTask) -> None:
@@ -198,11 +200,13 @@ def write_overlay(task: OverlayTask) -> None:
     labels = mask_plane_ids(read_image(task.mask, cv2.IMREAD_COLOR), task.keys, task.values, task.mask)
     grid = None
     if task.registration is None:
-        drawn = rasterize_frame(task.shapes, *labels.shape)
+        shapes, _ = carried_shapes(task.shapes, task.carried, *labels.shape)
+        drawn = rasterize_frame(shapes, *labels.shape)
     else:
         camera, colour = task.registration
+        shapes, _ = carried_shapes(task.shapes, task.carried, colour.height, colour.width)
         depth_m = depth_to_metres(read_depth(task.depth), camera.depth_scale)
-        drawn, grid = draw_on_depth_grid(task.shapes, depth_m, camera, colour)
+        drawn, grid = draw_on_depth_grid(shapes, depth_m, camera, colour)
     result = FrameResult(labels=labels, drawn=drawn, kept=list(task.kept), dropped=list(task.dropped),
                          colour_grid=grid)
     write_png(task.path, overlay_for_frame(task.rgb, result, task.colours))

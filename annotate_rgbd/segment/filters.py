@@ -15,6 +15,8 @@ from annotate_rgbd.config.settings import FilterConfig
 INVALID_DEPTH = "invalid_depth"
 TOO_FAR = "too_far"
 TOO_FEW_POINTS = "too_few_points"
+#: A plane carried by camera poses whose depth there is another surface (segment.refine).
+NOT_WHERE_EXPECTED = "not_where_expected"
 
 
 @dataclass(frozen=True)

@@ -14,9 +14,10 @@ import numpy as np
 from annotate_rgbd.annotation.model import Shape
 from annotate_rgbd.geometry.camera import depth_to_metres
 from annotate_rgbd.config.settings import Config
-from .filters import drop_reasons, label_histogram, plane_statistics
+from .filters import NOT_WHERE_EXPECTED, drop_reasons, label_histogram, plane_statistics
 from .grow import grow_connected, grow_planes
-from .rasterize import draw_on_depth_grid
+from annotate_rgbd.geometry.registration import sample_labels
+from .rasterize import carried_shapes, draw_on_depth_grid
 from annotate_rgbd.segment.plane_record import PlaneRecord
 from .refine import refine_planes
 
@@ -49,7 +50,7 @@ class FrameResult:
 
 def segment_frame(
     depth_raw: np.ndarray, shapes: Sequence[tuple[int, Shape]], config: Config, propagated: Collection[int] = (),
-    expected: Mapping[int, np.ndarray] | None = None,
+    expected: Mapping[int, np.ndarray] | None = None, carried: Sequence[tuple] = (),
 ) -> FrameResult:
     """Rasterise, filter and refine the planes of one depth frame.
 
@@ -66,6 +67,13 @@ def segment_frame(
         ``look_behind``).
     expected : mapping of int to ndarray, shape (4,), optional
         Where camera poses put those planes in this frame (camera frame, metres).
+    carried : sequence of (int, int, int, layers, beyond)
+        ``(position, plane id, z_order, layers, beyond)``: what the keyframes of a plane carried
+        here say it covers and excludes, and polygons past their views
+        (:func:`annotate_rgbd.propagate.carry.carried_layers`). What they say it covers is drawn
+        among ``shapes`` before the one at ``position`` (in order of ``position``), what lies
+        beyond (but for what they exclude) below every shape; what they exclude the plane does
+        not grow into.
 
     Returns
     -------
@@ -73,6 +81,8 @@ def segment_frame(
         ``labels`` holds the plane id of every pixel that lies on its plane (0 elsewhere);
         ``kept`` and ``dropped`` one record per plane drawn on the frame.
     """
+    grid_shape = depth_raw.shape if config.colour_camera is None else (config.colour_camera.height, config.colour_camera.width)
+    shapes, excluded = carried_shapes(shapes, carried, *grid_shape)
     depth_m = depth_to_metres(depth_raw, config.camera.depth_scale)
     drawn, colour_grid = draw_on_depth_grid(shapes, depth_m, config.camera, config.colour_camera)
     stats = plane_statistics(drawn, depth_m, config.camera)
@@ -83,15 +93,21 @@ def segment_frame(
         drawn, depth_m, stats.plane_ids[kept], config.camera, config.ransac, band, stats.valid_pixels[kept],
         config.refine.rim_pixels, propagated, expected, config.refine, config.propagate,
     )
+    # A carried plane that is not where the poses put it (refine_planes gave it no fit).
+    reasons = [NOT_WHERE_EXPECTED if r is None and plane_id not in fits else r
+               for plane_id, r in zip(stats.plane_ids.tolist(), reasons)]
     inlier_count = label_histogram(refined, int(drawn.max(initial=0)) + 1)
     equations = {plane_id: fit.equation for plane_id, fit in fits.items()}
     labels, grown = grow_planes(refined, drawn, depth_m, equations, config.camera, band, config.refine.grow_pixels)
-    carried = {plane_id: equation for plane_id, equation in equations.items() if plane_id in propagated}
-    if carried and config.refine.grow_pixels:
+    growing = {plane_id: equation for plane_id, equation in equations.items() if plane_id in propagated}
+    if growing and config.refine.grow_pixels:
         # Where a plane went on beyond every keyframe's view, nobody outlined it; shapes carried
         # by poses (an outline's extension past a keyframe's border above all) are guesses.
         claimed = (drawn > 0) & ~np.isin(drawn, list(propagated))
-        labels, beyond = grow_connected(labels, drawn, claimed, depth_m, carried, config.camera, band, config.refine)
+        if colour_grid is not None:  # what the keyframes excluded, drawn on the colour grid
+            excluded = {plane_id: sample_labels(mask.astype(np.uint8), *colour_grid) > 0 for plane_id, mask in excluded.items()}
+        labels, beyond = grow_connected(labels, drawn, claimed, depth_m, growing, config.camera, band, config.refine,
+                                        excluded)
         grown = {plane_id: count + beyond.get(plane_id, 0) for plane_id, count in grown.items()}
     result = FrameResult(labels=labels, drawn=drawn, colour_grid=colour_grid)
     for i, plane_id in enumerate(stats.plane_ids.tolist()):

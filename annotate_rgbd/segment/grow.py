@@ -122,6 +122,7 @@ def grow_connected(
     camera: Camera,
     noise: NoiseSettings,
     refine: RefineConfig = RefineConfig(),
+    excluded: Mapping[int, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, dict[int, int]]:
     """Grow each plane of ``equations``, without a distance limit, over the pixels that lie on it
     and connect to it: for planes whose shapes camera poses carried from keyframes, where the
@@ -156,6 +157,9 @@ def grow_connected(
     refine : RefineConfig
         The window test's tunables (``coherence_window``, ``min_window_inliers``,
         ``coherence_limit``).
+    excluded : mapping of int to ndarray of bool, shape (H, W), optional
+        Pixels a plane may not take (what its keyframes' labellers left out,
+        :mod:`annotate_rgbd.propagate.evidence`); growth does not pass through them.
 
     Returns
     -------
@@ -186,6 +190,8 @@ def grow_connected(
         signed = signed_distances(depth, *(np.float32(v) for v in equations[plane_id]), camera)
         with np.errstate(invalid="ignore"):
             closer = free & (np.abs(signed) <= band) & (np.abs(signed) < best) & (drawn != plane_id)
+        if excluded and plane_id in excluded:
+            closer &= ~excluded[plane_id]
         candidate[closer] = plane_id
         best[closer] = np.abs(signed[closer])
         scored = closer | ((labels == plane_id) & np.isfinite(signed))

@@ -170,16 +170,18 @@ def _surface_behind(
         in_front = np.count_nonzero(on_plane & (signed < -band)) <= IN_FRONT_SLACK * np.count_nonzero(on_plane)
         near = -np.median(sample[on_candidate] @ equation[:3] + equation[3]) <= config.max_behind_depth
         if in_front and near and (
-            expected is None or _same_surface(candidate, expected, sample[on_candidate], propagate)
+            expected is None or same_surface(candidate, expected, sample[on_candidate], propagate)
         ):
             return candidate, found
         behind &= np.abs(signed) > threshold  # set that plane aside
     return None
 
 
-def _same_surface(plane: np.ndarray, expected: np.ndarray, points: np.ndarray, propagate: PropagateConfig) -> bool:
-    """Whether ``plane`` is the ``expected`` one, compared at the centre of its ``points``."""
-    angle, offset = plane_agreement(expected, plane, at=points.mean(axis=0))
+def same_surface(plane: np.ndarray, expected: np.ndarray, points: np.ndarray, propagate: PropagateConfig) -> bool:
+    """Whether ``plane`` is the ``expected`` one, compared at the centre of its ``points`` (at
+    the origin when there are none), within ``propagate.same_surface_angle`` and ``_offset``."""
+    at = points.mean(axis=0) if len(points) else None
+    angle, offset = plane_agreement(expected, plane, at=at)
     return angle <= propagate.same_surface_angle and offset <= propagate.same_surface_offset
 
 

@@ -14,7 +14,7 @@ the colour pixel its 3-D point projects to (:func:`draw_on_depth_grid`).
 
 from __future__ import annotations
 
-from typing import Iterable
+from typing import Iterable, Sequence
 
 import cv2
 import numpy as np
@@ -22,6 +22,10 @@ import numpy as np
 from annotate_rgbd.annotation.model import Shape
 from annotate_rgbd.geometry.camera import Camera
 from annotate_rgbd.geometry.registration import ColourCamera, colour_pixel_grid, sample_labels
+
+
+#: The drawing order below every drawn shape (CVAT's z_order is a 32-bit integer).
+BOTTOM_Z_ORDER = -(2**31)
 
 
 def rasterize_frame(shapes: Iterable[tuple[int, Shape]], height: int, width: int) -> np.ndarray:
@@ -219,3 +223,68 @@ def _span(low: float, high: float, size: int) -> tuple[int, int]:
     first = min(max(int(np.ceil(low - 0.5)), 0), size)
     stop = min(max(int(np.ceil(high - 0.5)), 0), size)
     return first, stop
+
+
+def paint_layers(layers: Iterable[tuple[int, np.ndarray]], height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
+    """Paint signed polygons in order, each over the ones before: what the last one covering a
+    pixel says decides it.
+
+    Parameters
+    ----------
+    layers : iterable of (int, ndarray of shape (V, 2))
+        ``(+1, polygon)`` (the plane is there) or ``(-1, polygon)`` (it is not), in CVAT image
+        coordinates, the least trusted first.
+    height, width : int
+        Image size.
+
+    Returns
+    -------
+    inside, excluded : ndarray of bool, shape (height, width)
+        Pixels whose last covering polygon is positive, and negative; neither where none
+        covers them.
+    """
+    verdict = np.zeros((height, width), dtype=np.int8)
+    for sign, polygon in layers:
+        top, left, inside = polygon_window(np.asarray(polygon, dtype=np.float64), height, width)
+        rows, cols = inside.shape
+        np.copyto(verdict[top : top + rows, left : left + cols], np.int8(1 if sign > 0 else -1), where=inside)
+    return verdict > 0, verdict < 0
+
+
+def carried_shapes(
+    shapes: Sequence[tuple[int, Shape]], carried: Sequence[tuple], height: int, width: int
+) -> tuple[list[tuple[int, Shape]], dict[int, np.ndarray]]:
+    """A frame's shapes with what camera poses carried to it among them, as mask shapes.
+
+    Parameters
+    ----------
+    shapes : sequence of (int, Shape)
+        The frame's shapes, in track order.
+    carried : sequence of (int, int, int, layers, beyond)
+        ``(position, plane id, z_order, layers, beyond)`` per carried plane
+        (:func:`annotate_rgbd.propagate.carry.carried_layers`): ``layers`` are signed polygons
+        for :func:`paint_layers`, ``beyond`` polygons past the keyframes' views.
+    height, width : int
+        The grid the shapes are drawn on.
+
+    Returns
+    -------
+    shapes : list of (int, Shape)
+        ``shapes`` with, before the one at each ``position``, the carried plane's pixels (what
+        its keyframes say it covers, at its ``z_order``) and, below every other shape
+        (:data:`BOTTOM_Z_ORDER`), what lies beyond their views but for what they exclude.
+    excluded : dict of int to ndarray of bool, shape (height, width)
+        Per carried plane, the pixels its keyframes say it does not cover.
+    """
+    shapes = list(shapes)
+    excluded: dict[int, np.ndarray] = {}
+    for position, plane_id, z_order, layers, beyond in reversed(list(carried)):  # later positions first
+        inside, outside = paint_layers(layers, height, width)
+        further, _ = paint_layers([(1, quad) for quad in beyond], height, width)
+        further &= ~inside & ~outside
+        for mask, z in ((further, BOTTOM_Z_ORDER), (inside, z_order)):  # inserted in reverse
+            if mask.any():
+                shapes.insert(position, (plane_id, Shape("mask", np.zeros((1, 2)), z_order=z, bitmap=mask)))
+        if outside.any():
+            excluded[plane_id] = outside | excluded[plane_id] if plane_id in excluded else outside
+    return shapes, excluded

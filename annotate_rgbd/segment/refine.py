@@ -13,7 +13,7 @@ from annotate_rgbd.geometry.camera import Camera, backproject, ray_grid
 from annotate_rgbd.config.settings import PropagateConfig, RansacConfig, RefineConfig
 from annotate_rgbd.geometry.noise import ConstantNoise, NoiseSettings
 from annotate_rgbd.geometry.planes import weighted_plane_fit
-from .ransac import PlaneFit, fit_plane
+from .ransac import PlaneFit, fit_plane, same_surface
 
 
 def refine_planes(
@@ -69,14 +69,19 @@ def refine_planes(
     refine : RefineConfig
         The window test's tunables (``rim_pixels`` is the parameter above).
     propagate : PropagateConfig
-        The same-surface tolerances for ``expected``.
+        The same-surface tolerances for ``expected``. A carried plane's fit that is another
+        surface than the expected one (:func:`annotate_rgbd.segment.ransac.same_surface`: the
+        shape landed on something else, its outline carried past the plane's end) is fitted again
+        to the points near the expected plane; when those are too few or another surface too, the
+        plane has no fit and keeps no pixel.
 
     Returns
     -------
     refined : ndarray, shape (H, W), of the type of ``labels``
         Plane ids on inlier pixels, 0 everywhere else (off-plane and invalid-depth pixels too).
     fits : dict of int to PlaneFit
-        The fit of each refined plane id (its ``inliers`` are those of the grid points).
+        The fit of each refined plane id (its ``inliers`` are those of the grid points); a
+        carried plane that is not where the poses put it has none.
     """
     valid = np.isfinite(depth_m)
     on_valid = np.where(valid, labels, 0)  # plane ids where the depth is valid
@@ -91,9 +96,14 @@ def refine_planes(
         rows, cols = grid_pixels(on_valid, plane_id, count, config.max_points)
         if rows.size < 3:
             continue
-        fit = fit_plane(backproject(cols, rows, depth_m[rows, cols], camera), config, noise,
-                        look_behind=plane_id not in propagated, expected=(expected or {}).get(plane_id),
+        points = backproject(cols, rows, depth_m[rows, cols], camera)
+        where = (expected or {}).get(plane_id) if plane_id in propagated else None
+        fit = fit_plane(points, config, noise, look_behind=plane_id not in propagated, expected=where,
                         propagate=propagate)
+        if where is not None and not same_surface(fit.equation, where, points[fit.inliers], propagate):
+            fit = _fit_near(points, where, config, noise, refine, propagate)
+            if fit is None:
+                continue  # the plane is not where the poses put it: nothing of it is kept
         fits[plane_id] = fit
         table[plane_id] = fit.equation
         scales[plane_id] = fit.noise_scale
@@ -136,6 +146,26 @@ def refine_planes(
             in_front = (on_valid > 0) & ~on_plane & (residual > 0)
         on_plane &= ~near_surfaces_in_front(in_front, on_valid, rim_pixels)
     return np.where(on_plane, labels, 0).astype(labels.dtype), fits
+
+
+def _fit_near(
+    points: np.ndarray, expected: np.ndarray, config: RansacConfig, noise: NoiseSettings, refine: RefineConfig,
+    propagate: PropagateConfig,
+) -> PlaneFit | None:
+    """The plane among the points that lie near the ``expected`` one (within
+    ``propagate.same_surface_offset``), if it is the same surface; None when too few points lie
+    there or their plane is another surface."""
+    signed = points @ np.asarray(expected[:3], dtype=np.float64) + float(expected[3])
+    near = points[np.abs(signed) <= propagate.same_surface_offset]
+    if len(near) < max(3, refine.min_window_inliers):
+        return None
+    fit = fit_plane(near, config, noise, look_behind=False, expected=expected, propagate=propagate)
+    if not same_surface(fit.equation, expected, near[fit.inliers], propagate):
+        return None
+    # Inliers among all the points, as the caller's fits hold them.
+    band = noise.scaled(fit.noise_scale).band(points[:, 2])
+    inliers = np.abs(points @ fit.equation[:3] + fit.equation[3]) <= band
+    return replace(fit, inliers=inliers)
 
 
 def near_surfaces_in_front(in_front: np.ndarray, labels: np.ndarray, rim_pixels: int) -> np.ndarray:

@@ -17,6 +17,7 @@ from annotate_rgbd.geometry.lift import (
     plane_to_camera,
     plane_to_world,
     project_polygon,
+    project_polygons,
 )
 from annotate_rgbd.segment.rasterize import polygon_window
 from annotate_rgbd.synthetic import Plane, Scene, look_at, render
@@ -209,6 +210,20 @@ def test_projection_of_a_polygon_crossing_the_near_plane():
     on_near = np.array([[0.5, -0.4 + 0.8 * f, 0.1], [-0.5, -0.4 + 0.8 * f, 0.1]])
     expected = project_by_hand(np.r_[on_near[:1], quad[2:], on_near[1:]], ICL, np.eye(3), np.zeros(3))
     np.testing.assert_allclose(image, expected, atol=1e-9)
+
+
+def test_many_polygons_project_as_each_one_alone():
+    rng = np.random.default_rng(8)
+    rotation, translation = random_pose(rng)
+    crossing = np.array([[-0.5, -0.4, -0.5], [0.5, -0.4, -0.5], [0.5, 0.4, 2.0], [-0.5, 0.4, 2.0]])
+    in_front = np.array([[0.0, 0.0, 1.0], [0.3, 0.0, 1.2], [0.1, 0.4, 1.5]])
+    behind = np.array([[0.0, 0.0, -1.0], [0.3, 0.0, -1.2], [0.1, 0.4, -1.5]])
+    worlds = [q @ rotation.T + translation for q in (in_front, crossing, behind, in_front[::-1])]
+    together = project_polygons(worlds, ICL, rotation, translation, near=0.1)
+    assert len(together) == 4 and len(together[2]) == 0
+    for world, image in zip(worlds, together):
+        np.testing.assert_allclose(image, project_polygon(world, ICL, rotation, translation, near=0.1), atol=1e-9)
+    assert project_polygons([], ICL, rotation, translation) == []
 
 
 # ---------------------------------------------------------------- planes in two frames

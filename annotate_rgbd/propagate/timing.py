@@ -1,0 +1,199 @@
+"""The time offset between a camera trajectory and the depth camera's clock, from the keyframes.
+
+Motion-capture trajectories are recorded on another clock than the camera's: TUM RGB-D's
+``groundtruth.txt`` is offset from its images by a few tens of milliseconds (for freiburg1_rpy
+the fused surfaces are sharpest with the trajectory read 0.02 s earlier), which at the camera's
+50-70 degrees per second is a degree or more: a carried outline 10 px off. A plane is rigid and
+static, so every keyframe of a track must put its fitted plane at the same place in the world;
+with the wrong offset the poses rotate each keyframe's plane by the motion over that offset,
+differently for each, and they disagree. :func:`estimate_time_offset` takes the offset under
+which they agree best.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from annotate_rgbd.io.poses import Trajectory, poses_at
+
+
+@dataclass(frozen=True)
+class KeyframeSample:
+    """One keyframe's plane as its own depth frame saw it (camera frame).
+
+    Parameters
+    ----------
+    group : int
+        Which surface (one per track): only keyframes of one group are compared.
+    time : float
+        The depth frame's timestamp (s).
+    points : ndarray of float64, shape (V, 3)
+        Points on the fitted plane, camera frame (m): the keyframe's outline lifted onto it.
+    plane : ndarray of float64, shape (4,)
+        The fitted plane, camera frame (unit normal).
+    """
+
+    group: int
+    time: float
+    points: np.ndarray
+    plane: np.ndarray
+
+
+@dataclass(frozen=True)
+class TimeOffset:
+    """What :func:`estimate_time_offset` found.
+
+    Parameters
+    ----------
+    offset : float
+        Seconds to add to a frame's timestamp before reading the trajectory (0 when no offset
+        explains the keyframes clearly better than none).
+    residual_at_zero, residual : float
+        The keyframes' median disagreement (m) without an offset and with ``offset``.
+    pairs : int
+        Keyframe pairs compared (0: too few keyframes to tell; the offset is 0).
+    """
+
+    offset: float = 0.0
+    residual_at_zero: float = float("nan")
+    residual: float = float("nan")
+    pairs: int = 0
+
+    def to_json(self) -> dict:
+        """The report's entry."""
+        def rounded(value: float) -> float | None:
+            return None if not np.isfinite(value) else round(float(value), 5)
+
+        return {"offset_s": round(self.offset, 4), "residual_at_zero_m": rounded(self.residual_at_zero),
+                "residual_m": rounded(self.residual), "pairs": self.pairs}
+
+
+def keyframe_pairs(samples: list[KeyframeSample], max_per_group: int) -> tuple[np.ndarray, np.ndarray]:
+    """The keyframe pairs to compare: within each group, every pair among at most
+    ``max_per_group`` of its keyframes taken evenly in time.
+
+    Returns
+    -------
+    first, second : ndarray of int, shape (P,)
+        Indices into ``samples``.
+    """
+    groups: dict[int, list[int]] = {}
+    for i, sample in enumerate(samples):
+        groups.setdefault(sample.group, []).append(i)
+    first, second = [], []
+    for members in groups.values():
+        members.sort(key=lambda i: samples[i].time)
+        if len(members) > max_per_group:
+            members = [members[int(j)] for j in np.linspace(0, len(members) - 1, max_per_group).round()]
+        for a in range(len(members)):
+            for b in range(a + 1, len(members)):
+                first.append(members[a])
+                second.append(members[b])
+    return np.asarray(first, dtype=np.int64), np.asarray(second, dtype=np.int64)
+
+
+def pair_residuals(samples: list[KeyframeSample], first: np.ndarray, second: np.ndarray,
+                   rotations: np.ndarray, translations: np.ndarray) -> np.ndarray:
+    """How far apart each pair's planes are in the world under the given poses: the median
+    distance of the first keyframe's points to the second's plane and of the second's points to
+    the first's (m; NaN where a pose is missing).
+
+    Parameters
+    ----------
+    samples : list of KeyframeSample
+    first, second : ndarray of int, shape (P,)
+    rotations : ndarray, shape (K, 3, 3)
+        Camera-to-world rotation of every sample's depth frame.
+    translations : ndarray, shape (K, 3)
+
+    Returns
+    -------
+    ndarray of float64, shape (P,)
+    """
+    world_planes = np.empty((len(samples), 4))
+    world_points = []
+    for i, sample in enumerate(samples):
+        normal = rotations[i] @ sample.plane[:3]
+        world_planes[i] = np.append(normal, sample.plane[3] - normal @ translations[i])
+        world_points.append(sample.points @ rotations[i].T + translations[i])
+    residuals = np.empty(len(first))
+    for j, (a, b) in enumerate(zip(first.tolist(), second.tolist())):
+        to_b = np.abs(world_points[a] @ world_planes[b, :3] + world_planes[b, 3])
+        to_a = np.abs(world_points[b] @ world_planes[a, :3] + world_planes[a, 3])
+        residuals[j] = np.median(np.concatenate([to_b, to_a]))
+    return residuals
+
+
+def estimate_time_offset(
+    trajectory: Trajectory, samples: list[KeyframeSample], search: float, step: float, max_gap: float,
+    same_surface: float, sigma=None, max_per_group: int = 12,
+) -> TimeOffset:
+    """The offset to add to the depth timestamps under which the keyframes' planes agree best.
+
+    Every pair of keyframes of one group (track) is compared (:func:`pair_residuals`); pairs
+    whose planes lie more than ``same_surface`` apart at every tried offset are not the same
+    surface (a shape drawn over another one) and are left out. A pair's residual is counted in
+    units of the sensor's noise at the farther keyframe's depth (a plane 3 m away is fitted to
+    points ten times noisier than one at 1 m) and clipped at ``same_surface``; the score of an
+    offset is the mean over the pairs. The offset is searched on a grid of ``step`` over
+    ``[-search, search]``, then on a grid a tenth as fine around the best point. It is kept only
+    when it brings more of the pairs closer than chance would: a sign test at two standard
+    deviations (share of pairs closer than at 0 above ``1/2 + 1/sqrt(pairs)``); with exact poses
+    the best offset is about 0 and about half the pairs move either way.
+
+    Parameters
+    ----------
+    trajectory : Trajectory
+    samples : list of KeyframeSample
+    search, step : float
+        The range and the grid of offsets tried (s).
+    max_gap : float
+        As in :func:`annotate_rgbd.poses.poses_at`.
+    same_surface : float
+        Residual (m) beyond which a pair counts as two surfaces.
+    sigma : callable, optional
+        The sensor's noise (m) at a depth (m), vectorised (:meth:`NoiseModel.sigma`); None: every
+        pair counts the same.
+    max_per_group : int
+        Keyframes of a group compared pairwise, at most (taken evenly in time).
+
+    Returns
+    -------
+    TimeOffset
+    """
+    first, second = keyframe_pairs(samples, max_per_group)
+    if len(first) == 0 or step <= 0 or search <= 0:
+        return TimeOffset(pairs=0)
+    times = np.array([s.time for s in samples])
+    depths = np.array([float(np.median(s.points[:, 2])) for s in samples])
+    scale = np.ones(len(first)) if sigma is None else np.asarray(sigma(np.maximum(depths[first], depths[second])))
+
+    def residuals(offset: float) -> np.ndarray:
+        poses = poses_at(trajectory, times + offset, max_gap)
+        found = pair_residuals(samples, first, second, np.nan_to_num(poses.rotations), np.nan_to_num(poses.translations))
+        found[~(poses.ok[first] & poses.ok[second])] = np.nan
+        return found
+
+    coarse = np.unique(np.append(np.arange(-search, search + step / 2, step), 0.0))
+    table = np.array([residuals(float(offset)) for offset in coarse])  # (offsets, pairs)
+    usable = np.isfinite(table).all(axis=0) & (np.where(np.isfinite(table), table, np.inf).min(axis=0) <= same_surface)
+    zero = table[int(np.flatnonzero(coarse == 0.0)[0])]
+    if not usable.any():
+        return TimeOffset(pairs=0)
+
+    def score(found: np.ndarray) -> float:
+        return float(np.mean(np.minimum(found[usable], same_surface) / scale[usable]))
+
+    best = float(coarse[int(np.argmin([score(row) for row in table]))])
+    fine = np.arange(best - step, best + step + step / 20, step / 10)
+    fine_rows = [residuals(float(offset)) for offset in fine]
+    best_index = int(np.argmin([score(row) for row in fine_rows]))
+    best, at_best = float(fine[best_index]), fine_rows[best_index]
+    pairs = int(np.count_nonzero(usable))
+    at_zero = float(np.median(zero[usable]))
+    closer = float(np.mean(at_best[usable] < zero[usable]))
+    if closer <= 0.5 + 1.0 / np.sqrt(pairs):
+        return TimeOffset(0.0, at_zero, at_zero, pairs)
+    return TimeOffset(round(best, 6), at_zero, float(np.median(at_best[usable])), pairs)

@@ -1,0 +1,199 @@
+"""Labeller effort on a real RGB-D sequence, scored against independent ground truth.
+
+Run from the repository root, with the ground-truth kit and a scene it made::
+
+    python benchmarks/bench_real.py SCENE [--kit ../shared/realdata_kit] [--gt gt_strict]
+        [--out DIR] [--jobs 2] [--variants full every10 every30 every100 once propose]
+        [--poses-only] [--reuse] [--set SECTION.KEY=VALUE ...]
+
+``SCENE`` is a folder the kit's ``build_gt.sh`` made (its README: fuse the sequence's depth
+with its poses, segment planes on the fused mesh, ray-cast every frame): ``seq/`` (TUM layout,
+``camera.toml``, ``groundtruth.txt``), ``eval/gt_strict/`` (per-frame plane ground truth) and
+``eval/full.xml`` (a simulated careful labeller's polygon on every frame, one CVAT track per
+plane). The kit shares no code with ``annotate-rgbd`` (it is an independent check only as long
+as it does not): this script only runs its scripts, never imports them.
+
+For each variant the kit's ``thin_keyframes.py`` thins ``full.xml`` to what a labeller draws
+(``full``: every frame; ``everyN``: a keyframe every N frames and where a plane enters or leaves
+the view; ``once``: once per appearance), ``annotate-rgbd cvat2mask`` runs on it without and with
+``--poses seq/groundtruth.txt``, ``propose`` runs without human input, and the kit's
+``evaluate.py`` scores the masks: mean IoU (unmatched ground truth counts 0), precision and
+recall at IoU 0.8, leak (the share of ground-truth "no plane" pixels given a plane). It prints
+the table of issue 26 and whether its targets are met (with poses: a keyframe every 10th frame
+mean IoU >= 0.946 and leak <= 2 %, every 30th >= 0.93, once per appearance >= 0.90, never below
+2-D interpolation; dense >= 0.96; propose precision and recall >= 0.7).
+
+Without the kit or the scene it prints one line and exits 0.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+KIT = ROOT.parent / "shared" / "realdata_kit"
+#: Variant name -> the keyframe spacing given to thin_keyframes.py (None: the dense export).
+SPACINGS = {"full": None, "every10": 10, "every30": 30, "every100": 100, "once": 100000}
+LABELS = {"full": "every frame", "every10": "every 10th frame", "every30": "every 30th",
+          "every100": "every 100th", "once": "once per appearance"}
+#: Issue 26's targets, with poses: variant -> smallest mean IoU (and largest leak).
+TARGETS = {"full": (0.96, None), "every10": (0.946, 0.02), "every30": (0.93, None), "once": (0.90, None)}
+PROPOSE_TARGET = 0.7
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("scene", type=Path, nargs="?", default=None)
+    parser.add_argument("--kit", type=Path, default=KIT)
+    parser.add_argument("--gt", default="gt_strict", help="ground-truth folder under SCENE/eval")
+    parser.add_argument("--out", type=Path, default=None, help="runs go here (default: a folder in the temp dir)")
+    parser.add_argument("--jobs", type=int, default=2)
+    parser.add_argument("--variants", nargs="+", default=[*SPACINGS, "propose"], choices=[*SPACINGS, "propose"])
+    parser.add_argument("--poses-only", action="store_true", help="skip the runs without poses")
+    parser.add_argument("--reuse", action="store_true", help="keep runs whose scores exist in --out")
+    parser.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                        help="a configuration override for every run (repeatable)")
+    args = parser.parse_args()
+    missing = _missing(args.kit, args.scene, args.gt)
+    if missing:
+        print(f"bench_real: skipped ({missing})")
+        return
+    scene = args.scene.resolve()
+    out = (args.out or Path(tempfile.gettempdir()) / "annotate-rgbd-bench-real" / scene.name).resolve()
+    (out / "xml").mkdir(parents=True, exist_ok=True)
+    started = time.perf_counter()
+    results = {}
+    for variant in args.variants:
+        if variant == "propose":
+            results["propose"] = _run(out, "propose", ["propose", str(scene / "seq")], scene, args, reuse=args.reuse)
+            continue
+        export, polygons = _thin(args.kit, scene, out, variant)
+        for poses in ((True,) if args.poses_only else (False, True)):
+            name = f"{variant}_{'pose' if poses else 'nopose'}"
+            command = ["cvat2mask", str(scene / "seq"), str(export)]
+            if poses:
+                command += ["--poses", str(scene / "seq" / "groundtruth.txt")]
+            results[name] = _run(out, name, command, scene, args, reuse=args.reuse)
+            results[name]["polygons"] = polygons
+    table = effort_table(results)
+    (out / "table.md").write_text(table + "\n", encoding="utf-8")
+    (out / "results.json").write_text(json.dumps(results, indent=1), encoding="utf-8")
+    print(f"\n{scene.name}, ground truth {args.gt}, --jobs {args.jobs}; runs in {out}\n")
+    print(table)
+    print()
+    for line in target_lines(results):
+        print(line)
+    print(f"\nbenchmark took {time.perf_counter() - started:.0f} s")
+
+
+def _missing(kit: Path, scene: Path | None, gt: str) -> str:
+    """Why the benchmark cannot run ('' when it can)."""
+    if not (kit / "evaluate.py").is_file() or not (kit / "thin_keyframes.py").is_file():
+        return f"no ground-truth kit at {kit}"
+    if scene is None:
+        return "no scene folder given (make one with the kit's build_gt.sh, see its README)"
+    for needed in ("seq/camera.toml", "seq/groundtruth.txt", f"eval/{gt}/planes.json", "eval/full.xml"):
+        if not (scene / needed).exists():
+            return f"{scene / needed} is missing"
+    return ""
+
+
+def _thin(kit: Path, scene: Path, out: Path, variant: str) -> tuple[Path, int]:
+    """The variant's export (thinned by the kit) and the number of polygons drawn in it."""
+    full = scene / "eval" / "full.xml"
+    spacing = SPACINGS[variant]
+    if spacing is None:
+        return full, full.read_text(encoding="utf-8").count('outside="0"')
+    export = out / "xml" / f"{variant}.xml"
+    drawn = subprocess.run([sys.executable, str(kit / "thin_keyframes.py"), str(full), str(export), "--every",
+                            str(spacing)], check=True, capture_output=True, text=True).stdout
+    return export, int(drawn.split()[-1])
+
+
+def _run(out: Path, name: str, command: list[str], scene: Path, args, reuse: bool) -> dict:
+    """Run one variant with ``annotate-rgbd`` and score it with the kit's evaluate.py."""
+    scores = out / f"{name}.json"
+    if reuse and scores.is_file():
+        return json.loads(scores.read_text(encoding="utf-8"))
+    target = out / "runs" / name
+    shutil.rmtree(target, ignore_errors=True)
+    full = [sys.executable, "-m", "annotate_rgbd", *command, "--config", str(scene / "seq" / "camera.toml"),
+            "--out", str(target), "--jobs", str(args.jobs)]
+    full += ["--force"] if command[0] == "cvat2mask" else []
+    for setting in args.set:
+        full += ["--set", setting]
+    began = time.perf_counter()
+    with open(out / f"{name}.log", "w", encoding="utf-8") as log:
+        code = subprocess.run(full, stdout=log, stderr=subprocess.STDOUT, cwd=ROOT).returncode
+    seconds = time.perf_counter() - began
+    evaluated = subprocess.run([sys.executable, str(args.kit / "evaluate.py"), str(scene / "eval" / args.gt),
+                                str(target / "masks"), "--json"], capture_output=True, text=True)
+    try:
+        result = json.loads(evaluated.stdout)
+    except json.JSONDecodeError:
+        result = {"error": (evaluated.stderr.strip().splitlines() or ["evaluate.py failed"])[-1]}
+    result.update(seconds=round(seconds, 1), returncode=code)
+    scores.write_text(json.dumps(result), encoding="utf-8")
+    print(f"{name}: {seconds:.0f} s, mean IoU {result.get('mean_iou', float('nan')):.3f}", flush=True)
+    return result
+
+
+def _cell(result: dict | None) -> str:
+    if not result:
+        return ""
+    if "error" in result or result.get("returncode"):
+        return f"failed ({result.get('error', 'exit ' + str(result.get('returncode')))})"
+    return (f"{result['mean_iou']:.3f}, P/R {result['precision']:.3f}/{result['recall']:.3f}, "
+            f"leak {100 * result['leak']:.1f} %")
+
+
+def effort_table(results: dict) -> str:
+    """Issue 26's table: per variant the polygons drawn and the scores without and with poses."""
+    lines = ["| labeller drew | polygons | 2-D interpolation (no poses) | `--poses` | ms/frame (no poses / poses) |",
+             "|---|---|---|---|---|"]
+    for variant, label in LABELS.items():
+        flat, posed = results.get(f"{variant}_nopose"), results.get(f"{variant}_pose")
+        if not (flat or posed):
+            continue
+        polygons = (flat or posed)["polygons"]
+        times = " / ".join(f"{1000 * r['seconds'] / max(r.get('frames', 1), 1):.0f}" if r else "-" for r in (flat, posed))
+        lines.append(f"| {label} | {polygons:,} | {_cell(flat)} | {_cell(posed)} | {times} |")
+    if "propose" in results:
+        r = results["propose"]
+        lines.append(f"| nothing (`propose`) | 0 | {_cell(r)} | | {1000 * r['seconds'] / max(r.get('frames', 1), 1):.0f} |")
+    return "\n".join(lines)
+
+
+def target_lines(results: dict) -> list[str]:
+    """Issue 26's targets, met or not, for the variants that ran."""
+    lines = []
+    for variant, (least, leak) in TARGETS.items():
+        posed = results.get(f"{variant}_pose")
+        if posed and "mean_iou" in posed:
+            ok = posed["mean_iou"] >= least and (leak is None or posed["leak"] <= leak)
+            rule = f"mean IoU >= {least}" + (f", leak <= {100 * leak:.0f} %" if leak is not None else "")
+            lines.append(f"target: {LABELS[variant]}, with poses, {rule}: {'met' if ok else 'NOT met'} "
+                         f"({posed['mean_iou']:.3f}, leak {100 * posed['leak']:.1f} %)")
+    for variant, label in LABELS.items():
+        flat, posed = results.get(f"{variant}_nopose"), results.get(f"{variant}_pose")
+        if flat and posed and "mean_iou" in flat and "mean_iou" in posed:
+            ok = posed["mean_iou"] >= flat["mean_iou"]
+            lines.append(f"target: {label}, poses not worse than 2-D interpolation: {'met' if ok else 'NOT met'} "
+                         f"({posed['mean_iou']:.3f} against {flat['mean_iou']:.3f})")
+    proposed = results.get("propose")
+    if proposed and "precision" in proposed:
+        ok = proposed["precision"] >= PROPOSE_TARGET and proposed["recall"] >= PROPOSE_TARGET
+        lines.append(f"target: propose precision and recall >= {PROPOSE_TARGET}: {'met' if ok else 'NOT met'} "
+                     f"({proposed['precision']:.3f} / {proposed['recall']:.3f})")
+    return lines
+
+
+if __name__ == "__main__":
+    main()
