@@ -169,7 +169,9 @@ class PropagateConfig:
         depth with errors of 0.4-2 cm over tens of frames (7-Scenes, TUM fr1_rpy), and a plane
         fitted to a few thousand pixels has an orientation error of a fraction of a degree: 5
         degrees and 5 cm are well above both and well below two surfaces a labeller might
-        confuse (a table top and the floor: 0.7 m).
+        confuse (a table top and the floor: 0.7 m). The offset also bounds how far most points
+        of a carried plane's fit may lie from where the poses put the plane
+        (:func:`annotate_rgbd.segment.ransac.on_expected_plane`).
     min_keyframe_weight : float
         A keyframe off its track's agreed plane flags the track for review only when its shape
         holds at least this share of the valid depth pixels of the track's largest keyframe (a

@@ -203,7 +203,6 @@ class Config:
     refine: RefineConfig = field(default_factory=RefineConfig)
     propagate: PropagateConfig = field(default_factory=PropagateConfig)
     stitch: StitchConfig = field(default_factory=StitchConfig)
-    propagate: PropagateConfig = field(default_factory=PropagateConfig)
     parts: tuple[PartConfig, ...] = ()
     matches: tuple[MatchConfig, ...] = ()
     detect: DetectorConfig = field(default_factory=DetectorConfig)

@@ -57,18 +57,22 @@ class PersistenceFilter:
     max_gap : int
         The linker's ``max_gap``: a track last found at position ``p`` may be continued up to
         position ``p + max_gap + 1``.
-    min_size : float
-        Largest detection a track needs, in the units of the sizes given to :meth:`add`; 0:
-        any.
+    min_size : float or sequence of float
+        Largest detection a track needs, in the units of the sizes given to :meth:`add`, one
+        per measure of size (e.g. surface area and share of the image); 0: any.
+    reasons : sequence of str
+        Why a track too small is not proposed, one per measure (default ``"small_surface"``).
     """
 
-    def __init__(self, min_frames: int, max_gap: int, min_size: float = 0.0):
-        if min_frames < 1 or max_gap < 0 or not min_size >= 0:
-            raise ValueError("min_frames must be >= 1, max_gap and min_size >= 0")
+    def __init__(self, min_frames: int, max_gap: int, min_size=0.0, reasons=("small_surface",)):
+        min_size = np.atleast_1d(np.asarray(min_size, dtype=np.float64))
+        if min_frames < 1 or max_gap < 0 or not (min_size >= 0).all() or len(reasons) < len(min_size):
+            raise ValueError("min_frames must be >= 1, max_gap and min_size >= 0, a reason per size")
         self.min_frames = int(min_frames)
         self.max_gap = int(max_gap)
-        self.min_size = float(min_size)
-        self.largest: dict[int, float] = {}  # track -> its largest detection so far
+        self.min_size = min_size
+        self.size_reasons = tuple(reasons)
+        self.largest: dict[int, np.ndarray] = {}  # track -> its largest detection so far, per measure
         self.found: dict[int, int] = {}  # track -> frames found on so far
         self.last: dict[int, int] = {}  # track -> position last found
         self.pending: list[tuple[int, Any, np.ndarray]] = []
@@ -84,8 +88,8 @@ class PersistenceFilter:
         tracks : ndarray of int, shape (K,)
             The linker's track of each of the frame's planes (none for a failed frame).
         payload : object
-        sizes : ndarray of float, shape (K,), optional
-            Size of each plane (default: all pass ``min_size``).
+        sizes : ndarray of float, shape (K,) or (K, M), optional
+            Size of each plane, per measure of ``min_size`` (default: all pass).
 
         Returns
         -------
@@ -93,10 +97,12 @@ class PersistenceFilter:
             In position order; possibly empty.
         """
         tracks = np.asarray(tracks, dtype=np.int64)
-        sizes = np.full(len(tracks), np.inf) if sizes is None else np.asarray(sizes, dtype=np.float64)
-        for track, size in zip(tracks.tolist(), sizes.tolist()):
+        measures = len(self.min_size)
+        sizes = (np.full((len(tracks), measures), np.inf) if sizes is None
+                 else np.asarray(sizes, dtype=np.float64).reshape(len(tracks), measures))
+        for track, size in zip(tracks.tolist(), sizes):
             self.found[track] = self.found.get(track, 0) + 1
-            self.largest[track] = max(self.largest.get(track, 0.0), size)
+            self.largest[track] = np.maximum(self.largest.get(track, 0.0), size)
             self.last[track] = position
         self.pending.append((position, payload, tracks))
         return self._flush(position, final=False)
@@ -106,7 +112,12 @@ class PersistenceFilter:
         return self._flush(None, final=True)
 
     def _passes(self, track: int) -> bool:
-        return self.found[track] >= self.min_frames and self.largest[track] >= self.min_size
+        return self.found[track] >= self.min_frames and bool((self.largest[track] >= self.min_size).all())
+
+    def _reason(self, track: int) -> str:
+        if self.found[track] < self.min_frames:
+            return "flicker"
+        return self.size_reasons[int(np.argmax(self.largest[track] < self.min_size))]
 
     def _settled(self, track: int, position: int | None) -> bool:
         return self._passes(track) or position is None or position - self.last[track] > self.max_gap
@@ -126,8 +137,7 @@ class PersistenceFilter:
                     self.output[track] = self.next_id
                     self.next_id += 1
                 ids[k] = self.output[track]
-            reasons = [None if k else ("flicker" if self.found[t] < self.min_frames else "small_surface")
-                       for t, k in zip(tracks.tolist(), keep.tolist())]
+            reasons = [None if k else self._reason(t) for t, k in zip(tracks.tolist(), keep.tolist())]
             done.append(Decided(where, payload, keep, ids, reasons))
         # Forget the tracks of the frames handed back that no held frame refers to.
         held = {t for _, _, tracks in self.pending for t in tracks.tolist()}

@@ -160,8 +160,10 @@ def _run(sequence, folder: OutputFolder, config, poses_path, helpers, progress) 
     ]
     linker = TrackLinker(config.link, config.noise, config.camera)
     # A track must be found on min_track_frames processed frames (fewer when fewer are processed).
+    # ... and be large somewhere: its surface (m2) and its share of the image.
     persistence = PersistenceFilter(min(settings.min_track_frames, len(chosen)), config.link.max_gap,
-                                    settings.min_surface_m2)
+                                    (settings.min_surface_m2, settings.min_track_share),
+                                    ("small_surface", "small_in_view"))
     tracks: dict[int, TrackShapes] = {}
     best: dict[int, tuple[int, np.ndarray, str]] = {}  # track -> (area, equation, frame) for the attribute
     frames: list[dict] = []
@@ -218,7 +220,8 @@ def _run(sequence, folder: OutputFolder, config, poses_path, helpers, progress) 
                 if frame_poses is not None and frame_poses.ok[following]:
                     pose = (frame_poses.rotations[following], frame_poses.translations[following])
                 first_size = item.labels.shape if first_size is None else first_size
-                found, sizes = linker.add(item, float(depth_times[i]), pose), item.surfaces
+                share = item.areas / float(item.labels.size)
+                found, sizes = linker.add(item, float(depth_times[i]), pose), np.column_stack([item.surfaces, share])
             for decided in persistence.add(following, found, (record, item, pose, i), sizes):
                 emit(decided)
             following += 1
@@ -255,7 +258,8 @@ def _run(sequence, folder: OutputFolder, config, poses_path, helpers, progress) 
         "inputs": {"sequence": str(sequence.root), "poses": None if poses_path is None else str(poses_path),
                    "every": settings.every, "label": settings.label,
                    "min_area_fraction": config.detect.min_area_fraction,
-                   "min_track_frames": settings.min_track_frames, "min_surface_m2": settings.min_surface_m2},
+                   "min_track_frames": settings.min_track_frames, "min_surface_m2": settings.min_surface_m2,
+                   "min_track_share": settings.min_track_share},
         "config": config_to_dict(config, leave_out=("evaluate",)),
         "summary": {"frames_processed": result.frames, "frames_skipped": len(result.skipped),
                     "frames_failed": len(result.failed), "tracks": result.tracks,

@@ -13,7 +13,7 @@ from annotate_rgbd.geometry.camera import Camera, backproject, ray_grid
 from annotate_rgbd.config.settings import PropagateConfig, RansacConfig, RefineConfig
 from annotate_rgbd.geometry.noise import ConstantNoise, NoiseSettings
 from annotate_rgbd.geometry.planes import weighted_plane_fit
-from .ransac import PlaneFit, fit_plane, same_surface
+from .ransac import PlaneFit, fit_plane, on_expected_plane
 
 
 def refine_planes(
@@ -70,7 +70,7 @@ def refine_planes(
         The window test's tunables (``rim_pixels`` is the parameter above).
     propagate : PropagateConfig
         The same-surface tolerances for ``expected``. A carried plane's fit that is another
-        surface than the expected one (:func:`annotate_rgbd.segment.ransac.same_surface`: the
+        surface than the expected one (:func:`annotate_rgbd.segment.ransac.on_expected_plane`: the
         shape landed on something else, its outline carried past the plane's end) is fitted again
         to the points near the expected plane; when those are too few or another surface too, the
         plane has no fit and keeps no pixel.
@@ -100,7 +100,7 @@ def refine_planes(
         where = (expected or {}).get(plane_id) if plane_id in propagated else None
         fit = fit_plane(points, config, noise, look_behind=plane_id not in propagated, expected=where,
                         propagate=propagate)
-        if where is not None and not same_surface(fit.equation, where, points[fit.inliers], propagate):
+        if where is not None and not on_expected_plane(points[fit.inliers], where, propagate):
             fit = _fit_near(points, where, config, noise, refine, propagate)
             if fit is None:
                 continue  # the plane is not where the poses put it: nothing of it is kept
@@ -160,7 +160,7 @@ def _fit_near(
     if len(near) < max(3, refine.min_window_inliers):
         return None
     fit = fit_plane(near, config, noise, look_behind=False, expected=expected, propagate=propagate)
-    if not same_surface(fit.equation, expected, near[fit.inliers], propagate):
+    if not on_expected_plane(near[fit.inliers], expected, propagate):
         return None
     # Inliers among all the points, as the caller's fits hold them.
     band = noise.scaled(fit.noise_scale).band(points[:, 2])

@@ -75,11 +75,27 @@ def test_streaming_decisions_equal_the_whole_sequence_ones(min_frames, max_gap):
             assert out[p][2] <= p + min_frames * (max_gap + 1)
 
 
+def test_a_track_must_be_large_somewhere_by_every_measure():
+    # Sizes per plane: (surface m2, share of the image). Track 1 is large on frame 1 by both,
+    # track 2 has the surface but is never more than 2 % of the image, track 3 the reverse.
+    gate = PersistenceFilter(1, 0, (0.1, 0.03), ("small_surface", "small_in_view"))
+    sizes = [np.array([[0.05, 0.02], [0.3, 0.02], [0.05, 0.2]]), np.array([[0.2, 0.05]])]
+    tracks = [[1, 2, 3], [1]]
+    out = [d for position, (t, s) in enumerate(zip(tracks, sizes))
+           for d in gate.add(position, np.array(t), position, s)] + gate.finish()
+    first = next(d for d in out if d.position == 0)
+    assert first.keep.tolist() == [True, False, False]
+    assert first.reasons == [None, "small_in_view", "small_surface"]
+    assert next(d for d in out if d.position == 1).keep.tolist() == [True]
+
+
 def test_bad_settings_are_refused():
     with pytest.raises(ValueError):
         PersistenceFilter(0, 2)
     with pytest.raises(ValueError):
         PersistenceFilter(2, -1)
+    with pytest.raises(ValueError):
+        PersistenceFilter(2, 1, (0.1, 0.03), ("small_surface",))  # a reason per measure
 
 
 # Objects on planes ------------------------------------------------------------------------
