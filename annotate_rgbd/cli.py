@@ -155,7 +155,7 @@ def cvat2mask(
     config: Optional[str] = typer.Option(
         None, "--config", "-c", metavar="FILE|PRESET",
         help="TOML file or preset name (see 'annotate-rgbd presets'); without it: the camera the layout states "
-        "(ScanNet's intrinsic_depth.txt, 7-Scenes'), else a Kinect v1 at 640x480 (fx = fy = 525, depth in 1/5000 m, TUM's default).",
+        "(ScanNet's intrinsic_depth.txt, 7-Scenes'), else a Kinect v1 at 640x480 (fx = fy = 525, depth in 1/5000 m, TUM's default) with the kinect_v1 noise model.",
     ),
     label: List[str] = typer.Option([], "--label", metavar="LABEL", help="Use only shapes with this CVAT label (repeatable)."),
     distance_threshold: Optional[float] = typer.Option(
@@ -247,7 +247,7 @@ def cvat2mask(
 
 @app.command()
 def batch(
-    manifest: Path = typer.Argument(..., metavar="MANIFEST", help="TOML manifest: one scene table per scene (see the README)."),
+    manifest: Path = typer.Argument(..., metavar="MANIFEST", help="TOML manifest: one scene table per scene (see docs/batch.md)."),
     jobs: Optional[int] = typer.Option(None, "--jobs", "-j", min=1, metavar="N", help="Worker processes (default: the manifest's jobs, else all cores)."),
     force: bool = typer.Option(False, "--force", help="Redo every frame, even those unchanged since the last run."),
     job_timeout: float = typer.Option(
@@ -417,7 +417,7 @@ def propose(
     config: Optional[str] = typer.Option(
         None, "--config", "-c", metavar="FILE|PRESET",
         help="TOML file or preset name (see 'annotate-rgbd presets'); without it: the camera the layout states "
-        "(ScanNet's intrinsic_depth.txt, 7-Scenes'), else a Kinect v1 at 640x480 (fx = fy = 525, depth in 1/5000 m, TUM's default).",
+        "(ScanNet's intrinsic_depth.txt, 7-Scenes'), else a Kinect v1 at 640x480 (fx = fy = 525, depth in 1/5000 m, TUM's default) with the kinect_v1 noise model.",
     ),
     poses: Optional[Path] = typer.Option(
         None, "--poses", metavar="FILE|DIR",

@@ -33,14 +33,16 @@ N_FRAMES = 20
 SEED = 7
 #: Every fifth frame is a keyframe, as when a labeller corrects the outline every few frames.
 KEYFRAME_STEP = 5
-#: Kinect noise (Nguyen et al. 2012) is about 1 cm at 2.5 m, the bulk of the room's planes:
-#: 3 cm keeps nearly all of their pixels while the balls' pixels stay off the table.
-DISTANCE_THRESHOLD = 0.03
+#: The renderer's depth noise is a Kinect v1's (Nguyen et al. 2012,
+#: :func:`annotate_rgbd.synthetic.sensor.kinect_noise_sigma`): the configuration names that
+#: sensor's noise model, so that the inlier band follows the noise at every pixel's depth.
+NOISE_MODEL = "kinect_v1"
 #: RGB index ranges of the two annotation parts: frames 9-11 are in both.
 PARTS = ((0, 11), (9, 18))
 
 CAMERA_TOML = f"""\
 # Synthetic sample (annotate_rgbd.synthetic): half-resolution ROS default camera.
+# Camera: the ROS default calibration TUM RGB-D recommends (525, 525, 319.5, 239.5) at 320x240.
 [camera]
 fx = {CAMERA.fx}
 fy = {CAMERA.fy}
@@ -48,8 +50,10 @@ cx = {CAMERA.cx}
 cy = {CAMERA.cy}
 depth_scale = {CAMERA.depth_scale}
 
-[ransac]
-distance_threshold = {DISTANCE_THRESHOLD}
+[noise]
+# The rendered depth has a Kinect v1's axial noise, sigma(z) = 0.0012 + 0.0019 (z - 0.4)^2 m
+# (Nguyen et al. 2012): each pixel is kept when it lies within 3 sigma of its plane at its depth.
+model = "{NOISE_MODEL}"
 """
 
 

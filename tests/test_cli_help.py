@@ -6,6 +6,8 @@ import pytest
 from typer.testing import CliRunner
 
 from annotate_rgbd.cli import app
+from annotate_rgbd.config.settings import DEFAULT_CAMERA, Config, load_config, preset_names
+from annotate_rgbd.geometry.noise import SENSOR_MODELS
 
 COMMANDS = ["cvat2mask", "batch", "presets", "evaluate", "review", "stats", "propose", "export-cvat"]
 
@@ -41,3 +43,24 @@ def test_cvat2mask_help_names_every_value():
 def test_h_is_short_for_help():
     short = CliRunner().invoke(app, ["cvat2mask", "-h"], prog_name="annotate-rgbd", env={"COLUMNS": "100"})
     assert short.exit_code == 0 and short.output == _help("cvat2mask")
+
+
+@pytest.mark.parametrize("command", ["cvat2mask", "propose"])
+def test_config_help_says_which_camera_is_used_without_it(command):
+    text = " ".join(_help(command).split())
+    camera = DEFAULT_CAMERA
+    assert camera.fx == camera.fy == 525.0 and camera.depth_scale == 5000.0 and Config().noise.model == SENSOR_MODELS["kinect_v1"]
+    assert "without it: the camera the layout states" in text
+    assert "fx = fy = 525, depth in 1/5000 m" in text and "kinect_v1 noise model" in text
+
+
+def test_presets_lists_each_preset_with_its_camera_and_source():
+    result = CliRunner().invoke(app, ["presets"])
+    assert result.exit_code == 0, result.output
+    lines = result.output.splitlines()
+    for name in preset_names():
+        camera = load_config(name).camera
+        entry = lines[lines.index(next(line for line in lines if line.startswith(f"{name}: "))) + 1]
+        values = f"fx {camera.fx:g}, fy {camera.fy:g}, cx {camera.cx:g}, cy {camera.cy:g}, depth_scale {camera.depth_scale:g}"
+        assert entry.startswith(f"    camera: {values}; "), entry
+        assert len(entry) > len(f"    camera: {values}; ") + 10, f"{name}: no source of the camera"

@@ -117,8 +117,8 @@ class RefineConfig:
         real edge (this project's measurement on rendered scenes: +-2 px). 0: no growing.
     rim_pixels : int
         Drop a plane's pixels this close to a surface standing in front of it inside its shape
-        (:func:`annotate_rgbd.segment.refine.near_surfaces_in_front`; README, *Refinement and sensor
-        noise*, for the measurement behind 2). 0: keep them.
+        (:func:`annotate_rgbd.segment.refine.near_surfaces_in_front`; ``docs/refinement.md`` for
+        the measurement behind 2). 0: keep them.
     coherence_window : int
         Side (px, odd) of the window in which a plane's residuals (in noise units) are averaged
         to find surfaces that stand off it by less than the inlier band (a whiteboard on a

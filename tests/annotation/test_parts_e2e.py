@@ -338,7 +338,7 @@ def test_sample_parts_give_the_masks_of_the_single_export(tmp_path):
     common = [str(SAMPLE_DATA / "sequence"), "--config", str(SAMPLE_DATA / "camera.toml"), "--jobs", "1"]
     single = runner.invoke(app, ["cvat2mask", *common[:1], str(SAMPLE_DATA / "annotations.xml"), *common[1:], "--out", str(tmp_path / "one")])
     assert single.exit_code == 0, single.output
-    # The README's multi-part command: offsets from the file names.
+    # The multi-part command of docs/inputs.md and sample_data/README.md: offsets from the file names.
     parts = [str(SAMPLE_DATA / "parts" / name) for name in ("0-11.xml", "9-18.xml")]
     result = runner.invoke(app, ["cvat2mask", *common[:1], *parts, *common[1:], "--out", str(tmp_path / "two")])
     assert result.exit_code == 0, result.output

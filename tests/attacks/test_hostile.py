@@ -705,7 +705,7 @@ def test_outputs_are_readable_like_any_file_the_user_makes(tmp_path):
 def command_line_start() -> float:
     """Seconds this machine takes, now, to start Python and import the command line (typer and
     annotate_rgbd.cli, before any handler of ours exists): a signal inside that window meets
-    Python's own start-up, which prints its traceback (the README's documented limit)."""
+    Python's own start-up, which prints its traceback (the limit docs/troubleshooting.md states)."""
     start = time.perf_counter()
     subprocess.run([sys.executable, "-c", "from annotate_rgbd.cli import app"], check=True)
     return time.perf_counter() - start

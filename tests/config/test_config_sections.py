@@ -1,6 +1,6 @@
 """The ``[detect]``, ``[propose]``, ``[link]`` and ``[evaluate]`` sections: read from TOML and
 ``--set`` like every other section, checked with the same one-line errors, documented in the
-README, and really used by ``propose`` (``evaluate``'s section: tests/test_evaluate.py)."""
+the configuration page (docs/configuration.md), and really used by ``propose`` (``evaluate``'s section: tests/test_evaluate.py)."""
 
 from __future__ import annotations
 
@@ -40,18 +40,52 @@ def test_the_sections_are_read_from_toml_and_set(tmp_path):
     assert isinstance(config.detect.band_k, float)  # an integer given for a float is a float
 
 
-def test_the_readme_documents_every_key_with_its_default():
-    text = (ROOT / "README.md").read_text(encoding="utf-8")
-    section = text[text.index("## Configuration"):]
-    block = section[section.index("```toml") + len("```toml"): section.index("```", section.index("```toml") + 7)]
-    documented = tomllib.loads(block)
+CONFIGURATION_PAGE = ROOT / "docs" / "configuration.md"
+
+
+def _section_blocks(text: str) -> dict[str, list[str]]:
+    """The ```toml blocks of the configuration page under each ``## `[section]` `` heading (a
+    heading may name several sections: ``## `[stitch]`, `[[parts]]` ``)."""
+    blocks: dict[str, list[str]] = {}
+    for chunk in text.split("\n## ")[1:]:
+        heading, _, body = chunk.partition("\n")
+        names = [name.strip("[]") for name in heading.replace("`", "").split(", ")]
+        found = body.split("```toml\n")[1:]
+        blocks[names[0]] = [block[: block.index("```")] for block in found]
+        for name in names[1:]:
+            blocks[name] = blocks[names[0]]
+    return blocks
+
+
+def test_the_configuration_page_documents_every_key_with_its_default(tmp_path):
+    blocks = _section_blocks(CONFIGURATION_PAGE.read_text(encoding="utf-8"))
     defaults = config_to_dict(Config())
-    for name in ("detect", "propose", "link", "evaluate"):
-        assert documented[name] == defaults[name], name
-        # One line per key.
-        table = block[block.index(f"[{name}]"):]
-        table = table[: table.index("\n[", 1) if "\n[" in table[1:] else len(table)]
-        assert [line.split("=")[0].strip() for line in table.splitlines()[1:] if "=" in line] == list(defaults[name])
+    sections = [name for name, value in defaults.items() if isinstance(value, dict)]
+    assert {"camera", "ransac", "noise", "detect", "propose", "link", "evaluate"} <= set(sections)
+    for name in sections:
+        assert name in blocks, f"docs/configuration.md has no section [{name}]"
+        # The section's first block holds every key with its default, one line per key, in order.
+        block = next(b for b in blocks[name] if f"[{name}]" in b)
+        assert tomllib.loads(block) == {name: defaults[name]}, name
+        keys = [line.split("=")[0].strip() for line in block.splitlines()[1:] if "=" in line and not line.startswith("#")]
+        assert keys == list(defaults[name]), name
+    # Every other block (examples: [colour_camera], [[parts]], a quadratic noise model) is a valid
+    # configuration.
+    for number, block in enumerate(b for name, found in blocks.items() for b in found):
+        path = tmp_path / f"block{number}.toml"
+        path.write_text(block)
+        load_config(path)
+
+
+def test_the_configuration_check_fails_on_a_missing_key_or_another_default(tmp_path, monkeypatch):
+    text = CONFIGURATION_PAGE.read_text(encoding="utf-8")
+    for broken in (text.replace("max_gap = 2 ", "max_gap = 3 "), text.replace("band_k = 3.0 ", "")):
+        assert broken != text
+        page = tmp_path / "configuration.md"
+        page.write_text(broken)
+        monkeypatch.setattr(sys.modules[__name__], "CONFIGURATION_PAGE", page)
+        with pytest.raises(AssertionError):
+            test_the_configuration_page_documents_every_key_with_its_default(tmp_path)
 
 
 @pytest.mark.parametrize(

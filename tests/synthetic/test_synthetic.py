@@ -251,4 +251,9 @@ def test_sample_data_matches_a_fresh_render(tmp_path):
 def test_sample_camera_file_is_a_valid_configuration():
     config = load_config(SAMPLE_DATA / "camera.toml")
     assert config.camera == Camera(fx=262.5, fy=262.5, cx=159.5, cy=119.5, depth_scale=5000.0)
-    assert 0 < config.ransac.distance_threshold <= 0.05
+    # The quick start shows noise-aware refinement: no fixed band, and the noise model is the
+    # one the renderer draws the sample's depth noise from.
+    assert config.ransac.distance_threshold == 0.0
+    assert config.inlier_band() == config.noise
+    z = np.linspace(0.4, 5.0, 47)
+    np.testing.assert_allclose(config.noise.model.sigma(z), kinect_noise_sigma(z), rtol=1e-12)
