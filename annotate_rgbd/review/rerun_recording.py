@@ -57,7 +57,7 @@ log = logging.getLogger("annotate_rgbd")
 #: The SDK versions this module is written and tested against (pyproject's ``viewer`` extra).
 RERUN_MIN_VERSION = (0, 41)
 #: How to get the SDK, for the error when it is missing.
-INSTALL_HINT = "pip install 'annotate-rgbd[viewer]' (the Rerun SDK, rerun-sdk 0.41)"
+INSTALL_HINT = "pip install 'annotate-rgbd[viewer]'"
 #: The recording's application id (the viewer groups recordings by it).
 APPLICATION_ID = "annotate-rgbd"
 #: The timeline every frame is logged on: the depth frame's index in ``report.json``.
@@ -110,7 +110,8 @@ def import_rerun() -> Any:
     try:
         import rerun
     except ImportError:
-        raise InputError(None, f"--rerun needs the Rerun SDK, an optional extra: {INSTALL_HINT}") from None
+        raise InputError(None, f"--rerun needs the Rerun SDK (rerun-sdk 0.41), an optional extra: {INSTALL_HINT}"
+                         ) from None
     version = str(getattr(rerun, "__version__", "0"))
     try:
         found = tuple(int(part) for part in version.split(".")[:2])
