@@ -49,7 +49,7 @@ from annotate_rgbd.geometry.registration import ColourCamera
 from annotate_rgbd.io.outdir import REPORT, reading
 from annotate_rgbd.io.poses import DEFAULT_MAX_POSE_GAP, FramePoses, load_trajectory, poses_at
 from annotate_rgbd.io.sequence import read_depth, read_image, read_sequence
-from annotate_rgbd.report.records import FrameRecord, RunRecord
+from annotate_rgbd.report.records import RunRecord
 from annotate_rgbd.report.run_folder import colour_table, mask_plane_ids, read_report
 
 log = logging.getLogger("annotate_rgbd")
@@ -183,11 +183,11 @@ def plane_classes(report: RunRecord) -> list[tuple[int, str, tuple[int, int, int
     return classes
 
 
-def run_poses(report: RunRecord, frames: list[FrameRecord]) -> FramePoses | None:
-    """The camera poses of ``frames`` from the trajectory the run used, read as ``cvat2mask``
-    read it (frame-numbered poses matched to the depth frames in order, the run's
-    ``max_pose_gap``); None when the run had no poses, or (with one warning) when its
-    trajectory is gone."""
+def run_poses(report: RunRecord) -> FramePoses | None:
+    """The camera pose of every depth frame of the run (``report.frames``) from the trajectory
+    the run used, read as ``cvat2mask`` read it (frame-numbered poses matched to the depth frames
+    in order, the run's ``max_pose_gap``); None when the run had no poses, or (with one warning)
+    when its trajectory is gone."""
     trajectory = (report.propagation or {}).get("poses")
     if not trajectory:
         return None
@@ -195,10 +195,10 @@ def run_poses(report: RunRecord, frames: list[FrameRecord]) -> FramePoses | None
         log.warning("the run's trajectory %s is gone: the recording is in the camera frame", trajectory)
         return None
     clock = read_sequence(report.sequence, need_rgb=False).clock
-    all_times = np.array([f.depth_timestamp for f in report.frames], dtype=np.float64)
-    loaded = load_trajectory(trajectory, all_times, clock)  # its warnings: cvat2mask gave them already
+    times = np.array([f.depth_timestamp for f in report.frames], dtype=np.float64)
+    loaded = load_trajectory(trajectory, times, clock)  # its warnings: cvat2mask gave them already
     gap = report.config.get("sequence", {}).get("max_pose_gap", DEFAULT_MAX_POSE_GAP)
-    return poses_at(loaded.trajectory, np.array([f.depth_timestamp for f in frames], dtype=np.float64), gap)
+    return poses_at(loaded.trajectory, times, gap)
 
 
 def write_recording(
@@ -246,13 +246,12 @@ def write_recording(
         raise OutputError(path, "cannot write the recording: its folder does not exist")
     with reading(out_dir):
         report = read_report(out_dir)
-        indices = [k for k, f in enumerate(report.frames) if f.written][::every]
-        frames = [report.frames[k] for k in indices]
-        poses = run_poses(report, frames)
-        keep = list(range(len(frames))) if poses is None else np.flatnonzero(poses.ok).tolist()
-        if poses is not None and len(keep) < len(frames):
+        picked = [k for k, f in enumerate(report.frames) if f.written][::every]
+        poses = run_poses(report)
+        keep = picked if poses is None else [k for k in picked if poses.ok[k]]
+        if len(keep) < len(picked):
             log.warning("%d of %d frames to record have no camera pose (a gap in the trajectory, or outside it): "
-                        "left out of the recording", len(frames) - len(keep), len(frames))
+                        "left out of the recording", len(picked) - len(keep), len(picked))
         config = config_from_dict(report.config, out_dir / REPORT)
         tmp = path.parent / f".{path.name}.{secrets.token_hex(4)}.tmp"
         stream = rr.RecordingStream(APPLICATION_ID)
@@ -264,11 +263,11 @@ def write_recording(
             except Exception as exc:  # the SDK's own error types: the file cannot be created
                 raise OutputError(path, f"cannot write the recording: {exc}") from None
             stream.set_log_time_enabled(False)
-            log_static(rr, stream, report, config.camera, config.colour_camera, poses, frames_shape(out_dir, frames))
+            log_static(rr, stream, report, config.camera, config.colour_camera, poses, frames_shape(out_dir, report))
             keys, values = colour_table(report)
-            for done_frames, i in enumerate(keep, start=1):
-                pose = None if poses is None else (poses.rotations[i], poses.translations[i])
-                points += log_frame(rr, stream, out_dir, report, indices[i], config.camera, config.colour_camera,
+            for done_frames, k in enumerate(keep, start=1):
+                pose = None if poses is None else (poses.rotations[k], poses.translations[k])
+                points += log_frame(rr, stream, out_dir, report, k, config.camera, config.colour_camera,
                                     keys, values, pose, step)
                 if progress:
                     progress(done_frames, len(keep))
@@ -284,16 +283,14 @@ def write_recording(
             if not done:
                 stream.disconnect()
                 tmp.unlink(missing_ok=True)
-    return RecordingSummary(path, len(keep), points, poses is not None, len(frames) - len(keep),
+    return RecordingSummary(path, len(keep), points, poses is not None, len(picked) - len(keep),
                             path.stat().st_size)
 
 
-def frames_shape(out_dir: Path, frames: list[FrameRecord]) -> tuple[int, int] | None:
+def frames_shape(out_dir: Path, report: RunRecord) -> tuple[int, int] | None:
     """``(height, width)`` of the run's masks (the depth grid), from the first one; None without."""
-    if not frames:
-        return None
-    mask = out_dir / frames[0].mask
-    return read_image(mask, cv2.IMREAD_COLOR).shape[:2]
+    first = next((f for f in report.frames if f.written), None)
+    return None if first is None else read_image(out_dir / first.mask, cv2.IMREAD_COLOR).shape[:2]
 
 
 def log_static(rr: Any, stream: Any, report: RunRecord, camera: Camera, colour: ColourCamera | None,
@@ -312,9 +309,7 @@ def log_static(rr: Any, stream: Any, report: RunRecord, camera: Camera, colour: 
         stream.log(COLOUR, pinhole(rr, colour.fx, colour.fy, colour.cx, colour.cy, colour.width, colour.height),
                    static=True)
     if poses is not None:
-        # Every depth frame the trajectory has a pose for, written or not: the whole path.
-        everything = run_poses(report, report.frames)
-        centres = everything.translations[everything.ok]
+        centres = poses.translations[poses.ok]  # every depth frame with a pose, written or not
         if len(centres) > 1:
             stream.log(TRAJECTORY, rr.LineStrips3D([centres.astype(np.float32)]), static=True)
 

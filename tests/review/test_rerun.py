@@ -303,3 +303,26 @@ def test_cli_without_the_sdk_says_how_to_install_it_and_writes_nothing(sample_ru
                              "pip install 'annotate-rgbd[viewer]'\n")
     assert sorted(p.relative_to(run) for p in run.rglob("*")) == before  # no overlays either
     assert not (tmp_path / "v.rrd").exists()
+
+
+def test_a_colour_camera_of_its_own_holds_the_rgb_images(rerun_sdk, sample_run, tmp_path):
+    """With ``[colour_camera]`` the RGB images are the colour camera's, placed by the inverse of
+    its extrinsic (depth -> colour) in the depth camera's frame."""
+    run = tmp_path / "run"
+    shutil.copytree(sample_run[0], run)
+    report = _report(run)
+    angle = np.deg2rad(3.0)
+    extrinsic = np.array([[np.cos(angle), 0, np.sin(angle), 0.052], [0, 1, 0, -0.011],
+                          [-np.sin(angle), 0, np.cos(angle), 0.004], [0, 0, 0, 1]])
+    report["config"]["colour_camera"] = {"fx": 290.0, "fy": 288.0, "cx": 211.0, "cy": 150.5, "width": 424,
+                                         "height": 300, "extrinsic": extrinsic.tolist()}
+    (run / "report.json").write_text(json.dumps(report))
+    content = read_recording(write_recording(run, tmp_path / "colour.rrd").path)
+    colour = content["/world/camera/colour"][None]
+    assert np.allclose(colour["Transform3D:translation"][0], -extrinsic[:3, :3].T @ extrinsic[:3, 3])
+    assert np.allclose(np.array(colour["Transform3D:mat3x3"][0]).reshape(3, 3).T, extrinsic[:3, :3].T)
+    assert colour["Pinhole:image_from_camera"] == [[290, 0, 0, 0, 288, 0, 211, 150.5, 1]]
+    assert colour["Pinhole:resolution"] == [[424, 300]]
+    written = [k for k, f in enumerate(report["frames"]) if f["status"] == "written"]
+    assert sorted(content["/world/camera/colour/rgb"]) == written
+    assert "/world/camera/image/rgb" not in content and sorted(content["/world/camera/image/planes"]) == written
