@@ -186,8 +186,8 @@ def plane_classes(report: RunRecord) -> list[tuple[int, str, tuple[int, int, int
 def run_poses(report: RunRecord) -> FramePoses | None:
     """The camera pose of every depth frame of the run (``report.frames``) from the trajectory
     the run used, read as ``cvat2mask`` read it (frame-numbered poses matched to the depth frames
-    in order, the run's ``max_pose_gap``); None when the run had no poses, or (with one warning)
-    when its trajectory is gone."""
+    in order, the trajectory's time offset the run applied, its ``max_pose_gap``); None when the
+    run had no poses, or (with one warning) when its trajectory is gone."""
     trajectory = (report.propagation or {}).get("poses")
     if not trajectory:
         return None
@@ -198,7 +198,8 @@ def run_poses(report: RunRecord) -> FramePoses | None:
     times = np.array([f.depth_timestamp for f in report.frames], dtype=np.float64)
     loaded = load_trajectory(trajectory, times, clock)  # its warnings: cvat2mask gave them already
     gap = report.config.get("sequence", {}).get("max_pose_gap", DEFAULT_MAX_POSE_GAP)
-    return poses_at(loaded.trajectory, times, gap)
+    offset = report.propagation.get("time_offset_s") or 0.0  # configured and estimated, seconds
+    return poses_at(loaded.trajectory, times + offset, gap)
 
 
 def write_recording(

@@ -326,3 +326,23 @@ def test_a_colour_camera_of_its_own_holds_the_rgb_images(rerun_sdk, sample_run, 
     written = [k for k, f in enumerate(report["frames"]) if f["status"] == "written"]
     assert sorted(content["/world/camera/colour/rgb"]) == written
     assert "/world/camera/image/rgb" not in content and sorted(content["/world/camera/image/planes"]) == written
+
+
+def test_the_poses_are_taken_at_the_trajectory_time_offset_the_run_applied(rerun_sdk, posed, tmp_path):
+    from annotate_rgbd.io.poses import poses_at, read_trajectory
+
+    run = tmp_path / "run"
+    shutil.copytree(posed, run)
+    report = _report(run)
+    report["propagation"]["time_offset_s"] = 0.0123
+    (run / "report.json").write_text(json.dumps(report))
+    content = read_recording(write_recording(run, tmp_path / "late.rrd").path)
+    written = [k for k, f in enumerate(report["frames"]) if f["status"] == "written"]
+    times = np.array([report["frames"][k]["depth_timestamp"] for k in written])
+    trajectory = read_trajectory(report["propagation"]["poses"])
+    expected = poses_at(trajectory, times + 0.0123)
+    logged = [k for k, ok in zip(written, expected.ok) if ok]  # the last frame's time now lies past the end
+    assert sorted(content["/world/camera"]) == logged and len(logged) >= 4
+    recorded = np.array([content["/world/camera"][k]["Transform3D:translation"][0] for k in logged])
+    assert np.allclose(recorded, expected.translations[expected.ok], atol=1e-6)
+    assert not np.allclose(recorded, poses_at(trajectory, times).translations[expected.ok], atol=1e-4)
