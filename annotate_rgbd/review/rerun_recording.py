@@ -340,7 +340,7 @@ def log_frame(rr: Any, stream: Any, out_dir: Path, report: RunRecord, index: int
                          "since the run")
     if pose is not None:
         stream.log(CAMERA, rr.Transform3D(translation=pose[1], mat3x3=pose[0]))
-    ok, jpeg = cv2.imencode(".jpg", read_image(sequence / frame.rgb, cv2.IMREAD_COLOR),
+    _, jpeg = cv2.imencode(".jpg", read_image(sequence / frame.rgb, cv2.IMREAD_COLOR),
                             [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
     rgb = rr.EncodedImage(contents=jpeg.tobytes(), media_type="image/jpeg")
     stream.log(f"{COLOUR}/rgb" if colour is not None else f"{IMAGE}/rgb", rgb)
