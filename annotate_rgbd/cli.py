@@ -371,9 +371,23 @@ def review(
     page: bool = typer.Option(True, "--page/--no-page", help="Write review.html."),
     sheet: bool = typer.Option(True, "--sheet/--no-sheet", help="Write contact_sheet.png from overlays/."),
     jobs: Optional[int] = typer.Option(None, "--jobs", "-j", min=1, metavar="N", help="Worker processes (default: all cores)."),
+    rerun: Optional[Path] = typer.Option(
+        None, "--rerun", metavar="FILE.rrd",
+        help="Also write a Rerun recording (view it with `rerun FILE.rrd`): per frame the RGB image, depth, plane "
+        "labels and labelled 3-D points, with the camera trajectory when the run had poses. Needs the optional "
+        "extra: pip install 'annotate-rgbd[viewer]'.",
+    ),
+    rerun_step: int = typer.Option(4, "--rerun-step", min=1, metavar="N",
+                                   help="Recording: the 3-D points of every N-th pixel of every N-th row."),
+    rerun_every: int = typer.Option(1, "--rerun-every", min=1, metavar="N",
+                                    help="Recording: every N-th frame with a mask."),
 ) -> None:
     """Write review overlays, the offline review page and a contact sheet for a finished run."""
     with user_errors():
+        if rerun is not None:
+            from annotate_rgbd.review.rerun_recording import import_rerun
+
+            import_rerun()  # without the SDK: one line saying how to install it, before any work
         from annotate_rgbd.pipeline.execute import default_workers, prepare_process
 
         workers = (jobs or default_workers()) if overlays else 1  # only overlays take helpers
@@ -388,6 +402,16 @@ def review(
         progress.finish()
         lines = [f"{len(output.overlays)} overlays in {out_dir / 'overlays'}"] if overlays else []
         lines += [str(path) for path in (output.page, output.sheet) if path is not None]
+        if rerun is not None:
+            from annotate_rgbd.review.rerun_recording import write_recording
+
+            recording = Progress({f"{scene} recording": 0})
+            summary = write_recording(out_dir, rerun, step=rerun_step, every=rerun_every,
+                                      progress=recording.callback(f"{scene} recording"))
+            recording.finish()
+            frame = "the trajectory's world frame" if summary.world else "the camera frame"
+            lines.append(f"{summary.path}: Rerun recording of {summary.frames} frames, {summary.points:,} labelled "
+                         f"3-D points in {frame}, {summary.size / 1e6:.1f} MB (view it: rerun {summary.path})")
         typer.echo("\n".join(lines))
 
 
