@@ -11,6 +11,8 @@ from __future__ import annotations
 import json
 from collections import Counter
 
+from annotate_rgbd.segment.filters import NOT_WHERE_EXPECTED
+
 from .records import RunRecord, RunSummary, summarize
 
 
@@ -30,7 +32,9 @@ def run_stats(report: RunRecord) -> dict:
         mask), ``planes_annotated`` (global planes of the annotation), ``depth_frames``,
         ``frames_skipped`` (by reason), ``frames_failed`` (unreadable depth), ``planes_dropped`` and ``dropped_by_reason`` (plane
         records of the written frames), ``mean_inlier_ratio`` (over the kept plane records;
-        ``None`` without any).
+        ``None`` without any), ``tracks_to_review`` (keyframes off their track's plane) and
+        ``frames_to_review`` (depth frames where a plane the poses carried was not where they
+        put it: dropped there, ``not_where_expected``).
     """
     summary = summarize(report.frames)
     written, kept = summary.masks_written, summary.planes_kept
@@ -47,6 +51,8 @@ def run_stats(report: RunRecord) -> dict:
         "dropped_by_reason": summary.dropped_by_reason,
         "mean_inlier_ratio": summary.mean_inlier_ratio,
         "tracks_to_review": list((report.propagation or {}).get("inconsistent_tracks", [])),
+        # With poses: frames where a carried plane was not where the poses put it (dropped there).
+        "frames_to_review": [f.depth for f in report.frames if any(p.reason == NOT_WHERE_EXPECTED for p in f.dropped)],
     }
 
 
@@ -64,7 +70,8 @@ def merge_stats(scenes: list[dict]) -> dict:
         The keys of :func:`run_stats`: counts summed over the runs (distinct and annotated planes
         per run: plane ids are a run's own), ``planes_per_observation`` and
         ``mean_inlier_ratio`` over all of them (the ratio weighted by each run's kept planes),
-        ``tracks_to_review`` prefixed by the run's position (``2:part.xml:5``); and ``scenes``.
+        ``tracks_to_review`` and ``frames_to_review`` prefixed by the run's position
+        (``2:part.xml:5``); and ``scenes``.
     """
     def total(key: str) -> int:
         return sum(s[key] for s in scenes)
@@ -92,6 +99,7 @@ def merge_stats(scenes: list[dict]) -> dict:
         "dropped_by_reason": by_reason("dropped_by_reason"),
         "mean_inlier_ratio": round(sum(r * w for r, w in rated) / weight, 4) if weight else None,
         "tracks_to_review": [f"{i}:{t}" for i, s in enumerate(scenes, start=1) for t in s["tracks_to_review"]],
+        "frames_to_review": [f"{i}:{f}" for i, s in enumerate(scenes, start=1) for f in s.get("frames_to_review", [])],
     }
 
 
@@ -124,6 +132,10 @@ def format_stats(stats: dict) -> str:
     rows.append(("mean inlier ratio", "-" if ratio is None else f"{ratio:.3f}"))
     if stats.get("tracks_to_review"):
         rows.append(("tracks to review (keyframes off their plane)", ", ".join(stats["tracks_to_review"])))
+    if stats.get("frames_to_review"):
+        frames = stats["frames_to_review"]
+        shown = ", ".join(frames[:10]) + (f" and {len(frames) - 10} more" if len(frames) > 10 else "")
+        rows.append((f"frames to review ({len(frames)}: a carried plane not where the poses put it)", shown))
     width = max(len(name) for name, _ in rows)
     return "\n".join(f"{name:<{width}}  {value}" for name, value in rows)
 

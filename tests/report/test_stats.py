@@ -57,6 +57,15 @@ def test_run_stats_counts_observations_planes_and_drops():
     assert stats["mean_inlier_ratio"] == 0.9
 
 
+def test_frames_where_a_carried_plane_was_not_where_the_poses_put_it_are_listed_for_review():
+    frames = [dict(f) for f in REPORT["frames"]]
+    frames[2] = _frame(2, "written", kept=[_kept(1, 1.0)], dropped=[_dropped(2, "not_where_expected")])
+    stats = run_stats(RunRecord.from_json({**REPORT, "frames": frames}))
+    assert stats["frames_to_review"] == ["d2.png"]
+    assert "frames to review (1: a carried plane not where the poses put it)  d2.png" in format_stats(stats)
+    assert run_stats(RunRecord.from_json(REPORT))["frames_to_review"] == []
+
+
 def test_run_stats_of_a_run_without_masks():
     stats = run_stats(RunRecord.from_json({**REPORT, "planes": [], "frames": [REPORT["frames"][0]]}))
     assert stats["observations"] == 0 and stats["planes_per_observation"] == 0.0
