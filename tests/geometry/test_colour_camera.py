@@ -338,8 +338,9 @@ def test_scannet_layout_with_its_colour_camera(tmp_path):
                         [0, 0, 1, 0], [0, 0, 0, 1]])
     save_matrix(root / "intrinsic" / "intrinsic_depth.txt", k_depth)
     save_matrix(root / "intrinsic" / "intrinsic_color.txt", np.pad(COLOUR_K, (0, 1)) + np.diag([0, 0, 0, 1]))
-    save_matrix(root / "intrinsic" / "extrinsic_color.txt", EXTRINSIC)
-    save_matrix(root / "intrinsic" / "extrinsic_depth.txt", np.eye(4))
+    # ScanNet's extrinsics map each camera to the colour camera (sensorData.h): depth's is depth -> colour.
+    save_matrix(root / "intrinsic" / "extrinsic_color.txt", np.eye(4))
+    save_matrix(root / "intrinsic" / "extrinsic_depth.txt", EXTRINSIC)
     scene = room_scene()
     annotation = Annotation(
         path=str(root), format="video", frames=list(range(len(frames))),

@@ -44,7 +44,9 @@ def test_scannet_export_is_read_with_its_cameras_and_poses(tmp_path):
     intrinsic = tmp_path / "intrinsic"
     save_matrix(intrinsic / "intrinsic_depth.txt", [[577.59, 0, 318.9, 0], [0, 578.73, 242.7, 0], [0, 0, 1, 0], [0, 0, 0, 1]])
     save_matrix(intrinsic / "intrinsic_color.txt", [[1170.19, 0, 647.75, 0], [0, 1170.19, 483.75, 0], [0, 0, 1, 0], [0, 0, 0, 1]])
-    colour_pose = pose_matrix_of(angle=0.1, shift=(0.05, 0.0, 0.0))  # world-to-camera, as ScanNet's sensorData.h says
+    # Camera -> the rig's base frame, as ScanNet's sensorData.h says (its Converter writes depth ->
+    # colour as the depth extrinsic and the identity as the colour one; here both differ from it).
+    colour_pose = pose_matrix_of(angle=0.1, shift=(0.05, 0.0, 0.0))
     depth_pose = pose_matrix_of(angle=-0.05, shift=(0.0, 0.02, 0.0))
     save_matrix(intrinsic / "extrinsic_color.txt", colour_pose)
     save_matrix(intrinsic / "extrinsic_depth.txt", depth_pose)
@@ -58,11 +60,14 @@ def test_scannet_export_is_read_with_its_cameras_and_poses(tmp_path):
     assert (camera.fx, camera.fy, camera.cx, camera.cy, camera.depth_scale) == (577.59, 578.73, 318.9, 242.7, 1000.0)
     colour = sequence.colour_camera
     assert (colour.fx, colour.fy, colour.cx, colour.cy, colour.width, colour.height) == (1170.19, 1170.19, 647.75, 483.75, 1296, 968)
-    # A depth-camera point goes to the common frame (inverse of depth's world-to-camera), then
-    # into the colour camera; checked on a point, not by repeating the formula.
+    # A depth-camera point goes to the base frame (depth's extrinsic), then into the colour camera
+    # (the inverse of colour's); checked on a point, not by repeating the formula.
     point = np.array([0.3, -0.2, 1.5, 1.0])
-    common = np.linalg.solve(depth_pose, point)
-    np.testing.assert_allclose(colour.depth_to_colour @ point, colour_pose @ common, atol=1e-5)
+    base = depth_pose @ point
+    np.testing.assert_allclose(colour.depth_to_colour @ point, np.linalg.solve(colour_pose, base), atol=1e-5)
+    # As ScanNet's Converter writes them (colour: the identity; depth: depth -> colour).
+    save_matrix(intrinsic / "extrinsic_color.txt", np.eye(4))
+    np.testing.assert_allclose(read_sequence(tmp_path).colour_camera.depth_to_colour, depth_pose, atol=1e-6)
     assert sequence.poses == tmp_path / "pose"
 
 

@@ -12,10 +12,16 @@ Frames are numbers, not timestamps: ``color/i.jpg``, ``depth/i.png`` and ``pose/
 frame (a frame skip when exporting leaves gaps: 0, 10, 20 ...). The depth camera is
 ``intrinsic_depth.txt`` (4 x 4, the pinhole matrix in its top-left corner) with a depth scale of
 1000 (ScanNet's ``depthShift``); the colour camera is ``intrinsic_color.txt`` at the size of the
-colour images. ScanNet's ``sensorData.h`` calls each camera's extrinsic "world-to-camera" (a
-common rig frame to the camera; both are the identity in the scans we know of), so the depth
-camera's points reach the colour camera's frame by ``extrinsic_color @ inv(extrinsic_depth)``;
-a missing extrinsic file is the identity.
+colour images. Each extrinsic maps its camera's frame to the rig's base frame, the colour
+camera's: ScanNet's ``SensReader/src/sensorData.h`` says of ``m_extrinsic`` "the mapping to base
+frame in a multi-view setup (typically it's depth to color; and the color extrinsic is the
+identity)", and ScanNet's ``Converter/src/metaData.h`` stores the inverse of a scan's
+``colorToDepthExtrinsics`` as the depth extrinsic and the identity as the colour one. So a depth
+camera point reaches the colour camera's frame by ``inv(extrinsic_color) @ extrinsic_depth``
+(``extrinsic_depth`` itself when the colour one is the identity). In the released ScanNet scans
+both are the identity: ScanNet's ``Calibrate`` tool re-projected the depth into the colour
+camera before release (depth intrinsics = colour intrinsics scaled to 640 x 480). A missing
+extrinsic file is the identity.
 
 Only ``depth/`` is required (``propose`` works on depth alone); the folder is recognised as
 ScanNet's by ``depth/`` with any of ``color/``, ``pose/`` or ``intrinsic/``.
@@ -114,6 +120,7 @@ def colour_camera(intrinsic: Path, first_image: Path) -> ColourCamera:
         problem = rigid_problem(extrinsic[name])
         if problem is not None:
             raise InputError(path, f"not a rigid transform: {problem}")
-    depth_to_colour = extrinsic["extrinsic_color.txt"] @ np.linalg.inv(extrinsic["extrinsic_depth.txt"])
+    # Each extrinsic is camera -> base frame (the colour camera's): X_colour = inv(E_c) E_d X_depth.
+    depth_to_colour = np.linalg.inv(extrinsic["extrinsic_color.txt"]) @ extrinsic["extrinsic_depth.txt"]
     return ColourCamera(fx, fy, cx, cy, int(width), int(height), depth_to_colour,
                         source=str(intrinsic / "intrinsic_color.txt"))
