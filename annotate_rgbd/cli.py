@@ -98,38 +98,12 @@ def output_folder(out: str) -> Path:
 
 
 def _load_config(sequence_dir: Path, config: Optional[str], overrides: dict):
-    """The run's configuration: ``--config`` (else the defaults) with the overrides. Without
-    ``--config``, the depth camera the sequence's layout states (ScanNet's intrinsic_depth.txt,
-    7-Scenes' documented camera) and its colour camera when colour is on another grid
-    (ScanNet's intrinsic_color.txt and extrinsics: ``[colour_camera]``) come before the
-    overrides, each said in one line."""
-    from annotate_rgbd.config.settings import load_config
+    """The run's configuration: ``--config`` (else the defaults and the cameras the sequence's
+    layout states, each said in one line) with the overrides
+    (:func:`annotate_rgbd.config.layout.load_run_config`)."""
+    from annotate_rgbd.config.layout import load_run_config
 
-    if config is None:
-        from annotate_rgbd.io.sequence import read_sequence
-
-        sequence = read_sequence(sequence_dir, need_rgb=False)
-        log = logging.getLogger("annotate_rgbd")
-        for note in sequence.notes:
-            log.warning("%s", note)
-        if sequence.camera is not None:
-            log.info("camera: %s (%s layout): %s; give --config for another", sequence.camera.source,
-                     sequence.layout, sequence.camera.describe())
-            overrides = {**sequence.camera.overrides(), **overrides}
-        colour = sequence.colour_camera
-        if colour is not None and not colour.on_depth_grid(sequence.camera, *_depth_size(sequence)):
-            log.info("colour camera: %s (%s layout): %s; shapes are drawn on it", colour.source, sequence.layout,
-                     colour.describe())
-            overrides = {**colour.overrides(), **overrides}
-    return load_config(config, overrides)
-
-
-def _depth_size(sequence) -> tuple[int, int]:
-    """(width, height) of the sequence's first depth image, from its PNG header."""
-    from annotate_rgbd.io.images import png_size, read_bytes
-
-    path = sequence.root / sequence.depth.files[0]
-    return png_size(read_bytes(path), path)
+    return load_run_config(sequence_dir, config, overrides)
 
 
 def _version(value: bool) -> None:

@@ -124,7 +124,7 @@ def read_run(run_dir: str | Path, poses: str | Path | None = None) -> ExportRun:
     written = [f for f in report.frames if f.written and f.mask]
     frame_poses = None
     if trajectory:
-        if poses is None and not Path(trajectory).is_file():
+        if poses is None and not Path(trajectory).exists():  # a file, or a folder of pose files (ScanNet, 7-Scenes)
             raise InputError(run_dir / "report.json", f"the run's trajectory {trajectory} is gone: give it with --poses")
         gap = report.config.get("sequence", {}).get("max_pose_gap", DEFAULT_MAX_POSE_GAP)
         frame_poses = poses_at(read_trajectory(trajectory), np.array([f.depth_timestamp for f in written]), gap)

@@ -9,7 +9,8 @@ from __future__ import annotations
 
 from typing import Callable
 
-from annotate_rgbd.config.settings import Config, load_config
+from annotate_rgbd.config.layout import load_run_config
+from annotate_rgbd.config.settings import Config
 from annotate_rgbd.errors import InputError
 from annotate_rgbd.logs import scene_warnings
 from annotate_rgbd.report.records import summarize
@@ -35,7 +36,9 @@ def run_batch(
     Parameters
     ----------
     scenes : list of SceneSpec
-        A scene's ``config`` is a preset name or TOML file (with its ``overrides``), or a
+        A scene's ``config`` is a preset name or TOML file (with its ``overrides``), None (the
+        defaults and the cameras the sequence's layout states:
+        :func:`~annotate_rgbd.config.layout.load_run_config`), or a
         :class:`~annotate_rgbd.config.settings.Config` already loaded.
     workers : int
         Worker processes shared by all scenes.
@@ -62,7 +65,8 @@ def run_batch(
         for position, spec in enumerate(scenes):
             try:
                 with named(spec.name):
-                    config = spec.config if isinstance(spec.config, Config) else load_config(spec.config, spec.overrides)
+                    config = (spec.config if isinstance(spec.config, Config)
+                              else load_run_config(spec.sequence, spec.config, spec.overrides))
                     plan = plan_run(spec.sequence, spec.annotations, spec.out, config, spec.offsets, spec.raw_masks,
                                     spec.overlays, poses=spec.poses, instance_ids=spec.instance_ids)
             except InputError as exc:

@@ -15,6 +15,7 @@ from annotate_rgbd.cli import app
 from annotate_rgbd.errors import InputError
 from annotate_rgbd.geometry.camera import Camera
 from annotate_rgbd.io.sequence import FRAME_NUMBERS, SECONDS, read_depth, read_sequence
+from annotate_rgbd.synthetic import room_scene
 from layout_fixtures import pose_matrix, render_walk, write_keyframes, write_scannet, write_seven_scenes
 
 SCANNET_CAMERA = Camera(fx=262.5, fy=262.5, cx=159.5, cy=119.5, depth_scale=1000.0)
@@ -210,6 +211,31 @@ def test_rendered_layouts_run_through_propose_cvat2mask_and_review(request, name
     reviewed = runner.invoke(app, ["review", str(root / "out"), "-j", "1"])
     assert reviewed.exit_code == 0, reviewed.output
     assert len(list((root / "out" / "overlays").iterdir())) == len(data["rendered"].frames)
+
+    # The exports take the run's trajectory, the layout's pose files, without --poses.
+    exported = runner.invoke(app, ["export", str(root / "out"), "--format", "planercnn", str(root / "planercnn")])
+    assert exported.exit_code == 0, exported.output
+    record = json.loads((root / "planercnn" / "export.json").read_text())
+    assert record["frames_with_pose"] == len(data["rendered"].frames) - frames_without_pose
+    planes = np.load(root / "planercnn" / "planes.npy")
+    by_label = {p.label: p for p in room_scene().planes}
+    kept = {plane["plane"] for f in report["frames"] for plane in f["kept"]}
+    for row in (root / "out" / "planes.csv").read_text().splitlines()[1:]:
+        plane_id, label = int(row.split(",")[0]), row.split(",")[5]
+        if plane_id in kept:  # normal * offset of the rendered plane (normal . X = offset)
+            normal = np.cross(by_label[label].edge_u, by_label[label].edge_v)
+            normal /= np.linalg.norm(normal)
+            assert np.linalg.norm(planes[plane_id - 1] - normal * (normal @ by_label[label].centre)) < 0.03, label
+
+    # A batch scene without a config reads the layout's camera and poses too: cvat2mask's masks.
+    manifest = root / "batch.toml"
+    manifest.write_text(f'[[scene]]\nsequence = "{sequence}"\nannotations = ["{data["keyframes"]}"]\n'
+                        f'out = "{root / "batch"}"\n')
+    batch = runner.invoke(app, ["batch", str(manifest), "-j", "1"])
+    assert batch.exit_code == 0, batch.output
+    assert "info: " in batch.output and "camera: " in batch.output
+    masks = sorted((root / "out" / "masks").iterdir())
+    assert [m.read_bytes() for m in masks] == [(root / "batch" / "masks" / m.name).read_bytes() for m in masks]
 
 
 def test_a_config_overrides_the_layout_camera(scannet, tmp_path):
