@@ -3,7 +3,9 @@ for a correction round in CVAT.
 
 One polygon track per plane, with the run's plane id as CVAT track id and the plane's label;
 every written frame is a keyframe (frame number = RGB index, as ``cvat2mask`` reads a video
-export); a plane absent on a written frame is ``outside`` there. Polygons are the masks' outer
+export); a plane absent on a written frame is ``outside`` there. With a ``[colour_camera]`` the
+polygons lie on its colour images (each traced on the depth grid and taken to the colour image
+through its plane), and the export's image size is theirs. Polygons are the masks' outer
 outlines, every piece of a plane bridged into one (:func:`annotate_rgbd.cvat.from_masks.piece_outlines`),
 drawn in the order that puts the plane whose pixels fill an overlap on top
 (:func:`annotate_rgbd.cvat.from_masks.draw_order`), as ``propose`` draws its detections, so that
@@ -19,12 +21,13 @@ import cv2
 import numpy as np
 
 from annotate_rgbd.annotation.model import Shape
+from annotate_rgbd.config.settings import config_from_dict
 from annotate_rgbd.cvat.from_masks import draw_order, piece_outlines
 from annotate_rgbd.errors import InputError, OutputError
 from annotate_rgbd.io.outdir import TOP_LEVEL_NAMES, reading
 from annotate_rgbd.io.writer import is_stream
 from annotate_rgbd.logs import group_problems
-from annotate_rgbd.propose.output import TrackShapes, write_polygon_tracks
+from annotate_rgbd.propose.output import TrackShapes, colour_image_polygons, write_polygon_tracks
 from annotate_rgbd.segment.rasterize import shape_mask
 from annotate_rgbd.io.sequence import read_image
 from annotate_rgbd.report.records import RunRecord
@@ -66,6 +69,7 @@ def export_cvat(run_dir: str | Path, xml_path: str | Path, tolerance_px: float =
 
 def _export(run_dir: Path, report: RunRecord, xml_path: Path, tolerance_px: float) -> int:
     labels_of = {p.plane: p.label for p in report.planes}
+    config = config_from_dict(report.config, run_dir / "report.json")  # [colour_camera]: polygons on its images
     keys, values = colour_table(report)
     tracks: dict[int, TrackShapes] = {}
     sampled: list[int] = []
@@ -92,18 +96,37 @@ def _export(run_dir: Path, report: RunRecord, xml_path: Path, tolerance_px: floa
         far = np.array([np.nan if distance.get(int(present[k - 1])) is None else distance[int(present[k - 1])]
                         for k in order], dtype=np.float64)
         z_order = draw_order(np.searchsorted(order, compact) + 1, windows, far) if order else []
+        drawn = on_colour_image(outlines, order, present, frame, config)
         for k, z in zip(order, np.asarray(z_order).tolist()):
             plane = int(present[k - 1])
             entry = tracks.setdefault(plane, TrackShapes(plane, labels_of.get(plane, "plane")))
-            entry.shapes[frame.rgb_index] = Shape("polygon", outlines[k], z_order=int(z))
+            if drawn[k] is not None:  # None: outside the colour image
+                entry.shapes[frame.rgb_index] = Shape("polygon", drawn[k], z_order=int(z))
     if size is None:
         raise InputError(run_dir / "report.json", "the run wrote no mask: nothing to export")
     for line in group_problems(other_size):
         log.warning("%s", line)
     last = max([p.last_rgb for p in report.parts] + sampled)
+    width, height = (size[1], size[0]) if config.colour_camera is None else (config.colour_camera.width,
+                                                                             config.colour_camera.height)
     write_polygon_tracks([tracks[t] for t in sorted(tracks)], Path(xml_path), n_frames=last + 1,
-                         sampled_frames=sampled, width=size[1], height=size[0])
+                         sampled_frames=sampled, width=width, height=height)
     return len(tracks)
+
+
+def on_colour_image(outlines: dict, order: list, present: np.ndarray, frame, config) -> dict:
+    """A frame's outlines (on the depth grid) on the images the labeller draws on: the colour
+    images of ``[colour_camera]``, through each plane's equation in the run's report
+    (:func:`annotate_rgbd.propose.output.colour_image_polygons`); as they are without one."""
+    if config.colour_camera is None:
+        return outlines
+    kept = {p.plane: p for p in frame.result.kept} if frame.result else {}
+    records = [kept.get(int(present[k - 1])) for k in order]
+    mapped = colour_image_polygons(
+        [outlines[k] for k in order],
+        [None if r is None or r.equation is None else np.asarray(r.equation, dtype=np.float64) for r in records],
+        [None if r is None else r.mean_distance for r in records], config)
+    return dict(zip(order, mapped))
 
 
 def check_target(run_dir: Path, xml_path: Path) -> None:

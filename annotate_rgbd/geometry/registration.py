@@ -6,7 +6,9 @@ images are 1296 x 968 with their own intrinsics, Kinect v2, Azure Kinect and una
 RealSense streams have their own intrinsics and a depth-to-colour extrinsic. Each depth pixel is
 back-projected with the depth camera, moved into the colour camera's frame by the extrinsic and
 projected with the colour intrinsics; it takes the label of the colour pixel it lands on
-(:func:`colour_pixel_grid`, :func:`sample_labels`).
+(:func:`colour_pixel_grid`, :func:`sample_labels`). ``propose`` and ``export-cvat`` go the other
+way, a polygon traced on the depth grid onto the colour image the labeller draws on
+(:func:`polygon_on_colour_image`).
 
 Conventions
 -----------
@@ -228,6 +230,86 @@ def sample_labels(colour_labels: np.ndarray, map_x: np.ndarray, map_y: np.ndarra
     labels = np.zeros(map_x.shape, dtype=colour_labels.dtype)
     labels[inside] = colour_labels[rows[inside].astype(np.intp), cols[inside].astype(np.intp)]
     return labels
+
+
+def polygon_on_colour_image(points: np.ndarray, plane: np.ndarray, depth_camera: Camera, colour: ColourCamera,
+                            fallback_depth: float) -> np.ndarray:
+    """A polygon drawn on the depth image, as it lies on the colour image: the way back from
+    the depth grid to the image the labeller draws on (``propose``, ``export-cvat``).
+
+    The polygon outlines a planar region, so each vertex is taken where its viewing ray meets
+    the plane (the points of one plane map between the two images by a homography: straight
+    edges stay straight), moved into the colour camera by the extrinsic and projected. A vertex
+    whose ray meets the plane nowhere in front of the camera (a ray along the plane) is taken at
+    ``fallback_depth``. A depth pixel whose centre lies inside the polygon then lands inside the
+    mapped polygon (:func:`colour_pixel_grid`, :func:`sample_labels`) wherever its measured depth
+    lies on the plane.
+
+    Parameters
+    ----------
+    points : ndarray of float, shape (V, 2)
+        Vertices ``(x, y)`` in CVAT coordinates of the depth image (pixel ``(col, row)`` has its
+        centre at ``(col + 0.5, row + 0.5)``).
+    plane : ndarray of float, shape (4,)
+        ``(a, b, c, d)``: ``a x + b y + c z + d = 0`` in the depth camera's frame, metres.
+    depth_camera : Camera
+    colour : ColourCamera
+    fallback_depth : float
+        Depth (m along the depth camera's axis) of a vertex whose ray misses the plane.
+
+    Returns
+    -------
+    ndarray of float64, shape (V, 2)
+        The vertices in CVAT coordinates of the colour image.
+    """
+    points = np.asarray(points, dtype=np.float64)
+    a, b, c, d = (float(v) for v in plane)
+    ray_x = (points[:, 0] - 0.5 - depth_camera.cx) / depth_camera.fx
+    ray_y = (points[:, 1] - 0.5 - depth_camera.cy) / depth_camera.fy
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = -d / (a * ray_x + b * ray_y + c)
+    z = np.where(np.isfinite(z) & (z > 0), z, fallback_depth)
+    camera_points = np.stack([ray_x * z, ray_y * z, z], axis=1)
+    moved = camera_points @ np.asarray(colour.rotation, dtype=np.float64).T + np.asarray(colour.translation)
+    zc = np.maximum(moved[:, 2], 1e-6)  # a vertex at or behind the colour camera: far off its image
+    return np.stack([colour.fx * moved[:, 0] / zc + colour.cx + 0.5, colour.fy * moved[:, 1] / zc + colour.cy + 0.5],
+                    axis=1)
+
+
+def clip_to_image(points: np.ndarray, width: int, height: int) -> np.ndarray:
+    """A polygon clipped to the image ``[0, width] x [0, height]`` (CVAT coordinates), as CVAT
+    keeps its shapes (it would move a vertex beyond the image onto its edge, bending the edges
+    that meet there). Sutherland-Hodgman, one image edge at a time.
+
+    Parameters
+    ----------
+    points : ndarray of float, shape (V, 2)
+    width, height : int
+
+    Returns
+    -------
+    ndarray of float64, shape (V', 2)
+        The part inside the image; fewer than 3 vertices when the polygon lies outside it.
+    """
+    points = np.asarray(points, dtype=np.float64)
+    for axis, limit, keep_above in ((0, 0.0, True), (0, float(width), False), (1, 0.0, True), (1, float(height), False)):
+        if len(points) == 0:
+            break
+        sign = 1.0 if keep_above else -1.0
+        inside = sign * (points[:, axis] - limit) >= 0
+        if inside.all():
+            continue
+        following = np.roll(points, -1, axis=0)
+        with np.errstate(divide="ignore", invalid="ignore"):  # edges along the image edge: never used
+            share = (limit - points[:, axis]) / (following[:, axis] - points[:, axis])
+            crossing = points + share[:, None] * (following - points)
+        crossing[:, axis] = limit  # exactly on the edge
+        # Each vertex gives itself when inside, then the crossing of its edge when that edge
+        # crosses the image edge.
+        candidates = np.stack([points, crossing], axis=1).reshape(-1, 2)
+        keep = np.stack([inside, inside != np.roll(inside, -1)], axis=1).reshape(-1)
+        points = candidates[keep]
+    return points
 
 
 def colour_pose(rotation: np.ndarray, translation: np.ndarray, colour: ColourCamera) -> tuple[np.ndarray, np.ndarray]:

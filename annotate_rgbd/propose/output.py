@@ -9,7 +9,9 @@ from pathlib import Path
 import numpy as np
 
 from annotate_rgbd.annotation.model import Annotation, Shape, Track
+from annotate_rgbd.config.settings import Config
 from annotate_rgbd.cvat import write_cvat_video
+from annotate_rgbd.geometry.registration import clip_to_image, polygon_on_colour_image
 from annotate_rgbd.report.palette import colour_hex, colourize, plane_colours
 from annotate_rgbd.io.writer import open_output, write_png
 
@@ -100,3 +102,43 @@ def track_colour(track: int) -> str:
 def equation_text(equation: np.ndarray) -> str:
     """A plane ``(a, b, c, d)`` as CVAT attribute text: ``a b c d``, 6 decimals."""
     return " ".join(f"{float(v):.6f}" for v in equation)
+
+
+#: Depth (m) of a polygon vertex whose ray misses its plane, when the plane has no mean distance.
+FALLBACK_DEPTH_M = 2.0
+
+
+def colour_image_polygons(outlines: list, planes, distances, config: Config) -> list:
+    """Polygons traced on the depth grid, on the image the labeller draws on: as they are when
+    colour and depth share one grid, else on the colour image of ``[colour_camera]``
+    (:func:`annotate_rgbd.geometry.registration.polygon_on_colour_image`, through each polygon's
+    plane).
+
+    Parameters
+    ----------
+    outlines : list of ndarray, shape (V, 2)
+        CVAT coordinates on the depth image.
+    planes : sequence of ndarray, shape (4,)
+        Each polygon's plane ``(a, b, c, d)``, depth camera frame (None: unknown).
+    distances : sequence of float
+        Each plane's mean distance (m), the depth of a vertex whose ray misses the plane.
+    config : Config
+        ``camera`` and ``colour_camera``.
+
+    Returns
+    -------
+    list of (ndarray, shape (V, 2), or None)
+        On the colour image, clipped to it (None: the polygon lies outside it).
+    """
+    colour = config.colour_camera
+    if colour is None:
+        return list(outlines)
+    mapped = []
+    for outline, plane, distance in zip(outlines, planes, distances):
+        fallback = float(distance) if distance is not None and np.isfinite(distance) and distance > 0 else FALLBACK_DEPTH_M
+        if plane is None:  # no plane: every vertex at the fallback depth
+            plane = np.array([0.0, 0.0, 1.0, -fallback])
+        polygon = polygon_on_colour_image(outline, np.asarray(plane, dtype=np.float64), config.camera, colour, fallback)
+        polygon = clip_to_image(polygon, colour.width, colour.height)
+        mapped.append(polygon if len(polygon) >= 3 else None)
+    return mapped

@@ -26,7 +26,8 @@ from annotate_rgbd.logs import group_problems
 from .detect_job import DetectJob, FrameProposal, FrameTooSmall, keep_planes, propose_frame
 from .link import TrackLinker
 from .persist import PersistenceFilter
-from .output import TrackShapes, equation_text, track_colour, write_colour_mask, write_polygon_tracks
+from .output import (TrackShapes, colour_image_polygons, equation_text, track_colour, write_colour_mask,
+                     write_polygon_tracks)
 
 log = logging.getLogger("annotate_rgbd")
 
@@ -190,7 +191,8 @@ def _run(sequence, folder: OutputFolder, config, poses_path, helpers, progress) 
         keyframe = key_of_rgb[int(nearest[i])] == decided.position
         frames.append({**record, "status": "written", "mask": f"{MASKS_DIR}/{mask_name}",
                        "cvat_keyframe": keyframe, "planes": _plane_records(item, ids), "dropped": item.dropped})
-        _collect(item, ids, int(nearest[i]), keyframe, pose, settings.label, tracks, best)
+        _collect(item, ids, int(nearest[i]), keyframe, pose, settings.label, tracks, best,
+                 colour_image_polygons(item.outlines, item.planes, item.mean_distance, config) if keyframe else None)
         result.frames += 1
 
     following = 0
@@ -239,6 +241,8 @@ def _run(sequence, folder: OutputFolder, config, poses_path, helpers, progress) 
         tracks[track].attributes = {"equation": equation_text(equation), "equation_frame": where}
     ordered = [tracks[t] for t in sorted(tracks)]
     height, width = size if size is not None else (0, 0)
+    if config.colour_camera is not None:  # the polygons lie on the colour images, which CVAT shows
+        width, height = config.colour_camera.width, config.colour_camera.height
     sampled = sorted(rgb for rgb, position in key_of_rgb.items() if frames[position]["status"] == "written")
     if sampled:
         n_frames = len(sequence.depth if sequence.rgb is None else sequence.rgb)
@@ -334,13 +338,16 @@ def _plane_records(item: FrameProposal, ids: np.ndarray) -> list[dict]:
     ]
 
 
-def _collect(item: FrameProposal, ids, rgb: int, keyframe: bool, pose, label: str, tracks, best) -> None:
-    """Add a frame's polygons (when it is the CVAT keyframe of its RGB frame) and remember each
-    track's largest detection, whose plane becomes the track's equation attribute."""
+def _collect(item: FrameProposal, ids, rgb: int, keyframe: bool, pose, label: str, tracks, best,
+             outlines: list | None = None) -> None:
+    """Add a frame's polygons (when it is the CVAT keyframe of its RGB frame; ``outlines``: on
+    the colour image, else ``item.outlines``) and remember each track's largest detection, whose
+    plane becomes the track's equation attribute."""
+    outlines = item.outlines if outlines is None else outlines
     for k, track in enumerate(ids.tolist()):
         entry = tracks.setdefault(track, TrackShapes(track, label))
-        if keyframe:
-            entry.shapes[rgb] = Shape("polygon", item.outlines[k], z_order=int(item.z_order[k]))
+        if keyframe and outlines[k] is not None:  # None: outside the colour image
+            entry.shapes[rgb] = Shape("polygon", outlines[k], z_order=int(item.z_order[k]))
         area = int(item.areas[k])
         if track not in best or area > best[track][0]:
             if pose is not None:

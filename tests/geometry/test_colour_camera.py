@@ -20,12 +20,15 @@ from typer.testing import CliRunner
 from annotate_rgbd.annotation.model import Annotation, Shape, Track
 from annotate_rgbd.cli import app
 from annotate_rgbd.config.settings import Config, config_from_dict, config_to_dict, load_config
+from annotate_rgbd.cvat import read_cvat
 from annotate_rgbd.cvat.writer import write_cvat_video
 from annotate_rgbd.errors import InputError
 from annotate_rgbd.geometry.camera import Camera, depth_to_metres
-from annotate_rgbd.geometry.registration import colour_camera_from_mapping, sample_labels
+from annotate_rgbd.geometry.registration import (
+    clip_to_image, colour_camera_from_mapping, polygon_on_colour_image, sample_labels,
+)
 from annotate_rgbd.segment.frame import segment_frame
-from annotate_rgbd.segment.rasterize import draw_on_depth_grid
+from annotate_rgbd.segment.rasterize import draw_on_depth_grid, rasterize_frame
 from annotate_rgbd.synthetic import (
     Pose, plane_polygon, render, render_frame, room_scene, room_trajectory, write_tum_trajectory,
 )
@@ -318,11 +321,10 @@ def save_matrix(path: Path, matrix: np.ndarray) -> None:
     path.write_text("".join(" ".join(f"{v:f}" for v in row) + "\n" for row in matrix))
 
 
-def test_scannet_layout_with_its_colour_camera(tmp_path):
+def write_scannet_scene(tmp_path: Path, frames=(2, 3, 4)) -> tuple[Path, Path]:
     """A ScanNet export whose colour images come from the offset colour camera (another size,
-    intrinsics and pose): without --config, the layout's colour camera is used, and the shapes
-    drawn on the colour images land on the right depth pixels."""
-    root, frames = tmp_path / "scene0000_00", (2, 3, 4)
+    intrinsics and pose), with the labeller's polygons drawn on them as a CVAT video export."""
+    root = tmp_path / "scene0000_00"
     for name in ("color", "depth", "pose", "intrinsic"):
         (root / name).mkdir(parents=True)
     tracks: dict[int, dict[int, Shape]] = {}
@@ -349,6 +351,14 @@ def test_scannet_layout_with_its_colour_camera(tmp_path):
     )
     xml = tmp_path / "annotations.xml"
     write_cvat_video(annotation, xml, width=COLOUR_SIZE[0], height=COLOUR_SIZE[1])
+    return root, xml
+
+
+def test_scannet_layout_with_its_colour_camera(tmp_path):
+    """Without --config, the layout's colour camera is used, and the shapes drawn on the colour
+    images land on the right depth pixels; a batch scene without a config does the same."""
+    frames = (2, 3, 4)
+    root, xml = write_scannet_scene(tmp_path, frames)
     out = tmp_path / "out"
     result = CliRunner().invoke(app, ["cvat2mask", str(root), str(xml), "--out", str(out), "-j", "1", "--instance-ids"])
     assert result.exit_code == 0, result.output
@@ -364,3 +374,117 @@ def test_scannet_layout_with_its_colour_camera(tmp_path):
         truth = seen_by_both(depth, seen, [plane_id for plane_id, _ in shapes])
         ious.append(mean_iou(as_tracks, truth, [track_of[r["plane"]] for r in frame["kept"]]))
     assert np.mean(ious) >= 0.95, ious
+    # batch reads the layout's cameras too: the same masks as cvat2mask's.
+    manifest = tmp_path / "batch.toml"
+    manifest.write_text(f'[[scene]]\nsequence = "{root}"\nannotations = ["{xml}"]\nout = "{tmp_path / "batch"}"\n')
+    result = CliRunner().invoke(app, ["batch", str(manifest), "-j", "1"])
+    assert result.exit_code == 0, result.output
+    assert "colour camera: " in result.output
+    masks = sorted((out / "masks").iterdir())
+    assert [m.read_bytes() for m in masks] == [(tmp_path / "batch" / "masks" / m.name).read_bytes() for m in masks]
+
+
+def seen_by_colour_camera(depth_raw: np.ndarray) -> np.ndarray:
+    """Depth pixels whose point lies on the colour image (the only ones a labeller can draw on)."""
+    rows, cols, xy = in_colour_image(depth_raw)
+    at = np.floor(xy + 0.5)
+    inside = (at[:, 0] >= 0) & (at[:, 0] < COLOUR_SIZE[0]) & (at[:, 1] >= 0) & (at[:, 1] < COLOUR_SIZE[1])
+    seen = np.zeros(depth_raw.shape, dtype=bool)
+    seen[rows[inside], cols[inside]] = True
+    return seen
+
+
+def colour_ids(path: Path) -> np.ndarray:
+    """A colour mask's pixels as one integer per colour (0: black)."""
+    image = cv2.imread(str(path), cv2.IMREAD_COLOR).astype(np.int64)
+    return image[..., 0] + 256 * image[..., 1] + 65536 * image[..., 2]
+
+
+def matched_iou(found: np.ndarray, expected: np.ndarray) -> list[float]:
+    """IoU of each region of ``expected`` with the region of ``found`` that covers most of it
+    (plane ids and colours may differ between runs)."""
+    ious = []
+    for value in np.unique(expected[expected > 0]):
+        candidates, counts = np.unique(found[expected == value], return_counts=True)
+        best = candidates[np.argmax(counts)]
+        ious.append(0.0 if best == 0 else float(np.count_nonzero((found == best) & (expected == value))
+                                                 / np.count_nonzero((found == best) | (expected == value))))
+    return ious
+
+
+def test_proposals_and_exports_are_drawn_on_the_colour_images(tmp_path):
+    """propose and export-cvat write polygons on the colour images (the labeller's), in an
+    export of the colour images' size: cvat2mask reads them back to the masks they were made
+    from, on every depth pixel the colour camera sees."""
+    frames = (2, 3, 4)
+    root, _ = write_scannet_scene(tmp_path, frames)
+    runner = CliRunner()
+    result = runner.invoke(app, ["propose", str(root), "--out", str(tmp_path / "proposals"), "-j", "1"])
+    assert result.exit_code == 0, result.output
+    xml = tmp_path / "proposals" / "proposals.xml"
+    meta = read_cvat(xml)
+    assert all(size == COLOUR_SIZE for size in meta.image_size.values())
+    polygons = [shape.points for track in meta.tracks for shape in track.shapes.values()]
+    assert polygons and max(p[:, 0].max() for p in polygons) > DEPTH_SIZE[0]  # the colour image's coordinates
+    assert all((p >= 0).all() and (p[:, 0] <= COLOUR_SIZE[0]).all() and (p[:, 1] <= COLOUR_SIZE[1]).all()
+               for p in polygons)  # clipped to it
+    runs = {"proposals": tmp_path / "proposals"}
+    for made_from, xml_of in (("proposals", xml), ("run", tmp_path / "round2.xml")):
+        if made_from == "run":
+            result = runner.invoke(app, ["export-cvat", str(runs["run"]), str(xml_of)])
+            assert result.exit_code == 0, result.output
+            assert all(size == COLOUR_SIZE for size in read_cvat(xml_of).image_size.values())
+        out = tmp_path / f"from_{made_from}"
+        result = runner.invoke(app, ["cvat2mask", str(root), str(xml_of), "--out", str(out), "-j", "1"])
+        assert result.exit_code == 0, result.output
+        runs.setdefault("run", out)
+        ious = []
+        for i, index in enumerate(frames):
+            _, depth, _, _ = colour_frame(index)
+            seen = seen_by_colour_camera(depth.depth_raw)
+            assert 0.8 < seen.mean() < 1.0  # the colour camera is turned: a strip it does not see
+            expected = np.where(seen, colour_ids(runs[made_from] / "masks" / f"{i}.png"), 0)
+            ious += matched_iou(np.where(seen, colour_ids(out / "masks" / f"{i}.png"), 0), expected)
+        assert len(ious) >= 9 and np.mean(ious) >= 0.95, (made_from, ious)
+
+
+def test_polygon_vertices_go_to_the_colour_image_through_their_plane():
+    colour = colour_camera_from_mapping(COLOUR_TABLE)
+    plane = np.array([0.2, -0.1, -0.97, 2.1])  # a x + b y + c z + d = 0, depth camera frame
+    plane /= np.linalg.norm(plane[:3])
+    points = np.array([[10.5, 20.0], [300.25, 15.75], [160.0, 230.5], [5.0, 200.0]])  # CVAT, depth image
+    # Independently: the vertex's ray K^-1 (u - 0.5, v - 0.5, 1) meets the plane at s, then the
+    # 4 x 4 extrinsic and the colour intrinsic matrix; CVAT puts pixel centres at +0.5.
+    k_depth = np.array([[DEPTH_CAMERA.fx, 0, DEPTH_CAMERA.cx], [0, DEPTH_CAMERA.fy, DEPTH_CAMERA.cy], [0, 0, 1]])
+    rays = np.linalg.solve(k_depth, np.vstack([(points - 0.5).T, np.ones(len(points))]))
+    on_plane = rays * (-plane[3] / (plane[:3] @ rays))
+    in_colour = COLOUR_K @ (EXTRINSIC @ np.vstack([on_plane, np.ones(len(points))]))[:3]
+    expected = (in_colour[:2] / in_colour[2]).T + 0.5
+    found = polygon_on_colour_image(points, plane, DEPTH_CAMERA, colour, fallback_depth=2.0)
+    np.testing.assert_allclose(found, expected, atol=1e-9)
+    # A ray along the plane (it never meets it): the vertex is taken at the fallback depth.
+    along = np.array([[0.0, 0.0, 1.0, 0.0]])[0]  # the plane z = 0 holds the camera centre
+    far = polygon_on_colour_image(points[:1], along, DEPTH_CAMERA, colour, fallback_depth=2.0)
+    point = rays[:, :1] * 2.0
+    in_colour = COLOUR_K @ (EXTRINSIC @ np.vstack([point, [[1.0]]]))[:3]
+    np.testing.assert_allclose(far, (in_colour[:2] / in_colour[2]).T + 0.5, atol=1e-9)
+
+
+def test_polygons_are_clipped_to_the_image():
+    rng = np.random.default_rng(3)
+    width, height = 40, 30
+    for _ in range(20):
+        polygon = rng.uniform(-25, 65, (rng.integers(3, 12), 2))
+        clipped = clip_to_image(polygon, width, height)
+        # The pixels the clipped polygon covers are the original's within the image (rasterised on
+        # a canvas with room around the image).
+        pad = 30
+        whole = rasterize_frame([(1, Shape("polygon", polygon + pad))], height + 2 * pad, width + 2 * pad)
+        expected = whole[pad:pad + height, pad:pad + width]
+        if len(clipped) < 3:
+            assert not expected.any()
+            continue
+        assert (clipped >= 0).all() and (clipped[:, 0] <= width).all() and (clipped[:, 1] <= height).all()
+        np.testing.assert_array_equal(rasterize_frame([(1, Shape("polygon", clipped))], height, width), expected)
+    inside = np.array([[1.0, 1.0], [20.0, 2.0], [10.0, 25.0]])
+    np.testing.assert_array_equal(clip_to_image(inside, width, height), inside)
