@@ -7,7 +7,8 @@ pixel's plane in ``planes.npy``, -1 where no plane is (it also skips the value o
 167771). Here row ``k`` is the run's plane ``k + 1`` (``planes.csv``), so a pixel of plane ``p``
 holds the value ``100 p`` and a pixel of no plane 0; a plane the run never kept on a frame with a
 pose has the row ``0 0 0``, which the loader skips. The layout's world frame needs the camera
-poses: the run's trajectory or one given to the export.
+poses: the run's trajectory or one given to the export. A plane through the world origin (a floor
+at ``z = 0``) has a row of length 0, which holds no normal: a warning names such planes.
 
 The segmentation is on the depth grid (the mask's pixels). PlaneRCNN's loader also reads
 ``plane_info.npy`` (ScanNet's semantic labels per plane), which this export does not make.
@@ -16,6 +17,7 @@ The segmentation is on the depth grid (the mask's pixels). PlaneRCNN's loader al
 from __future__ import annotations
 
 import io
+import logging
 from pathlib import Path
 
 import numpy as np
@@ -24,6 +26,12 @@ from annotate_rgbd.errors import InputError
 from annotate_rgbd.io.writer import write_bytes_atomic, write_png
 from .frames import ExportRun
 from .planes import foot_vector, scene_planes
+
+log = logging.getLogger("annotate_rgbd")
+
+#: A world plane nearer the origin than this (m) has a row ``normal * offset`` too short to hold
+#: its normal: PlaneRCNN's loader takes the normal as the row divided by its length.
+MIN_OFFSET_M = 0.02
 
 #: Segmentation values are ``100 * (row + 1)``; the loader takes ``167771`` (white) for no plane.
 VALUE_STEP = 100
@@ -74,8 +82,16 @@ def write_planercnn(run: ExportRun, out: Path) -> list[Path]:
         raise InputError(run.run_dir / "report.json", f"{run.report.n_planes} planes: PlaneRCNN's segmentation holds "
                          f"at most {MAX_PLANES}")
     planes = np.zeros((run.report.n_planes, 3), dtype=np.float64)
-    for plane, equation in scene_planes(run).items():
+    world = scene_planes(run)
+    for plane, equation in world.items():
         planes[plane - 1] = foot_vector(equation)
+    near = sorted(plane for plane, equation in world.items() if abs(float(equation[3])) < MIN_OFFSET_M)
+    if near:
+        log.warning("%s: plane%s %s pass%s within %g cm of the world origin: PlaneRCNN's row normal * offset "
+                    "cannot hold %s orientation (its loader reads the normal as the row over its length); a "
+                    "trajectory whose origin lies off every plane avoids it", run.run_dir / "report.json",
+                    "s" if len(near) > 1 else "", ", ".join(map(str, near)), "" if len(near) > 1 else "es",
+                    100 * MIN_OFFSET_M, "their" if len(near) > 1 else "its")
     buffer = io.BytesIO()
     np.save(buffer, planes)
     written = [out / "planes.npy"]

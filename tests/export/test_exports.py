@@ -86,6 +86,11 @@ def test_planercnn_layout_reads_back_with_its_decoding(run, tmp_path):
         normal, offset = truth[plane]
         # normal * offset: the same vector whichever way the normal points.
         assert np.linalg.norm(planes[plane - 1] - normal * offset) < 0.03, table[plane]["label"]
+    # The rendered floor is z = 0: its row holds no normal, and the export says so in one line.
+    through_origin = sorted(p for p in kept if abs(truth[p][1]) < 0.02)
+    assert [table[p]["label"] for p in through_origin] == ["floor"]
+    warned = [line for line in result.output.splitlines() if line.startswith("warning: ")]
+    assert len(warned) == 1 and f"plane {through_origin[0]} passes within 2 cm of the world origin" in warned[0]
     assert not planes[[p - 1 for p in table if p not in kept]].any()  # never kept: 0 0 0, skipped by the loader
     for frame in frames:
         name = Path(frame["depth"]).stem
