@@ -3,13 +3,16 @@ for a correction round in CVAT.
 
 One polygon track per plane, with the run's plane id as CVAT track id and the plane's label;
 every written frame is a keyframe (frame number = RGB index, as ``cvat2mask`` reads a video
-export); a plane absent on a written frame is ``outside`` there. With a ``[colour_camera]`` the
-polygons lie on its colour images (each traced on the depth grid and taken to the colour image
-through its plane), and the export's image size is theirs. Polygons are the masks' outer
+export); a plane absent on a written frame is ``outside`` there. Polygons are the masks' outer
 outlines, every piece of a plane bridged into one (:func:`annotate_rgbd.cvat.from_masks.piece_outlines`),
 drawn in the order that puts the plane whose pixels fill an overlap on top
 (:func:`annotate_rgbd.cvat.from_masks.draw_order`), as ``propose`` draws its detections, so that
 ``cvat2mask`` reads the file back to nearly the same masks.
+
+With a ``[colour_camera]`` the polygons lie on its colour images, which the labeller opens in
+CVAT: each is traced on the depth grid and taken to the colour image through its plane
+(:func:`annotate_rgbd.propose.output.colour_image_polygons`), and the export's image size is
+theirs.
 """
 
 from __future__ import annotations
@@ -21,16 +24,17 @@ import cv2
 import numpy as np
 
 from annotate_rgbd.annotation.model import Shape
-from annotate_rgbd.config.settings import config_from_dict
 from annotate_rgbd.cvat.from_masks import draw_order, piece_outlines
 from annotate_rgbd.errors import InputError, OutputError
 from annotate_rgbd.io.outdir import TOP_LEVEL_NAMES, reading
 from annotate_rgbd.io.writer import is_stream
 from annotate_rgbd.logs import group_problems
-from annotate_rgbd.propose.output import TrackShapes, colour_image_polygons, write_polygon_tracks
+from annotate_rgbd.propose.output import TrackShapes, write_polygon_tracks
+from annotate_rgbd.propose.output import colour_image_polygons
 from annotate_rgbd.segment.rasterize import shape_mask
 from annotate_rgbd.io.sequence import read_image
 from annotate_rgbd.report.records import RunRecord
+from annotate_rgbd.config.settings import Config, config_from_dict
 from annotate_rgbd.report.run_folder import colour_table, mask_plane_ids, read_report
 
 log = logging.getLogger("annotate_rgbd")
@@ -96,37 +100,21 @@ def _export(run_dir: Path, report: RunRecord, xml_path: Path, tolerance_px: floa
         far = np.array([np.nan if distance.get(int(present[k - 1])) is None else distance[int(present[k - 1])]
                         for k in order], dtype=np.float64)
         z_order = draw_order(np.searchsorted(order, compact) + 1, windows, far) if order else []
-        drawn = on_colour_image(outlines, order, present, frame, config)
+        order, z_order, outlines = on_colour_image(outlines, order, z_order, present, frame, config)
         for k, z in zip(order, np.asarray(z_order).tolist()):
             plane = int(present[k - 1])
             entry = tracks.setdefault(plane, TrackShapes(plane, labels_of.get(plane, "plane")))
-            if drawn[k] is not None:  # None: outside the colour image
-                entry.shapes[frame.rgb_index] = Shape("polygon", drawn[k], z_order=int(z))
+            entry.shapes[frame.rgb_index] = Shape("polygon", outlines[k], z_order=int(z))
     if size is None:
         raise InputError(run_dir / "report.json", "the run wrote no mask: nothing to export")
     for line in group_problems(other_size):
         log.warning("%s", line)
     last = max([p.last_rgb for p in report.parts] + sampled)
-    width, height = (size[1], size[0]) if config.colour_camera is None else (config.colour_camera.width,
-                                                                             config.colour_camera.height)
+    if config.colour_camera is not None:  # the polygons lie on the colour images
+        size = (config.colour_camera.height, config.colour_camera.width)
     write_polygon_tracks([tracks[t] for t in sorted(tracks)], Path(xml_path), n_frames=last + 1,
-                         sampled_frames=sampled, width=width, height=height)
+                         sampled_frames=sampled, width=size[1], height=size[0])
     return len(tracks)
-
-
-def on_colour_image(outlines: dict, order: list, present: np.ndarray, frame, config) -> dict:
-    """A frame's outlines (on the depth grid) on the images the labeller draws on: the colour
-    images of ``[colour_camera]``, through each plane's equation in the run's report
-    (:func:`annotate_rgbd.propose.output.colour_image_polygons`); as they are without one."""
-    if config.colour_camera is None:
-        return outlines
-    kept = {p.plane: p for p in frame.result.kept} if frame.result else {}
-    records = [kept.get(int(present[k - 1])) for k in order]
-    mapped = colour_image_polygons(
-        [outlines[k] for k in order],
-        [None if r is None or r.equation is None else np.asarray(r.equation, dtype=np.float64) for r in records],
-        [None if r is None else r.mean_distance for r in records], config)
-    return dict(zip(order, mapped))
 
 
 def check_target(run_dir: Path, xml_path: Path) -> None:
@@ -158,3 +146,41 @@ def _keyframes(report: RunRecord) -> list:
         if held is None or abs(frame.time_offset) < abs(held.time_offset):
             chosen[frame.rgb_index] = frame
     return [chosen[k] for k in sorted(chosen)]
+
+
+def on_colour_image(outlines: dict, order: list, z_order, present: np.ndarray, frame,
+                    config: Config) -> tuple[list, list, dict]:
+    """A frame's outlines (traced on the depth grid) on the images the labeller draws on.
+
+    Parameters
+    ----------
+    outlines : dict of int to ndarray, shape (V, 2)
+        Compact label -> polygon, CVAT coordinates of the depth image.
+    order : list of int
+        The compact labels drawn, with their ``z_order`` (sequence of int).
+    present : ndarray of int
+        Plane id of each compact label (``present[k - 1]``).
+    frame : FrameRecord
+        The frame's record: its kept planes' equations and distances.
+    config : Config
+        The run's: without ``colour_camera`` everything is returned as it is.
+
+    Returns
+    -------
+    order, z_order : list of int
+        Without the labels whose polygon lies outside the colour image.
+    outlines : dict of int to ndarray, shape (V, 2)
+        On the colour image, clipped to it
+        (:func:`annotate_rgbd.propose.output.colour_image_polygons`, through each plane's equation).
+    """
+    if config.colour_camera is None:
+        return order, z_order, outlines
+    kept = {p.plane: p for p in frame.result.kept} if frame.result else {}
+    records = [kept.get(int(present[k - 1])) for k in order]
+    mapped = colour_image_polygons(
+        [outlines[k] for k in order],
+        [None if r is None or r.equation is None else np.asarray(r.equation, dtype=np.float64) for r in records],
+        [None if r is None else r.mean_distance for r in records], config)
+    inside = [i for i, polygon in enumerate(mapped) if polygon is not None]
+    return ([order[i] for i in inside], [int(np.asarray(z_order)[i]) for i in inside],
+            {order[i]: mapped[i] for i in inside})

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import json
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Callable
 
@@ -26,8 +26,8 @@ from annotate_rgbd.logs import group_problems
 from .detect_job import DetectJob, FrameProposal, FrameTooSmall, keep_planes, propose_frame
 from .link import TrackLinker
 from .persist import PersistenceFilter
-from .output import (TrackShapes, colour_image_polygons, equation_text, track_colour, write_colour_mask,
-                     write_polygon_tracks)
+from .output import TrackShapes, equation_text, track_colour, write_colour_mask, write_polygon_tracks
+from .output import colour_image_polygons
 
 log = logging.getLogger("annotate_rgbd")
 
@@ -191,8 +191,8 @@ def _run(sequence, folder: OutputFolder, config, poses_path, helpers, progress) 
         keyframe = key_of_rgb[int(nearest[i])] == decided.position
         frames.append({**record, "status": "written", "mask": f"{MASKS_DIR}/{mask_name}",
                        "cvat_keyframe": keyframe, "planes": _plane_records(item, ids), "dropped": item.dropped})
-        _collect(item, ids, int(nearest[i]), keyframe, pose, settings.label, tracks, best,
-                 colour_image_polygons(item.outlines, item.planes, item.mean_distance, config) if keyframe else None)
+        _collect(_on_colour_image(item, config) if keyframe else item, ids, int(nearest[i]), keyframe, pose,
+                 settings.label, tracks, best)
         result.frames += 1
 
     following = 0
@@ -338,19 +338,25 @@ def _plane_records(item: FrameProposal, ids: np.ndarray) -> list[dict]:
     ]
 
 
-def _collect(item: FrameProposal, ids, rgb: int, keyframe: bool, pose, label: str, tracks, best,
-             outlines: list | None = None) -> None:
-    """Add a frame's polygons (when it is the CVAT keyframe of its RGB frame; ``outlines``: on
-    the colour image, else ``item.outlines``) and remember each track's largest detection, whose
-    plane becomes the track's equation attribute."""
-    outlines = item.outlines if outlines is None else outlines
+def _collect(item: FrameProposal, ids, rgb: int, keyframe: bool, pose, label: str, tracks, best) -> None:
+    """Add a frame's polygons (when it is the CVAT keyframe of its RGB frame) and remember each
+    track's largest detection, whose plane becomes the track's equation attribute."""
     for k, track in enumerate(ids.tolist()):
         entry = tracks.setdefault(track, TrackShapes(track, label))
-        if keyframe and outlines[k] is not None:  # None: outside the colour image
-            entry.shapes[rgb] = Shape("polygon", outlines[k], z_order=int(item.z_order[k]))
+        if keyframe and item.outlines[k] is not None:  # None: outside the colour image
+            entry.shapes[rgb] = Shape("polygon", item.outlines[k], z_order=int(item.z_order[k]))
         area = int(item.areas[k])
         if track not in best or area > best[track][0]:
             if pose is not None:
                 best[track] = (area, plane_to_world(item.planes[k], *pose), "world")
             else:
                 best[track] = (area, item.planes[k], f"camera of RGB frame {rgb}")
+
+
+def _on_colour_image(item: FrameProposal, config: Config) -> FrameProposal:
+    """The proposal with its polygons on the image the labeller draws on: the colour image of
+    ``[colour_camera]`` (None for a polygon outside it), as traced without one
+    (:func:`annotate_rgbd.propose.output.colour_image_polygons`)."""
+    if config.colour_camera is None:
+        return item
+    return replace(item, outlines=colour_image_polygons(item.outlines, item.planes, item.mean_distance, config))
