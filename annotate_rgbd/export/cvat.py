@@ -1,7 +1,9 @@
 """``export-cvat``: a finished ``cvat2mask`` run's refined masks as a "CVAT for video 1.1" export,
 for a correction round in CVAT.
 
-One polygon track per plane, with the run's plane id as CVAT track id and the plane's label;
+One polygon track per plane, with the run's plane id as CVAT track id and as its ``plane_id``
+attribute (which CVAT keeps where the label declares it, and ``cvat2mask`` gives back as the plane's id
+and colour: :mod:`annotate_rgbd.annotation.stitch`) and the plane's label;
 every written frame is a keyframe (frame number = RGB index, as ``cvat2mask`` reads a video
 export); a plane absent on a written frame is ``outside`` there. Polygons are the masks' outer
 outlines, every piece of a plane bridged into one (:func:`annotate_rgbd.cvat.from_masks.piece_outlines`),
@@ -18,7 +20,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from annotate_rgbd.annotation.model import Shape
+from annotate_rgbd.annotation.model import PLANE_ID, Shape
 from annotate_rgbd.cvat.from_masks import draw_order, piece_outlines
 from annotate_rgbd.errors import InputError, OutputError
 from annotate_rgbd.io.outdir import TOP_LEVEL_NAMES, reading
@@ -94,7 +96,8 @@ def _export(run_dir: Path, report: RunRecord, xml_path: Path, tolerance_px: floa
         z_order = draw_order(np.searchsorted(order, compact) + 1, windows, far) if order else []
         for k, z in zip(order, np.asarray(z_order).tolist()):
             plane = int(present[k - 1])
-            entry = tracks.setdefault(plane, TrackShapes(plane, labels_of.get(plane, "plane")))
+            entry = tracks.setdefault(plane, TrackShapes(plane, labels_of.get(plane, "plane"),
+                                                         attributes={PLANE_ID: str(plane)}))
             entry.shapes[frame.rgb_index] = Shape("polygon", outlines[k], z_order=int(z))
     if size is None:
         raise InputError(run_dir / "report.json", "the run wrote no mask: nothing to export")

@@ -12,7 +12,7 @@ from typing import Callable
 import numpy as np
 
 from annotate_rgbd import __version__
-from annotate_rgbd.annotation.model import Shape
+from annotate_rgbd.annotation.model import PLANE_ID, Shape
 from annotate_rgbd.config.settings import Config, config_to_dict
 from annotate_rgbd.errors import InputError
 from annotate_rgbd.geometry.depth_range import depth_scale_hint, median_raw_depth
@@ -236,7 +236,7 @@ def _run(sequence, folder: OutputFolder, config, poses_path, helpers, progress) 
     for line in group_problems((file, f"{problem}; {outcome}") for file, problem, outcome in problems):
         log.warning("%s", line)
     for track, (_, equation, where) in best.items():
-        tracks[track].attributes = {"equation": equation_text(equation), "equation_frame": where}
+        tracks[track].attributes = {PLANE_ID: str(track), "equation": equation_text(equation), "equation_frame": where}
     ordered = [tracks[t] for t in sorted(tracks)]
     height, width = size if size is not None else (0, 0)
     sampled = sorted(rgb for rgb, position in key_of_rgb.items() if frames[position]["status"] == "written")
@@ -266,7 +266,8 @@ def _run(sequence, folder: OutputFolder, config, poses_path, helpers, progress) 
                     "planes_proposed": sum(len(f.get("planes", ())) for f in frames),
                     "planes_dropped": sum(len(f.get("dropped", ())) for f in frames)},
         "tracks": [{"track": t.track, "colour": track_colour(t.track), "label": t.label,
-                    "cvat_frames": len(t.shapes), **t.attributes} for t in ordered],
+                    "cvat_frames": len(t.shapes), **{k: v for k, v in t.attributes.items() if k != PLANE_ID}}
+                   for t in ordered],
         "frames": frames,
         "skipped": result.skipped,
         "warnings": result.warnings,
