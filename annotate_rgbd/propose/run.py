@@ -264,7 +264,8 @@ def _run(sequence, folder: OutputFolder, config, poses_path, helpers, progress) 
         "summary": {"frames_processed": result.frames, "frames_skipped": len(result.skipped),
                     "frames_failed": len(result.failed), "tracks": result.tracks,
                     "planes_proposed": sum(len(f.get("planes", ())) for f in frames),
-                    "planes_dropped": sum(len(f.get("dropped", ())) for f in frames)},
+                    "planes_dropped": sum(len(f.get("dropped", ())) for f in frames),
+                    "polygons": polygon_summary(frames, settings.max_vertices)},
         "tracks": [{"track": t.track, "colour": track_colour(t.track), "label": t.label,
                     "cvat_frames": len(t.shapes), **{k: v for k, v in t.attributes.items() if k != PLANE_ID}}
                    for t in ordered],
@@ -330,9 +331,30 @@ def _frame_poses(path, sequence, times: np.ndarray, config: Config, warnings: li
 def _plane_records(item: FrameProposal, ids: np.ndarray) -> list[dict]:
     return [
         {"track": int(ids[k]), "area": int(item.areas[k]), "equation": [float(v) for v in item.planes[k]],
-         "mean_distance": float(item.mean_distance[k]), "z_order": int(item.z_order[k])}
+         "mean_distance": float(item.mean_distance[k]), "z_order": int(item.z_order[k]),
+         "vertices": len(item.outlines[k]), "polygon_pixels": int(item.polygon_pixels[k]),
+         "polygon_iou": round(float(item.polygon_iou[k]), 6), "budget_iou_cost": _finite_or_none(item.budget_iou_cost[k])}
         for k in range(len(ids))
     ]
+
+
+def _finite_or_none(value: float) -> float | None:
+    return round(float(value), 6) if np.isfinite(value) else None
+
+
+def polygon_summary(frames: list[dict], max_vertices: int) -> dict:
+    """The polygons of the CVAT keyframes in numbers: how many, their vertices (median, largest),
+    how many the vertex budget stopped, their mean IoU with their planes' pixels and the mean IoU
+    the budget cost the polygons it stopped."""
+    planes = [p for f in frames if f.get("status") == "written" and f.get("cvat_keyframe") for p in f["planes"]]
+    vertices = [p["vertices"] for p in planes]
+    limited = [p["budget_iou_cost"] for p in planes if p["budget_iou_cost"] is not None]
+    return {"polygons": len(planes), "max_vertices": max_vertices,
+            "median_vertices": float(np.median(vertices)) if planes else None,
+            "largest_vertices": max(vertices, default=None),
+            "at_budget": len(limited),
+            "mean_polygon_iou": round(float(np.mean([p["polygon_iou"] for p in planes])), 6) if planes else None,
+            "mean_budget_iou_cost": round(float(np.mean(limited)), 6) if limited else 0.0}
 
 
 def _collect(item: FrameProposal, ids, rgb: int, keyframe: bool, pose, label: str, tracks, best) -> None:
