@@ -505,7 +505,7 @@ def export_cvat_command(
         help="Largest distance of a polygon from its mask's outline, pixels (default 0.5).",
     ),
     max_vertices: Optional[int] = typer.Option(
-        None, "--max-vertices", min=0, metavar="N", help="Vertex budget of each polygon, 0: none (default 100).",
+        None, "--max-vertices", min=0, metavar="N", help="Vertex budget of each polygon, 0: none (default 200).",
     ),
 ) -> None:
     """Write a run's refined masks as CVAT polygon tracks, for a correction round."""

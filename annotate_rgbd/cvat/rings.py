@@ -26,9 +26,12 @@ import numpy as np
 
 #: Candidate edge pairs tested at once by :func:`meeting_edges` (bounds its memory).
 _PAIR_CHUNK = 1 << 20
-#: Times :func:`simplify_ring` simplifies again, with a smaller budget, when the splits that keep the
-#: polygon simple took it past its vertex budget.
-_BUDGET_TRIES = 6
+#: When the splits that keep a polygon simple took it past its vertex budget, :func:`simplify_ring`
+#: simplifies again within this share of the budget (and so on, down to a triangle).
+_BUDGET_STEP = 0.8
+#: How close, in the ring's units (pixels), the bisection of a budget's tolerance comes to the
+#: smallest: a tenth of the quarter-pixel grid the vertices lie on.
+_TOLERANCE_STEP = 0.025
 
 
 def simplify_ring(ring: np.ndarray, tolerance: float, max_vertices: int = 0) -> np.ndarray:
@@ -54,7 +57,7 @@ def simplify_ring(ring: np.ndarray, tolerance: float, max_vertices: int = 0) -> 
     return ring_simplifications(ring, tolerance, [max_vertices])[0]
 
 
-def ring_simplifications(ring: np.ndarray, tolerance: float, budgets) -> list[np.ndarray]:
+def ring_simplifications(ring: np.ndarray, tolerance: float, budgets, anchors=()) -> list[np.ndarray]:
     """:func:`simplify_ring` for several vertex budgets at once.
 
     The polygon at the tolerance is Douglas-Peucker's (``cv2.approxPolyDP`` on the ring, whose
@@ -67,6 +70,9 @@ def ring_simplifications(ring: np.ndarray, tolerance: float, budgets) -> list[np
     tolerance : float
     budgets : sequence of int
         Vertex budgets, each 0 (none) or >= 3.
+    anchors : sequence of int
+        Indices of vertices every polygon keeps; the chains between them are simplified one by
+        one (a polygon keeps more vertices than its budget when the anchors alone exceed it).
 
     Returns
     -------
@@ -78,17 +84,15 @@ def ring_simplifications(ring: np.ndarray, tolerance: float, budgets) -> list[np
         raise ValueError(f"vertex budgets must be 0 or at least 3, got {list(budgets)}")
     if len(ring) <= 3:
         return [np.arange(len(ring)) for _ in budgets]
-    simplify = _Simplifier(ring)
+    simplify = _Simplifier(ring, np.unique(np.asarray(anchors, dtype=np.intp)))
     free = simplify(tolerance)
     results: list[np.ndarray] = []
     simple_free = _repair(ring, free)
     for max_vertices in budgets:
         keep, budget = simple_free, max_vertices
-        for _ in range(_BUDGET_TRIES):
-            if not max_vertices or len(keep) <= max_vertices or budget < 3:
-                break
+        while max_vertices and len(keep) > max_vertices and budget >= 3:
             keep = _repair(ring, simplify.within(tolerance, budget))
-            budget -= len(keep) - max_vertices  # fewer next time, when the repair took it past the budget
+            budget = int(budget * _BUDGET_STEP)  # fewer next time, when the repair took it past the budget
         results.append(keep)
     return results
 
@@ -98,8 +102,9 @@ class _Simplifier:
     integers where its coordinates lie on a quarter grid and its vertices are distinct, else
     :func:`_best_first`."""
 
-    def __init__(self, ring: np.ndarray):
+    def __init__(self, ring: np.ndarray, anchors: np.ndarray):
         self.ring = ring
+        self.anchors = anchors
         scaled = ring * 4.0
         self.points = None
         if np.array_equal(scaled, np.round(scaled)) and np.abs(scaled).max() < 2**30:
@@ -111,24 +116,37 @@ class _Simplifier:
                 self.sorted_keys = keys[self.order]
 
     def __call__(self, tolerance: float) -> np.ndarray:
-        """Ascending indices of the vertices kept at ``tolerance`` (at least 3)."""
+        """Ascending indices of the vertices kept at ``tolerance`` (at least 3), the anchors among them."""
         if self.points is not None:
-            found = cv2.approxPolyDP(self.points, 4.0 * tolerance, closed=True).reshape(-1, 2).astype(np.int64)
-            if len(found) >= 3:
-                return np.sort(self.order[np.searchsorted(self.sorted_keys, (found[:, 0] << 32) + found[:, 1])])
-        return np.asarray(_best_first(self.ring, tolerance, 0), dtype=np.intp)
+            if len(self.anchors) < 2:
+                found = cv2.approxPolyDP(self.points, 4.0 * tolerance, closed=True).reshape(-1, 2)
+            else:  # each chain from anchor to anchor on its own, the last one round the end
+                rolled = np.roll(self.points, -int(self.anchors[0]), axis=0)
+                bounds = np.append(self.anchors - self.anchors[0], len(rolled))
+                found = np.concatenate([
+                    cv2.approxPolyDP(np.concatenate([rolled[a:b], rolled[b % len(rolled)][None]]), 4.0 * tolerance,
+                                     closed=False).reshape(-1, 2)
+                    for a, b in zip(bounds[:-1].tolist(), bounds[1:].tolist())])
+            keys = (found[:, 0].astype(np.int64) << 32) + found[:, 1]
+            kept = np.union1d(self.order[np.searchsorted(self.sorted_keys, keys)], self.anchors)
+            if len(kept) >= 3:
+                return kept
+        return np.union1d(_best_first(self.ring, tolerance, 0), self.anchors).astype(np.intp)
 
     def within(self, tolerance: float, budget: int) -> np.ndarray:
         """The vertices kept at the smallest tolerance (at least ``tolerance``, found by bisection
-        to 1/100,000 of the ring's extent) that leaves at most ``budget`` of them."""
+        to :data:`_TOLERANCE_STEP`) that leaves at most ``budget`` of them."""
         if self.points is None:
-            return np.asarray(_best_first(self.ring, tolerance, budget), dtype=np.intp)
+            return np.union1d(_best_first(self.ring, tolerance, budget), self.anchors).astype(np.intp)
+        extent = float(np.ptp(self.ring, axis=0).max())
         low, high = tolerance, max(tolerance, 0.25)
         keep = self(high)
-        while len(keep) > budget:
+        while len(keep) > budget and high <= extent:  # past the extent: the anchors and a triangle
             low, high = high, 2.0 * high
             keep = self(high)
-        step = 1e-5 * float(np.ptp(self.ring, axis=0).max())
+        if len(keep) > budget:
+            return keep
+        step = _TOLERANCE_STEP
         while high - low > step:
             middle = 0.5 * (low + high)
             trial = self(middle)
@@ -282,9 +300,10 @@ def _repair(ring: np.ndarray, keep: list[int]) -> np.ndarray:
         if len(pairs) == 0:
             break
         closed = keep + [n]
+        farthest = {edge: _farthest(ring, closed[edge], closed[edge + 1]) for edge in np.unique(pairs).tolist()}
         added = set()
-        for edge in np.unique(pairs).tolist():
-            _, split = _farthest(ring, closed[edge], closed[edge + 1])
+        for i, j in pairs.tolist():  # of two edges that meet, the one farther from its chain
+            distance, split = max(farthest[i], farthest[j])
             if split >= 0:
                 added.add(split % n)
         if not added:

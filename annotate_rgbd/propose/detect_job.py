@@ -24,7 +24,8 @@ from annotate_rgbd.geometry.noise import NoiseSettings
 from annotate_rgbd.geometry.planes import Moments, fit_planes, merge_pairs, pool_groups, residual_ms
 from annotate_rgbd.io.sequence import read_depth
 from annotate_rgbd.segment.filters import camera_distances, drop_reasons, statistics_of_distances
-from annotate_rgbd.segment.rasterize import fill_window
+from annotate_rgbd.annotation.model import Shape
+from annotate_rgbd.segment.rasterize import fill_window, shape_mask
 from .extent import assign_in_outlines, piece_windows, plane_scales
 from .objects import neighbour_shares, objects_on_planes
 from .seams import seam_groups
@@ -217,7 +218,7 @@ def propose_planes(
     polygons = [final[k].points for k in range(1, len(areas) + 1)]
     windows = [fill_window(p, *labels.shape) for p in polygons]
     coverage = polygon_coverage(labels, windows)
-    fit = polygon_fit(labels, windows, coverage, [final[k].unlimited for k in range(1, len(areas) + 1)])
+    fit = polygon_fit(labels, polygons, [final[k].unlimited for k in range(1, len(areas) + 1)])
     # What plane_statistics computes, with the distance image shared by its two uses.
     ray_distance = camera_distances(depth, camera)
     valid = ~np.isnan(depth)
@@ -258,17 +259,16 @@ def propose_planes(
     )
 
 
-def polygon_fit(labels: np.ndarray, windows: list, coverage: np.ndarray, unlimited: list) -> tuple[np.ndarray, ...]:
-    """How well each plane's polygon fits its pixels, and what the vertex budget cost.
+def polygon_fit(labels: np.ndarray, polygons: list, unlimited: list) -> tuple[np.ndarray, ...]:
+    """How well each plane's polygon fits its pixels, and what the vertex budget cost, on the
+    pixels ``cvat2mask`` fills (:func:`annotate_rgbd.segment.rasterize.shape_mask`).
 
     Parameters
     ----------
     labels : ndarray of int, shape (H, W)
         Planes 1..K.
-    windows : list of (int, int, ndarray of bool)
-        The filled polygon of each plane (:func:`annotate_rgbd.segment.rasterize.fill_window`).
-    coverage : ndarray of int, shape (K, K)
-        :func:`annotate_rgbd.cvat.from_masks.polygon_coverage` of ``labels`` and ``windows``.
+    polygons : list of ndarray, shape (V, 2)
+        The polygon of each plane.
     unlimited : list of (ndarray or None)
         Each plane's polygon at the tolerance alone, where the budget stopped it earlier.
 
@@ -282,19 +282,21 @@ def polygon_fit(labels: np.ndarray, windows: list, coverage: np.ndarray, unlimit
         IoU of the polygon at the tolerance alone minus ``iou``; NaN where the budget did not
         stop the simplification.
     """
-    areas = np.bincount(labels.ravel(), minlength=len(windows) + 1)[1:]
-    pixels = np.array([np.count_nonzero(w) for _, _, w in windows], dtype=np.int64)
-    inside = np.diagonal(coverage).astype(np.int64) if len(windows) else np.zeros(0, np.int64)
-    iou = inside / np.maximum(pixels + areas - inside, 1)
-    cost = np.full(len(windows), np.nan)
-    for k, polygon in enumerate(unlimited):
-        if polygon is None:
-            continue
-        top, left, window = fill_window(polygon, *labels.shape)
+    areas = np.bincount(labels.ravel(), minlength=len(polygons) + 1)[1:]
+
+    def fit(k: int, polygon: np.ndarray) -> tuple[int, float]:
+        top, left, window = shape_mask(Shape("polygon", polygon), *labels.shape)
         rows, cols = window.shape
-        free_inside = np.count_nonzero(labels[top : top + rows, left : left + cols][window] == k + 1)
-        free_pixels = np.count_nonzero(window)
-        cost[k] = free_inside / max(free_pixels + areas[k] - free_inside, 1) - iou[k]
+        inside = np.count_nonzero(labels[top : top + rows, left : left + cols][window] == k + 1)
+        pixels = np.count_nonzero(window)
+        return pixels, inside / max(pixels + int(areas[k]) - inside, 1)
+
+    pixels, iou = np.zeros(len(polygons), dtype=np.int64), np.zeros(len(polygons))
+    cost = np.full(len(polygons), np.nan)
+    for k, polygon in enumerate(polygons):
+        pixels[k], iou[k] = fit(k, polygon)
+        if unlimited[k] is not None:
+            cost[k] = fit(k, unlimited[k])[1] - iou[k]
     return pixels, iou, cost
 
 

@@ -6,18 +6,21 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 from lxml import etree
 from scipy.spatial.transform import Rotation
 from typer.testing import CliRunner
 
+from annotate_rgbd.annotation.model import Shape
 from annotate_rgbd.geometry.camera import Camera
 from annotate_rgbd.cli import app
 from annotate_rgbd.config.settings import Config, load_config
 from annotate_rgbd.io.labelmaps import read_label_map
 from annotate_rgbd.evaluate.metrics import frame_statistics
 from annotate_rgbd.pipeline.scene import run_cvat2mask
+from annotate_rgbd.segment.rasterize import shape_mask
 from annotate_rgbd.propose import run_propose
 from annotate_rgbd.io.sequence import read_sequence
 from annotate_rgbd.synthetic import make_sequence, room_trajectory
@@ -95,8 +98,6 @@ def score(sequence: Path, masks: Path) -> dict[str, float]:
 
 
 def _colour_of(path: Path, where: np.ndarray) -> int:
-    import cv2
-
     image = cv2.imread(str(path)).astype(np.int64)
     b, g, r = image[where][0]
     return int(r << 16 | g << 8 | b)
@@ -141,6 +142,50 @@ def test_report_and_proposals_agree(room):
         for plane in frame["planes"]:
             assert len(plane["equation"]) == 4 and abs(np.linalg.norm(plane["equation"][:3]) - 1) < 1e-6
     assert {t["equation_frame"] for t in report["tracks"]} == {"world"}
+
+
+def keyframe_polygons(xml: Path) -> list[tuple[int, int, np.ndarray]]:
+    """(track, frame, points) of every keyframe polygon of a CVAT video export."""
+    from annotate_rgbd.cvat import read_cvat
+
+    return [(t.track_id, f, t.shapes[f].points) for t in read_cvat(xml).tracks for f in sorted(t.keyframes)]
+
+
+def test_proposals_are_simple_and_within_the_vertex_budget(room):
+    shapely = pytest.importorskip("shapely", reason="shapely (a test tool): pip install -e '.[test]'")
+    sequence, root = room
+    polygons = keyframe_polygons(root / "posed" / "proposals.xml")
+    assert polygons
+    budget = Config().propose.max_vertices
+    for _, _, points in polygons:
+        assert shapely.Polygon(points).is_valid and shapely.LinearRing(points).is_simple
+        assert 3 <= len(points) <= budget
+    # The report tells each keyframe polygon's vertices and its IoU with the plane's pixels.
+    report = json.loads((root / "posed" / "report.json").read_text())
+    drawn = {(t, f): p for t, f, p in polygons}
+    checked = 0
+    for frame in report["frames"]:
+        if frame["status"] != "written" or not frame["cvat_keyframe"]:
+            continue
+        image = cv2.imread(str(root / "posed" / frame["mask"]))
+        for plane in frame["planes"]:
+            points = drawn[(plane["track"], frame["rgb_index"])]
+            assert plane["vertices"] == len(points)
+            hex_colour = next(t["colour"] for t in report["tracks"] if t["track"] == plane["track"])
+            bgr = tuple(int(hex_colour[i : i + 2], 16) for i in (5, 3, 1))
+            mask = (image == bgr).all(axis=-1)
+            top, left, window = shape_mask(Shape("polygon", points), *mask.shape)
+            inside = np.zeros_like(mask)
+            inside[top : top + window.shape[0], left : left + window.shape[1]] = window
+            iou = np.count_nonzero(inside & mask) / np.count_nonzero(inside | mask)
+            assert abs(iou - plane["polygon_iou"]) < 0.01, (iou, plane)
+            if plane["budget_iou_cost"] is not None:  # the budget stopped this polygon's simplification
+                assert -0.05 < plane["budget_iou_cost"] < 0.2
+            checked += 1
+    summary = report["summary"]["polygons"]
+    assert summary["polygons"] == checked and summary["largest_vertices"] <= budget
+    assert summary["at_budget"] == sum(p["budget_iou_cost"] is not None for f in report["frames"]
+                                       if f["status"] == "written" and f["cvat_keyframe"] for p in f["planes"])
 
 
 def test_datumaro_reads_the_proposals(room):
@@ -194,8 +239,6 @@ def test_export_cvat_round_trip_on_the_sample(sample_round_trip):
 def colour_agreement(first: Path, second: Path) -> float:
     """Of the pixels that both runs' colour masks label, the share that has the same colour in
     both (frames of both runs)."""
-    import cv2
-
     same = both = 0
     for path in sorted((first / "masks").iterdir()):
         a, b = cv2.imread(str(path)), cv2.imread(str(second / "masks" / path.name))
@@ -220,6 +263,24 @@ def test_export_cvat_round_trip_keeps_plane_ids_and_colours(sample_round_trip):
     assert colour_agreement(first, second) >= 0.998
     before, after = plane_table(first), plane_table(second)
     assert after and all(before[plane] == entry for plane, entry in after.items())
+
+
+def test_export_cvat_polygons_are_simple_and_within_the_budget(sample_round_trip, tmp_path):
+    shapely = pytest.importorskip("shapely", reason="shapely (a test tool): pip install -e '.[test]'")
+    first, _, xml = sample_round_trip
+    from annotate_rgbd.config.propose import EXPORT_MAX_VERTICES
+
+    for _, _, points in keyframe_polygons(xml):
+        assert shapely.Polygon(points).is_valid and shapely.LinearRing(points).is_simple
+        assert len(points) <= EXPORT_MAX_VERTICES
+    small = tmp_path / "small.xml"
+    outcome = CliRunner().invoke(app, ["export-cvat", str(first), str(small), "--max-vertices", "12", "--tolerance", "1"])
+    assert outcome.exit_code == 0, outcome.output
+    counts = [len(points) for _, _, points in keyframe_polygons(small)]
+    assert max(counts) <= 12 and max(counts) > 4
+    outcome = CliRunner().invoke(app, ["export-cvat", str(first), str(tmp_path / "bad.xml"), "--max-vertices", "2"])
+    assert outcome.exit_code != 0 and "at least 3 vertices" in outcome.output
+    assert not (tmp_path / "bad.xml").exists()
 
 
 def test_a_track_added_in_cvat_gets_an_unused_plane_id(sample_round_trip, tmp_path):
