@@ -20,9 +20,10 @@ from annotate_rgbd.geometry.lift import plane_to_world
 from annotate_rgbd.pool import default_workers, run_jobs, start_helpers
 from annotate_rgbd.io.poses import load_trajectory, missing_poses_text, poses_at
 from annotate_rgbd.io.sequence import associate, read_depth, read_sequence
-from annotate_rgbd.io.outdir import MASKS, OutputFolder, read_bounded, remove_stale_files
+from annotate_rgbd.io.outdir import MASKS, OutputFolder, read_bounded, remove_review_files, remove_stale_files
 from annotate_rgbd.io.writer import write_json
 from annotate_rgbd.logs import group_problems
+from annotate_rgbd.report.run_folder import write_drawn_shapes
 from .detect_job import DetectJob, FrameProposal, FrameTooSmall, keep_planes, propose_frame
 from .link import TrackLinker
 from .persist import PersistenceFilter
@@ -72,8 +73,8 @@ def run_propose(
     workers: int | None = None,
     progress: Callable[[int, int], None] | None = None,
 ) -> ProposeResult:
-    """Propose planes on a sequence's depth frames and write ``proposals.xml``, ``masks/`` and
-    ``report.json`` into ``out_dir``.
+    """Propose planes on a sequence's depth frames and write ``proposals.xml``, ``masks/``,
+    ``report.json`` and the record of every mask's polygons (which ``review`` draws) into ``out_dir``.
 
     Parameters
     ----------
@@ -167,6 +168,7 @@ def _run(sequence, folder: OutputFolder, config, poses_path, helpers, progress) 
     tracks: dict[int, TrackShapes] = {}
     best: dict[int, tuple[int, np.ndarray, str]] = {}  # track -> (area, equation, frame) for the attribute
     frames: list[dict] = []
+    drawn: list[tuple[str, list, list]] = []  # each written mask's polygons (nothing carried), for review
     waiting: dict[int, FrameProposal | InputError] = {}
     size = None
     problems: list[tuple[str, str, str]] = []  # (depth file, problem, outcome): said once per problem
@@ -187,6 +189,8 @@ def _run(sequence, folder: OutputFolder, config, poses_path, helpers, progress) 
         size = item.labels.shape
         mask_name = Path(sequence.depth.files[i]).name
         write_colour_mask(out_dir / MASKS_DIR / mask_name, item.labels, ids)
+        drawn.append((f"{MASKS_DIR}/{mask_name}", [(int(t), Shape("polygon", item.outlines[k], z_order=int(item.z_order[k])))
+                                                    for k, t in enumerate(ids.tolist())], []))
         keyframe = key_of_rgb[int(nearest[i])] == decided.position
         frames.append({**record, "status": "written", "mask": f"{MASKS_DIR}/{mask_name}",
                        "cvat_keyframe": keyframe, "planes": _plane_records(item, ids), "dropped": item.dropped})
@@ -247,12 +251,14 @@ def _run(sequence, folder: OutputFolder, config, poses_path, helpers, progress) 
     result.tracks = len(ordered)
     written = {f["mask"] for f in frames if f["status"] == "written"}
     cleanup = remove_stale_files(out_dir, ours | folder.expected, written)
+    cleanup.foreign += remove_review_files(out_dir)  # an earlier review shows the earlier proposals
     for line in cleanup.removals():
         log.info(line)
     for line in cleanup.warnings():
         log.warning(line)
     if not sampled:
         (out_dir / PROPOSALS_NAME).unlink(missing_ok=True)  # an earlier run's: it shows none of these frames
+    write_drawn_shapes(out_dir, drawn)  # what review draws
     write_json(out_dir / REPORT_NAME, {
         "tool": "annotate-rgbd propose", "version": __version__,
         "inputs": {"sequence": str(sequence.root), "poses": None if poses_path is None else str(poses_path),
