@@ -366,7 +366,9 @@ def evaluate(
 
 @app.command()
 def review(
-    out_dir: Path = typer.Argument(..., metavar="RUN_DIR", help="Output folder of a finished cvat2mask run."),
+    out_dir: Path = typer.Argument(
+        ..., metavar="RUN_DIR", help="Output folder of a finished cvat2mask run, or of propose (its proposals)."
+    ),
     overlays: bool = typer.Option(True, "--overlays/--no-overlays", help="Segment the frames again and write overlays/."),
     page: bool = typer.Option(True, "--page/--no-page", help="Write review.html."),
     sheet: bool = typer.Option(True, "--sheet/--no-sheet", help="Write contact_sheet.png from overlays/."),
