@@ -6,14 +6,20 @@ the package's own edge test; pixels by the package's rasteriser, which the CVAT 
 
 from __future__ import annotations
 
+import json
+
 import cv2
 import numpy as np
 import pytest
+from conftest import reference_data
 from scipy import ndimage
 
 from annotate_rgbd.annotation.model import Shape
+from annotate_rgbd.config.settings import load_config
+from annotate_rgbd.cvat import read_cvat
 from annotate_rgbd.cvat.from_masks import outline_planes, plane_outlines
 from annotate_rgbd.cvat.rings import meeting_edges, simplify_ring
+from annotate_rgbd.propose import run_propose
 from annotate_rgbd.segment.rasterize import rasterize_frame
 
 shapely = pytest.importorskip("shapely", reason="shapely (a test tool): pip install -e '.[test]'")
@@ -118,3 +124,19 @@ def test_meeting_edges_agrees_with_shapely(seed):
         assert len(meeting_edges(points)) > 0  # a repeated vertex is never simple
         return
     assert (len(meeting_edges(points)) == 0) == is_simple(points), points.tolist()
+
+
+def test_outlines_of_real_proposals_are_simple_and_small(tmp_path):
+    """TUM fr1_rpy's proposals (propose on every 10th of its 30 frames): every polygon simple and
+    within the budget, the budget's cost in IoU with the planes' pixels small on average."""
+    sequence = reference_data("tum_fr1_rpy")
+    out = tmp_path / "out"
+    run_propose(sequence, out, load_config("fr1_desk", {"propose.every": 10}), workers=1)
+    report = json.loads((out / "report.json").read_text())
+    polygons = [t.shapes[f].points for t in read_cvat(out / "proposals.xml").tracks for f in sorted(t.keyframes)]
+    assert polygons
+    for points in polygons:
+        assert is_simple(points) and len(points) <= 100
+    summary = report["summary"]["polygons"]
+    assert summary["polygons"] == len(polygons) and summary["mean_polygon_iou"] > 0.85
+    assert summary["mean_budget_iou_cost"] < 0.06
