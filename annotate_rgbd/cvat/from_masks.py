@@ -163,7 +163,8 @@ def _outlines(labels: np.ndarray, tolerance_px: float, max_vertices: int, min_pi
             anchors = corridor_ends(contour, corridors)
             if not max_vertices or most == 1 or 3 * len(anchors) <= max_vertices:
                 break
-            most -= 1
+            # Fewer pieces, in proportion to the ends too many (at least one fewer).
+            most = max(1, min(most - 1, int(most * max_vertices / (3 * len(anchors)))))
         ring = to_image(contour, window[1].start, window[0].start)
         outlines[label] = simple_outline(ring, tolerance_px, max_vertices, anchors)
     return outlines
@@ -277,9 +278,11 @@ def piece_corridors(region: np.ndarray, pieces: np.ndarray, kept: list[int]) -> 
     while remaining:
         tree = cKDTree(points[joined])
         for k in remaining:
-            distance, index = tree.query(points[k])
+            # Only a nearer pair than the best so far matters: the search stops at its distance.
+            bound = best[k][0] if k in best else np.inf
+            distance, index = tree.query(points[k], distance_upper_bound=bound)
             i = int(np.argmin(distance))
-            if k not in best or distance[i] < best[k][0]:
+            if distance[i] < bound:
                 best[k] = (float(distance[i]), i, joined, int(index[i]))
         joined = min(remaining, key=lambda k: (best[k][0], kept.index(k)))
         _, i, other, j = best[joined]

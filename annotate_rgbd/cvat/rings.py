@@ -30,8 +30,8 @@ _PAIR_CHUNK = 1 << 20
 #: simplifies again within this share of the budget (and so on, down to a triangle).
 _BUDGET_STEP = 0.8
 #: How close, in the ring's units (pixels), the bisection of a budget's tolerance comes to the
-#: smallest: a tenth of the quarter-pixel grid the vertices lie on.
-_TOLERANCE_STEP = 0.025
+#: smallest (a tenth of a pixel: the tolerances of the steps around it keep nearly the same vertices).
+_TOLERANCE_STEP = 0.1
 
 
 def simplify_ring(ring: np.ndarray, tolerance: float, max_vertices: int = 0) -> np.ndarray:

@@ -135,8 +135,9 @@ def test_outlines_of_real_proposals_are_simple_and_small(tmp_path):
     report = json.loads((out / "report.json").read_text())
     polygons = [t.shapes[f].points for t in read_cvat(out / "proposals.xml").tracks for f in sorted(t.keyframes)]
     assert polygons
+    budget = load_config("fr1_desk").propose.max_vertices
     for points in polygons:
-        assert is_simple(points) and len(points) <= 100
+        assert is_simple(points) and len(points) <= budget
     summary = report["summary"]["polygons"]
     assert summary["polygons"] == len(polygons) and summary["mean_polygon_iou"] > 0.85
     assert summary["mean_budget_iou_cost"] < 0.06
