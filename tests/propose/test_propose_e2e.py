@@ -321,6 +321,19 @@ def test_cvat2mask_on_proposals_keeps_the_track_ids(room):
     assert colour_agreement(root / "posed", root / "refined") >= 0.99
 
 
+def test_export_cvat_round_trip_on_the_rendered_room_keeps_the_colours(room, tmp_path):
+    # The refined run on the rendered room (plane ids = proposal tracks, with gaps where tracks
+    # were dropped) through export-cvat and cvat2mask again.
+    sequence, root = room
+    xml = tmp_path / "round2.xml"
+    outcome = CliRunner().invoke(app, ["export-cvat", str(root / "refined"), str(xml)])
+    assert outcome.exit_code == 0, outcome.output
+    run_cvat2mask(sequence, [xml], tmp_path / "second", Config(), workers=1)
+    assert colour_agreement(root / "refined", tmp_path / "second") >= 0.995
+    before, after = plane_table(root / "refined"), plane_table(tmp_path / "second")
+    assert after and all(before[plane] == entry for plane, entry in after.items())
+
+
 def test_datumaro_reads_the_export(sample_round_trip):
     datumaro = pytest.importorskip("datumaro", reason="datumaro: pip install '.[interop]'")
     first, _, xml = sample_round_trip
