@@ -369,7 +369,7 @@ def review(
     out_dir: Path = typer.Argument(
         ..., metavar="RUN_DIR", help="Output folder of a finished cvat2mask run, or of propose (its proposals)."
     ),
-    overlays: bool = typer.Option(True, "--overlays/--no-overlays", help="Segment the frames again and write overlays/."),
+    overlays: bool = typer.Option(True, "--overlays/--no-overlays", help="Draw overlays/ from the run's records (masks, drawn shapes, RGB frames); nothing is segmented again."),
     page: bool = typer.Option(True, "--page/--no-page", help="Write review.html."),
     sheet: bool = typer.Option(True, "--sheet/--no-sheet", help="Write contact_sheet.png from overlays/."),
     jobs: Optional[int] = typer.Option(None, "--jobs", "-j", min=1, metavar="N", help="Worker processes (default: all cores)."),
