@@ -340,8 +340,10 @@ def evaluate(
 
 @app.command()
 def review(
-    out_dir: Path = typer.Argument(..., metavar="RUN_DIR", help="Output folder of a finished cvat2mask run."),
-    overlays: bool = typer.Option(True, "--overlays/--no-overlays", help="Segment the frames again and write overlays/."),
+    out_dir: Path = typer.Argument(
+        ..., metavar="RUN_DIR", help="Output folder of a finished cvat2mask run, or of propose (its proposals)."
+    ),
+    overlays: bool = typer.Option(True, "--overlays/--no-overlays", help="Draw overlays/ from the run's records (masks, drawn shapes, RGB frames); nothing is segmented again."),
     page: bool = typer.Option(True, "--page/--no-page", help="Write review.html."),
     sheet: bool = typer.Option(True, "--sheet/--no-sheet", help="Write contact_sheet.png from overlays/."),
     jobs: Optional[int] = typer.Option(None, "--jobs", "-j", min=1, metavar="N", help="Worker processes (default: all cores)."),
@@ -474,6 +476,13 @@ def propose(
 def export_cvat_command(
     run_dir: Path = typer.Argument(..., metavar="RUN_DIR", help="Output folder of a finished cvat2mask run."),
     xml: Path = typer.Argument(..., metavar="FILE.xml", help="The CVAT for video 1.1 XML file to write."),
+    tolerance: Optional[float] = typer.Option(
+        None, "--tolerance", min=0.0, metavar="PX",
+        help="Largest distance of a polygon from its mask's outline, pixels (default 0.5).",
+    ),
+    max_vertices: Optional[int] = typer.Option(
+        None, "--max-vertices", min=0, metavar="N", help="Vertex budget of each polygon, 0: none (default 200).",
+    ),
 ) -> None:
     """Write a run's refined masks as CVAT polygon tracks, for a correction round."""
     from annotate_rgbd.export.cvat import export_cvat
@@ -481,7 +490,8 @@ def export_cvat_command(
     with user_errors():
         from annotate_rgbd.io.writer import names_stdout
 
-        count = export_cvat(run_dir, xml)
+        polygons = {k: v for k, v in (("tolerance_px", tolerance), ("max_vertices", max_vertices)) if v is not None}
+        count = export_cvat(run_dir, xml, **polygons)
         # Into standard output the XML goes alone: the summary to standard error.
         typer.echo(f"{count} plane tracks: {xml}", err=names_stdout(xml))
 

@@ -16,6 +16,12 @@ import numpy as np
 #: Shape kinds that carry an area and become plane masks.
 AREA_KINDS = ("polygon", "box", "mask")
 
+#: The track attribute that carries a plane's id through CVAT: ``propose`` and ``export-cvat``
+#: write it into every track (CVAT renumbers track ids on upload, but keeps the attributes its
+#: labels declare), and ``cvat2mask`` gives a track that carries it that plane id, and so its
+#: colour (:func:`annotate_rgbd.annotation.stitch.assign_planes`).
+PLANE_ID = "plane_id"
+
 
 @dataclass(frozen=True)
 class Shape:
@@ -62,8 +68,9 @@ class Track:
         The frames whose shape the labeller drew (CVAT's keyframes); the others were filled in
         by interpolation. None: every shape was drawn (an images export, a rendered sequence).
     attributes : dict of str to str
-        CVAT attributes of the track (name -> text value), e.g. a proposed plane's equation;
-        written by :func:`annotate_rgbd.cvat.write_cvat_video`. Empty when read from an export.
+        CVAT attributes of the track (name -> text value), e.g. a proposed plane's equation or
+        its :data:`PLANE_ID`; written by :func:`annotate_rgbd.cvat.write_cvat_video` into every
+        shape, and read back from a video export (the first value of each name along the track).
     """
 
     track_id: int

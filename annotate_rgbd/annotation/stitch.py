@@ -7,8 +7,17 @@ planes; a plane that leaves view in one part and returns in a later one stays a 
 a manual entry says otherwise. Manual entries (``[[matches]]`` in the configuration) override
 the automatic matching.
 
-Plane ids are given in order of first appearance: part by part (in sequence order), new tracks
-by ascending track id, so the ids of earlier parts never depend on later ones.
+A track that carries a plane id (the :data:`~annotate_rgbd.annotation.model.PLANE_ID` attribute
+that ``propose`` and ``export-cvat`` write) keeps it, ahead of the automatic matching: a correction
+round in CVAT keeps every plane's id and colour. Two tracks of one part that carry the same id
+are one plane when they are never visible on the same frame (CVAT's "split" gives both halves the
+attribute); otherwise the first keeps it and the other is a new plane (a copied shape keeps its
+attributes too).
+
+Other plane ids are given in order of first appearance: part by part (in sequence order), new
+tracks by ascending track id, starting above the largest id any track carries, so that a track
+the labeller added never takes the id (and colour) of a plane of an earlier round; without
+carried ids, the ids of earlier parts never depend on later ones.
 """
 
 from __future__ import annotations
@@ -21,6 +30,8 @@ from scipy.optimize import linear_sum_assignment
 
 from annotate_rgbd.config.settings import MatchConfig
 from annotate_rgbd.errors import InputError
+from annotate_rgbd.io.limits import MAX_PLANES
+from .model import PLANE_ID, Track
 from .parts import Part, part_name
 
 #: How a track got its plane, as written to ``tracks.csv``.
@@ -28,6 +39,7 @@ FIRST_PART = "first"
 AUTOMATIC = "auto"
 MANUAL = "manual"
 NEW = "new"
+CARRIED = PLANE_ID  # the track's plane_id attribute
 
 
 @dataclass(frozen=True)
@@ -42,16 +54,75 @@ class PartTracks:
         Its CVAT track ids, ascending.
     labels : list of str
         The CVAT label of each track.
+    plane_ids : tuple of (int or None)
+        The plane id each track carries (:func:`carried_plane_ids`); empty: none.
+    problems : tuple of str
+        The carried ids left unused, one line each (the run's warnings).
     """
 
     name: str
     track_ids: list[int]
     labels: list[str]
+    plane_ids: tuple[int | None, ...] = ()
+    problems: tuple[str, ...] = ()
 
     @classmethod
     def of(cls, part: Part) -> "PartTracks":
-        """The tracks of a placed part, by track id."""
-        return cls(part.name, [t.track_id for t in part.tracks_by_id], [t.label for t in part.tracks_by_id])
+        """The tracks of a placed part, by track id, with the plane ids they carry."""
+        tracks = part.tracks_by_id
+        plane_ids, problems = carried_plane_ids(tracks, part.name)
+        return cls(part.name, [t.track_id for t in tracks], [t.label for t in tracks], tuple(plane_ids), tuple(problems))
+
+    def carried(self, t: int) -> int | None:
+        """The plane id the ``t``-th track carries, if any."""
+        return self.plane_ids[t] if t < len(self.plane_ids) else None
+
+
+def carried_plane_ids(tracks: Sequence[Track], part: str) -> tuple[list[int | None], list[str]]:
+    """The plane id each track carries (:data:`~annotate_rgbd.annotation.model.PLANE_ID`), and
+    one line per attribute left unused.
+
+    A value that is no plane id (an integer 1..MAX_PLANES) is not used. Of two tracks that carry
+    the same id and are visible on a common frame, the later one (by position) does not keep it.
+
+    Parameters
+    ----------
+    tracks : sequence of Track
+        One part's tracks, by track id.
+    part : str
+        The part's name, for the lines.
+
+    Returns
+    -------
+    plane_ids : list of int or None
+        One per track.
+    problems : list of str
+    """
+    plane_ids: list[int | None] = []
+    problems: list[str] = []
+    holders: dict[int, list[Track]] = {}
+    for track in tracks:
+        text = track.attributes.get(PLANE_ID)
+        if text is None or text == "":
+            plane_ids.append(None)
+            continue
+        value = int(text) if text.isascii() and text.isdigit() and len(text) <= 6 else 0
+        if not 1 <= value <= MAX_PLANES:
+            problems.append(f"{part} track {track.track_id}: {PLANE_ID} {text[:20]!r} is no plane id "
+                            f"(1 to {MAX_PLANES}): the track is matched as if it carried none")
+            plane_ids.append(None)
+            continue
+        clash = next((other for other in holders.get(value, []) if other.shapes.keys() & track.shapes.keys()), None)
+        if clash is not None:
+            common = min(clash.shapes.keys() & track.shapes.keys())
+            problems.append(f"{part} tracks {clash.track_id} and {track.track_id} both carry {PLANE_ID} {value} and are "
+                            f"both visible on frame {common}: track {track.track_id} is matched as if it carried none "
+                            f"(a copied shape keeps its attributes: clear {PLANE_ID} on a new plane's track)")
+            plane_ids.append(None)
+            continue
+        holders.setdefault(value, []).append(track)
+        plane_ids.append(value)
+    return plane_ids, problems
 
 
 @dataclass(frozen=True)
@@ -149,7 +220,9 @@ def assign_planes(
     index_of = {part.name: k for k, part in enumerate(parts)}
     pins = _manual_pins(parts, index_of, manual, config_origin)
     result: dict[tuple[int, int], TrackPlane] = {}
-    next_plane = 1
+    # Fresh ids start above every carried one: none can take a plane of an earlier round.
+    next_plane = 1 + max((p for part in parts for p in part.plane_ids if p is not None), default=0)
+    known: set[int] = set()  # the planes given so far
     for k, part in enumerate(parts):
         claimed: dict[int, TrackPlane] = {}
         # Manual entries first: they take their tracks out of the automatic matching.
@@ -161,7 +234,7 @@ def assign_planes(
                 claimed[t] = TrackPlane(part.name, track, part.labels[t], next_plane, MANUAL)
                 next_plane += 1
             elif isinstance(pin, int):
-                if pin >= next_plane:
+                if pin not in known:
                     raise InputError(config_origin, f"[[matches]] {part.name} track {track}: no earlier part has plane {pin}")
                 claimed[t] = TrackPlane(part.name, track, part.labels[t], pin, MANUAL)
             else:
@@ -169,6 +242,12 @@ def assign_planes(
                 claimed[t] = TrackPlane(
                     part.name, track, part.labels[t], other.plane, MANUAL, None, other.part, other.track
                 )
+            known.add(claimed[t].plane)
+        # Then the plane ids the tracks carry.
+        for t, track in enumerate(part.track_ids):
+            carried = part.carried(t)
+            if t not in claimed and carried is not None:
+                claimed[t] = TrackPlane(part.name, track, part.labels[t], carried, CARRIED)
         automatic: dict[int, tuple[int, float]] = {}
         if k > 0:
             previous = parts[k - 1]
@@ -191,6 +270,7 @@ def assign_planes(
             else:
                 result[(k, track)] = TrackPlane(part.name, track, part.labels[t], next_plane, FIRST_PART if k == 0 else NEW)
                 next_plane += 1
+            known.add(result[(k, track)].plane)
     return list(result.values())
 
 

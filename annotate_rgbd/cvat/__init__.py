@@ -13,7 +13,9 @@ produce exports for fixtures, sample data, proposals and tests. One job per modu
 - :mod:`~annotate_rgbd.cvat.codecs`: mask RLE and rotated boxes (pure);
 - :mod:`~annotate_rgbd.cvat.tracks`: track semantics, keyframes, interpolation (no XML);
 - :mod:`~annotate_rgbd.cvat.notes`: what reading noticed, for the report;
-- :mod:`~annotate_rgbd.cvat.writer`: :func:`write_cvat_video`, :func:`write_cvat_images`.
+- :mod:`~annotate_rgbd.cvat.writer`: :func:`write_cvat_video`, :func:`write_cvat_images`;
+- :mod:`~annotate_rgbd.cvat.from_masks`: label masks -> the polygons and drawing order written for CVAT;
+- :mod:`~annotate_rgbd.cvat.rings`: simple polygons from traced outlines, under a vertex budget.
 
 Rules the reader follows (checked against CVAT's exporter and interpolation code):
 
@@ -37,6 +39,9 @@ Rules the reader follows (checked against CVAT's exporter and interpolation code
   :class:`~annotate_rgbd.errors.InputError`. A self-intersecting polygon is used as drawn
   (filled by the even-odd rule); those a labeller drew (not CVAT's interpolated frames) are
   counted in a note, so that they can be fixed.
+- **Track attributes** (``<attribute>`` children of a video track's shapes, as CVAT writes them)
+  become :attr:`~annotate_rgbd.annotation.model.Track.attributes`, the first value of each name;
+  a ``plane_id`` carries a plane's id through a correction round.
 
 A zip archive (CVAT's download) is read in place: its top-level ``annotations.xml`` (or its one
 ``.xml``), streamed and never extracted, at most :data:`MAX_ARCHIVE_XML_BYTES` unpacked. A COCO,

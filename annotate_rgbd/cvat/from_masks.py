@@ -4,9 +4,13 @@ What ``propose`` writes for its detections and ``export-cvat`` for a finished ru
 that ``cvat2mask`` reads them back to nearly the same masks:
 
 - :func:`plane_outlines`: the outer outline of each label's largest piece;
-- :func:`piece_outlines`: one polygon per label that covers all its pieces (CVAT tracks hold
-  one shape per frame), bridged into one outline;
+- :func:`outline_planes` (and :func:`piece_outlines`, its polygons alone): one polygon per label
+  that covers all its pieces (CVAT tracks hold one shape per frame);
 - :func:`draw_order`: the ``z_order`` that puts the plane whose pixels fill an overlap on top.
+
+Every polygon is simple (no two edges cross or touch: :mod:`annotate_rgbd.cvat.rings`), within
+a tolerance of the traced outline and, where asked, within a vertex budget: what a labeller can
+correct by dragging a few vertices.
 
 CVAT (and :mod:`annotate_rgbd.segment.rasterize`) puts the centre of pixel ``(col, row)`` at
 ``(col + 0.5, row + 0.5)`` and fills a polygon with the pixels whose centres it contains. An
@@ -15,25 +19,63 @@ border (its right and bottom pixels fall on the outline, which the half-open rul
 So the region is traced on a grid twice as fine: there the border runs through points a quarter
 of a pixel inside the region's edge, which puts every border pixel's centre a quarter of a
 pixel inside the outline and every outside centre a quarter of a pixel outside it.
+
+Before tracing, a region is made one piece whose pixels meet along edges: the pieces of a plane
+(a floor on both sides of a table) are joined by one-pixel-wide corridors, each piece to the
+nearest one already joined (Prim's minimum spanning tree over the pieces' border pixels), and
+two pixels that touch only at a corner get one of the two pixels beside them. Traced outlines of
+such regions never touch themselves; the corridors and corner pixels are the few pixels the
+polygon covers beyond the mask (besides holes, which it fills).
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import cv2
 import numpy as np
 from scipy import ndimage
+from scipy.spatial import cKDTree
+
+from .rings import ring_simplifications
 
 #: Pieces of a plane's mask smaller than this are left out of its polygon (speckle, not area).
 MIN_PIECE_PX = 20
+#: Under a vertex budget ``V`` a polygon joins at most ``V // VERTICES_PER_PIECE`` pieces (the
+#: largest), fewer while the corridors' ends take more than a third of the budget: each corridor
+#: keeps its four ends (more where it crosses a piece), and a piece needs vertices of its own. On
+#: TUM fr1_rpy a desk of twelve pieces, its corridors with 80 ends, kept IoU 0.20 with its pixels
+#: under a budget of 100; of the largest five pieces (32 ends) 0.91. At most 4 pieces instead
+#: cost the 30 rendered room frames 0.018 of cvat2mask's precision at IoU 0.8.
+VERTICES_PER_PIECE = 8
+#: The 4-neighbourhood: a border pixel has a neighbour outside across an edge.
+_CROSS = cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3))
 
 
-def plane_outlines(labels: np.ndarray, tolerance_px: float = 1.5) -> dict[int, np.ndarray]:
+@dataclass(frozen=True)
+class Outline:
+    """The polygon of one label.
+
+    Attributes
+    ----------
+    points : ndarray of float64, shape (V, 2)
+        ``(x, y)`` vertices in CVAT pixel coordinates, V >= 3, a simple polygon.
+    unlimited : ndarray of float64, shape (U, 2), optional
+        The polygon at the tolerance alone, where the vertex budget stopped the simplification
+        earlier (U > V); None where it did not.
+    """
+
+    points: np.ndarray
+    unlimited: np.ndarray | None = None
+
+
+def plane_outlines(labels: np.ndarray, tolerance_px: float = 1.5, max_vertices: int = 0) -> dict[int, np.ndarray]:
     """The outer outline of each label, simplified, in CVAT pixel coordinates.
 
     Each label gets one polygon: the outer boundary of its largest connected piece
-    (8-connected; by area enclosed, ties to the first found in raster order), holes filled.
+    (8-connected; by pixels, ties to the first found in raster order), holes filled.
     Smaller pieces are left out: a proposal is one polygon per plane, and the labeller
-    corrects it. Simplification is Douglas-Peucker (``cv2.approxPolyDP``).
+    corrects it.
 
     Parameters
     ----------
@@ -41,13 +83,58 @@ def plane_outlines(labels: np.ndarray, tolerance_px: float = 1.5) -> dict[int, n
         0 = no plane, else plane labels.
     tolerance_px : float
         Largest distance of the simplified outline from the traced one, in pixels.
+    max_vertices : int
+        Vertex budget of each polygon (0: none; see :func:`annotate_rgbd.cvat.rings.simplify_ring`).
 
     Returns
     -------
     dict of int to ndarray of float64, shape (V, 2)
-        ``(x, y)`` vertices per label present, V >= 3, in ascending label order. A piece too
-        small to simplify to 3 vertices keeps its traced outline.
+        ``(x, y)`` vertices per label present, V >= 3, in ascending label order; simple polygons.
     """
+    labels = _check_labels(labels, tolerance_px)
+    return {k: o.points for k, o in _outlines(labels, tolerance_px, max_vertices, None).items()}
+
+
+def outline_planes(labels: np.ndarray, tolerance_px: float, max_vertices: int = 0,
+                   min_piece: int = MIN_PIECE_PX) -> dict[int, Outline]:
+    """One simple polygon per label that covers all its pieces, not only the largest.
+
+    The pieces (8-connected) of at least ``min_piece`` pixels (the largest one when none is
+    that large) are joined by corridors and traced as one region (see the module docstring);
+    its outline is simplified within ``tolerance_px`` and ``max_vertices``.
+
+    Parameters
+    ----------
+    labels : ndarray of int, shape (H, W)
+        0 = none, else 1..K.
+    tolerance_px : float
+        Largest distance of the polygon from the traced outline, pixels.
+    max_vertices : int
+        Vertex budget of each polygon (0: none).
+    min_piece : int
+        Smallest piece, pixels.
+
+    Returns
+    -------
+    dict of int to Outline
+        Per label present, in ascending label order.
+    """
+    labels = _check_labels(labels, tolerance_px)
+    return _outlines(labels, tolerance_px, max_vertices, min_piece)
+
+
+def piece_outlines(labels: np.ndarray, tolerance_px: float, min_piece: int = MIN_PIECE_PX,
+                   max_vertices: int = 0) -> dict[int, np.ndarray]:
+    """The polygons of :func:`outline_planes` alone.
+
+    Returns
+    -------
+    dict of int to ndarray of float64, shape (V, 2)
+    """
+    return {k: o.points for k, o in outline_planes(labels, tolerance_px, max_vertices, min_piece).items()}
+
+
+def _check_labels(labels: np.ndarray, tolerance_px: float) -> np.ndarray:
     labels = np.asarray(labels)
     if labels.ndim != 2:
         raise ValueError(f"label image must be 2-D, got shape {labels.shape}")
@@ -55,17 +142,177 @@ def plane_outlines(labels: np.ndarray, tolerance_px: float = 1.5) -> dict[int, n
         raise ValueError(f"tolerance_px must be >= 0, got {tolerance_px}")
     if labels.size and labels.min() < 0:
         raise ValueError("labels must be >= 0")
-    if labels.dtype.kind not in "iu":
-        labels = labels.astype(np.int64)
-    outlines: dict[int, np.ndarray] = {}
+    return labels if labels.dtype.kind in "iu" else labels.astype(np.int64)
+
+
+def _outlines(labels: np.ndarray, tolerance_px: float, max_vertices: int, min_piece: int | None) -> dict[int, Outline]:
+    """Per label: its region (the largest piece when ``min_piece`` is None, else every piece of
+    at least ``min_piece`` pixels joined), traced and simplified."""
+    outlines: dict[int, Outline] = {}
     for label, window in enumerate(ndimage.find_objects(labels), start=1):
         if window is None:
             continue
-        contours = trace_pieces(labels[window] == label)
-        if contours:
-            largest = contours[int(np.argmax([cv2.contourArea(c) for c in contours]))]
-            outlines[label] = simplify(largest, tolerance_px, window[1].start, window[0].start)
+        mask = labels[window] == label
+        # Under a budget, every corridor keeps its ends: so many pieces at most, fewer while
+        # the corridors' ends (a corridor across a piece has more) take over a third of it.
+        most = max(1, max_vertices // VERTICES_PER_PIECE) if max_vertices else 0
+        while True:
+            region, corridors = join_pieces(mask, min_piece, most)
+            contours = trace_pieces(region)
+            contour = contours[0] if len(contours) == 1 else max(contours, key=cv2.contourArea)
+            anchors = corridor_ends(contour, corridors)
+            if not max_vertices or most == 1 or 3 * len(anchors) <= max_vertices:
+                break
+            # Fewer pieces, in proportion to the ends too many (at least one fewer).
+            most = max(1, min(most - 1, int(most * max_vertices / (3 * len(anchors)))))
+        ring = to_image(contour, window[1].start, window[0].start)
+        outlines[label] = simple_outline(ring, tolerance_px, max_vertices, anchors)
     return outlines
+
+
+def join_pieces(mask: np.ndarray, min_piece: int | None, most: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """One 4-connected region from the pieces of a mask.
+
+    Parameters
+    ----------
+    mask : ndarray of bool, shape (H, W)
+    min_piece : int or None
+        Keep the 8-connected pieces of at least this many pixels (the largest when none is),
+        joined by corridors; None: the largest piece only.
+    most : int
+        Keep at most this many pieces, the largest (0: no limit).
+
+    Returns
+    -------
+    region : ndarray of bool, shape (H, W)
+        The kept pieces, the corridors between them, and a pixel beside every two pixels that
+        touch only at a corner (:func:`close_corners`).
+    corridors : ndarray of bool, shape (H, W)
+        The corridors' pixels outside the pieces.
+    """
+    region, pieces, kept = kept_pieces(mask, min_piece, most)
+    corridors = np.zeros(mask.shape, dtype=bool)
+    if len(kept) > 1:
+        lines = np.zeros(mask.shape, dtype=np.uint8)
+        for a, b in piece_corridors(region, pieces, kept):
+            cv2.line(lines, a, b, 1, thickness=1, lineType=4)
+        corridors = (lines > 0) & ~region
+        region = region | corridors
+    return close_corners(region), corridors
+
+
+def corridor_ends(contour: np.ndarray, corridors: np.ndarray) -> np.ndarray:
+    """The vertices of a traced outline (:func:`trace_pieces`) where it passes between a
+    corridor and a piece: the ends of each of the corridor's sides, which a simplified polygon
+    keeps so that the corridor stays a thin strip instead of collapsing onto itself.
+
+    Parameters
+    ----------
+    contour : ndarray of int32, shape (V, 1, 2)
+    corridors : ndarray of bool, shape (H, W)
+        Of :func:`join_pieces`, on the traced mask's grid.
+
+    Returns
+    -------
+    ndarray of intp
+        Ascending indices into the contour: both vertices of every edge between a corridor
+        pixel and another.
+    """
+    if not corridors.any():
+        return np.zeros(0, dtype=np.intp)
+    fine = contour.reshape(-1, 2)
+    inside = corridors[fine[:, 1] // 2 - 1, fine[:, 0] // 2 - 1]
+    change = np.flatnonzero(inside != np.roll(inside, 1))  # edge (i - 1, i) crosses a corridor's end
+    return np.unique(np.concatenate([change, (change - 1) % len(fine)]))
+
+
+def kept_pieces(mask: np.ndarray, min_piece: int | None, most: int = 0) -> tuple[np.ndarray, np.ndarray, list[int]]:
+    """The pieces of a mask to outline (see :func:`join_pieces`): their pixels, the piece labels
+    and the kept pieces' labels, largest first (ties: lowest label, first in raster order)."""
+    count, pieces, stats, _ = cv2.connectedComponentsWithStats(mask.view(np.uint8), connectivity=8, ltype=cv2.CV_32S)
+    sizes = stats[1:, cv2.CC_STAT_AREA]
+    if count <= 1:
+        return np.zeros(mask.shape, dtype=bool), pieces, []
+    largest = int(np.argmax(sizes)) + 1
+    kept = [largest] if min_piece is None else [largest] + [
+        k + 1 for k in np.argsort(-sizes, kind="stable").tolist() if sizes[k] >= min_piece and k + 1 != largest]
+    if most:
+        kept = kept[:most]
+    if len(kept) == 1:
+        return pieces == largest, pieces, kept
+    chosen = np.zeros(count, dtype=bool)
+    chosen[kept] = True
+    return chosen[pieces], pieces, kept
+
+
+def piece_corridors(region: np.ndarray, pieces: np.ndarray, kept: list[int]) -> list[tuple[tuple[int, int], tuple[int, int]]]:
+    """Where to draw the corridors that join the pieces: from each piece, in the order Prim's
+    algorithm takes them from the first, to the nearest border pixel of the pieces taken before.
+
+    Parameters
+    ----------
+    region : ndarray of bool, shape (H, W)
+        The kept pieces.
+    pieces : ndarray of int, shape (H, W)
+        Piece labels (connected components).
+    kept : list of int
+        The pieces to join, the first one first.
+
+    Returns
+    -------
+    list of ((int, int), (int, int))
+        ``(x, y)`` pixel pairs, one per piece after the first.
+    """
+    inner = cv2.erode(region.view(np.uint8), _CROSS, borderType=cv2.BORDER_CONSTANT, borderValue=0)
+    border = region & (inner == 0)
+    ys, xs = np.nonzero(border)
+    owner = pieces[ys, xs]
+    order = np.argsort(owner, kind="stable")
+    groups = np.split(np.stack([xs, ys], axis=1)[order], np.searchsorted(owner[order], np.arange(1, pieces.max() + 1)))
+    points = {k: groups[k] for k in kept}
+    # best[k]: (distance, k's border pixel, the joined piece, its border pixel) nearest so far.
+    best: dict[int, tuple[float, int, int, int]] = {}
+    corridors = []
+    joined = kept[0]
+    remaining = list(kept[1:])
+    while remaining:
+        tree = cKDTree(points[joined])
+        for k in remaining:
+            # Only a nearer pair than the best so far matters: the search stops at its distance.
+            bound = best[k][0] if k in best else np.inf
+            distance, index = tree.query(points[k], distance_upper_bound=bound)
+            i = int(np.argmin(distance))
+            if distance[i] < bound:
+                best[k] = (float(distance[i]), i, joined, int(index[i]))
+        joined = min(remaining, key=lambda k: (best[k][0], kept.index(k)))
+        _, i, other, j = best[joined]
+        corridors.append((tuple(int(v) for v in points[joined][i]), tuple(int(v) for v in points[other][j])))
+        remaining.remove(joined)
+    return corridors
+
+
+def close_corners(region: np.ndarray) -> np.ndarray:
+    """Fill, where two pixels of a region touch only at a corner, the pixel beside them to the
+    upper right (or upper left), until no such corner is left.
+
+    Parameters
+    ----------
+    region : ndarray of bool, shape (H, W)
+
+    Returns
+    -------
+    ndarray of bool, shape (H, W)
+        A region whose pieces are 4-connected (well-composed), a superset of ``region``.
+    """
+    region = region.copy()
+    while True:
+        a, b, c, d = region[:-1, :-1], region[:-1, 1:], region[1:, :-1], region[1:, 1:]
+        falling = a & d & ~b & ~c  # upper left and lower right
+        rising = b & c & ~a & ~d  # upper right and lower left
+        if not (falling.any() or rising.any()):
+            return region
+        region[:-1, 1:] |= falling
+        region[:-1, :-1] |= rising
 
 
 def trace_pieces(mask: np.ndarray) -> list[np.ndarray]:
@@ -91,132 +338,61 @@ def trace_pieces(mask: np.ndarray) -> list[np.ndarray]:
     return list(contours)
 
 
-def simplify(contour: np.ndarray, tolerance_px: float, left: int, top: int) -> np.ndarray:
-    """A contour of :func:`trace_pieces` as a simplified CVAT polygon of the whole image.
+def to_image(contour: np.ndarray, left: int, top: int) -> np.ndarray:
+    """A contour of :func:`trace_pieces` in CVAT coordinates of the whole image.
 
     Parameters
     ----------
     contour : ndarray of int32, shape (V, 1, 2)
-    tolerance_px : float
-        Douglas-Peucker tolerance (``cv2.approxPolyDP``), pixels; a contour too small to
-        simplify to 3 vertices is kept as traced.
     left, top : int
         Position of the traced mask in the image.
 
     Returns
     -------
     ndarray of float64, shape (V, 2)
+        Quarter-pixel coordinates (exact in binary floating point).
     """
-    simple = cv2.approxPolyDP(contour, 2.0 * tolerance_px, closed=True)
-    if len(simple) < 3:
-        simple = contour
     # Fine pixel j has its centre at (j + 0.5) / 2 in coarse CVAT coordinates; undo the
     # margin and place the window.
-    xy = (simple.reshape(-1, 2).astype(np.float64) + 0.5) / 2.0 - 1.0
-    xy += (left, top)
-    return xy
+    return (contour.reshape(-1, 2).astype(np.float64) + 0.5) / 2.0 - 1.0 + (left, top)
 
 
-def piece_outlines(labels: np.ndarray, tolerance_px: float, min_piece: int = MIN_PIECE_PX) -> dict[int, np.ndarray]:
-    """One polygon per label that covers all its pieces, not only the largest.
-
-    Each 8-connected piece of at least ``min_piece`` pixels is outlined as
-    :func:`plane_outlines` outlines the largest; the pieces are then
-    chained into one polygon by zero-width bridges, each walked there and back, which enclose
-    no pixel centre under the even-odd rule CVAT and :mod:`annotate_rgbd.segment.rasterize` fill with.
-    Pieces inside a hole of another piece are left to that piece's outline, which covers them.
+def simple_outline(ring: np.ndarray, tolerance_px: float, max_vertices: int = 0, anchors=()) -> Outline:
+    """A traced outline as a simple polygon within ``tolerance_px`` and ``max_vertices``
+    (:func:`annotate_rgbd.cvat.rings.ring_simplifications`), and the polygon at the tolerance
+    alone when the budget stopped it earlier.
 
     Parameters
     ----------
-    labels : ndarray of int, shape (H, W)
-        0 = none, else 1..K.
+    ring : ndarray of float64, shape (N, 2)
+        A simple traced outline (:func:`to_image`).
     tolerance_px : float
-    min_piece : int
+    max_vertices : int
+    anchors : sequence of int
+        Vertices of the ring every polygon keeps (:func:`corridor_ends`).
 
     Returns
     -------
-    dict of int to ndarray of float64, shape (V, 2)
+    Outline
     """
-    labels = np.asarray(labels)
-    outlines: dict[int, np.ndarray] = {}
-    for label, window in enumerate(ndimage.find_objects(labels), start=1):
-        if window is None:
-            continue
-        mask = labels[window] == label
-        contours = trace_pieces(mask)
-        top, left = window[0].start, window[1].start
-        if len(contours) == 1:
-            outlines[label] = simplify(contours[0], tolerance_px, left, top)
-            continue
-        lengths = np.fromiter((len(c) for c in contours), dtype=np.int64, count=len(contours))
-        kept = _large_pieces(mask, contours, lengths, min_piece)
-        if len(kept) <= 1:  # the largest piece (as plane_outlines draws it)
-            outlines[label] = simplify(contours[_largest(contours, lengths)], tolerance_px, left, top)
-        else:
-            outlines[label] = bridge([simplify(contours[i], tolerance_px, left, top) for i in kept])
-    return outlines
+    # The straight runs of the trace carry no shape: only their ends (and the anchors) can be vertices.
+    turns = np.union1d(_corners(ring), np.asarray(anchors, dtype=np.intp))
+    corners = ring[turns]
+    kept = np.searchsorted(turns, anchors)
+    if not max_vertices:
+        return Outline(corners[ring_simplifications(corners, tolerance_px, [0], kept)[0]])
+    free, limited = (corners[k] for k in ring_simplifications(corners, tolerance_px, [0, max_vertices], kept))
+    # Where the budget never stopped the splits, it gives the same polygon.
+    return Outline(limited, free if len(free) > len(limited) else None)
 
 
-def _largest(contours: list, lengths: np.ndarray) -> int:
-    """Index of the contour of largest area (the first of equals), as ``argmax`` of
-    ``cv2.contourArea`` over all of them, measuring only those long enough to enclose more:
-    a closed path of ``L`` steps of at most sqrt(2) encloses at most ``L**2 / (2 pi)``."""
-    bound = lengths.astype(np.float64) ** 2 / 6.0
-    best, best_area = -1, -1.0
-    for i in np.argsort(-lengths, kind="stable").tolist():
-        if bound[i] < best_area:
-            break
-        area = cv2.contourArea(contours[i])
-        if area > best_area or (area == best_area and i < best):
-            best, best_area = i, area
-    return best
-
-
-def _large_pieces(mask: np.ndarray, contours: list, lengths: np.ndarray, min_piece: int) -> list[int]:
-    """Indices of the contours (:func:`trace_pieces`) of pieces of
-    at least ``min_piece`` pixels, largest first (ties: first pixel in raster order)."""
-    # A closed path of L fine steps spans at most L / 2 fine pixels, so at most (L / 2 + 1) / 2
-    # + 1 mask pixels, along each axis: most pieces (speckle) are too short to be measured.
-    span = (lengths / 2 + 1) / 2 + 1
-    candidates = np.flatnonzero(span * span >= min_piece)
-    if len(candidates) <= 1:
-        return []
-    boxes = np.array([cv2.boundingRect(contours[i]) for i in candidates])  # fine x, y, width, height
-    cells = ((boxes[:, :2] + boxes[:, 2:] - 1) // 2 - boxes[:, :2] // 2 + 1).prod(axis=1)
-    candidates, boxes = candidates[cells >= min_piece], boxes[cells >= min_piece]
-    if len(candidates) <= 1:
-        return []  # at most one piece has room for min_piece pixels
-    _, pieces = cv2.connectedComponents(mask.view(np.uint8), connectivity=8, ltype=cv2.CV_32S)
-    starts = np.array([contours[i][0, 0] for i in candidates]) // 2 - 1  # (x, y) of each piece's first pixel
-    sizes = np.zeros(len(candidates), dtype=np.int64)
-    for n, ((x, y), (bx, by, bw, bh)) in enumerate(zip(starts.tolist(), boxes.tolist())):
-        rows = slice(max(by // 2 - 1, 0), (by + bh - 1) // 2)  # the piece's box in mask pixels
-        cols = slice(max(bx // 2 - 1, 0), (bx + bw - 1) // 2)
-        sizes[n] = np.count_nonzero(pieces[rows, cols] == pieces[y, x])
-    order = np.lexsort((starts[:, 0], starts[:, 1], -sizes))
-    return [int(candidates[i]) for i in order if sizes[i] >= min_piece]
-
-
-def bridge(polygons: list[np.ndarray]) -> np.ndarray:
-    """Chain polygons into one: from the first vertex of the first, out to the nearest vertex of
-    each next one, around it, and back the same way (each bridge is walked twice).
-
-    A polygon that lies inside the chain so far (a piece on an island in another's hole, which
-    that outline already covers) is left out: under the even-odd rule it would cut a hole.
-    """
-    result = polygons[0]
-    for polygon in polygons[1:]:
-        first = (float(polygon[0, 0]), float(polygon[0, 1]))
-        if cv2.pointPolygonTest(result.astype(np.float32).reshape(-1, 1, 2), first, False) > 0:
-            continue
-        # Squared distances: the same nearest pair (vertices lie on a quarter-pixel grid) without roots.
-        dx = result[:, 0, None] - polygon[None, :, 0]
-        dy = result[:, 1, None] - polygon[None, :, 1]
-        gaps = dx * dx + dy * dy
-        i, j = np.unravel_index(int(np.argmin(gaps)), gaps.shape)
-        around = np.roll(polygon, -j, axis=0)
-        result = np.concatenate([result[: i + 1], around, around[:1], result[i:]])
-    return result
+def _corners(ring: np.ndarray) -> np.ndarray:
+    """Indices of the vertices of a closed ring where it turns (all of them when it never does)."""
+    before, after = ring - np.roll(ring, 1, axis=0), np.roll(ring, -1, axis=0) - ring
+    turn = before[:, 0] * after[:, 1] - before[:, 1] * after[:, 0] != 0
+    turn |= (before * after).sum(axis=1) <= 0  # turning back (a one-pixel spike) is a corner too
+    found = np.flatnonzero(turn)
+    return found if len(found) >= 3 else np.arange(len(ring))
 
 
 def polygon_coverage(labels: np.ndarray, windows: list) -> np.ndarray:

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 from lxml import etree
 
-from annotate_rgbd.annotation.model import AREA_KINDS, Annotation
+from annotate_rgbd.annotation.model import AREA_KINDS, PLANE_ID, Annotation
 from annotate_rgbd.errors import InputError
 
 from .archive import xml_source
@@ -135,7 +135,26 @@ def _read_track(
         if keyframe is not None:
             keyframe.outside = outside
             track.keyframes.append(keyframe)
+        _read_attributes(child, track, context)
     return track
+
+
+def _read_attributes(element: etree._Element, track: RawTrack, context: ReadContext) -> None:
+    """Add a shape's ``<attribute name="...">`` values to its track's attributes (CVAT writes a
+    track's attributes into every shape of it; the first value of a name is kept, and a
+    :data:`~annotate_rgbd.annotation.model.PLANE_ID` that changes along the track gets a note)."""
+    for child in element:
+        if child.tag != "attribute":
+            continue
+        name, value = child.get("name"), (child.text or "").strip()
+        if name is None:
+            continue
+        first = track.attributes.setdefault(name, value)
+        if name == PLANE_ID and first != value:
+            context.notes.count(
+                f"tracks whose {PLANE_ID} attribute changes along the track: the first value is used",
+                f"line {child.sourceline}",
+            )
 
 
 def _read_image(element: etree._Element, context: ReadContext) -> RawImage:

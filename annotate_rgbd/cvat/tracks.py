@@ -11,7 +11,7 @@ exports group the shapes of all images into tracks by identity (group id, else l
 from __future__ import annotations
 
 from collections import Counter
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -52,6 +52,7 @@ class RawTrack:
     label: str
     keyframes: list[Keyframe]
     line: int
+    attributes: dict[str, str] = field(default_factory=dict)  # CVAT attributes, first value of each name
 
 
 @dataclass
@@ -89,7 +90,7 @@ def assemble_video(raw_tracks: list[RawTrack], meta: Meta, context: ReadContext)
             )
         if shapes:
             drawn = frozenset(k.frame for k in keyframes if k.drawn and not k.outside and k.frame in shapes)
-            tracks.append(Track(raw.track_id, raw.label, shapes, keyframes=drawn))
+            tracks.append(Track(raw.track_id, raw.label, shapes, keyframes=drawn, attributes=dict(raw.attributes)))
         else:
             context.notes.add(f"track {raw.track_id} (line {raw.line}) is never visible: dropped")
     image_size = {}

@@ -1,10 +1,13 @@
 """``export-cvat``: a finished ``cvat2mask`` run's refined masks as a "CVAT for video 1.1" export,
 for a correction round in CVAT.
 
-One polygon track per plane, with the run's plane id as CVAT track id and the plane's label;
+One polygon track per plane, with the run's plane id as CVAT track id and as its ``plane_id``
+attribute (which CVAT keeps where the label declares it, and ``cvat2mask`` gives back as the plane's id
+and colour: :mod:`annotate_rgbd.annotation.stitch`) and the plane's label;
 every written frame is a keyframe (frame number = RGB index, as ``cvat2mask`` reads a video
 export); a plane absent on a written frame is ``outside`` there. Polygons are the masks' outer
-outlines, every piece of a plane bridged into one (:func:`annotate_rgbd.cvat.from_masks.piece_outlines`),
+outlines, every piece of a plane joined into one simple polygon within a tolerance and a vertex
+budget (:func:`annotate_rgbd.cvat.from_masks.outline_planes`),
 drawn in the order that puts the plane whose pixels fill an overlap on top
 (:func:`annotate_rgbd.cvat.from_masks.draw_order`), as ``propose`` draws its detections, so that
 ``cvat2mask`` reads the file back to nearly the same masks.
@@ -23,7 +26,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from annotate_rgbd.annotation.model import Shape
+from annotate_rgbd.annotation.model import PLANE_ID, Shape
+from annotate_rgbd.config.propose import EXPORT_MAX_VERTICES, EXPORT_TOLERANCE_PX
 from annotate_rgbd.cvat.from_masks import draw_order, piece_outlines
 from annotate_rgbd.errors import InputError, OutputError
 from annotate_rgbd.io.outdir import TOP_LEVEL_NAMES, reading
@@ -40,7 +44,8 @@ from annotate_rgbd.report.run_folder import colour_table, mask_plane_ids, read_r
 log = logging.getLogger("annotate_rgbd")
 
 
-def export_cvat(run_dir: str | Path, xml_path: str | Path, tolerance_px: float = 0.5) -> int:
+def export_cvat(run_dir: str | Path, xml_path: str | Path, tolerance_px: float = EXPORT_TOLERANCE_PX,
+                max_vertices: int = EXPORT_MAX_VERTICES) -> int:
     """Write a run's masks as polygon tracks.
 
     Parameters
@@ -50,9 +55,11 @@ def export_cvat(run_dir: str | Path, xml_path: str | Path, tolerance_px: float =
     xml_path : str or Path
         The CVAT XML file to write.
     tolerance_px : float
-        Douglas-Peucker tolerance of the outlines, pixels. 0.5: on the 320x240 sample the run read
-        back scores within 0.002 mean IoU of the original against the ground truth (1.0 px: 0.014
-        lower, one boundary pixel in eight moves at that size).
+        Largest distance of a polygon from the traced outline of its mask, pixels
+        (:data:`annotate_rgbd.config.propose.EXPORT_TOLERANCE_PX`).
+    max_vertices : int
+        Vertex budget of each polygon (0: none); polygons are simple either way
+        (:func:`annotate_rgbd.cvat.from_masks.outline_planes`).
 
     Returns
     -------
@@ -64,14 +71,16 @@ def export_cvat(run_dir: str | Path, xml_path: str | Path, tolerance_px: float =
     InputError
         No report, a mask missing or unreadable, a mask colour that is no plane of the run.
     """
+    if max_vertices and max_vertices < 3:
+        raise InputError(None, f"a polygon needs at least 3 vertices: --max-vertices {max_vertices} (0: no budget)")
     run_dir = Path(run_dir)
     with reading(run_dir):
         report = read_report(run_dir)
         check_target(run_dir, Path(xml_path))
-        return _export(run_dir, report, Path(xml_path), tolerance_px)
+        return _export(run_dir, report, Path(xml_path), tolerance_px, max_vertices)
 
 
-def _export(run_dir: Path, report: RunRecord, xml_path: Path, tolerance_px: float) -> int:
+def _export(run_dir: Path, report: RunRecord, xml_path: Path, tolerance_px: float, max_vertices: int) -> int:
     labels_of = {p.plane: p.label for p in report.planes}
     config = config_from_dict(report.config, run_dir / "report.json")  # [colour_camera]: polygons on its images
     keys, values = colour_table(report)
@@ -93,7 +102,7 @@ def _export(run_dir: Path, report: RunRecord, xml_path: Path, tolerance_px: floa
             continue
         compact = np.searchsorted(present, ids) + 1
         compact[ids == 0] = 0
-        outlines = piece_outlines(compact, tolerance_px)
+        outlines = piece_outlines(compact, tolerance_px, max_vertices=max_vertices)
         distance = {p.plane: p.mean_distance for p in frame.result.kept} if frame.result else {}
         order = [k for k in range(1, len(present) + 1) if k in outlines]
         windows = [shape_mask(Shape("polygon", outlines[k]), *ids.shape) for k in order]
@@ -103,7 +112,8 @@ def _export(run_dir: Path, report: RunRecord, xml_path: Path, tolerance_px: floa
         order, z_order, outlines = on_colour_image(outlines, order, z_order, present, frame, config)
         for k, z in zip(order, np.asarray(z_order).tolist()):
             plane = int(present[k - 1])
-            entry = tracks.setdefault(plane, TrackShapes(plane, labels_of.get(plane, "plane")))
+            entry = tracks.setdefault(plane, TrackShapes(plane, labels_of.get(plane, "plane"),
+                                                         attributes={PLANE_ID: str(plane)}))
             entry.shapes[frame.rgb_index] = Shape("polygon", outlines[k], z_order=int(z))
     if size is None:
         raise InputError(run_dir / "report.json", "the run wrote no mask: nothing to export")

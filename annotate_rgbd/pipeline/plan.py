@@ -222,9 +222,9 @@ def plan_run(
     association = Association(*associate(sequence.depth.timestamps, sequence.rgb.timestamps, config.sequence.max_time_diff))
     depth_of_rgb = association.depth_of_rgb()
     pair_iou = [part_pair_iou(sequence, depth_of_rgb, a, b, config) for a, b in zip(parts, parts[1:])]
-    tracks = assign_planes(
-        [PartTracks.of(p) for p in parts], pair_iou, config.matches, config.stitch.min_iou, "configuration"
-    )
+    part_tracks = [PartTracks.of(p) for p in parts]
+    _warn(warnings, [line for p in part_tracks for line in p.problems])
+    tracks = assign_planes(part_tracks, pair_iou, config.matches, config.stitch.min_iou, "configuration")
     _warn(warnings, label_warnings(annotations, config.annotation.labels))
     _warn(warnings, label_conflicts(tracks))
     colours = plane_colours(max((t.plane for t in tracks), default=0))

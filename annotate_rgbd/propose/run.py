@@ -12,7 +12,7 @@ from typing import Callable
 import numpy as np
 
 from annotate_rgbd import __version__
-from annotate_rgbd.annotation.model import Shape
+from annotate_rgbd.annotation.model import PLANE_ID, Shape
 from annotate_rgbd.config.settings import Config, config_to_dict
 from annotate_rgbd.errors import InputError
 from annotate_rgbd.geometry.depth_range import depth_scale_hint, median_raw_depth
@@ -20,9 +20,10 @@ from annotate_rgbd.geometry.lift import plane_to_world
 from annotate_rgbd.pool import default_workers, run_jobs, start_helpers
 from annotate_rgbd.io.poses import load_trajectory, missing_poses_text, poses_at
 from annotate_rgbd.io.sequence import associate, read_depth, read_sequence
-from annotate_rgbd.io.outdir import MASKS, OutputFolder, read_bounded, remove_stale_files
+from annotate_rgbd.io.outdir import MASKS, OutputFolder, read_bounded, remove_review_files, remove_stale_files
 from annotate_rgbd.io.writer import write_json
 from annotate_rgbd.logs import group_problems
+from annotate_rgbd.report.run_folder import write_drawn_shapes
 from .detect_job import DetectJob, FrameProposal, FrameTooSmall, keep_planes, propose_frame
 from .link import TrackLinker
 from .persist import PersistenceFilter
@@ -73,8 +74,8 @@ def run_propose(
     workers: int | None = None,
     progress: Callable[[int, int], None] | None = None,
 ) -> ProposeResult:
-    """Propose planes on a sequence's depth frames and write ``proposals.xml``, ``masks/`` and
-    ``report.json`` into ``out_dir``.
+    """Propose planes on a sequence's depth frames and write ``proposals.xml``, ``masks/``,
+    ``report.json`` and the record of every mask's polygons (which ``review`` draws) into ``out_dir``.
 
     Parameters
     ----------
@@ -168,6 +169,7 @@ def _run(sequence, folder: OutputFolder, config, poses_path, helpers, progress) 
     tracks: dict[int, TrackShapes] = {}
     best: dict[int, tuple[int, np.ndarray, str]] = {}  # track -> (area, equation, frame) for the attribute
     frames: list[dict] = []
+    drawn: list[tuple[str, list, list]] = []  # each written mask's polygons (nothing carried), for review
     waiting: dict[int, FrameProposal | InputError] = {}
     size = None
     problems: list[tuple[str, str, str]] = []  # (depth file, problem, outcome): said once per problem
@@ -188,6 +190,8 @@ def _run(sequence, folder: OutputFolder, config, poses_path, helpers, progress) 
         size = item.labels.shape
         mask_name = Path(sequence.depth.files[i]).name
         write_colour_mask(out_dir / MASKS_DIR / mask_name, item.labels, ids)
+        drawn.append((f"{MASKS_DIR}/{mask_name}", [(int(t), Shape("polygon", item.outlines[k], z_order=int(item.z_order[k])))
+                                                    for k, t in enumerate(ids.tolist())], []))
         keyframe = key_of_rgb[int(nearest[i])] == decided.position
         frames.append({**record, "status": "written", "mask": f"{MASKS_DIR}/{mask_name}",
                        "cvat_keyframe": keyframe, "planes": _plane_records(item, ids), "dropped": item.dropped})
@@ -238,7 +242,7 @@ def _run(sequence, folder: OutputFolder, config, poses_path, helpers, progress) 
     for line in group_problems((file, f"{problem}; {outcome}") for file, problem, outcome in problems):
         log.warning("%s", line)
     for track, (_, equation, where) in best.items():
-        tracks[track].attributes = {"equation": equation_text(equation), "equation_frame": where}
+        tracks[track].attributes = {PLANE_ID: str(track), "equation": equation_text(equation), "equation_frame": where}
     ordered = [tracks[t] for t in sorted(tracks)]
     height, width = size if size is not None else (0, 0)
     if config.colour_camera is not None:  # the polygons lie on the colour images, which CVAT shows
@@ -251,12 +255,14 @@ def _run(sequence, folder: OutputFolder, config, poses_path, helpers, progress) 
     result.tracks = len(ordered)
     written = {f["mask"] for f in frames if f["status"] == "written"}
     cleanup = remove_stale_files(out_dir, ours | folder.expected, written)
+    cleanup.foreign += remove_review_files(out_dir)  # an earlier review shows the earlier proposals
     for line in cleanup.removals():
         log.info(line)
     for line in cleanup.warnings():
         log.warning(line)
     if not sampled:
         (out_dir / PROPOSALS_NAME).unlink(missing_ok=True)  # an earlier run's: it shows none of these frames
+    write_drawn_shapes(out_dir, drawn)  # what review draws
     write_json(out_dir / REPORT_NAME, {
         "tool": "annotate-rgbd propose", "version": __version__,
         "inputs": {"sequence": str(sequence.root), "poses": None if poses_path is None else str(poses_path),
@@ -268,9 +274,11 @@ def _run(sequence, folder: OutputFolder, config, poses_path, helpers, progress) 
         "summary": {"frames_processed": result.frames, "frames_skipped": len(result.skipped),
                     "frames_failed": len(result.failed), "tracks": result.tracks,
                     "planes_proposed": sum(len(f.get("planes", ())) for f in frames),
-                    "planes_dropped": sum(len(f.get("dropped", ())) for f in frames)},
+                    "planes_dropped": sum(len(f.get("dropped", ())) for f in frames),
+                    "polygons": polygon_summary(frames, settings.max_vertices)},
         "tracks": [{"track": t.track, "colour": track_colour(t.track), "label": t.label,
-                    "cvat_frames": len(t.shapes), **t.attributes} for t in ordered],
+                    "cvat_frames": len(t.shapes), **{k: v for k, v in t.attributes.items() if k != PLANE_ID}}
+                   for t in ordered],
         "frames": frames,
         "skipped": result.skipped,
         "warnings": result.warnings,
@@ -333,9 +341,30 @@ def _frame_poses(path, sequence, times: np.ndarray, config: Config, warnings: li
 def _plane_records(item: FrameProposal, ids: np.ndarray) -> list[dict]:
     return [
         {"track": int(ids[k]), "area": int(item.areas[k]), "equation": [float(v) for v in item.planes[k]],
-         "mean_distance": float(item.mean_distance[k]), "z_order": int(item.z_order[k])}
+         "mean_distance": float(item.mean_distance[k]), "z_order": int(item.z_order[k]),
+         "vertices": len(item.outlines[k]), "polygon_pixels": int(item.polygon_pixels[k]),
+         "polygon_iou": round(float(item.polygon_iou[k]), 6), "budget_iou_cost": _finite_or_none(item.budget_iou_cost[k])}
         for k in range(len(ids))
     ]
+
+
+def _finite_or_none(value: float) -> float | None:
+    return round(float(value), 6) if np.isfinite(value) else None
+
+
+def polygon_summary(frames: list[dict], max_vertices: int) -> dict:
+    """The polygons of the CVAT keyframes in numbers: how many, their vertices (median, largest),
+    how many the vertex budget stopped, their mean IoU with their planes' pixels and the mean IoU
+    the budget cost the polygons it stopped."""
+    planes = [p for f in frames if f.get("status") == "written" and f.get("cvat_keyframe") for p in f["planes"]]
+    vertices = [p["vertices"] for p in planes]
+    limited = [p["budget_iou_cost"] for p in planes if p["budget_iou_cost"] is not None]
+    return {"polygons": len(planes), "max_vertices": max_vertices,
+            "median_vertices": float(np.median(vertices)) if planes else None,
+            "largest_vertices": max(vertices, default=None),
+            "at_budget": len(limited),
+            "mean_polygon_iou": round(float(np.mean([p["polygon_iou"] for p in planes])), 6) if planes else None,
+            "mean_budget_iou_cost": round(float(np.mean(limited)), 6) if limited else 0.0}
 
 
 def _collect(item: FrameProposal, ids, rgb: int, keyframe: bool, pose, label: str, tracks, best) -> None:

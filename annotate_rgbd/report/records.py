@@ -349,6 +349,9 @@ class RunRecord:
     propagation : dict, optional
         With camera poses: the trajectory, the frames with a pose and every track's lifted
         keyframes and their agreement (:meth:`annotate_rgbd.pipeline.plan.Propagation.to_json`).
+    command : str
+        The command whose folder the record was read from: ``cvat2mask``, or ``propose`` for
+        the view of its proposals (:mod:`annotate_rgbd.report.proposals`); not in the JSON.
     """
 
     version: str
@@ -362,6 +365,7 @@ class RunRecord:
     warnings: list[str] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
     propagation: dict | None = None
+    command: str = "cvat2mask"
 
     def to_json(self) -> dict[str, Any]:
         """The content of ``report.json``."""

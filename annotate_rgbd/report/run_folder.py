@@ -26,6 +26,7 @@ from annotate_rgbd.annotation.model import AREA_KINDS, Shape
 from annotate_rgbd.errors import InputError
 from annotate_rgbd.io.files import open_regular
 from annotate_rgbd.io.outdir import REPORT, SHAPES_RECORD, read_bounded
+from annotate_rgbd.report.proposals import is_proposals, proposals_record
 from annotate_rgbd.report.records import RecordError, RunRecord
 from annotate_rgbd.report.validation import check_run, load_json
 
@@ -54,8 +55,15 @@ class DrawnFrame:
     carried: list = field(default_factory=list)
 
 
-def read_report(out_dir: str | Path) -> RunRecord:
+def read_report(out_dir: str | Path, proposals: bool = False) -> RunRecord:
     """Read ``report.json`` of a finished ``cvat2mask`` run.
+
+    Parameters
+    ----------
+    out_dir : str or Path
+    proposals : bool
+        Also read a ``propose`` folder's report, as the run record of its proposals
+        (:func:`annotate_rgbd.report.proposals.proposals_record`: what ``review`` draws).
 
     Raises
     ------
@@ -70,8 +78,15 @@ def read_report(out_dir: str | Path) -> RunRecord:
     except OSError as exc:
         raise InputError(path, f"cannot read the report: {exc.strerror or exc}") from None
     report = load_json(data, path)  # strict: no NaN, no lone surrogate
-    if isinstance(report, dict) and report.get("tool") == "annotate-rgbd propose":
-        raise InputError(path, "this is the output of `propose`, not of a cvat2mask run")
+    if is_proposals(report):
+        if not proposals:
+            raise InputError(path, "this is the output of `propose`, not of a cvat2mask run")
+        try:
+            record = proposals_record(report)
+            check_run(record)
+        except RecordError as exc:
+            raise InputError(path, f"not a propose report as annotate-rgbd writes it (edited or damaged?): {exc}") from None
+        return record
     if not isinstance(report, dict) or not {"inputs", "config", "frames", "planes"} <= report.keys():
         raise InputError(path, "not a cvat2mask report (inputs, config, frames or planes missing)")
     try:
@@ -214,29 +229,32 @@ def write_drawn_shapes(out_dir: Path, frames: Iterable[tuple[str, Sequence[tuple
     write_bytes_atomic(out_dir / SHAPES_RECORD, ("\n".join(lines) + "\n").encode("utf-8"))
 
 
-def read_drawn_shapes(out_dir: Path, masks: set[str]) -> dict[str, DrawnFrame]:
+def read_drawn_shapes(out_dir: Path, masks: set[str], command: str = "cvat2mask") -> dict[str, DrawnFrame]:
     """What the jobs of the masks ``masks`` (``masks/<name>``) drew, from the shapes record.
+
+    ``command`` (``cvat2mask`` or ``propose``) made the folder: the messages say to run it again.
 
     Raises
     ------
     InputError
-        No record (a run made before annotate-rgbd kept one: run cvat2mask again), a malformed
+        No record (a run made before annotate-rgbd kept one: run the command again), a malformed
         one, or a mask it does not hold.
     """
     path = Path(out_dir) / SHAPES_RECORD
     found: dict[str, DrawnFrame] = {}
+    again = ("run cvat2mask again into this folder (it redoes nothing that is up to date)" if command == "cvat2mask"
+             else f"run {command} again into this folder")
     try:
         handle = open_regular(path, follow_links=False)
     except OSError as exc:
-        raise InputError(path, f"cannot read the run's drawn shapes ({exc.strerror or exc}); run cvat2mask "
-                               "again into this folder (it redoes nothing that is up to date)") from None
+        raise InputError(path, f"cannot read the run's drawn shapes ({exc.strerror or exc}); {again}") from None
     with handle:
         header = _json_line(handle.readline(MAX_SHAPES_LINE + 1), path, 1)
         if not isinstance(header, dict) or header.get("format") != SHAPES_FORMAT:
             raise InputError(path, "not a drawn-shapes record")
         if header.get("version") != SHAPES_VERSION:
             raise InputError(path, f"a drawn-shapes record of another version ({header.get('version')!r}, "
-                                   f"this is {SHAPES_VERSION}); run cvat2mask again into this folder")
+                                   f"this is {SHAPES_VERSION}); {again}")
         for number, line in enumerate(iter(lambda: handle.readline(MAX_SHAPES_LINE + 1), b""), start=2):
             entry = _json_line(line, path, number)
             mask = entry.get("mask") if isinstance(entry, dict) else None
@@ -248,7 +266,7 @@ def read_drawn_shapes(out_dir: Path, masks: set[str]) -> dict[str, DrawnFrame]:
                     raise InputError(path, f"line {number}: {exc}") from None
     missing = sorted(masks - found.keys())
     if missing:
-        raise InputError(path, f"holds no shapes for {missing[0]}: the run changed since; run cvat2mask again")
+        raise InputError(path, f"holds no shapes for {missing[0]}: the run changed since; run {command} again")
     return found
 
 

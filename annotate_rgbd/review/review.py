@@ -1,4 +1,5 @@
-"""Review a finished ``cvat2mask`` run: overlays, the review page and a contact sheet.
+"""Review a finished ``cvat2mask`` run, or ``propose``'s proposals before they go to CVAT:
+overlays, the review page and a contact sheet.
 
 :func:`review_run` reads the run's own records (:mod:`annotate_rgbd.report.run_folder`:
 ``report.json``, the masks, the shapes each frame drew) and the RGB frames, never runs a stage
@@ -78,7 +79,8 @@ def review_run(
     Parameters
     ----------
     out_dir : str or Path
-        The output folder of a finished ``cvat2mask`` run.
+        The output folder of a finished ``cvat2mask`` or ``propose`` run (its proposals as
+        :func:`annotate_rgbd.report.proposals.proposals_record` reads them).
     overlays : bool
         Write ``overlays/`` (one per written mask).
     page : bool
@@ -102,7 +104,7 @@ def review_run(
         no overlays; OutputError when the folder is busy or cannot be written.
     """
     out_dir = Path(out_dir)
-    report = read_report(out_dir)
+    report = read_report(out_dir, proposals=True)
     with OutputFolder(out_dir, None) as folder:
         return write_review(folder, report, overlays, page, sheet, progress, workers)
 
@@ -122,7 +124,7 @@ def write_review(
     output = ReviewOutput()
     written = [f for f in report.frames if f.written]
     if overlays and written:
-        shapes = read_drawn_shapes(out_dir, {f.mask for f in written})
+        shapes = read_drawn_shapes(out_dir, {f.mask for f in written}, report.command)
         keys, values = colour_table(report)
         colours = plane_colour_rows(report)
         registration = None

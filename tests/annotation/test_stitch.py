@@ -137,3 +137,65 @@ def test_a_job_export_named_by_its_first_frame_is_placed_there():
     job = Annotation(path="/x/7-16.xml", format="video", tracks=[], frames=list(range(7, 17)))
     parts, _ = place_parts([video("0-9.xml", 10), job], RGB, {})
     assert [(p.name, p.first, p.last) for p in parts] == [("0-9.xml", 0, 9), ("7-16.xml", 7, 16)]
+
+
+# --- plane ids carried by the tracks (the plane_id attribute of propose and export-cvat) ---------
+
+
+def carrying(track_id, label, frames, plane_id=None):
+    """A track visible on ``frames``, carrying ``plane_id`` (text) when given."""
+    from annotate_rgbd.annotation.model import PLANE_ID, Shape, Track
+
+    square = Shape("polygon", np.array([[0.0, 0.0], [4.0, 0.0], [4.0, 4.0]]))
+    return Track(track_id, label, dict.fromkeys(frames, square),
+                 attributes={} if plane_id is None else {PLANE_ID: plane_id})
+
+
+def test_carried_plane_ids_keep_their_ids_and_new_tracks_get_fresh_ones():
+    from annotate_rgbd.annotation.stitch import CARRIED, carried_plane_ids
+
+    tracks = [carrying(0, "wall", [0, 1], "7"), carrying(1, "new", [0, 1]), carrying(2, "floor", [0, 1], "2"),
+              carrying(3, "desk", [1, 2])]
+    ids, problems = carried_plane_ids(tracks, "round2.xml")
+    assert ids == [7, None, 2, None] and problems == []
+    part = PartTracks("round2.xml", [0, 1, 2, 3], ["wall", "new", "floor", "desk"], tuple(ids))
+    got = {t.track: (t.plane, t.how) for t in assign_planes([part], [], [], 0.5)}
+    # The carried ids stay; the others start above the largest carried one (never 1, 3..6: planes
+    # of the earlier round that no track shows now), in track order.
+    assert got == {0: (7, CARRIED), 1: (8, FIRST_PART), 2: (2, CARRIED), 3: (9, FIRST_PART)}
+
+
+def test_carried_ids_that_cannot_be_used():
+    from annotate_rgbd.annotation.stitch import carried_plane_ids
+
+    tracks = [carrying(0, "a", [0, 1], "3"), carrying(1, "b", [2, 3], "3"),  # split track: one plane
+              carrying(2, "c", [1, 5], "3"),  # a copy seen with track 0 on frame 1: not plane 3
+              carrying(3, "d", [0], "x1"), carrying(4, "e", [0], "0"), carrying(5, "f", [0], "70000"),
+              carrying(6, "g", [0], "")]
+    ids, problems = carried_plane_ids(tracks, "p.xml")
+    assert ids == [3, 3, None, None, None, None, None]
+    assert len(problems) == 4
+    assert "tracks 0 and 2 both carry plane_id 3 and are both visible on frame 1: track 2" in problems[0]
+    assert all("is no plane id (1 to 65535)" in line for line in problems[1:])
+
+
+def test_carried_ids_across_parts_take_precedence_over_matching():
+    # Part 2's track 3 carries plane 1 (the wall) while overlapping part 1's floor best: the
+    # attribute wins, and the floor's automatic match goes to the track that overlaps it next.
+    parts = [PartTracks("0-40.xml", [0, 1], ["wall", "floor"], (1, 2)),
+             PartTracks("38-80.xml", [3, 4, 5], ["wall", "floor", "chair"], (1, None, None))]
+    iou = np.array([[0.0, 0.0, 0.0], [0.9, 0.6, 0.0]])
+    got = {(t.part, t.track): (t.plane, t.how) for t in assign_planes(parts, [iou], [], 0.5)}
+    assert got[("38-80.xml", 3)] == (1, "plane_id")
+    assert got[("38-80.xml", 4)] == (2, AUTOMATIC)
+    assert got[("38-80.xml", 5)] == (3, NEW)
+
+
+def test_a_manual_entry_beats_a_carried_id():
+    parts = [PartTracks("0-40.xml", [0, 1], ["wall", "floor"], (4, 9)),
+             PartTracks("38-80.xml", [3], ["wall"], (9,))]
+    manual = [MatchConfig(part="38-80.xml", track=3, plane=4)]
+    got = {(t.part, t.track): (t.plane, t.how) for t in assign_planes(parts, [np.zeros((2, 1))], manual, 0.5)}
+    assert got[("38-80.xml", 3)] == (4, MANUAL)
+    with pytest.raises(InputError, match="no earlier part has plane 5"):
+        assign_planes(parts, [np.zeros((2, 1))], [MatchConfig(part="38-80.xml", track=3, plane=5)], 0.5)

@@ -105,6 +105,33 @@ def assert_same_annotation(read: Annotation, expected: Annotation, atol: float =
 # --------------------------------------------------------------------------------------------
 
 
+def test_track_attributes_are_read_from_their_shapes(tmp_path):
+    # CVAT writes a track's attributes into each of its shapes: the first value of each name
+    # counts, and a plane_id that changes along the track is noted.
+    def with_attributes(shape: str, **values) -> str:
+        inner = "".join(f'<attribute name="{k}">{v}</attribute>' for k, v in values.items())
+        return shape.replace("></polygon>", f">{inner}</polygon>")
+
+    body = track(3, "wall", with_attributes(polygon(0, TRIANGLE), plane_id="12", equation="0 0 1 -2"),
+                 with_attributes(polygon(2, TRIANGLE), plane_id=" 12 "))
+    body += track(4, "floor", with_attributes(polygon(0, TRIANGLE), plane_id="5"),
+                  with_attributes(polygon(1, TRIANGLE), plane_id="6"))
+    body += track(5, "desk", polygon(0, TRIANGLE))
+    annotation = read_cvat(export(tmp_path, body))
+    assert [t.attributes for t in annotation.tracks] == [
+        {"plane_id": "12", "equation": "0 0 1 -2"}, {"plane_id": "5"}, {}]
+    assert any(n.startswith("tracks whose plane_id attribute changes along the track") for n in annotation.notes)
+
+
+def test_written_track_attributes_read_back(tmp_path):
+    square = np.array([[1.0, 1.0], [9.0, 1.0], [9.0, 9.0], [1.0, 9.0]])
+    tracks = [Track(7, "wall", {0: Shape("polygon", square), 3: Shape("polygon", square + 2)},
+                    attributes={"plane_id": "7", "equation": "0 0 -1 2"})]
+    path = tmp_path / "w.xml"
+    write_cvat_video(Annotation("w", "video", tracks, list(range(6))), path, width=32, height=32)
+    assert read_cvat(path).tracks[0].attributes == {"plane_id": "7", "equation": "0 0 -1 2"}
+
+
 def test_file_export_keeps_every_frame(tmp_path):
     shapes = [box(f, 1 + f, 2, 11 + f, 12, keyframe=int(f in (0, 4))) for f in range(5)]
     path = export(tmp_path, track(0, "wall", *shapes), meta=task_meta(stop=4))

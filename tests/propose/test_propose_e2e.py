@@ -6,18 +6,21 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 from lxml import etree
 from scipy.spatial.transform import Rotation
 from typer.testing import CliRunner
 
+from annotate_rgbd.annotation.model import Shape
 from annotate_rgbd.geometry.camera import Camera
 from annotate_rgbd.cli import app
 from annotate_rgbd.config.settings import Config, load_config
 from annotate_rgbd.io.labelmaps import read_label_map
 from annotate_rgbd.evaluate.metrics import frame_statistics
 from annotate_rgbd.pipeline.scene import run_cvat2mask
+from annotate_rgbd.segment.rasterize import shape_mask
 from annotate_rgbd.propose import run_propose
 from annotate_rgbd.io.sequence import read_sequence
 from annotate_rgbd.synthetic import make_sequence, room_trajectory
@@ -95,8 +98,6 @@ def score(sequence: Path, masks: Path) -> dict[str, float]:
 
 
 def _colour_of(path: Path, where: np.ndarray) -> int:
-    import cv2
-
     image = cv2.imread(str(path)).astype(np.int64)
     b, g, r = image[where][0]
     return int(r << 16 | g << 8 | b)
@@ -141,6 +142,50 @@ def test_report_and_proposals_agree(room):
         for plane in frame["planes"]:
             assert len(plane["equation"]) == 4 and abs(np.linalg.norm(plane["equation"][:3]) - 1) < 1e-6
     assert {t["equation_frame"] for t in report["tracks"]} == {"world"}
+
+
+def keyframe_polygons(xml: Path) -> list[tuple[int, int, np.ndarray]]:
+    """(track, frame, points) of every keyframe polygon of a CVAT video export."""
+    from annotate_rgbd.cvat import read_cvat
+
+    return [(t.track_id, f, t.shapes[f].points) for t in read_cvat(xml).tracks for f in sorted(t.keyframes)]
+
+
+def test_proposals_are_simple_and_within_the_vertex_budget(room):
+    shapely = pytest.importorskip("shapely", reason="shapely (a test tool): pip install -e '.[test]'")
+    sequence, root = room
+    polygons = keyframe_polygons(root / "posed" / "proposals.xml")
+    assert polygons
+    budget = Config().propose.max_vertices
+    for _, _, points in polygons:
+        assert shapely.Polygon(points).is_valid and shapely.LinearRing(points).is_simple
+        assert 3 <= len(points) <= budget
+    # The report tells each keyframe polygon's vertices and its IoU with the plane's pixels.
+    report = json.loads((root / "posed" / "report.json").read_text())
+    drawn = {(t, f): p for t, f, p in polygons}
+    checked = 0
+    for frame in report["frames"]:
+        if frame["status"] != "written" or not frame["cvat_keyframe"]:
+            continue
+        image = cv2.imread(str(root / "posed" / frame["mask"]))
+        for plane in frame["planes"]:
+            points = drawn[(plane["track"], frame["rgb_index"])]
+            assert plane["vertices"] == len(points)
+            hex_colour = next(t["colour"] for t in report["tracks"] if t["track"] == plane["track"])
+            bgr = tuple(int(hex_colour[i : i + 2], 16) for i in (5, 3, 1))
+            mask = (image == bgr).all(axis=-1)
+            top, left, window = shape_mask(Shape("polygon", points), *mask.shape)
+            inside = np.zeros_like(mask)
+            inside[top : top + window.shape[0], left : left + window.shape[1]] = window
+            iou = np.count_nonzero(inside & mask) / np.count_nonzero(inside | mask)
+            assert abs(iou - plane["polygon_iou"]) < 0.01, (iou, plane)
+            if plane["budget_iou_cost"] is not None:  # the budget stopped this polygon's simplification
+                assert -0.05 < plane["budget_iou_cost"] < 0.2
+            checked += 1
+    summary = report["summary"]["polygons"]
+    assert summary["polygons"] == checked and summary["largest_vertices"] <= budget
+    assert summary["at_budget"] == sum(p["budget_iou_cost"] is not None for f in report["frames"]
+                                       if f["status"] == "written" and f["cvat_keyframe"] for p in f["planes"])
 
 
 def test_datumaro_reads_the_proposals(room):
@@ -189,6 +234,104 @@ def test_export_cvat_round_trip_on_the_sample(sample_round_trip):
     planes = {p["plane"]: p["label"] for p in report["planes"] if p["plane"] in kept}
     tracks = {int(t.get("id")): t.get("label") for t in etree.parse(str(xml)).getroot().iter("track")}
     assert tracks == planes
+
+
+def colour_agreement(first: Path, second: Path) -> float:
+    """Of the pixels that both runs' colour masks label, the share that has the same colour in
+    both (frames of both runs)."""
+    same = both = 0
+    for path in sorted((first / "masks").iterdir()):
+        a, b = cv2.imread(str(path)), cv2.imread(str(second / "masks" / path.name))
+        labelled = a.any(axis=-1) & b.any(axis=-1)
+        both += int(np.count_nonzero(labelled))
+        same += int(np.count_nonzero(labelled & (a == b).all(axis=-1)))
+    return same / both
+
+
+def plane_table(run: Path) -> dict[int, tuple[str, str]]:
+    """planes.csv: plane id -> (colour, label)."""
+    import csv
+
+    with open(run / "planes.csv", newline="") as handle:
+        return {int(r["plane_id"]): (r["colour"], r["label"]) for r in csv.DictReader(handle)}
+
+
+def test_export_cvat_round_trip_keeps_plane_ids_and_colours(sample_round_trip):
+    # Without the plane_id attribute the read-back renumbered the planes from 1 (planes 1 and 7
+    # of the sample reach no mask), and 82 % of the pixels changed colour.
+    first, second, _ = sample_round_trip
+    assert colour_agreement(first, second) >= 0.998
+    before, after = plane_table(first), plane_table(second)
+    assert after and all(before[plane] == entry for plane, entry in after.items())
+
+
+def test_export_cvat_polygons_are_simple_and_within_the_budget(sample_round_trip, tmp_path):
+    shapely = pytest.importorskip("shapely", reason="shapely (a test tool): pip install -e '.[test]'")
+    first, _, xml = sample_round_trip
+    from annotate_rgbd.config.propose import EXPORT_MAX_VERTICES
+
+    for _, _, points in keyframe_polygons(xml):
+        assert shapely.Polygon(points).is_valid and shapely.LinearRing(points).is_simple
+        assert len(points) <= EXPORT_MAX_VERTICES
+    small = tmp_path / "small.xml"
+    outcome = CliRunner().invoke(app, ["export-cvat", str(first), str(small), "--max-vertices", "12", "--tolerance", "1"])
+    assert outcome.exit_code == 0, outcome.output
+    counts = [len(points) for _, _, points in keyframe_polygons(small)]
+    assert max(counts) <= 12 and max(counts) > 4
+    outcome = CliRunner().invoke(app, ["export-cvat", str(first), str(tmp_path / "bad.xml"), "--max-vertices", "2"])
+    assert outcome.exit_code != 0 and "at least 3 vertices" in outcome.output
+    assert not (tmp_path / "bad.xml").exists()
+
+
+def test_a_track_added_in_cvat_gets_an_unused_plane_id(sample_round_trip, tmp_path):
+    # The labeller draws a new plane (no plane_id) and copies a wall track over frames where
+    # the wall is still visible (the copy keeps the wall's plane_id): both become new planes,
+    # above every id the first run had, and the copy is warned about.
+    first, _, xml = sample_round_trip
+    tree = etree.parse(str(xml))
+    root = tree.getroot()
+    tracks = root.findall("track")
+    wall = next(t for t in tracks if t.get("label") == "wall_left")
+    added = etree.fromstring(etree.tostring(wall))
+    added.set("id", "40")
+    added.set("label", "poster")
+    for attribute in added.iter("attribute"):
+        attribute.getparent().remove(attribute)
+    copied = etree.fromstring(etree.tostring(wall))
+    copied.set("id", "41")
+    root.extend([added, copied])
+    edited = tmp_path / "edited.xml"
+    tree.write(str(edited))
+    config = load_config(SAMPLE_DATA / "camera.toml")
+    result = run_cvat2mask(SAMPLE_DATA / "sequence", [edited], tmp_path / "third", config, workers=1)
+    report = json.loads((tmp_path / "third" / "report.json").read_text())
+    planes = {(t["track"]): t["plane"] for t in report["tracks"]}
+    known = set(plane_table(first))
+    assert max(known) == 10 and planes[40] == 11 and planes[41] == 12
+    assert all(planes[int(t.get("id"))] == int(t.get("id")) for t in tracks)
+    assert any("tracks 2 and 41 both carry plane_id 2" in w for w in report["warnings"]), report["warnings"]
+    assert result is not None
+
+
+def test_cvat2mask_on_proposals_keeps_the_track_ids(room):
+    # propose's track numbers are the plane ids cvat2mask gives, and so their colours.
+    sequence, root = room
+    report = json.loads((root / "refined" / "report.json").read_text())
+    assert all(t["plane"] == t["track"] and t["how"] == "plane_id" for t in report["tracks"])
+    assert colour_agreement(root / "posed", root / "refined") >= 0.99
+
+
+def test_export_cvat_round_trip_on_the_rendered_room_keeps_the_colours(room, tmp_path):
+    # The refined run on the rendered room (plane ids = proposal tracks, with gaps where tracks
+    # were dropped) through export-cvat and cvat2mask again.
+    sequence, root = room
+    xml = tmp_path / "round2.xml"
+    outcome = CliRunner().invoke(app, ["export-cvat", str(root / "refined"), str(xml)])
+    assert outcome.exit_code == 0, outcome.output
+    run_cvat2mask(sequence, [xml], tmp_path / "second", Config(), workers=1)
+    assert colour_agreement(root / "refined", tmp_path / "second") >= 0.995
+    before, after = plane_table(root / "refined"), plane_table(tmp_path / "second")
+    assert after and all(before[plane] == entry for plane, entry in after.items())
 
 
 def test_datumaro_reads_the_export(sample_round_trip):

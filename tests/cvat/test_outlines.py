@@ -1,0 +1,143 @@
+"""Label masks -> simple polygons (annotate_rgbd.cvat.from_masks, annotate_rgbd.cvat.rings).
+
+Validity is judged by shapely (a test tool only, ``pip install -e '.[test]'``), independent of
+the package's own edge test; pixels by the package's rasteriser, which the CVAT reader tests pin.
+"""
+
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+from conftest import reference_data
+from scipy import ndimage
+
+from annotate_rgbd.annotation.model import Shape
+from annotate_rgbd.config.settings import load_config
+from annotate_rgbd.cvat import read_cvat
+from annotate_rgbd.cvat.from_masks import outline_planes, plane_outlines
+from annotate_rgbd.cvat.rings import meeting_edges, simplify_ring
+from annotate_rgbd.propose import run_propose
+from annotate_rgbd.segment.rasterize import rasterize_frame
+
+shapely = pytest.importorskip("shapely", reason="shapely (a test tool): pip install -e '.[test]'")
+
+
+def is_simple(points: np.ndarray) -> bool:
+    """A valid shapely polygon whose ring is simple and repeats no vertex."""
+    ring = shapely.LinearRing(points)
+    return bool(shapely.Polygon(points).is_valid and ring.is_simple and len(np.unique(points, axis=0)) == len(points))
+
+
+def speckled(seed: int, shape=(120, 160), planes: int = 4) -> np.ndarray:
+    """Planes of random blobs, holes and speckle: many pieces, pixels touching at corners."""
+    rng = np.random.default_rng(seed)
+    labels = np.zeros(shape, np.int32)
+    for k in range(1, planes + 1):
+        for _ in range(rng.integers(1, 4)):
+            centre = (int(rng.integers(0, shape[1])), int(rng.integers(0, shape[0])))
+            axes = (int(rng.integers(5, 40)), int(rng.integers(5, 30)))
+            cv2.ellipse(labels, centre, axes, float(rng.uniform(0, 180)), 0, 360, k, -1)
+    noise = rng.random(shape)
+    labels[noise < 0.15] = 0  # speckle and holes
+    flip = (noise > 0.97) & (labels == 0)
+    labels[flip] = rng.integers(1, planes + 1, size=np.count_nonzero(flip))
+    return labels
+
+
+@pytest.mark.parametrize("seed", range(12))
+@pytest.mark.parametrize("tolerance, budget", [(0.0, 0), (1.5, 0), (1.5, 24), (3.0, 8)])
+def test_polygons_are_simple_and_within_budget(seed, tolerance, budget):
+    labels = speckled(seed)
+    outlines = outline_planes(labels, tolerance, budget)
+    assert sorted(outlines) == [k for k in range(1, labels.max() + 1) if (labels == k).any()]
+    for outline in outlines.values():
+        assert is_simple(outline.points), outline.points.tolist()
+        assert len(outline.points) >= 3
+        if budget:
+            assert len(outline.points) <= budget
+            if outline.unlimited is not None:
+                assert len(outline.unlimited) > budget and is_simple(outline.unlimited)
+        else:
+            assert outline.unlimited is None
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_exact_outlines_cover_the_large_pieces_and_little_else(seed):
+    # At tolerance 0 a polygon holds every pixel of its plane's pieces of >= 20 pixels, the
+    # holes between, and beyond those only its corridors and corner pixels.
+    labels = speckled(seed)
+    outlines = outline_planes(labels, 0.0)
+    for k, outline in outlines.items():
+        drawn = rasterize_frame([(1, Shape("polygon", outline.points))], *labels.shape) == 1
+        pieces, n = ndimage.label(labels == k, structure=np.ones((3, 3)))
+        sizes = np.bincount(pieces.ravel())[1:]
+        large = np.isin(pieces, np.flatnonzero(sizes >= 20) + 1) if (sizes >= 20).any() else pieces == 1 + np.argmax(sizes)
+        assert drawn[large].all()
+        # Corridors are one pixel wide: few pixels beside the pieces and their holes.
+        outside = np.count_nonzero(drawn & ~ndimage.binary_fill_holes(large))
+        assert outside <= 0.25 * np.count_nonzero(large) + 2 * labels.shape[1]
+
+
+def test_a_diagonal_touch_gets_no_self_touching_outline():
+    labels = np.zeros((12, 12), np.int32)
+    labels[2:6, 2:6] = 1
+    labels[6:10, 6:10] = 1  # touches the first square at one corner only
+    outline = plane_outlines(labels, 0.0)[1]
+    assert is_simple(outline)
+    drawn = rasterize_frame([(1, Shape("polygon", outline))], *labels.shape) == 1
+    assert drawn[labels == 1].all() and np.count_nonzero(drawn & (labels == 0)) == 1  # one corner pixel
+
+
+def test_the_budget_trades_vertices_for_iou():
+    canvas = np.zeros((240, 320), np.uint8)
+    cv2.circle(canvas, (160, 120), 100, 1, -1)
+    ious = []
+    for budget in (0, 48, 16, 8):
+        outline = plane_outlines(canvas, 0.5, budget)[1]
+        assert is_simple(outline) and (budget == 0 or len(outline) <= budget)
+        drawn = rasterize_frame([(1, Shape("polygon", outline))], *canvas.shape) == 1
+        ious.append(np.count_nonzero(drawn & (canvas == 1)) / np.count_nonzero(drawn | (canvas == 1)))
+    assert ious[0] > 0.995 and ious[1] > 0.99 and ious[2] > 0.95 and ious[3] > 0.85
+    assert ious == sorted(ious, reverse=True)
+
+
+def test_simplify_ring_stays_within_the_tolerance_and_simple():
+    rng = np.random.default_rng(5)
+    angles = np.sort(rng.uniform(0, 2 * np.pi, 400))
+    radius = 50 + 30 * rng.random(400)  # a spiky star: simplifying it naively crosses edges
+    ring = np.round(np.stack([radius * np.cos(angles), radius * np.sin(angles)], axis=1) * 4) / 4
+    keep = simplify_ring(ring, 6.0)
+    polygon = shapely.Polygon(ring[keep])
+    assert is_simple(ring[keep]) and len(keep) < len(ring)
+    distances = shapely.distance(shapely.points(ring), polygon.exterior)
+    assert distances.max() <= 6.0 + 1e-9
+
+
+@pytest.mark.parametrize("seed", range(200))
+def test_meeting_edges_agrees_with_shapely(seed):
+    rng = np.random.default_rng(seed)
+    points = rng.integers(0, 6, (int(rng.integers(3, 10)), 2)) / 2.0
+    if len(np.unique(points, axis=0)) < len(points):
+        assert len(meeting_edges(points)) > 0  # a repeated vertex is never simple
+        return
+    assert (len(meeting_edges(points)) == 0) == is_simple(points), points.tolist()
+
+
+def test_outlines_of_real_proposals_are_simple_and_small(tmp_path):
+    """TUM fr1_rpy's proposals (propose on every 10th of its 30 frames): every polygon simple and
+    within the budget, the budget's cost in IoU with the planes' pixels small on average."""
+    sequence = reference_data("tum_fr1_rpy")
+    out = tmp_path / "out"
+    run_propose(sequence, out, load_config("fr1_desk", {"propose.every": 10}), workers=1)
+    report = json.loads((out / "report.json").read_text())
+    polygons = [t.shapes[f].points for t in read_cvat(out / "proposals.xml").tracks for f in sorted(t.keyframes)]
+    assert polygons
+    budget = load_config("fr1_desk").propose.max_vertices
+    for points in polygons:
+        assert is_simple(points) and len(points) <= budget
+    summary = report["summary"]["polygons"]
+    assert summary["polygons"] == len(polygons) and summary["mean_polygon_iou"] > 0.85
+    assert summary["mean_budget_iou_cost"] < 0.06
