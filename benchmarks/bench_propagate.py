@@ -80,7 +80,7 @@ def main() -> None:
             shutil.rmtree(out, ignore_errors=True)
             run = run_cvat2mask(rendered.sequence, [export], out, config, workers=args.workers, force=True, poses=poses)
             figures = score(out, run, rendered)
-            inconsistent = len(run.plan.propagation.to_json()["inconsistent_tracks"]) if run.plan.propagation else 0
+            inconsistent = len(run.propagation.to_json()["inconsistent_tracks"]) if run.propagation else 0
             rows.append((step, drawn, "with poses" if poses else "2-D (today)", figures, inconsistent))
 
     given = "exact" if noise is None else f"median error {args.pose_noise[0]:g} cm / {args.pose_noise[1]:g} deg"
