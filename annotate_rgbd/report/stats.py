@@ -11,9 +11,12 @@ from __future__ import annotations
 import json
 from collections import Counter
 
-from annotate_rgbd.segment.filters import NOT_WHERE_EXPECTED
-
 from .records import RunRecord, RunSummary, summarize
+
+#: The drop reason of a plane the poses carried that was not where they put it
+#: (:data:`annotate_rgbd.segment.filters.NOT_WHERE_EXPECTED`; not imported: ``stats`` loads no
+#: image library).
+NOT_WHERE_EXPECTED = "not_where_expected"
 
 
 def run_stats(report: RunRecord) -> dict:

@@ -64,6 +64,10 @@ def test_frames_where_a_carried_plane_was_not_where_the_poses_put_it_are_listed_
     assert stats["frames_to_review"] == ["d2.png"]
     assert "frames to review (1: a carried plane not where the poses put it)  d2.png" in format_stats(stats)
     assert run_stats(RunRecord.from_json(REPORT))["frames_to_review"] == []
+    from annotate_rgbd.report import stats as module
+    from annotate_rgbd.segment.filters import NOT_WHERE_EXPECTED
+
+    assert module.NOT_WHERE_EXPECTED == NOT_WHERE_EXPECTED
 
 
 def test_run_stats_of_a_run_without_masks():
