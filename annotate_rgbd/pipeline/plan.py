@@ -411,7 +411,8 @@ def _frame_shapes(
 ) -> tuple[tuple, frozenset[int] | None, tuple, tuple]:
     """The ``(plane id, shape)`` pairs of one frame, in track order, the planes whose shapes the
     poses carried there from other frames, ``(plane id, (a, b, c, d))`` where the poses put
-    each of those (its nearest keyframe's plane, in the depth frame's camera frame), and
+    each of those (its nearest keyframe's plane, in the depth frame's camera frame; none for a
+    track whose keyframes disagree about its plane), and
     ``(position, plane id, z_order, layers, beyond)`` of each: what its keyframes say about it
     (:func:`annotate_rgbd.propagate.carry.carried_layers`), to go among the shapes at
     ``position``."""
@@ -433,7 +434,10 @@ def _frame_shapes(
         if layers or beyond:
             carried.append((len(shapes), plane, nearest.z_order, layers, beyond))
         propagated.add(plane)
-        expected.append((plane, tuple(float(v) for v in plane_to_camera(nearest.plane, *pose))))
+        if lift.consistent:
+            # A track whose keyframes disagree about its plane (listed for review) says no plane
+            # to hold the frame's fit to: the frame's own depth decides.
+            expected.append((plane, tuple(float(v) for v in plane_to_camera(nearest.plane, *pose))))
     return (tuple(shapes), (frozenset(propagated) if propagation is not None else None), tuple(expected),
             tuple(carried))
 

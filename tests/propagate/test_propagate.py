@@ -282,3 +282,27 @@ def test_planes_cut_by_the_keyframes_view_are_carried_past_it(tmp_path, monkeypa
     assert with_beyond > without + 0.002, (with_beyond, without)
     # Growing over the plane past every keyframe's view adds to that.
     assert _mean_iou(tmp_path / "both", truth) > with_beyond, with_beyond
+
+
+def test_a_track_whose_keyframes_disagree_holds_no_frame_to_its_plane(rendered, tmp_path):
+    # The floor's keyframe at STEP moved onto the table top: the floor's track is listed for
+    # review, and on the frames between keyframes its shape gets no expected plane (the frame's
+    # own depth decides), while the table's still does.
+    from annotate_rgbd.pipeline.plan import plan_run
+
+    annotation = read_cvat(rendered["keyframes"])
+    by_label = {t.label: t for t in annotation.tracks}
+    floor, table = by_label["floor"], by_label["table_top"]
+    floor.shapes[STEP] = replace(table.shapes[STEP], z_order=10)
+    export = tmp_path / "wrong.xml"
+    write_cvat_video(annotation, export, width=320, height=240, keyframe_step=STEP, keyframes_only=True)
+    plan = plan_run(rendered["sequence"], [export], tmp_path / "out", load_config(rendered["config"]),
+                    poses=rendered["poses"])
+    lifts = {lift.track: lift for lift in plan.propagation.lifts.values()}
+    assert not lifts[floor.track_id].consistent and lifts[table.track_id].consistent
+    plane_of = {t.track: t.plane for t in plan.tracks}
+    carried = [job for _, job in plan.jobs if job.propagated]
+    assert carried
+    expected = {plane for job in carried for plane, _ in job.expected_planes}
+    assert plane_of[table.track_id] in expected and plane_of[floor.track_id] not in expected
+    assert any(plane_of[floor.track_id] in job.propagated for job in carried)
