@@ -224,7 +224,8 @@ class ProposeConfig:
         (and at least 0.2 m across) or more, the real-data ground truth of issue 26 0.15 m2;
         0.1, as the largest part of a plane a track sees may be less than the whole.
     min_track_share : float
-        ... nor one whose largest detection covers less than this share of the image: a plane
+        A track is proposed only when its largest detection covers at least this share of the
+        image, too (with ``min_surface_m2``, both must hold): a plane
         a labeller annotates is seen large at least once in a sequence, while what is never seen
         larger than a few per cent of the image is a far or small surface that plane ground truth
         leaves out (ScanNet-style GT keeps mesh planes of 0.1-0.15 m2 and more, the EVOPS rules
