@@ -58,32 +58,20 @@ def write_bytes_atomic(path: Path, data: bytes) -> None:
         The folder cannot be written (permissions, full disk, ...); no partial file remains.
     """
     path = Path(path)
-    # Named before it exists, so that an interrupt at any point (even inside the open call)
-    # leaves nothing behind: the finally clause removes whatever was created.
-    tmp = path.parent / f".{path.name}.{secrets.token_hex(4)}.tmp"
-    done = False
     try:
         # Only the file's own folder (masks/): an output folder removed or moved during the run
         # is an error here, never silently made again at its old path.
         path.parent.mkdir(exist_ok=True)
-        # Mode 0o666 minus the umask, like any file the user creates (mkstemp's 0o600 is not).
-        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
-        with os.fdopen(fd, "wb") as handle:
-            handle.write(data)
-            handle.flush()
-            os.fsync(handle.fileno())
-        os.replace(tmp, path)
-        done = True
     except FileNotFoundError:
-        raise OutputError(path, "cannot write output: its folder is gone (the output folder removed or moved during the run?)") from None
+        raise OutputError(path, FOLDER_GONE) from None
     except OSError as exc:
         raise OutputError(path, f"cannot write output: {exc.strerror or exc}") from None
-    finally:
-        if not done:
-            try:
-                tmp.unlink()
-            except OSError:  # never created (no folder, no permission): nothing to remove
-                pass
+    with _atomic_output(path) as handle:
+        handle.write(data)
+
+
+#: Why a file cannot be written when its folder is gone.
+FOLDER_GONE = "cannot write output: its folder is gone (the output folder removed or moved during the run?)"
 
 
 #: The output name that stands for standard output.
@@ -148,9 +136,14 @@ def open_output(path: str | Path) -> Iterator[IO[bytes]]:
 
 @contextmanager
 def _atomic_output(path: Path) -> Iterator[IO[bytes]]:
+    """A file written through a temporary file beside ``path`` and an atomic rename; no partial
+    file remains on any error or interrupt."""
+    # Named before it exists, so that an interrupt at any point (even inside the open call)
+    # leaves nothing behind: the finally clause removes whatever was created.
     tmp = path.parent / f".{path.name}.{secrets.token_hex(4)}.tmp"
     done = False
     try:
+        # Mode 0o666 minus the umask, like any file the user creates (mkstemp's 0o600 is not).
         fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
         with os.fdopen(fd, "wb") as handle:
             yield handle
@@ -158,13 +151,15 @@ def _atomic_output(path: Path) -> Iterator[IO[bytes]]:
             os.fsync(handle.fileno())
         os.replace(tmp, path)
         done = True
+    except FileNotFoundError:
+        raise OutputError(path, FOLDER_GONE) from None
     except OSError as exc:
         raise OutputError(path, f"cannot write output: {exc.strerror or exc}") from None
     finally:
         if not done:
             try:
                 tmp.unlink()
-            except OSError:  # never created
+            except OSError:  # never created (no folder, no permission): nothing to remove
                 pass
 
 
