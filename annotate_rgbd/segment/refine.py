@@ -153,14 +153,14 @@ def _fit_near(
     propagate: PropagateConfig,
 ) -> PlaneFit | None:
     """The plane among the points that lie near the ``expected`` one (within
-    ``propagate.same_surface_offset``), if it is the same surface; None when too few points lie
-    there or their plane is another surface."""
+    ``propagate.same_surface_offset``); None when too few points lie there or the fit holds none
+    of them (every point it is fitted to lies near the expected plane, so it is that surface)."""
     signed = points @ np.asarray(expected[:3], dtype=np.float64) + float(expected[3])
     near = points[np.abs(signed) <= propagate.same_surface_offset]
     if len(near) < max(3, refine.min_window_inliers):
         return None
     fit = fit_plane(near, config, noise, look_behind=False, expected=expected, propagate=propagate)
-    if not on_expected_plane(near[fit.inliers], expected, propagate):
+    if not np.any(fit.inliers):
         return None
     # Inliers among all the points, as the caller's fits hold them.
     band = noise.scaled(fit.noise_scale).band(points[:, 2])
