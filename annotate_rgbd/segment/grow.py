@@ -16,7 +16,7 @@ import numpy as np
 from annotate_rgbd.config.settings import RefineConfig
 from annotate_rgbd.geometry.camera import Camera, backproject
 from annotate_rgbd.geometry.noise import NoiseSettings
-from .refine import ids_nearby, signed_distances, window_scores
+from .refine import ids_nearby, label_lookup, signed_distances, window_scores
 
 
 def grow_planes(
@@ -82,9 +82,9 @@ def grow_planes(
     # within grow_pixels (a pixel that near three or more of them, where three shapes meet,
     # considers those two).
     top = max(grown)
-    growing = np.zeros(max(top, int(drawn.max(initial=0))) + 1, dtype=bool)
-    growing[list(grown)] = True
-    lowest, highest = ids_nearby(np.where(growing[drawn], drawn, 0), int(grow_pixels))
+    growing = np.zeros(max(top, int(drawn.max(initial=0))) + 1, dtype=drawn.dtype)
+    growing[list(grown)] = list(grown)  # each growing plane's id, 0 for the others
+    lowest, highest = ids_nearby(label_lookup(growing, drawn), int(grow_pixels))
     free = (highest > 0) & (drawn == 0) & (refined == 0)
     rows, cols = np.nonzero(free)
     z = depth_m[rows, cols].astype(np.float64)
@@ -180,7 +180,7 @@ def grow_connected(
     drawn = np.asarray(drawn)
     band = np.asarray(noise.band(depth), dtype=np.float32)
     ids = sorted(grown)
-    candidate = np.zeros(labels.shape, dtype=np.int64)
+    candidate = np.zeros(labels.shape, dtype=labels.dtype)
     best = np.full(labels.shape, np.inf, dtype=np.float32)
     residual = np.zeros(labels.shape, dtype=np.float32)
     own = np.isin(labels, ids)
@@ -192,10 +192,12 @@ def grow_connected(
             closer = free & (np.abs(signed) <= band) & (np.abs(signed) < best) & (drawn != plane_id)
         if excluded and plane_id in excluded:
             closer &= ~excluded[plane_id]
+        distance = np.abs(signed)
         candidate[closer] = plane_id
-        best[closer] = np.abs(signed[closer])
+        np.copyto(best, distance, where=closer)
         scored = closer | ((labels == plane_id) & np.isfinite(signed))
-        residual[scored] = signed[scored] * np.float32(noise.k) / band[scored]
+        with np.errstate(invalid="ignore"):
+            np.copyto(residual, signed * np.float32(noise.k) / band, where=scored)
     # The window test of refinement (a doormat on the floor lies within its band): residuals in
     # noise units, averaged over each candidate's window, must look like the plane's noise.
     score, usable = window_scores(residual, own | (candidate > 0), refine.coherence_window, refine.min_window_inliers)
@@ -208,7 +210,7 @@ def grow_connected(
         count, components = cv2.connectedComponents(reach.astype(np.uint8), connectivity=8)
         linked = np.bincount(components[mine], minlength=count) > 0
         linked[0] = False
-        take = linked[components] & ~mine
+        take = np.take(linked, components) & ~mine
         labels[take] = plane_id
         grown[plane_id] = int(np.count_nonzero(take))
     return labels, grown

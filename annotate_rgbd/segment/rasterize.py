@@ -137,8 +137,10 @@ def shape_mask(shape: Shape, height: int, width: int) -> tuple[int, int, np.ndar
 def polygon_window(points: np.ndarray, height: int, width: int) -> tuple[int, int, np.ndarray]:
     """Fill a polygon: the pixels whose centres are inside, in the window of the image it spans.
 
-    Scanline fill, vectorised over rows and edges: each row's pixel-centre line crosses the
-    edges at sorted x positions; pairs of crossings bound the inside spans.
+    Scanline fill, vectorised over edges: each edge crosses the pixel-centre lines of the rows
+    it spans (half-open in y), at one x each; sorted by row and x, pairs of crossings bound the
+    inside spans. The work grows with the crossings (about twice the rows for a convex outline),
+    not with rows times vertices.
 
     Parameters
     ----------
@@ -154,35 +156,50 @@ def polygon_window(points: np.ndarray, height: int, width: int) -> tuple[int, in
     inside : ndarray of bool, shape (rows, cols)
         The polygon's pixels in the window (which lies within the image; it may be empty).
     """
+    empty = (0, 0, np.zeros((0, 0), dtype=bool))
     x0, y0 = points[:, 0], points[:, 1]
     x1, y1 = np.concatenate([x0[1:], x0[:1]]), np.concatenate([y0[1:], y0[:1]])  # each edge's end
     top = max(int(np.floor(y0.min() - 0.5)), 0)
     bottom = min(int(np.ceil(y0.max() - 0.5)), height - 1)
     if bottom < top:
-        return 0, 0, np.zeros((0, 0), dtype=bool)
-    centre_y = (np.arange(top, bottom + 1) + 0.5)[:, None]
-    # Half-open in y: an edge counts for rows with centre in [min(y0, y1), max(y0, y1)).
-    crosses = ((y0 <= centre_y) & (centre_y < y1)) | ((y1 <= centre_y) & (centre_y < y0))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        xs = np.where(crosses, x0 + (centre_y - y0) * (x1 - x0) / (y1 - y0), np.inf)
-    xs.sort(axis=1)
-    starts, ends = xs[:, 0::2], xs[:, 1::2]
-    starts = starts[:, : ends.shape[1]]
-    missing = ~np.isfinite(ends)
+        return empty
+    # An edge counts for the rows whose centre r + 0.5 lies in [min(y0, y1), max(y0, y1)): r from
+    # ceil(min - 0.5) to ceil(max - 0.5) - 1 (none for a horizontal edge).
+    first_row = np.clip(np.ceil(np.minimum(y0, y1) - 0.5), top, bottom + 1).astype(np.int64)
+    stop_row = np.clip(np.ceil(np.maximum(y0, y1) - 0.5), top, bottom + 1).astype(np.int64)
+    spanned = stop_row - first_row
+    edges = np.flatnonzero(spanned > 0)
+    if edges.size == 0:
+        return empty
+    counts = spanned[edges]
+    edge = np.repeat(edges, counts)
+    offsets = np.cumsum(counts) - counts
+    rows = first_row[edge] + (np.arange(edge.size) - np.repeat(offsets, counts))
+    centre_y = rows + 0.5
+    xs = x0[edge] + (centre_y - y0[edge]) * (x1[edge] - x0[edge]) / (y1[edge] - y0[edge])
+    order = np.lexsort((xs, rows))
+    rows, xs = rows[order], xs[order]
+    # Pairs within a row: crossings 0-1, 2-3, ... (a row's last crossing without a partner, on a
+    # degenerate outline, bounds nothing).
+    row_start = np.searchsorted(rows, rows, side="left")
+    start = np.flatnonzero(((np.arange(rows.size) - row_start) % 2 == 0)[:-1] & (rows[1:] == rows[:-1]))
+    span_rows, starts, ends = rows[start], xs[start], xs[start + 1]
     # Pixels with centre c + 0.5 in [start, end): c from ceil(start - 0.5) to ceil(end - 0.5) - 1.
-    first = np.where(missing, 0, np.ceil(np.where(missing, 0, starts) - 0.5)).clip(0, width).astype(np.int32)
-    stop = np.where(missing, 0, np.ceil(np.where(missing, 0, ends) - 0.5)).clip(0, width).astype(np.int32)
+    first = np.ceil(starts - 0.5).clip(0, width).astype(np.int32)
+    stop = np.ceil(ends - 0.5).clip(0, width).astype(np.int32)
     filled = stop > first
     if not filled.any():
-        return 0, 0, np.zeros((0, 0), dtype=bool)
-    # Only the columns the spans reach (most shapes cover a fraction of the image's width), and
-    # only as many spans per row as some row has (one for a convex polygon).
-    left, right = int(first[filled].min()), int(stop[filled].max())
-    k, *more = np.flatnonzero(filled.any(axis=0)).tolist()
+        return empty
+    span_rows, first, stop = span_rows[filled] - top, first[filled], stop[filled]
+    left, right = int(first.min()), int(stop.max())
+    # The k-th span of each row (rows hold one span for a convex outline; few hold more).
+    k = np.arange(span_rows.size) - np.searchsorted(span_rows, span_rows, side="left")
+    bounds = np.zeros((2, int(k.max()) + 1, bottom - top + 1, 1), dtype=np.int32)
+    bounds[0, k, span_rows, 0], bounds[1, k, span_rows, 0] = first, stop
     cols = np.arange(left, right, dtype=np.int32)
-    inside = (cols >= first[:, k, None]) & (cols < stop[:, k, None])
-    for k in more:  # spans of a row are disjoint: one comparison per span
-        inside |= (cols >= first[:, k, None]) & (cols < stop[:, k, None])
+    inside = (cols >= bounds[0, 0]) & (cols < bounds[1, 0])
+    for first_k, stop_k in zip(bounds[0, 1:], bounds[1, 1:]):  # spans of a row are disjoint
+        inside |= (cols >= first_k) & (cols < stop_k)
     return top, left, inside
 
 
@@ -243,12 +260,42 @@ def paint_layers(layers: Iterable[tuple[int, np.ndarray]], height: int, width: i
         Pixels whose last covering polygon is positive, and negative; neither where none
         covers them.
     """
-    verdict = np.zeros((height, width), dtype=np.int8)
+    top, left, verdict = paint_window(layers, height, width)
+    inside = np.zeros((height, width), dtype=bool)
+    excluded = np.zeros((height, width), dtype=bool)
+    rows, cols = verdict.shape
+    np.greater(verdict, 0, out=inside[top : top + rows, left : left + cols])
+    np.less(verdict, 0, out=excluded[top : top + rows, left : left + cols])
+    return inside, excluded
+
+
+def paint_window(layers: Iterable[tuple[int, np.ndarray]], height: int, width: int) -> tuple[int, int, np.ndarray]:
+    """:func:`paint_layers` on the window of the image the polygons span.
+
+    Returns
+    -------
+    top, left : int
+        Position of the window in the image.
+    verdict : ndarray of int8, shape (rows, cols)
+        +1 where the last covering polygon is positive, -1 where it is negative, 0 where none
+        covers the pixel (the window may be empty).
+    """
+    windows = []
     for sign, polygon in layers:
         top, left, inside = polygon_window(np.asarray(polygon, dtype=np.float64), height, width)
+        if inside.size:
+            windows.append((np.int8(1 if sign > 0 else -1), top, left, inside))
+    if not windows:
+        return 0, 0, np.zeros((0, 0), dtype=np.int8)
+    top = min(w[1] for w in windows)
+    left = min(w[2] for w in windows)
+    bottom = max(w[1] + w[3].shape[0] for w in windows)
+    right = max(w[2] + w[3].shape[1] for w in windows)
+    verdict = np.zeros((bottom - top, right - left), dtype=np.int8)
+    for sign, row, col, inside in windows:
         rows, cols = inside.shape
-        np.copyto(verdict[top : top + rows, left : left + cols], np.int8(1 if sign > 0 else -1), where=inside)
-    return verdict > 0, verdict < 0
+        np.copyto(verdict[row - top : row - top + rows, col - left : col - left + cols], sign, where=inside)
+    return top, left, verdict
 
 
 def carried_shapes(
@@ -279,12 +326,28 @@ def carried_shapes(
     shapes = list(shapes)
     excluded: dict[int, np.ndarray] = {}
     for position, plane_id, z_order, layers, beyond in reversed(list(carried)):  # later positions first
-        inside, outside = paint_layers(layers, height, width)
-        further, _ = paint_layers([(1, quad) for quad in beyond], height, width)
-        further &= ~inside & ~outside
-        for mask, z in ((further, BOTTOM_Z_ORDER), (inside, z_order)):  # inserted in reverse
+        # Painted on the window the polygons span, not on the whole image: what the keyframes
+        # say (+1 inside, -1 excluded), and past their views (2) where they say nothing.
+        said_window = paint_window(layers, height, width)
+        beyond_window = paint_window([(1, quad) for quad in beyond], height, width)
+        painted = [w for w in (beyond_window, said_window) if w[2].size]
+        if not painted:
+            continue
+        top, left = min(w[0] for w in painted), min(w[1] for w in painted)
+        bottom = max(w[0] + w[2].shape[0] for w in painted)
+        right = max(w[1] + w[2].shape[1] for w in painted)
+        said = np.zeros((bottom - top, right - left), dtype=np.int8)
+        for (row, col, verdict), weight in ((beyond_window, 2), (said_window, 1)):
+            rows, cols = verdict.shape
+            np.copyto(said[row - top : row - top + rows, col - left : col - left + cols], verdict * np.int8(weight),
+                      where=verdict != 0)
+        outside = said == -1
+        for mask, z in ((said == 2, BOTTOM_Z_ORDER), (said == 1, z_order)):  # inserted in reverse
             if mask.any():
-                shapes.insert(position, (plane_id, Shape("mask", np.zeros((1, 2)), z_order=z, bitmap=mask)))
+                corner = np.array([[left, top]], dtype=np.float64)
+                shapes.insert(position, (plane_id, Shape("mask", corner, z_order=z, bitmap=mask)))
         if outside.any():
-            excluded[plane_id] = outside | excluded[plane_id] if plane_id in excluded else outside
+            full = np.zeros((height, width), dtype=bool)
+            full[top:bottom, left:right] = outside
+            excluded[plane_id] = full | excluded[plane_id] if plane_id in excluded else full
     return shapes, excluded

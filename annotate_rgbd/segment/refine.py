@@ -84,7 +84,7 @@ def refine_planes(
         carried plane that is not where the poses put it has none.
     """
     valid = np.isfinite(depth_m)
-    on_valid = np.where(valid, labels, 0)  # plane ids where the depth is valid
+    on_valid = labels * valid  # plane ids where the depth is valid
     n_labels = int(labels.max(initial=0)) + 1
     plane_ids = np.asarray(plane_ids)
     if valid_pixels is None:
@@ -109,7 +109,7 @@ def refine_planes(
         scales[plane_id] = fit.noise_scale
     band = band_image(depth_m, noise)
     if not isinstance(band, float) and (scales != 1).any():  # widened where a plane's noise is larger
-        band = np.clip(band * _lookup(scales, on_valid), np.float32(noise.floor), np.float32(noise.cap))
+        band = np.clip(band * label_lookup(scales, on_valid), np.float32(noise.floor), np.float32(noise.cap))
     # The window test needs the noise, which a fixed band (distance_threshold) does not give.
     coherence = noise.floor < noise.cap and refine.coherence_window > 0
     if coherence and isinstance(band, float):  # a constant noise model
@@ -128,7 +128,7 @@ def refine_planes(
         for _ in range(refine.core_refits):
             score, usable = window_scores(residual_s, on_plane_s, window, refine.min_window_inliers)
             centre, _ = _score_statistics(score, usable, labels_s, n_labels)
-            core = usable & (np.abs(score - _lookup(centre, labels_s)) <= refine.core_score)
+            core = usable & (np.abs(score - label_lookup(centre, labels_s)) <= refine.core_score)
             before = table.copy()
             _refit_to(core, labels_s, depth_s, band_s, noise.k, camera_s, config.max_points, fits, table)
             if np.abs(table - before).max(initial=0.0) < SETTLED:
@@ -138,14 +138,14 @@ def refine_planes(
     if coherence:
         score, usable = window_scores(residual, on_plane, refine.coherence_window, refine.min_window_inliers)
         centre, spread = _score_statistics(score, usable, on_valid, n_labels, step=4)
-        limit = refine.coherence_limit * _lookup(spread, on_valid)
-        on_plane &= ~(usable & (np.abs(score - _lookup(centre, on_valid)) > limit))
+        limit = refine.coherence_limit * label_lookup(spread, on_valid)
+        on_plane &= ~(usable & (np.abs(score - label_lookup(centre, on_valid)) > limit))
         on_plane &= inlier_density(on_plane, on_valid > 0, refine.coherence_window) >= refine.min_inlier_density
     if rim_pixels:
         with np.errstate(invalid="ignore"):
             in_front = (on_valid > 0) & ~on_plane & (residual > 0)
         on_plane &= ~near_surfaces_in_front(in_front, on_valid, rim_pixels)
-    return np.where(on_plane, labels, 0).astype(labels.dtype), fits
+    return labels * on_plane, fits
 
 
 def _fit_near(
@@ -202,7 +202,7 @@ def near_surfaces_in_front(in_front: np.ndarray, labels: np.ndarray, rim_pixels:
     if not surfaces.any():
         return surfaces
     # Where three planes' surfaces meet within a rim, the middle one is missed.
-    lowest, highest = ids_nearby(np.where(surfaces, labels, 0), rim_pixels)
+    lowest, highest = ids_nearby(labels * surfaces, rim_pixels)
     return (labels > 0) & ((highest == labels) | (lowest == labels))
 
 
@@ -220,19 +220,22 @@ def ids_nearby(ids: np.ndarray, radius: int) -> tuple[np.ndarray, np.ndarray]:
 
     Returns
     -------
-    lowest, highest : ndarray of int64, shape (H, W)
-        0 where no id lies within ``radius``.
+    lowest, highest : ndarray of int, shape (H, W)
+        0 where no id lies within ``radius``; uint8 or uint16 when those hold every id, else int64.
     """
     offsets = np.arange(-radius, radius + 1)
     disk = (offsets[:, None] ** 2 + offsets[None, :] ** 2 <= radius * radius).astype(np.uint8)
     top = int(ids.max(initial=0))
     # The narrowest type cv2.dilate takes that holds every id and top + 1 (float32: exact to 2^24).
     work = np.float32 if top + 1 >= 2**16 else (np.uint16 if top + 1 >= 2**8 else np.uint8)
-    shapes = ids.astype(work)
-    highest = cv2.dilate(shapes, disk, borderValue=0).astype(np.int64)
-    # The lowest id as the highest of top + 1 - id.
-    flipped = cv2.dilate(np.where(shapes > 0, work(top + 1) - shapes, 0).astype(work), disk, borderValue=0)
-    lowest = np.where(flipped > 0, top + 1 - flipped.astype(np.int64), 0)
+    shapes = ids.astype(work, copy=False)
+    highest = cv2.dilate(shapes, disk, borderValue=0)
+    # The lowest id as the highest of top + 1 - id (0 stays 0), and back.
+    present = shapes > 0
+    flipped = cv2.dilate((work(top + 1) - shapes) * present, disk, borderValue=0)
+    lowest = (work(top + 1) - flipped) * (flipped > 0)
+    if work is np.float32:  # ids beyond uint16 (rare): back to integers
+        return lowest.astype(np.int64), highest.astype(np.int64)
     return lowest, highest
 
 
@@ -262,7 +265,7 @@ def _refit_to(
 ) -> None:
     """Re-fit every plane of ``fits`` to its ``core`` pixels (weighted by 1 / sigma^2, on a grid of
     at most about ``max_points``); updates ``fits`` and ``table`` in place."""
-    core_labels = np.where(core, labels, 0)
+    core_labels = labels * core
     counts = np.bincount(core_labels.ravel(), minlength=len(table))
     for plane_id, fit in list(fits.items()):
         rows, cols = grid_pixels(core_labels, plane_id, int(counts[plane_id]), max_points)
@@ -299,8 +302,8 @@ def inlier_density(
         pixels inside it.
     """
     size = (window, window)
-    inliers = cv2.boxFilter(on_plane.astype(np.float32), -1, size, normalize=False, borderType=cv2.BORDER_CONSTANT)
-    total = cv2.boxFilter(labelled.astype(np.float32), -1, size, normalize=False, borderType=cv2.BORDER_CONSTANT)
+    inliers = cv2.boxFilter(on_plane.view(np.uint8), cv2.CV_32F, size, normalize=False, borderType=cv2.BORDER_CONSTANT)
+    total = cv2.boxFilter(labelled.view(np.uint8), cv2.CV_32F, size, normalize=False, borderType=cv2.BORDER_CONSTANT)
     with np.errstate(invalid="ignore", divide="ignore"):
         return inliers / total
 
@@ -331,10 +334,11 @@ def window_scores(
     usable : ndarray of bool, shape (H, W)
         Inlier pixels whose window holds at least ``min_inliers`` inliers.
     """
-    values = np.where(on_plane, residual, np.float32(0))
+    mask = on_plane.view(np.uint8)
+    values = cv2.copyTo(residual, mask)  # a new image: 0 off the mask
     size = (window, window)
     total = cv2.boxFilter(values, -1, size, normalize=False, borderType=cv2.BORDER_CONSTANT)
-    count = cv2.boxFilter(on_plane.astype(np.float32), -1, size, normalize=False, borderType=cv2.BORDER_CONSTANT)
+    count = cv2.boxFilter(mask, cv2.CV_32F, size, normalize=False, borderType=cv2.BORDER_CONSTANT)
     with np.errstate(invalid="ignore", divide="ignore"):
         score = total / np.sqrt(count)
     return score, on_plane & (count >= min_inliers)
@@ -371,10 +375,15 @@ def _score_statistics(
         # The spread on each side of the centre (the median distance of a normal's half is
         # 0.6745 sigma): another surface lies on one side, the smaller one is the plane's.
         split = int(np.searchsorted(v, middle))
-        sides = [middle - np.median(v[:split]), np.median(v[split:]) - middle] if 2 <= split <= v.size - 2 else [np.inf]
+        sides = [middle - _sorted_median(v[:split]), _sorted_median(v[split:]) - middle] if 2 <= split <= v.size - 2 else [np.inf]
         centre[plane_id] = middle
         spread[plane_id] = max(1.0, min(sides) / 0.6745) if np.isfinite(min(sides)) else max(1.0, widths[first] / 2 / 0.6745)
     return centre, spread
+
+
+def _sorted_median(v: np.ndarray) -> float:
+    """``np.median`` of an array already in ascending order (the same number, without a partition)."""
+    return (v[(v.size - 1) // 2] + v[v.size // 2]) / 2
 
 
 def _inlier_test(
@@ -384,10 +393,10 @@ def _inlier_test(
     noise units (``k`` times distance over band); ``table`` holds each label's plane, zeros for
     a label without one."""
     # Distance of every pixel to its own label's plane.
-    signed = signed_distances(depth_m, *(_lookup(table[:, i], labels) for i in range(4)), camera)
+    signed = signed_distances(depth_m, *(label_lookup(table[:, i], labels) for i in range(4)), camera)
     fitted = table[:, :3].any(axis=1).astype(np.float32)  # a plane has a unit normal
     with np.errstate(invalid="ignore"):
-        on_plane = (np.abs(signed) < band) & (_lookup(fitted, labels) > 0)
+        on_plane = (np.abs(signed) < band) & (label_lookup(fitted, labels) > 0)
         residual = signed * (np.float32(k) / band)
     return on_plane, residual
 
@@ -425,10 +434,22 @@ def band_image(depth_m: np.ndarray, noise: NoiseSettings) -> np.ndarray | float:
     return np.clip(band, np.float32(noise.floor), np.float32(noise.cap), out=band)
 
 
-def _lookup(table: np.ndarray, labels: np.ndarray) -> np.ndarray:
-    """``table[labels]`` for a float32 table (OpenCV's table look-up for 8-bit labels)."""
+def label_lookup(table: np.ndarray, labels: np.ndarray) -> np.ndarray:
+    """``table[labels]``: each pixel's entry of a per-label table (OpenCV's table look-up for 8-bit
+    labels, several times faster than numpy's indexing).
+
+    Parameters
+    ----------
+    table : ndarray, shape (N,)
+        One value per label, N > the largest label.
+    labels : ndarray of non-negative int, shape (H, W)
+
+    Returns
+    -------
+    ndarray, shape (H, W), of the type of ``table``
+    """
     if labels.dtype == np.uint8:
-        padded = np.zeros(256, dtype=np.float32)
+        padded = np.zeros(256, dtype=table.dtype)
         padded[: len(table)] = table
         return cv2.LUT(labels, padded)
     return np.take(table, labels)

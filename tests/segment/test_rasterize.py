@@ -79,3 +79,48 @@ def test_label_images_use_the_smallest_type_for_the_plane_ids():
     big = rasterize_frame([(256, square)], 4, 4)
     assert big.dtype == np.uint16 and big[0, 0] == 256
     assert rasterize_frame([(70000, square)], 4, 4).dtype == np.int32
+
+
+def _centres_inside(points, height, width):
+    """Pixels whose centre lies inside a polygon (scikit-image's test; CVAT coordinates)."""
+    inside = np.zeros((height, width), bool)
+    rows, cols = skimage_polygon(points[:, 1] - 0.5, points[:, 0] - 0.5, shape=(height, width))
+    inside[rows, cols] = True
+    return inside
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_carried_shapes_paint_what_the_last_layer_says_on_the_whole_image(seed):
+    # Painted on the layers' window only, the carried plane's pixels are those of painting every
+    # signed layer in order on the whole image; beyond the keyframes' views where no layer speaks.
+    from annotate_rgbd.segment.rasterize import BOTTOM_Z_ORDER, carried_shapes
+
+    rng = np.random.default_rng(seed)
+    height, width = 50, 70
+
+    def random_polygon():
+        n = rng.integers(3, 9)
+        angles = np.sort(rng.uniform(0, 2 * np.pi, n))
+        return rng.uniform([-10, -10], [80, 60]) + np.c_[np.cos(angles), np.sin(angles)] * rng.uniform(3, 30, (n, 1))
+
+    layers = [(int(rng.choice([-1, 1])), random_polygon()) for _ in range(rng.integers(0, 6))]
+    beyond = [random_polygon() for _ in range(rng.integers(0, 4))]
+    verdict = np.zeros((height, width), np.int8)
+    for sign, points in layers:
+        verdict[_centres_inside(points, height, width)] = sign
+    further = np.zeros((height, width), bool)
+    for points in beyond:
+        further |= _centres_inside(points, height, width)
+    further &= verdict == 0
+
+    drawn = polygon([[0, 0], [3, 0], [3, 3], [0, 3]], z=5)
+    shapes, excluded = carried_shapes([(1, drawn)], [(0, 9, 2, layers, beyond)], height, width)
+    by_z = {shape.z_order: shape for plane_id, shape in shapes if plane_id == 9}
+    expected = {2: verdict > 0, BOTTOM_Z_ORDER: further}
+    assert set(by_z) == {z for z, mask in expected.items() if mask.any()}
+    for z, shape in by_z.items():
+        top, left, window = shape_mask(shape, height, width)
+        painted = np.zeros((height, width), bool)
+        painted[top : top + window.shape[0], left : left + window.shape[1]] = window
+        np.testing.assert_array_equal(painted, expected[z])
+    np.testing.assert_array_equal(excluded.get(9, np.zeros((height, width), bool)), verdict < 0)
