@@ -1,48 +1,61 @@
-"""Speed of ``cvat2mask`` against the I/O floor, with 1 worker and with all workers, in one run.
+"""Speed and memory of ``cvat2mask``, ``--poses`` and ``propose`` against the I/O floor, in one run.
 
-Run from the repository root::
+Run from the repository root (after the quick start's set-up)::
 
-    python benchmarks/bench_cvat2mask.py [--frames 300] [--width 640 --height 480] [--workdir DIR]
+    python benchmarks/bench_cvat2mask.py [--frames 300] [--rounds 3] [--workdir DIR]
 
-It renders a synthetic sequence (the room of ``annotate_rgbd.synthetic``: about 10 planes,
-clutter, Kinect-like noise) once into ``--workdir`` (reused by later runs), then measures, on
-the same frames and in the same run:
+It renders two synthetic sequences once into ``--workdir`` (reused by later runs): the room of
+``annotate_rgbd.synthetic`` (``--frames`` frames at 640 x 480, about 10 planes, clutter,
+Kinect-like noise) and the 60-frame walk of ``bench_refine.py``, which has a camera trajectory.
+Every figure is a whole process, start-up included, as a user runs it; the figures take turns for
+``--rounds`` rounds and each keeps its best (a shared machine's speed drifts within minutes), so
+the ratios compare measurements of the same run:
 
-* the I/O floor: decoding each depth PNG and encoding one colour mask per frame and writing it
-  the way the tool must (atomically: a temporary file, then a rename), the work no
-  implementation can skip;
-* ``run_cvat2mask`` with 1 worker and with all workers (``--force``: every frame is made), in
-  this process with the settings the command line makes first (helper server started, freed
-  buffers kept: see ``annotate_rgbd.execute``); the 1-worker run also samples this process's
-  resident memory after every frame, to show that it stays flat along the sequence.
+* the I/O floor: a process that decodes each depth PNG and encodes one colour mask per frame
+  (in memory), the work no implementation can skip (:data:`IO_FLOOR`);
+* ``cvat2mask --jobs 1`` and ``--jobs 2`` (every frame made: ``--force``), and the main
+  process's peak resident memory in the 1-worker run (its ``VmHWM``);
+* ``propose --jobs 1 --every 1`` on the same frames;
+* on the walk, ``cvat2mask --jobs 1`` with and without ``--poses``, for a keyframe drawn on every
+  frame (nothing to carry) and on every 10th.
 
-The three measurements take turns for ``--rounds`` rounds and each keeps its best, so that a
-burst of load from other work on a shared machine does not decide the ratios. Targets (issue
-"Batch relabelling"): 1-worker time per frame at most 3x the I/O floor, and 2 workers at least
-1.7x faster than 1 on a 2-core machine.
+It prints each figure in ms per frame and the targets of the speed issue: 1 worker at most 3x
+the floor, ``--poses`` at most 1.3x the time without (1.05x when every frame is a keyframe), 2
+workers at least 1.7x faster than 1, ``propose`` no slower than ``cvat2mask`` per frame, and the
+1-worker peak memory (about 310 MiB before the speed work).
 """
 
 from __future__ import annotations
 
 import argparse
-import os
 import shutil
+import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from annotate_rgbd.cvat import write_cvat_video, read_cvat  # noqa: E402
+from annotate_rgbd.geometry.camera import Camera  # noqa: E402
+from annotate_rgbd.synthetic import make_sequence  # noqa: E402
+
+#: The I/O floor, run as its own process: ``python -c IO_FLOOR DEPTH_DIR``. A mask with the
+#: structure of a real one (a few large regions, holes) is coloured and encoded per frame.
+IO_FLOOR = """
+import sys
+from pathlib import Path
 import cv2
 import numpy as np
-
-from annotate_rgbd.geometry.camera import Camera
-from annotate_rgbd.config.settings import Config
-from annotate_rgbd.cvat import write_cvat_video
-from annotate_rgbd.pipeline.execute import default_workers, prepare_process
-from annotate_rgbd.report.palette import colourize, plane_colours
-from annotate_rgbd.pipeline.scene import run_cvat2mask
-from annotate_rgbd.io.sequence import read_sequence
-from annotate_rgbd.synthetic import make_sequence
-from annotate_rgbd.io.writer import write_png
+colours = np.random.default_rng(0).integers(0, 256, (256, 3), dtype=np.uint8)
+colours[0] = 0
+for path in sorted(Path(sys.argv[1]).glob("*.png")):
+    depth = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    labels = np.minimum(depth // 2000, 12).astype(np.uint8)
+    ok, data = cv2.imencode(".png", colours[labels])
+    assert ok
+"""
 
 
 def make_benchmark_sequence(folder: Path, frames: int, width: int, height: int) -> tuple[Path, Path, Camera]:
@@ -61,85 +74,108 @@ def make_benchmark_sequence(folder: Path, frames: int, width: int, height: int) 
     return tag / "sequence", annotations, camera
 
 
-def io_floor(sequence_dir: Path, out: Path) -> float:
-    """Seconds to decode every depth frame and encode and write (atomically) one colour mask per frame."""
-    sequence = read_sequence(sequence_dir)
-    colours = plane_colours(12)
-    out.mkdir(parents=True, exist_ok=True)
-    started = time.perf_counter()
-    for name in sequence.depth.files:
-        depth = cv2.imread(str(sequence_dir / name), cv2.IMREAD_UNCHANGED)
-        # A mask with the structure of a real one: a few large regions and holes.
-        labels = np.minimum(depth // 2000, 12).astype(np.uint8)
-        write_png(out / Path(name).name, colourize(labels, colours))
-    return time.perf_counter() - started
+def camera_toml(camera: Camera, path: Path) -> Path:
+    """Write the camera as a configuration file for the command line."""
+    path.write_text("[camera]\n" + "".join(f"{k} = {getattr(camera, k)}\n" for k in ("fx", "fy", "cx", "cy", "depth_scale")),
+                    encoding="utf-8")
+    return path
 
 
-def timed_run(
-    sequence_dir: Path, annotations: Path, out: Path, config: Config, workers: int, memory: list[float] | None = None
-) -> float:
-    """Seconds of one forced ``run_cvat2mask``; with ``memory``, this process's resident memory
-    (MiB) is appended to it after every frame."""
-    sample = (lambda done, total: memory.append(resident_mib())) if memory is not None else None
+def run_process(command: list[str]) -> tuple[float, float]:
+    """Wall seconds of a whole process and its peak resident memory (MiB, its VmHWM read until it ends)."""
     started = time.perf_counter()
-    report = run_cvat2mask(sequence_dir, [annotations], out, config, workers=workers, force=True, progress=sample)
+    process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    peak = 0.0
+    status = Path(f"/proc/{process.pid}/status")
+    while process.poll() is None:
+        try:
+            for line in status.read_text().splitlines():
+                if line.startswith("VmHWM:"):
+                    peak = max(peak, int(line.split()[1]) / 1024)
+        except (OSError, ValueError):
+            pass
+        time.sleep(0.02)
     elapsed = time.perf_counter() - started
-    assert report.counts.made == report.written > 0, report.counts
-    return elapsed
-
-
-def resident_mib() -> float:
-    """This process's resident memory now, in MiB (Linux)."""
-    pages = int(Path("/proc/self/statm").read_text().split()[1])
-    return pages * os.sysconf("SC_PAGE_SIZE") / 2**20
+    stderr = process.stderr.read() if process.stderr else ""
+    if process.returncode != 0:
+        raise SystemExit(f"{' '.join(command)} failed ({process.returncode}):\n{stderr}")
+    return elapsed, peak
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--frames", type=int, default=300)
-    parser.add_argument("--width", type=int, default=640)
-    parser.add_argument("--height", type=int, default=480)
+    parser.add_argument("--rounds", type=int, default=3, help="rounds of every measurement; the best counts")
     parser.add_argument("--workdir", type=Path, default=Path(tempfile.gettempdir()) / "annotate-rgbd-bench")
-    parser.add_argument("--workers", type=int, default=default_workers(), help="the 'all workers' run")
-    parser.add_argument("--rounds", type=int, default=5, help="rounds of the three measurements; the best counts")
     args = parser.parse_args()
-    # As the command line does first thing: the helpers' server imports Open3D in the background,
-    # and this process keeps freed image buffers for reuse.
-    prepare_process(args.workers)
+    from bench_refine import make_contact_sequence  # the walk with its trajectory
 
-    sequence_dir, annotations, camera = make_benchmark_sequence(args.workdir, args.frames, args.width, args.height)
-    config = Config(camera=camera)  # the defaults: noise-aware band, edge growing
-    n = len(read_sequence(sequence_dir).depth)
+    sequence, annotations, camera = make_benchmark_sequence(args.workdir, args.frames, 640, 480)
+    walk = make_contact_sequence(args.workdir, 60, 640, 480, 2.0, 12)
     outputs = args.workdir / "outputs"
     shutil.rmtree(outputs, ignore_errors=True)
+    outputs.mkdir(parents=True)
+    config = camera_toml(camera, outputs / "camera.toml")
+    walk_config = camera_toml(walk.camera, outputs / "walk_camera.toml")
+    walk_frames = len(list((walk.sequence / "depth").glob("*.png")))
+    trajectory = walk.sequence / "groundtruth.txt"
+    exports = {}
+    for step in (1, 10):
+        exports[step] = outputs / f"walk_keyframes_every_{step}.xml"
+        write_cvat_video(read_cvat(walk.single[0]), exports[step], width=640, height=480, keyframe_step=step,
+                         keyframes_only=True)
 
-    # Shared machines are noisy: the three measurements take turns, and each keeps its best round.
-    floor = one = many = float("inf")
-    memory: list[float] = []  # of the first 1-worker run, after each frame
+    tool = [sys.executable, "-m", "annotate_rgbd"]
+    room = ["cvat2mask", str(sequence), str(annotations), "--config", str(config), "--force"]
+    runs = {  # name: (command, frames)
+        "I/O floor": ([sys.executable, "-c", IO_FLOOR, str(sequence / "depth")], args.frames),
+        "cvat2mask --jobs 1": (tool + room + ["--out", str(outputs / "one"), "--jobs", "1"], args.frames),
+        "cvat2mask --jobs 2": (tool + room + ["--out", str(outputs / "two"), "--jobs", "2"], args.frames),
+        "propose --jobs 1": (tool + ["propose", str(sequence), "--config", str(config), "--out",
+                                     str(outputs / "propose"), "--jobs", "1", "--every", "1"], args.frames),
+    }
+    for step in (1, 10):
+        walk_run = tool + ["cvat2mask", str(walk.sequence), str(exports[step]), "--config", str(walk_config), "--force",
+                           "--jobs", "1"]
+        runs[f"walk, keyframe every {step}"] = (walk_run + ["--out", str(outputs / f"walk{step}")], walk_frames)
+        runs[f"walk, keyframe every {step}, --poses"] = (
+            walk_run + ["--out", str(outputs / f"walk{step}_poses"), "--poses", str(trajectory)], walk_frames)
+
+    best = {name: float("inf") for name in runs}
+    peak = {name: 0.0 for name in runs}
     for round_ in range(1, args.rounds + 1):
-        times = (
-            io_floor(sequence_dir, outputs / "floor"),
-            timed_run(sequence_dir, annotations, outputs / "one", config, 1, memory if round_ == 1 else None),
-            timed_run(sequence_dir, annotations, outputs / "many", config, args.workers),
-        )
-        print(f"round {round_}: I/O floor {times[0]:.2f} s, 1 worker {times[1]:.2f} s, {args.workers} workers {times[2]:.2f} s")
-        floor, one, many = min(floor, times[0]), min(one, times[1]), min(many, times[2])
-    identical = all(
-        (outputs / "one" / "masks" / p.name).read_bytes() == p.read_bytes() for p in (outputs / "many" / "masks").iterdir()
-    )
+        line = []
+        for name, (command, _) in runs.items():
+            seconds, memory = run_process(command)
+            best[name], peak[name] = min(best[name], seconds), max(peak[name], memory)
+            line.append(f"{name} {seconds:.1f} s")
+        print(f"round {round_}: " + ", ".join(line), flush=True)
+    identical = all((outputs / "one" / "masks" / p.name).read_bytes() == p.read_bytes()
+                    for p in (outputs / "two" / "masks").iterdir())
 
-    print(f"{n} frames at {args.width}x{args.height}, {os.cpu_count()} cores, best of {args.rounds} rounds")
-    print(f"I/O floor            {1000 * floor / n:7.1f} ms/frame  {n / floor:6.1f} frames/s")
-    print(f"cvat2mask, 1 worker  {1000 * one / n:7.1f} ms/frame  {n / one:6.1f} frames/s")
-    print(f"cvat2mask, {args.workers} workers {1000 * many / n:7.1f} ms/frame  {n / many:6.1f} frames/s")
-    print(f"1 worker / I/O floor      {one / floor:5.2f}x   (target <= 3)")
-    print(f"{args.workers} workers speed-up over 1  {one / many:5.2f}x   (target >= 1.7 with 2 workers)")
-    print(f"masks identical between the two runs: {identical}")
-    fifth = max(1, n // 5)
-    print(
-        f"memory of the 1-worker run: {max(memory[:fifth]):.0f} MiB up to frame {fifth}, "
-        f"{max(memory):.0f} MiB up to frame {n} (flat: frames are streamed)"
-    )
+    per_frame = {name: 1000 * best[name] / frames for name, (_, frames) in runs.items()}
+    print(f"\nroom: {args.frames} frames at 640x480; walk: {walk_frames} frames; whole processes, best of {args.rounds} rounds")
+    print(f"{'':38} {'ms/frame':>9} {'x floor':>8} {'peak MiB':>9}")
+    for name in runs:
+        ratio = f"{per_frame[name] / per_frame['I/O floor']:8.2f}" if not name.startswith("walk") else f"{'':8}"
+        print(f"{name:38} {per_frame[name]:9.1f} {ratio} {peak[name]:9.0f}")
+    one, two = best["cvat2mask --jobs 1"], best["cvat2mask --jobs 2"]
+    checks = [
+        ("cvat2mask --jobs 1 / I/O floor", one / best["I/O floor"], "<= 3"),
+        ("--poses / without, keyframe every 10th",
+         best["walk, keyframe every 10, --poses"] / best["walk, keyframe every 10"], "<= 1.3"),
+        ("--poses / without, every frame a keyframe",
+         best["walk, keyframe every 1, --poses"] / best["walk, keyframe every 1"], "<= 1.05"),
+        ("--jobs 2 speed-up over --jobs 1", one / two, ">= 1.7"),
+        ("propose / cvat2mask per frame", best["propose --jobs 1"] / one, "<= 1"),
+    ]
+    print()
+    for name, value, target in checks:
+        limit = float(target.split()[1])
+        met = value <= limit if target.startswith("<=") else value >= limit
+        print(f"{name:44} {value:6.2f}x  target {target}: {'met' if met else 'NOT met'}")
+    print(f"{'peak memory of cvat2mask --jobs 1':44} {peak['cvat2mask --jobs 1']:6.0f} MiB (about 310 before the speed work)")
+    print(f"masks identical between --jobs 1 and --jobs 2: {identical}")
 
 
 if __name__ == "__main__":

@@ -9,7 +9,8 @@ package into a temporary folder (``git archive``), and then times ``run_cvat2mas
 default configuration of each revision (its own defaults: that is what a user gets), every frame
 made (``force``), in fresh processes that take turns for ``--rounds`` rounds; each revision keeps
 its best round, since a shared machine's speed drifts within minutes. It prints both and their
-ratio.
+ratio, and beside them the I/O floor of ``bench_cvat2mask.py`` (decode each depth PNG, encode one
+colour mask), measured in the same rounds, with each revision's time as a multiple of it.
 """
 
 from __future__ import annotations
@@ -42,6 +43,10 @@ print(time.perf_counter() - started, run.written)
 """
 
 
+#: The I/O floor timed inside its process like the runs (imports before the clock starts).
+TIMED_FLOOR = "import cv2, numpy, sys, time\nstarted = time.perf_counter()\n{floor}\nprint(time.perf_counter() - started)\n"
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--against", required=True, help="the earlier revision (any git revision name)")
@@ -51,7 +56,7 @@ def main() -> int:
     parser.add_argument("--workdir", type=Path, default=Path(tempfile.gettempdir()) / "annotate-rgbd-bench")
     args = parser.parse_args()
     sys.path.insert(0, str(ROOT / "benchmarks"))
-    from bench_cvat2mask import make_benchmark_sequence
+    from bench_cvat2mask import IO_FLOOR, make_benchmark_sequence
 
     sequence, annotations, camera = make_benchmark_sequence(args.workdir, args.frames, 640, 480)
     camera_json = json.dumps({k: getattr(camera, k) for k in ("fx", "fy", "cx", "cy", "depth_scale")})
@@ -66,8 +71,12 @@ def main() -> int:
             (earlier / "configs").rename(configs)
         revisions = {args.against: earlier, "this revision": ROOT}
         best = {name: float("inf") for name in revisions}
+        floor = float("inf")
         for round_ in range(1, args.rounds + 1):
-            line = []
+            done = subprocess.run([sys.executable, "-c", TIMED_FLOOR.format(floor=IO_FLOOR), str(sequence / "depth")],
+                                  capture_output=True, text=True, check=True)
+            floor = min(floor, float(done.stdout.split()[0]))
+            line = [f"I/O floor: {1000 * float(done.stdout.split()[0]) / args.frames:.1f} ms/frame"]
             for name, tree in revisions.items():
                 out = Path(tmp) / f"out-{len(line)}"
                 done = subprocess.run(
@@ -84,8 +93,9 @@ def main() -> int:
             print(f"round {round_}: " + ", ".join(line))
     old, new = best[args.against], best["this revision"]
     print(f"{args.frames} frames at 640x480, {args.workers} worker(s), best of {args.rounds} rounds, default configuration")
-    print(f"{args.against:>14}: {1000 * old / args.frames:6.1f} ms/frame")
-    print(f"{'this revision':>14}: {1000 * new / args.frames:6.1f} ms/frame")
+    print(f"{'I/O floor':>14}: {1000 * floor / args.frames:6.1f} ms/frame")
+    print(f"{args.against:>14}: {1000 * old / args.frames:6.1f} ms/frame  ({old / floor:.2f}x the floor)")
+    print(f"{'this revision':>14}: {1000 * new / args.frames:6.1f} ms/frame  ({new / floor:.2f}x the floor)")
     print(f"this revision / {args.against}: {new / old:.3f}x")
     return 0
 
