@@ -26,7 +26,6 @@ from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 
 from annotate_rgbd.config.settings import MatchConfig
 from annotate_rgbd.errors import InputError
@@ -180,6 +179,10 @@ def match_tracks(iou: np.ndarray, min_iou: float) -> list[tuple[int, int, float]
     """
     if iou.size == 0:
         return []
+    # Imported here: scipy.optimize takes a third of a second to import, and only runs of several
+    # annotation parts match tracks.
+    from scipy.optimize import linear_sum_assignment
+
     rows, cols = linear_sum_assignment(iou, maximize=True)
     return [(int(r), int(c), float(iou[r, c])) for r, c in zip(rows, cols) if iou[r, c] >= min_iou]
 

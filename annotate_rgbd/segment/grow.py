@@ -188,11 +188,14 @@ def grow_connected(
     # plane whose own shape covers it: those pixels refinement left out (a whiteboard on a wall).
     for plane_id in ids:
         signed = signed_distances(depth, *(np.float32(v) for v in equations[plane_id]), camera)
+        distance = np.abs(signed)
         with np.errstate(invalid="ignore"):
-            closer = free & (np.abs(signed) <= band) & (np.abs(signed) < best) & (drawn != plane_id)
+            closer = distance <= band
+            closer &= distance < best
+        closer &= free
+        closer &= drawn != plane_id
         if excluded and plane_id in excluded:
             closer &= ~excluded[plane_id]
-        distance = np.abs(signed)
         candidate[closer] = plane_id
         np.copyto(best, distance, where=closer)
         scored = closer | ((labels == plane_id) & np.isfinite(signed))
@@ -206,11 +209,15 @@ def grow_connected(
         mine = labels == plane_id
         if not mine.any():
             continue
-        reach = mine | (candidate == plane_id)
-        count, components = cv2.connectedComponents(reach.astype(np.uint8), connectivity=8)
+        reach = (mine | (candidate == plane_id)).view(np.uint8)
+        # On the window of what the plane may reach (a small plane's is a small part of the image).
+        left, top, width, height = cv2.boundingRect(reach)
+        window = (slice(top, top + height), slice(left, left + width))
+        count, components = cv2.connectedComponents(reach[window], connectivity=8)
+        mine = mine[window]
         linked = np.bincount(components[mine], minlength=count) > 0
         linked[0] = False
         take = np.take(linked, components) & ~mine
-        labels[take] = plane_id
+        labels[window][take] = plane_id
         grown[plane_id] = int(np.count_nonzero(take))
     return labels, grown
