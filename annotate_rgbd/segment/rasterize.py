@@ -14,6 +14,7 @@ the colour pixel its 3-D point projects to (:func:`draw_on_depth_grid`).
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Iterable, Sequence
 
 import cv2
@@ -137,10 +138,7 @@ def shape_mask(shape: Shape, height: int, width: int) -> tuple[int, int, np.ndar
 def polygon_window(points: np.ndarray, height: int, width: int) -> tuple[int, int, np.ndarray]:
     """Fill a polygon: the pixels whose centres are inside, in the window of the image it spans.
 
-    Scanline fill, vectorised over edges: each edge crosses the pixel-centre lines of the rows
-    it spans (half-open in y), at one x each; sorted by row and x, pairs of crossings bound the
-    inside spans. The work grows with the crossings (about twice the rows for a convex outline),
-    not with rows times vertices.
+    :func:`polygon_spans` of the one polygon, filled (:func:`fill_spans`).
 
     Parameters
     ----------
@@ -156,50 +154,131 @@ def polygon_window(points: np.ndarray, height: int, width: int) -> tuple[int, in
     inside : ndarray of bool, shape (rows, cols)
         The polygon's pixels in the window (which lies within the image; it may be empty).
     """
-    empty = (0, 0, np.zeros((0, 0), dtype=bool))
-    x0, y0 = points[:, 0], points[:, 1]
-    x1, y1 = np.concatenate([x0[1:], x0[:1]]), np.concatenate([y0[1:], y0[:1]])  # each edge's end
-    top = max(int(np.floor(y0.min() - 0.5)), 0)
-    bottom = min(int(np.ceil(y0.max() - 0.5)), height - 1)
-    if bottom < top:
-        return empty
+    spans = polygon_spans([points], height, width)
+    return fill_spans(spans, 0)
+
+
+@dataclass(frozen=True)
+class PolygonSpans:
+    """The inside spans of several polygons (:func:`polygon_spans`).
+
+    Parameters
+    ----------
+    top, bottom : ndarray of int64, shape (P,)
+        First and last image row of each polygon's window (``bottom < top``: the polygon lies
+        outside the image).
+    start : ndarray of int64, shape (P + 1,)
+        Polygon ``p``'s spans are ``start[p]`` to ``start[p + 1]`` of the arrays below.
+    row : ndarray of int64, shape (S,)
+        Image row of each span.
+    first, stop : ndarray of int32, shape (S,)
+        Columns ``first`` to ``stop - 1`` are inside (``first < stop``); the spans of one
+        polygon's row are disjoint and in ascending order.
+    """
+
+    top: np.ndarray
+    bottom: np.ndarray
+    start: np.ndarray
+    row: np.ndarray
+    first: np.ndarray
+    stop: np.ndarray
+
+
+def polygon_spans(polygons: Sequence[np.ndarray], height: int, width: int) -> PolygonSpans:
+    """The pixels of several polygons as spans of rows: the pixels whose centres are inside.
+
+    Scanline fill, vectorised over the edges of all the polygons at once: each edge crosses the
+    pixel-centre lines of the rows it spans (half-open in y), at one x each; sorted by polygon,
+    row and x, pairs of crossings bound the inside spans. The work grows with the crossings
+    (about twice the rows for a convex outline), not with rows times vertices, and a few dozen
+    array operations serve all the polygons (the layers carried to a frame are a hundred).
+
+    Parameters
+    ----------
+    polygons : sequence of ndarray, shape (N, 2)
+        Vertices (x, y) in CVAT coordinates (pixel ``(col, row)`` has its centre at
+        ``(col + 0.5, row + 0.5)``).
+    height, width : int
+        Image size.
+
+    Returns
+    -------
+    PolygonSpans
+    """
+    count = len(polygons)
+    sizes = np.array([len(p) for p in polygons], dtype=np.int64)
+    vertices = (np.concatenate([np.asarray(p, dtype=np.float64).reshape(-1, 2) for p in polygons])
+                if count else np.zeros((0, 2)))
+    first_vertex = np.cumsum(sizes) - sizes
+    top = np.zeros(count, dtype=np.int64)
+    bottom = np.full(count, -1, dtype=np.int64)
+    used = sizes > 0
+    x0, y0 = vertices[:, 0], vertices[:, 1]
+    if used.any():
+        low = np.minimum.reduceat(y0, first_vertex[used])
+        high = np.maximum.reduceat(y0, first_vertex[used])
+        top[used] = np.maximum(np.floor(low - 0.5), 0)
+        bottom[used] = np.minimum(np.ceil(high - 0.5), height - 1)
+    # Each edge's end: the next vertex, the first one after the last.
+    following = np.arange(1, len(vertices) + 1)
+    following[first_vertex[used] + sizes[used] - 1] = first_vertex[used]
+    x1, y1 = x0[following], y0[following]
+    polygon = np.repeat(np.arange(count), sizes)
+    edge_top, edge_bottom = top[polygon], bottom[polygon]
     # An edge counts for the rows whose centre r + 0.5 lies in [min(y0, y1), max(y0, y1)): r from
-    # ceil(min - 0.5) to ceil(max - 0.5) - 1 (none for a horizontal edge).
-    first_row = np.clip(np.ceil(np.minimum(y0, y1) - 0.5), top, bottom + 1).astype(np.int64)
-    stop_row = np.clip(np.ceil(np.maximum(y0, y1) - 0.5), top, bottom + 1).astype(np.int64)
-    spanned = stop_row - first_row
+    # ceil(min - 0.5) to ceil(max - 0.5) - 1 (none for a horizontal edge), within its window.
+    first_row = np.clip(np.ceil(np.minimum(y0, y1) - 0.5), edge_top, edge_bottom + 1).astype(np.int64)
+    stop_row = np.clip(np.ceil(np.maximum(y0, y1) - 0.5), edge_top, edge_bottom + 1).astype(np.int64)
+    spanned = np.where(edge_bottom >= edge_top, stop_row - first_row, 0)
     edges = np.flatnonzero(spanned > 0)
-    if edges.size == 0:
-        return empty
     counts = spanned[edges]
     edge = np.repeat(edges, counts)
     offsets = np.cumsum(counts) - counts
     rows = first_row[edge] + (np.arange(edge.size) - np.repeat(offsets, counts))
     centre_y = rows + 0.5
     xs = x0[edge] + (centre_y - y0[edge]) * (x1[edge] - x0[edge]) / (y1[edge] - y0[edge])
-    order = np.lexsort((xs, rows))
-    rows, xs = rows[order], xs[order]
-    # Pairs within a row: crossings 0-1, 2-3, ... (a row's last crossing without a partner, on a
-    # degenerate outline, bounds nothing).
-    row_start = np.searchsorted(rows, rows, side="left")
-    start = np.flatnonzero(((np.arange(rows.size) - row_start) % 2 == 0)[:-1] & (rows[1:] == rows[:-1]))
-    span_rows, starts, ends = rows[start], xs[start], xs[start + 1]
+    owner = polygon[edge]
+    order = np.lexsort((xs, rows, owner))
+    rows, xs, owner = rows[order], xs[order], owner[order]
+    # Pairs within a polygon's row: crossings 0-1, 2-3, ... (a row's last crossing without a
+    # partner, on a degenerate outline, bounds nothing).
+    key = owner * (height + 1) + rows
+    row_start = np.searchsorted(key, key, side="left")
+    start = np.flatnonzero(((np.arange(key.size) - row_start) % 2 == 0)[:-1] & (key[1:] == key[:-1]))
     # Pixels with centre c + 0.5 in [start, end): c from ceil(start - 0.5) to ceil(end - 0.5) - 1.
-    first = np.ceil(starts - 0.5).clip(0, width).astype(np.int32)
-    stop = np.ceil(ends - 0.5).clip(0, width).astype(np.int32)
+    first = np.ceil(xs[start] - 0.5).clip(0, width).astype(np.int32)
+    stop = np.ceil(xs[start + 1] - 0.5).clip(0, width).astype(np.int32)
     filled = stop > first
-    if not filled.any():
-        return empty
-    span_rows, first, stop = span_rows[filled] - top, first[filled], stop[filled]
+    owner = owner[start][filled]
+    return PolygonSpans(top, bottom, np.searchsorted(owner, np.arange(count + 1)), rows[start][filled],
+                        first[filled], stop[filled])
+
+
+def fill_spans(spans: PolygonSpans, index: int) -> tuple[int, int, np.ndarray]:
+    """One polygon of :func:`polygon_spans` as a boolean window of the image.
+
+    Returns
+    -------
+    top, left : int
+        Position of the window in the image: its rows are the polygon's rows, its columns those
+        its spans reach.
+    inside : ndarray of bool, shape (rows, cols)
+        Empty (0, 0) when no pixel centre lies inside.
+    """
+    a, b = int(spans.start[index]), int(spans.start[index + 1])
+    if b == a:
+        return 0, 0, np.zeros((0, 0), dtype=bool)
+    top = int(spans.top[index])
+    span_rows, first, stop = spans.row[a:b] - top, spans.first[a:b], spans.stop[a:b]
     left, right = int(first.min()), int(stop.max())
-    # The k-th span of each row (rows hold one span for a convex outline; few hold more).
-    k = np.arange(span_rows.size) - np.searchsorted(span_rows, span_rows, side="left")
-    bounds = np.zeros((2, int(k.max()) + 1, bottom - top + 1, 1), dtype=np.int32)
-    bounds[0, k, span_rows, 0], bounds[1, k, span_rows, 0] = first, stop
-    cols = np.arange(left, right, dtype=np.int32)
-    inside = (cols >= bounds[0, 0]) & (cols < bounds[1, 0])
-    for first_k, stop_k in zip(bounds[0, 1:], bounds[1, 1:]):  # spans of a row are disjoint
-        inside |= (cols >= first_k) & (cols < stop_k)
+    # +1 where a span starts, -1 where it stops (a row's spans are disjoint: no two starts nor two
+    # stops share a pixel), summed along each row: inside where the sum is positive. The row sums
+    # are differences of OpenCV's integral image (exact: small integers in float32).
+    steps = np.zeros((int(spans.bottom[index]) - top + 1, right - left + 1), dtype=np.float32)
+    steps[span_rows, first - left] += 1
+    steps[span_rows, stop - left] -= 1
+    total = cv2.integral(steps, sdepth=cv2.CV_32F)
+    inside = (total[1:, 1:-1] - total[:-1, 1:-1]) > 0.5
     return top, left, inside
 
 
@@ -280,9 +359,11 @@ def paint_window(layers: Iterable[tuple[int, np.ndarray]], height: int, width: i
         +1 where the last covering polygon is positive, -1 where it is negative, 0 where none
         covers the pixel (the window may be empty).
     """
+    layers = list(layers)
+    spans = polygon_spans([polygon for _, polygon in layers], height, width)
     windows = []
-    for sign, polygon in layers:
-        top, left, inside = polygon_window(np.asarray(polygon, dtype=np.float64), height, width)
+    for index, (sign, _) in enumerate(layers):
+        top, left, inside = fill_spans(spans, index)
         if inside.size:
             windows.append((np.int8(1 if sign > 0 else -1), top, left, inside))
     if not windows:
