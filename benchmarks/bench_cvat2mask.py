@@ -6,7 +6,8 @@ Run from the repository root (after the quick start's set-up)::
 
 It renders two synthetic sequences once into ``--workdir`` (reused by later runs): the room of
 ``annotate_rgbd.synthetic`` (``--frames`` frames at 640 x 480, about 10 planes, clutter,
-Kinect-like noise) and the 60-frame walk of ``bench_refine.py``, which has a camera trajectory.
+Kinect-like noise) and the walk of ``bench_refine.py`` (``--walk-frames`` frames), which has a camera
+trajectory.
 Every figure is a whole process, start-up included, as a user runs it; the figures take turns for
 ``--rounds`` rounds and each keeps its best (a shared machine's speed drifts within minutes), so
 the ratios compare measurements of the same run:
@@ -105,13 +106,14 @@ def run_process(command: list[str]) -> tuple[float, float]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--frames", type=int, default=300)
+    parser.add_argument("--walk-frames", type=int, default=120, help="frames of the walk (the --poses runs)")
     parser.add_argument("--rounds", type=int, default=3, help="rounds of every measurement; the best counts")
     parser.add_argument("--workdir", type=Path, default=Path(tempfile.gettempdir()) / "annotate-rgbd-bench")
     args = parser.parse_args()
     from bench_refine import make_contact_sequence  # the walk with its trajectory
 
     sequence, annotations, camera = make_benchmark_sequence(args.workdir, args.frames, 640, 480)
-    walk = make_contact_sequence(args.workdir, 60, 640, 480, 2.0, 12)
+    walk = make_contact_sequence(args.workdir, args.walk_frames, 640, 480, 2.0, 12)
     outputs = args.workdir / "outputs"
     shutil.rmtree(outputs, ignore_errors=True)
     outputs.mkdir(parents=True)

@@ -183,7 +183,9 @@ def grow_connected(
     candidate = np.zeros(labels.shape, dtype=labels.dtype)
     best = np.full(labels.shape, np.inf, dtype=np.float32)
     residual = np.zeros(labels.shape, dtype=np.float32)
-    own = np.isin(labels, ids)
+    growing = np.zeros(max(int(labels.max(initial=0)), ids[-1]) + 1, dtype=np.uint8)
+    growing[ids] = 1
+    own = label_lookup(growing, labels).view(bool)  # pixels of the growing planes
     # Each free pixel goes to the nearest plane it lies on (a tie: the lowest id), but never to a
     # plane whose own shape covers it: those pixels refinement left out (a whiteboard on a wall).
     for plane_id in ids:
