@@ -52,8 +52,12 @@ def rasterize_frame(shapes: Iterable[tuple[int, Shape]], height: int, width: int
     shapes = list(shapes)
     labels = np.zeros((height, width), dtype=label_dtype(max((pid for pid, _ in shapes), default=0)))
     ordered = sorted(shapes, key=lambda item: item[1].z_order)  # stable: keeps track order
-    for plane_id, shape in ordered:
-        top, left, inside = shape_mask(shape, height, width)
+    # Every polygon's spans in one pass (a frame has a few to a few hundred).
+    polygons = [k for k, (_, shape) in enumerate(ordered) if shape.kind == "polygon"]
+    spans = polygon_spans([ordered[k][1].points for k in polygons], height, width)
+    index = {k: j for j, k in enumerate(polygons)}
+    for k, (plane_id, shape) in enumerate(ordered):
+        top, left, inside = fill_spans(spans, index[k]) if k in index else shape_mask(shape, height, width)
         rows, cols = inside.shape
         np.copyto(labels[top : top + rows, left : left + cols], plane_id, where=inside)
     return labels
