@@ -73,3 +73,16 @@ def test_id_images_are_8_bit_up_to_255_planes_else_16_bit(tmp_path, n_planes, dt
     assert image.dtype == dtype
     write_png(tmp_path / "ids.png", image)
     assert np.array_equal(cv2.imread(str(tmp_path / "ids.png"), cv2.IMREAD_UNCHANGED), labels)
+
+
+def test_palette_lab_is_scikit_images_bit_for_bit():
+    # The palette's CIELAB (computed without scikit-image's colour module, slow to import) is
+    # scikit-image's rgb2lab exactly: the greedy palette depends on every bit of it.
+    from skimage.color import rgb2lab
+
+    from annotate_rgbd.report.palette import srgb_to_lab
+
+    rng = np.random.default_rng(4)
+    rgb = np.concatenate([rng.random((5000, 3)), np.eye(3), np.zeros((1, 3)), np.ones((1, 3)),
+                          np.full((1, 3), 0.04045), np.full((1, 3), 0.2)])
+    np.testing.assert_array_equal(srgb_to_lab(rgb), rgb2lab(rgb[None])[0])
