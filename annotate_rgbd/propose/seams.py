@@ -31,34 +31,43 @@ def seam_pairs(labels: np.ndarray, reach: int) -> dict[tuple[int, int], tuple[np
     Returns
     -------
     dict of (int, int) to (ndarray, ndarray)
-        For every pair ``(a, b)`` with ``a < b`` that meets: the flat indices of ``a``'s pixels
-        and of ``b``'s pixels on the seam (each pixel once).
+        For every pair ``(a, b)`` with ``a < b`` that meets, in ascending order: the flat indices
+        of ``a``'s pixels and of ``b``'s pixels on the seam (ascending, each pixel once).
     """
+    labels = np.asarray(labels)
     height, width = labels.shape
-    flat = labels.ravel().astype(np.int64)
-    index = np.arange(labels.size).reshape(height, width)
+    flat = labels.ravel()
     first, second = [], []
     for shift in range(1, reach + 1):
-        for a, b in ((index[:, :-shift], index[:, shift:]), (index[:-shift, :], index[shift:, :])):
-            la, lb = flat[a], flat[b]
-            meet = (la > 0) & (lb > 0) & (la != lb)
-            first.append(a[meet])
-            second.append(b[meet])
-    if not first:
-        return {}
+        # Pixel pairs (p, p + step) along rows (step = shift; not across a row's end) and columns.
+        for step in (shift, shift * width):
+            if step >= flat.size:
+                continue
+            la, lb = flat[:-step], flat[step:]
+            at = np.flatnonzero((la != lb) & (la > 0) & (lb > 0))
+            if step == shift:
+                at = at[at % width < width - shift]
+            first.append(at)
+            second.append(at + step)
     one, two = np.concatenate(first), np.concatenate(second)
-    low_pixel = np.where(flat[one] < flat[two], one, two)
-    high_pixel = np.where(flat[one] < flat[two], two, one)
-    key = flat[low_pixel] * (int(flat.max()) + 1) + flat[high_pixel]
-    pairs = {}
-    order = np.argsort(key, kind="stable")
-    keys, starts = np.unique(key[order], return_index=True)
-    ends = np.append(starts[1:], len(order))
+    if one.size == 0:
+        return {}
+    label_one, label_two = flat[one].astype(np.int64), flat[two].astype(np.int64)
+    swap = label_two < label_one
+    low_pixel, high_pixel = np.where(swap, two, one), np.where(swap, one, two)
     n = int(flat.max()) + 1
-    for k, s, e in zip(keys.tolist(), starts.tolist(), ends.tolist()):
-        chosen = order[s:e]
-        pairs[(k // n, k % n)] = (np.unique(low_pixel[chosen]), np.unique(high_pixel[chosen]))
-    return pairs
+    key = np.minimum(label_one, label_two) * n + np.maximum(label_one, label_two)
+    # Each pair's pixels, sorted and unique, for all pairs at once: (pair, pixel) as one integer.
+    size = labels.size
+    low = np.unique(key * size + low_pixel)
+    high = np.unique(key * size + high_pixel)
+    low_key, high_key = low // size, high // size
+    keys = np.unique(low_key)  # = np.unique(high_key): each meeting adds a pixel to both sides
+    low_bounds = np.searchsorted(low_key, keys).tolist() + [len(low)]
+    high_bounds = np.searchsorted(high_key, keys).tolist() + [len(high)]
+    low_pixels, high_pixels = low % size, high % size
+    return {(k // n, k % n): (low_pixels[low_bounds[i] : low_bounds[i + 1]], high_pixels[high_bounds[i] : high_bounds[i + 1]])
+            for i, k in enumerate(keys.tolist())}
 
 
 def seam_groups(
@@ -109,7 +118,7 @@ def seam_groups(
     planes = np.asarray(planes, dtype=np.float64)
     cos_limit = np.cos(np.radians(angle_deg))
     width = labels.shape[1]
-    z = np.asarray(depth, dtype=np.float64).ravel()
+    z = np.asarray(depth).ravel()  # the seams' pixels alone are read (as float64)
     for (a, b), (pixels_a, pixels_b) in sorted(seam_pairs(labels, reach).items()):
         if min(len(pixels_a), len(pixels_b)) < min_seam or planes[a - 1, :3] @ planes[b - 1, :3] < cos_limit:
             continue
@@ -125,7 +134,7 @@ def seam_groups(
 def _off_plane(pixels: np.ndarray, plane: np.ndarray, z: np.ndarray, width: int, camera: Camera, sigma) -> float:
     """Mean squared distance of the pixels' points to ``plane``, in units of ``sigma(z)**2``."""
     rows, cols = np.divmod(pixels, width)
-    depth = z[pixels]
+    depth = z[pixels].astype(np.float64)
     points = np.stack([(cols - camera.cx) / camera.fx * depth, (rows - camera.cy) / camera.fy * depth, depth], axis=1)
     distance = points @ plane[:3] + plane[3]
     return float(np.mean((distance / sigma(depth)) ** 2))

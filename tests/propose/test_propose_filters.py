@@ -223,3 +223,30 @@ def test_seam_pairs_find_the_pixels_along_the_border_only():
     left, right = seam_pairs(labels, reach=3)[(1, 2)]
     np.testing.assert_array_equal(np.unravel_index(left, labels.shape)[1], np.full(8, 4))
     np.testing.assert_array_equal(np.unravel_index(right, labels.shape)[1], np.full(8, 7))
+
+
+@pytest.mark.parametrize("reach", [1, 2, 3])
+def test_seam_pairs_match_a_pixel_by_pixel_search(reach):
+    # Speckled labels (many short seams, borders at the image's edges) against a walk over
+    # every pixel and its neighbours up to ``reach`` to the right and below.
+    rng = np.random.default_rng(reach)
+    labels = rng.integers(0, 5, size=(23, 17)).astype(np.uint8)
+    labels[rng.random(labels.shape) < 0.5] = 0
+    expected: dict = {}
+    height, width = labels.shape
+    for r in range(height):
+        for c in range(width):
+            for dr, dc in [(0, s) for s in range(1, reach + 1)] + [(s, 0) for s in range(1, reach + 1)]:
+                if r + dr >= height or c + dc >= width:
+                    continue
+                a, b = int(labels[r, c]), int(labels[r + dr, c + dc])
+                if a and b and a != b:
+                    low, high = ((r, c), (r + dr, c + dc)) if a < b else ((r + dr, c + dc), (r, c))
+                    sides = expected.setdefault((min(a, b), max(a, b)), (set(), set()))
+                    sides[0].add(low[0] * width + low[1])
+                    sides[1].add(high[0] * width + high[1])
+    pairs = seam_pairs(labels, reach)
+    assert list(pairs) == sorted(expected)
+    for key, (low, high) in pairs.items():
+        assert low.tolist() == sorted(expected[key][0])
+        assert high.tolist() == sorted(expected[key][1])
