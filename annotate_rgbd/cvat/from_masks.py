@@ -34,8 +34,6 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from scipy import ndimage
-from scipy.spatial import cKDTree
 
 from .rings import ring_simplifications
 
@@ -48,6 +46,8 @@ MIN_PIECE_PX = 20
 #: under a budget of 100; of the largest five pieces (32 ends) 0.91. At most 4 pieces instead
 #: cost the 30 rendered room frames 0.018 of cvat2mask's precision at IoU 0.8.
 VERTICES_PER_PIECE = 8
+#: Up to so many labels, :func:`label_boxes` finds each label's box by its own pass over the image.
+_FEW_LABELS = 64
 #: The 4-neighbourhood: a border pixel has a neighbour outside across an edge.
 _CROSS = cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3))
 
@@ -149,7 +149,7 @@ def _outlines(labels: np.ndarray, tolerance_px: float, max_vertices: int, min_pi
     """Per label: its region (the largest piece when ``min_piece`` is None, else every piece of
     at least ``min_piece`` pixels joined), traced and simplified."""
     outlines: dict[int, Outline] = {}
-    for label, window in enumerate(ndimage.find_objects(labels), start=1):
+    for label, window in enumerate(label_boxes(labels), start=1):
         if window is None:
             continue
         mask = labels[window] == label
@@ -168,6 +168,44 @@ def _outlines(labels: np.ndarray, tolerance_px: float, max_vertices: int, min_pi
         ring = to_image(contour, window[1].start, window[0].start)
         outlines[label] = simple_outline(ring, tolerance_px, max_vertices, anchors)
     return outlines
+
+
+def label_boxes(labels: np.ndarray, n: int | None = None) -> list:
+    """The bounding box of each label 1..n, as ``scipy.ndimage.find_objects`` gives them.
+
+    Parameters
+    ----------
+    labels : ndarray of int, shape (H, W)
+        Labels >= 0 (0: none).
+    n : int, optional
+        Largest label (default: the image's largest).
+
+    Returns
+    -------
+    list of (slice, slice) or None
+        ``(rows, cols)`` of label ``k`` at position ``k - 1``; None for a label not present.
+    """
+    labels = np.asarray(labels)
+    n = int(labels.max(initial=0)) if n is None else int(n)
+    if n <= _FEW_LABELS:
+        boxes = []
+        for k in range(1, n + 1):
+            left, top, width, height = cv2.boundingRect((labels == k).view(np.uint8))
+            boxes.append((slice(top, top + height), slice(left, left + width)) if width else None)
+        return boxes
+    # Many labels: one pass over the labelled pixels, grouped by label.
+    flat = labels.ravel()
+    at = np.flatnonzero((flat > 0) & (flat <= n))
+    order = np.argsort(flat[at], kind="stable")
+    at, found = at[order], flat[at][order].astype(np.int64)
+    starts = np.flatnonzero(np.diff(found, prepend=-1))
+    rows, cols = np.divmod(at, labels.shape[1])
+    low_row, high_row = rows[starts], np.maximum.reduceat(rows, starts)  # rows ascend within a label
+    low_col, high_col = np.minimum.reduceat(cols, starts), np.maximum.reduceat(cols, starts)
+    boxes: list = [None] * n
+    for i, k in enumerate(found[starts].tolist()):
+        boxes[k - 1] = (slice(int(low_row[i]), int(high_row[i]) + 1), slice(int(low_col[i]), int(high_col[i]) + 1))
+    return boxes
 
 
 def join_pieces(mask: np.ndarray, min_piece: int | None, most: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -273,6 +311,8 @@ def piece_corridors(region: np.ndarray, pieces: np.ndarray, kept: list[int]) -> 
     # best[k]: (distance, k's border pixel, the joined piece, its border pixel) nearest so far.
     best: dict[int, tuple[float, int, int, int]] = {}
     corridors = []
+    from scipy.spatial import cKDTree  # here: SciPy takes a while to load, and only planes of several pieces need it
+
     joined = kept[0]
     remaining = list(kept[1:])
     while remaining:

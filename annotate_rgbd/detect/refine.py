@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
-from scipy import ndimage
 
 from .cells import CloudCells
 
@@ -44,14 +43,15 @@ def assign_pixels(cells: CloudCells, region: np.ndarray, planes: np.ndarray, ban
     best = np.nextafter(np.float32(band_k) * cells.sigma, np.float32(np.inf))
     labels = np.zeros((height, width), dtype=np.uint8 if planes.shape[0] < 256 else np.int32)
     grid = region.reshape(rows, cols)
-    ring = np.ones((3, 3), dtype=bool)
+    ring = np.ones((3, 3), dtype=np.uint8)
     for k, (cell_window, window) in enumerate(claim_windows(cells, region), start=1):
         if window is None:
             continue
         # The segment's cells and their 8-neighbours, inside the segment's window grown by one cell.
         (top, bottom), (left, right) = cell_window
         (r0, r1), (c0, c1) = window
-        near = ndimage.binary_dilation(grid[top:bottom, left:right] == k, structure=ring)
+        near = cv2.dilate((grid[top:bottom, left:right] == k).view(np.uint8), ring, borderType=cv2.BORDER_CONSTANT,
+                          borderValue=0) > 0
         claim = np.repeat(np.repeat(near, cell_rows[top:bottom], axis=0), cell_cols[left:right], axis=1)
         a, b, c, d = planes[k - 1].astype(np.float32)
         # Point = z * (ray_x, ray_y, 1), so the signed distance is z * (n . ray) + d.
@@ -86,7 +86,7 @@ def claim_windows(cells: CloudCells, region: np.ndarray) -> list:
     rows, cols = cells.grid
     cell_px = cells.cell_px
     windows = []
-    for window in ndimage.find_objects(region.reshape(rows, cols)):
+    for window in _boxes(region.reshape(rows, cols)):
         if window is None:
             windows.append((None, None))
             continue
@@ -95,6 +95,35 @@ def claim_windows(cells: CloudCells, region: np.ndarray) -> list:
         pixels = (top * cell_px, _stop(bottom, rows, cell_px, height)), (left * cell_px, _stop(right, cols, cell_px, width))
         windows.append((((top, bottom), (left, right)), pixels))
     return windows
+
+
+def _boxes(labels: np.ndarray, n: int | None = None) -> list:
+    """The bounding box of each label 1..n, as ``scipy.ndimage.find_objects`` gives them (for the
+    small cell grid; :func:`annotate_rgbd.cvat.from_masks.label_boxes` is faster on images).
+
+    Parameters
+    ----------
+    labels : ndarray of int, shape (H, W)
+        Labels >= 0 (0: none).
+    n : int, optional
+        Largest label (default: the image's largest).
+
+    Returns
+    -------
+    list of (slice, slice) or None
+        ``(rows, cols)`` of label ``k`` at position ``k - 1``; None for a label not present.
+    """
+    labels = np.asarray(labels)
+    n = int(labels.max(initial=0)) if n is None else int(n)
+    rows, cols = np.nonzero((labels > 0) & (labels <= n))
+    found = labels[rows, cols].astype(np.intp)
+    low = np.full((2, n + 1), np.iinfo(np.intp).max)
+    high = np.full((2, n + 1), -1)
+    for axis, at in enumerate((rows, cols)):
+        np.minimum.at(low[axis], found, at)
+        np.maximum.at(high[axis], found, at)
+    return [None if high[0, k] < 0 else (slice(int(low[0, k]), int(high[0, k]) + 1), slice(int(low[1, k]), int(high[1, k]) + 1))
+            for k in range(1, n + 1)]
 
 
 def _stop(stop_cell: int, n_cells: int, cell_px: int, size: int) -> int:
@@ -129,7 +158,7 @@ def pixel_moments(
     mean = np.zeros((n, 3))
     centred = np.zeros((n, 3, 3))
     if windows is None:
-        boxes = ndimage.find_objects(labels, max_label=n)
+        boxes = _boxes(labels, n)
     else:
         boxes = [None if w is None else (slice(*w[0]), slice(*w[1])) for _, w in windows]
     for k, window in enumerate(boxes):

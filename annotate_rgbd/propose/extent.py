@@ -14,10 +14,9 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
-from scipy import ndimage
 
 from annotate_rgbd.config.masks import RansacConfig
-from annotate_rgbd.cvat.from_masks import MIN_PIECE_PX, kept_pieces, to_image, trace_pieces
+from annotate_rgbd.cvat.from_masks import MIN_PIECE_PX, kept_pieces, label_boxes, to_image, trace_pieces
 from annotate_rgbd.geometry.noise import NoiseSettings, noise_scale
 from annotate_rgbd.segment.rasterize import fill_window
 
@@ -129,7 +128,7 @@ def piece_windows(labels: np.ndarray, tolerance_px: float, min_piece: int = MIN_
     """
     height, width = labels.shape
     windows = []
-    for label, box in enumerate(ndimage.find_objects(np.asarray(labels)), start=1):
+    for label, box in enumerate(label_boxes(labels), start=1):
         if box is None:
             windows.append((0, 0, np.zeros((0, 0), dtype=bool)))
             continue

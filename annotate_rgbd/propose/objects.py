@@ -10,7 +10,10 @@ depth there is not the plane's), so they are not proposed (:func:`objects_on_pla
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
+
+from annotate_rgbd.cvat.from_masks import label_boxes
 
 
 def neighbour_shares(labels: np.ndarray, ring_px: int) -> np.ndarray:
@@ -31,15 +34,12 @@ def neighbour_shares(labels: np.ndarray, ring_px: int) -> np.ndarray:
         ``[p, q]``: share of plane ``p + 1``'s ring held by plane ``q + 1`` (a row of zeros when
         no other plane is near).
     """
-    from scipy import ndimage
-    import cv2
-
     labels = np.asarray(labels)
     k = int(labels.max(initial=0))
     shares = np.zeros((k, k))
     height, width = labels.shape
     kernel = np.ones((2 * ring_px + 1, 2 * ring_px + 1), np.uint8)
-    for p, window in enumerate(ndimage.find_objects(labels, max_label=k)):
+    for p, window in enumerate(label_boxes(labels, k)):
         if window is None:
             continue
         rows = slice(max(window[0].start - ring_px, 0), min(window[0].stop + ring_px, height))

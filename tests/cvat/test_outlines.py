@@ -17,7 +17,7 @@ from scipy import ndimage
 from annotate_rgbd.annotation.model import Shape
 from annotate_rgbd.config.settings import load_config
 from annotate_rgbd.cvat import read_cvat
-from annotate_rgbd.cvat.from_masks import outline_planes, plane_outlines
+from annotate_rgbd.cvat.from_masks import label_boxes, outline_planes, plane_outlines
 from annotate_rgbd.cvat.rings import meeting_edges, simplify_ring
 from annotate_rgbd.propose import run_propose
 from annotate_rgbd.segment.rasterize import rasterize_frame
@@ -45,6 +45,17 @@ def speckled(seed: int, shape=(120, 160), planes: int = 4) -> np.ndarray:
     flip = (noise > 0.97) & (labels == 0)
     labels[flip] = rng.integers(1, planes + 1, size=np.count_nonzero(flip))
     return labels
+
+
+@pytest.mark.parametrize("seed, planes", [(0, 4), (1, 1), (2, 90), (3, 300)])
+def test_label_boxes_are_scipys_find_objects(seed, planes):
+    # Few labels (one pass each) and many (one pass by label), absent labels among them.
+    labels = speckled(seed, planes=planes).astype(np.uint16)
+    labels[labels == 2] = 0
+    assert label_boxes(labels) == ndimage.find_objects(labels)
+    assert label_boxes(labels, planes + 5) == ndimage.find_objects(labels, max_label=planes + 5)
+    assert label_boxes(labels[:, :1]) == ndimage.find_objects(labels[:, :1])
+    assert label_boxes(np.zeros((0, 4), np.uint8)) == []
 
 
 @pytest.mark.parametrize("seed", range(12))

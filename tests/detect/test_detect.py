@@ -306,6 +306,17 @@ def test_cell_planes_match_an_independent_fit(room):
         assert cells.normal[index] @ centre < 0 and cells.offset[index] > 0
 
 
+@pytest.mark.parametrize("seed", range(3))
+def test_cell_segment_boxes_are_scipys_find_objects(seed):
+    from annotate_rgbd.detect.refine import _boxes
+
+    rng = np.random.default_rng(seed)
+    grid = rng.integers(0, 9, size=(30, 40)) * (rng.random((30, 40)) < 0.1)
+    grid[grid == 3] = 0
+    assert _boxes(grid) == ndimage.find_objects(grid)
+    assert _boxes(grid, 12) == ndimage.find_objects(grid, max_label=12)
+
+
 def test_no_depth_no_planes():
     detection = detect_planes(np.full(SHAPE, np.nan, dtype=np.float32), KINECT)
     assert detection.planes.shape == (0, 4) and not detection.labels.any()
