@@ -206,8 +206,9 @@ def propose_planes(
         table = np.zeros(len(kept) + 1, dtype=labels.dtype)
         table[1:][~small] = np.arange(1, np.count_nonzero(~small) + 1)
         labels, planes, areas = relabel(labels, table, labels.dtype), planes[~small], counts[~small].astype(np.int64)
-        flat = labels.ravel()
-        centroids = np.stack([np.bincount(flat, weights=np.nan_to_num(points[..., i]).ravel(), minlength=len(areas) + 1)[1:]
+        # Labelled pixels have valid depth: the sums need no NaN guard (label 0's are not read).
+        flat = labels.ravel().astype(np.intp)
+        centroids = np.stack([np.bincount(flat, weights=points[..., i].astype(np.float64).ravel(), minlength=len(areas) + 1)[1:]
                               for i in range(3)], axis=1) / np.maximum(areas, 1)[:, None]
     elif objects.any():
         table = np.zeros(len(areas) + 1, dtype=labels.dtype)

@@ -47,14 +47,19 @@ def plane_scales(
         1 when the model fits; at most ``ransac.max_noise_scale``.
     """
     ransac = RansacConfig() if ransac is None else ransac
-    flat = labels.ravel()
+    labels = np.asarray(labels)
+    width = labels.shape[1]
     cloud = points.reshape(-1, 3)
-    order = np.argsort(flat, kind="stable")
-    starts = np.searchsorted(flat[order], np.arange(1, len(planes) + 2))
     scales = np.ones(len(planes))
-    for k in range(len(planes)):
-        members = order[starts[k] : starts[k + 1]]
-        members = members[:: max(len(members) // SCALE_POINTS, 1)]
+    for k, box in enumerate(label_boxes(labels, len(planes))):
+        if box is None:
+            members = np.zeros(0, dtype=np.intp)
+        else:
+            # The label's pixels in raster order, found in its box.
+            inside = np.flatnonzero(labels[box] == k + 1)
+            inside = inside[:: max(len(inside) // SCALE_POINTS, 1)]
+            rows, cols = np.divmod(inside, box[1].stop - box[1].start)
+            members = (rows + box[0].start) * width + (cols + box[1].start)
         scale = 1.0
         for _ in range(2):  # the first estimate sees a band truncated at the model's k sigma
             found = noise_scale(cloud[members], planes[k], noise.scaled(scale))
