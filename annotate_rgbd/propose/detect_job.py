@@ -219,7 +219,7 @@ def propose_planes(
     polygons = [final[k].points for k in range(1, len(areas) + 1)]
     windows = [fill_window(p, *labels.shape) for p in polygons]
     coverage = polygon_coverage(labels, windows)
-    fit = polygon_fit(labels, polygons, [final[k].unlimited for k in range(1, len(areas) + 1)])
+    fit = polygon_fit(labels, polygons, [final[k].unlimited for k in range(1, len(areas) + 1)], windows)
     # What plane_statistics computes, with the distance image shared by its two uses.
     ray_distance = camera_distances(depth, camera)
     valid = ~np.isnan(depth)
@@ -260,7 +260,7 @@ def propose_planes(
     )
 
 
-def polygon_fit(labels: np.ndarray, polygons: list, unlimited: list) -> tuple[np.ndarray, ...]:
+def polygon_fit(labels: np.ndarray, polygons: list, unlimited: list, filled: list | None = None) -> tuple[np.ndarray, ...]:
     """How well each plane's polygon fits its pixels, on the pixels ``cvat2mask`` fills
     (:func:`annotate_rgbd.segment.rasterize.shape_mask`), and what the vertex budget cost: the
     IoU of the polygon at the tolerance alone less the polygon's, both filled as
@@ -275,6 +275,8 @@ def polygon_fit(labels: np.ndarray, polygons: list, unlimited: list) -> tuple[np
         The polygon of each plane.
     unlimited : list of (ndarray or None)
         Each plane's polygon at the tolerance alone, where the budget stopped it earlier.
+    filled : list of (int, int, ndarray of bool), optional
+        ``fill_window`` of each polygon, when already drawn.
 
     Returns
     -------
@@ -291,7 +293,7 @@ def polygon_fit(labels: np.ndarray, polygons: list, unlimited: list) -> tuple[np
     def fit(k: int, window: tuple) -> tuple[int, float]:
         top, left, inside_polygon = window
         rows, cols = inside_polygon.shape
-        inside = np.count_nonzero(labels[top : top + rows, left : left + cols][inside_polygon] == k + 1)
+        inside = np.count_nonzero((labels[top : top + rows, left : left + cols] == k + 1) & inside_polygon)
         pixels = np.count_nonzero(inside_polygon)
         return pixels, inside / max(pixels + int(areas[k]) - inside, 1)
 
@@ -300,7 +302,8 @@ def polygon_fit(labels: np.ndarray, polygons: list, unlimited: list) -> tuple[np
     for k, polygon in enumerate(polygons):
         pixels[k], iou[k] = fit(k, shape_mask(Shape("polygon", polygon), *labels.shape))
         if unlimited[k] is not None:
-            cost[k] = fit(k, fill_window(unlimited[k], *labels.shape))[1] - fit(k, fill_window(polygon, *labels.shape))[1]
+            drawn = fill_window(polygon, *labels.shape) if filled is None else filled[k]
+            cost[k] = fit(k, fill_window(unlimited[k], *labels.shape))[1] - fit(k, drawn)[1]
     return pixels, iou, cost
 
 
@@ -327,11 +330,13 @@ def surface_areas(windows: list, planes: np.ndarray, camera: Camera) -> np.ndarr
     """
     areas = np.zeros(len(planes))
     for k, (top, left, window) in enumerate(windows):
-        rows, cols = np.nonzero(window)
-        if rows.size == 0:
+        if not window.any():
             continue
         a, b, c, d = np.asarray(planes[k], dtype=np.float64)
-        facing = np.abs(a * (cols + left - camera.cx) / camera.fx + b * (rows + top - camera.cy) / camera.fy + c)
+        # |n . r| on the window's rows and columns, then at its pixels in raster order.
+        across = a * (np.arange(left, left + window.shape[1]) - camera.cx) / camera.fx
+        down = b * (np.arange(top, top + window.shape[0]) - camera.cy) / camera.fy
+        facing = np.abs(across[None, :] + down[:, None] + c)[window]
         areas[k] = d * d / abs(camera.fx * camera.fy) * np.sum(np.maximum(facing, 0.1) ** -3.0)
     return areas
 

@@ -6,10 +6,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from annotate_rgbd.annotation.model import Shape
 from annotate_rgbd.config.masks import RansacConfig
 from annotate_rgbd.geometry.camera import Camera, ray_grid
 from annotate_rgbd.geometry.noise import NoiseSettings, noise_scale
+from annotate_rgbd.propose.detect_job import polygon_fit, surface_areas
 from annotate_rgbd.propose.extent import SCALE_POINTS, plane_scales
+from annotate_rgbd.segment.rasterize import fill_window, shape_mask
 
 CAMERA = Camera(fx=525.0, fy=525.0, cx=319.5, cy=239.5, depth_scale=5000.0)
 NOISE = NoiseSettings()
@@ -57,3 +60,47 @@ def test_plane_scales_are_the_noise_scales_of_every_nth_pixel(seed):
                 expected = min(expected * again, ransac.max_noise_scale)
         assert scales[k] == expected
     assert (scales > 1).any()
+
+
+def test_surface_areas_sum_every_pixel_of_each_outline():
+    # Against the formula at each pixel of the window (np.nonzero, raster order: the same sum),
+    # and a plane facing the camera: d**2 / (fx fy) per pixel.
+    rng = np.random.default_rng(3)
+    windows = [(5, 7, rng.random((40, 60)) < 0.7), (0, 0, np.ones((30, 20), bool)), (2, 3, np.zeros((4, 4), bool))]
+    normal = np.array([0.3, -0.2, -1.0]) / np.linalg.norm([0.3, -0.2, -1.0])
+    planes = np.array([[*normal, 1.7], [0.0, 0.0, -1.0, 2.0], [0.0, 0.0, -1.0, 1.0]])
+    areas = surface_areas(windows, planes, CAMERA)
+    top, left, window = windows[0]
+    rows, cols = np.nonzero(window)
+    a, b, c, d = planes[0]
+    facing = np.abs(a * (cols + left - CAMERA.cx) / CAMERA.fx + b * (rows + top - CAMERA.cy) / CAMERA.fy + c)
+    assert areas[0] == d * d / (CAMERA.fx * CAMERA.fy) * np.sum(np.maximum(facing, 0.1) ** -3.0)
+    assert areas[1] == pytest.approx(600 * 4.0 / (CAMERA.fx * CAMERA.fy), rel=1e-3)  # near the centre: r nearly (0, 0, 1)
+    assert areas[2] == 0
+
+
+def test_polygon_fit_counts_the_filled_pixels_of_each_plane():
+    labels, _, _ = noisy_planes(4)
+    height, width = labels.shape
+    polygons = [np.array([[3.2, 4.0], [70.5, 2.0], [75.0, 90.25], [10.0, 100.0]]),
+                np.array([[60.0, 10.0], [150.0, 12.5], [158.0, 70.0], [90.0, 85.0]]),
+                np.array([[0.0, 70.0], [160.0, 70.0], [160.0, 120.0], [0.0, 120.0]])]
+    unlimited = [None, np.array([[60.0, 10.0], [150.0, 12.5], [158.0, 70.0], [120.0, 60.0], [90.0, 85.0]]), None]
+    pixels, iou, cost = polygon_fit(labels, polygons, unlimited)
+    filled = [fill_window(p, height, width) for p in polygons]
+    assert np.array_equal(polygon_fit(labels, polygons, unlimited, filled)[2], cost, equal_nan=True)
+
+    def full(window):
+        top, left, inside = window
+        image = np.zeros(labels.shape, bool)
+        image[top : top + inside.shape[0], left : left + inside.shape[1]] = inside
+        return image
+
+    for k, polygon in enumerate(polygons):
+        plane = labels == k + 1
+        drawn = full(shape_mask(Shape("polygon", polygon), height, width))
+        assert pixels[k] == np.count_nonzero(drawn)
+        assert iou[k] == np.count_nonzero(drawn & plane) / np.count_nonzero(drawn | plane)
+    unlimited_iou = [np.count_nonzero(full(fill_window(p, height, width)) & (labels == 2)) /
+                     np.count_nonzero(full(fill_window(p, height, width)) | (labels == 2)) for p in (unlimited[1], polygons[1])]
+    assert cost[1] == unlimited_iou[0] - unlimited_iou[1] and np.isnan(cost[[0, 2]]).all()
