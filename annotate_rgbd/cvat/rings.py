@@ -110,23 +110,32 @@ class _Simplifier:
         if np.array_equal(scaled, np.round(scaled)) and np.abs(scaled).max() < 2**30:
             points = scaled.astype(np.int64)
             keys = (points[:, 0] << 32) + points[:, 1]
-            if len(np.unique(keys)) == len(keys):
+            order = np.argsort(keys, kind="stable")
+            sorted_keys = keys[order]
+            if not (sorted_keys[1:] == sorted_keys[:-1]).any():  # distinct vertices
                 self.points = points.astype(np.int32).reshape(-1, 1, 2)
-                self.order = np.argsort(keys, kind="stable")
-                self.sorted_keys = keys[self.order]
+                self.order, self.sorted_keys = order, sorted_keys
+                self.chains = self._chains() if len(anchors) >= 2 else []
+
+    def _chains(self) -> list[np.ndarray]:
+        """The chains from anchor to anchor (the last one round the end), each with its end
+        vertex, that have vertices between their ends: a chain without any keeps its two
+        ends, both anchors, at every tolerance."""
+        rolled = np.roll(self.points, -int(self.anchors[0]), axis=0)
+        bounds = np.append(self.anchors - self.anchors[0], len(rolled)).tolist()
+        return [np.concatenate([rolled[a:b], rolled[b % len(rolled)][None]])
+                for a, b in zip(bounds[:-1], bounds[1:]) if b - a >= 2]
 
     def __call__(self, tolerance: float) -> np.ndarray:
         """Ascending indices of the vertices kept at ``tolerance`` (at least 3), the anchors among them."""
         if self.points is not None:
             if len(self.anchors) < 2:
                 found = cv2.approxPolyDP(self.points, 4.0 * tolerance, closed=True).reshape(-1, 2)
-            else:  # each chain from anchor to anchor on its own, the last one round the end
-                rolled = np.roll(self.points, -int(self.anchors[0]), axis=0)
-                bounds = np.append(self.anchors - self.anchors[0], len(rolled))
-                found = np.concatenate([
-                    cv2.approxPolyDP(np.concatenate([rolled[a:b], rolled[b % len(rolled)][None]]), 4.0 * tolerance,
-                                     closed=False).reshape(-1, 2)
-                    for a, b in zip(bounds[:-1].tolist(), bounds[1:].tolist())])
+            elif self.chains:  # each chain from anchor to anchor on its own
+                found = np.concatenate([cv2.approxPolyDP(chain, 4.0 * tolerance, closed=False).reshape(-1, 2)
+                                        for chain in self.chains])
+            else:
+                found = np.zeros((0, 2), dtype=np.int32)
             keys = (found[:, 0].astype(np.int64) << 32) + found[:, 1]
             kept = np.union1d(self.order[np.searchsorted(self.sorted_keys, keys)], self.anchors)
             if len(kept) >= 3:
@@ -177,7 +186,7 @@ def meeting_edges(points: np.ndarray) -> np.ndarray:
     m = len(start)
     if m < 3:
         return np.zeros((0, 2), dtype=np.intp)
-    end = np.roll(start, -1, axis=0)
+    end = np.concatenate([start[1:], start[:1]])  # each edge's end: the next vertex
     found = [_folded_neighbours(start, end)]
     low_x, high_x = np.minimum(start[:, 0], end[:, 0]), np.maximum(start[:, 0], end[:, 0])
     low_y, high_y = np.minimum(start[:, 1], end[:, 1]), np.maximum(start[:, 1], end[:, 1])
@@ -200,18 +209,22 @@ def meeting_edges(points: np.ndarray) -> np.ndarray:
         hit = _segments_meet(start[i], end[i], start[j], end[j])
         found.append(np.stack([i[hit], j[hit]], axis=1))
     pairs = np.concatenate(found).astype(np.intp)
-    return np.unique(pairs, axis=0) if len(pairs) else pairs
+    if len(pairs) == 0:
+        return pairs
+    key = np.unique(pairs[:, 0] * m + pairs[:, 1])  # sorted by (i, j), each pair once
+    return np.stack([key // m, key % m], axis=1)
 
 
 def _folded_neighbours(start: np.ndarray, end: np.ndarray) -> np.ndarray:
     """Neighbouring edges ``i`` and ``i + 1`` that overlap: the middle vertex turns straight back
     (collinear, pointing back), or an edge has no length."""
     m = len(start)
-    a, b = end - start, np.roll(end - start, -1, axis=0)
+    a = end - start
+    b = np.concatenate([a[1:], a[:1]])
     cross = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
     dot = a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1]
-    empty = ~a.any(axis=1)
-    bad = ((cross == 0) & (dot < 0)) | empty | np.roll(empty, -1)
+    empty = (a[:, 0] == 0) & (a[:, 1] == 0)
+    bad = ((cross == 0) & (dot < 0)) | empty | np.concatenate([empty[1:], empty[:1]])
     i = np.flatnonzero(bad)
     j = (i + 1) % m
     return np.stack([np.minimum(i, j), np.maximum(i, j)], axis=1)
@@ -291,7 +304,7 @@ def _repair(ring: np.ndarray, keep: list[int]) -> np.ndarray:
     """Split the edges that meet another at their chain's farthest vertex until none does (the
     traced ring itself is simple, so this ends at the latest with the whole ring)."""
     n = len(ring)
-    keep = sorted(int(k) for k in keep)
+    keep = np.sort(np.asarray(keep, dtype=np.int64)).tolist()
     shift = keep[0]  # chains run from kept vertex to kept vertex: start the ring at one
     ring = np.roll(ring, -shift, axis=0)
     keep = [k - shift for k in keep]

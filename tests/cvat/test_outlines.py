@@ -17,8 +17,8 @@ from scipy import ndimage
 from annotate_rgbd.annotation.model import Shape
 from annotate_rgbd.config.settings import load_config
 from annotate_rgbd.cvat import read_cvat
-from annotate_rgbd.cvat.from_masks import label_boxes, outline_planes, plane_outlines
-from annotate_rgbd.cvat.rings import meeting_edges, simplify_ring
+from annotate_rgbd.cvat.from_masks import kept_pieces, label_boxes, outline_planes, plane_outlines
+from annotate_rgbd.cvat.rings import _Simplifier, meeting_edges, simplify_ring
 from annotate_rgbd.propose import run_propose
 from annotate_rgbd.segment.rasterize import rasterize_frame
 
@@ -135,6 +135,71 @@ def test_meeting_edges_agrees_with_shapely(seed):
         assert len(meeting_edges(points)) > 0  # a repeated vertex is never simple
         return
     assert (len(meeting_edges(points)) == 0) == is_simple(points), points.tolist()
+
+
+@pytest.mark.parametrize("seed", range(60))
+def test_meeting_edges_lists_every_pair_shapely_finds(seed):
+    # Every pair (i, j), i < j, in order: non-neighbouring edges that share a point, and
+    # neighbours that overlap along a length (distinct vertices: shapely has no edge of no length).
+    rng = np.random.default_rng(seed)
+    points = rng.integers(0, 5, (int(rng.integers(3, 12)), 2)) / 2.0
+    points = points[np.sort(np.unique(points, axis=0, return_index=True)[1])]
+    m = len(points)
+    if m < 3:
+        assert len(meeting_edges(points)) == 0
+        return
+    edges = [shapely.LineString([points[i], points[(i + 1) % m]]) for i in range(m)]
+    expected = []
+    for i in range(m):
+        for j in range(i + 1, m):
+            if j - i == 1 or (i == 0 and j == m - 1):
+                if edges[i].intersection(edges[j]).length > 0:
+                    expected.append([i, j])
+            elif edges[i].intersects(edges[j]):
+                expected.append([i, j])
+    assert meeting_edges(points).tolist() == expected
+
+
+@pytest.mark.parametrize("seed, min_piece, most", [(0, 20, 0), (1, 20, 3), (2, None, 0), (3, 1, 0), (4, 20, 1)])
+def test_kept_pieces_are_the_large_8_connected_pieces_largest_first(seed, min_piece, most):
+    mask = speckled(seed) == 1
+    region, pieces, kept = kept_pieces(mask, min_piece, most)
+    found, n = ndimage.label(mask, structure=np.ones((3, 3)))
+    sizes = np.bincount(found.ravel(), minlength=n + 1)[1:]
+    large = np.flatnonzero(sizes >= (min_piece or 1)) if min_piece is not None else np.array([], int)
+    chosen = large if len(large) else np.array([np.argmax(sizes)])
+    if most and len(chosen) > most:  # the largest; the test's masks have no tie at the cut
+        ranked = np.sort(sizes[chosen])[::-1]
+        assert ranked[most - 1] > ranked[most]
+        chosen = chosen[sizes[chosen] >= ranked[most - 1]]
+    kept_sizes = [np.count_nonzero(pieces == p) for p in kept]
+    assert kept_sizes == sorted(kept_sizes, reverse=True)  # largest first
+    assert sorted(kept_sizes) == sorted(sizes[chosen].tolist())
+    assert np.array_equal(region, np.isin(found, chosen + 1))
+    for p in kept:  # every kept piece is one of ndimage's pieces, whole
+        assert len(np.unique(found[pieces == p])) == 1 and np.array_equal(found == found[pieces == p][0], pieces == p)
+
+
+def test_anchored_simplification_is_douglas_peucker_on_each_chain():
+    # The vertices kept between anchors: approxPolyDP on every chain (ends included) at each
+    # tolerance, chains of two vertices (an anchor next to an anchor) among them.
+    rng = np.random.default_rng(11)
+    angles = np.sort(rng.uniform(0, 2 * np.pi, 300))
+    ring = np.round(np.stack([(60 + 20 * rng.random(300)) * np.cos(angles), 70 * np.sin(angles)], axis=1) * 4) / 4
+    ring = ring[np.unique(ring, axis=0, return_index=True)[1]]
+    ring = ring[np.argsort(np.arctan2(ring[:, 1], ring[:, 0]))]
+    anchors = np.array([3, 4, 50, 51, 52, 120, 121, 150, 152, 200, len(ring) - 2, len(ring) - 1])
+    assert len(ring) > 250
+    simplify = _Simplifier(ring, anchors)
+    points = (ring * 4).astype(np.int32)
+    for tolerance in (0.3, 1.0, 2.5, 7.0):
+        expected = set(anchors.tolist())
+        bounds = anchors.tolist() + [anchors[0] + len(ring)]
+        for a, b in zip(bounds[:-1], bounds[1:]):
+            chain = np.array([points[i % len(ring)] for i in range(a, b + 1)], np.int32).reshape(-1, 1, 2)
+            for x, y in cv2.approxPolyDP(chain, 4 * tolerance, closed=False).reshape(-1, 2).tolist():
+                expected.add(int(np.flatnonzero((points[:, 0] == x) & (points[:, 1] == y))[0]))
+        assert simplify(tolerance).tolist() == sorted(expected)
 
 
 def test_outlines_of_real_proposals_are_simple_and_small(tmp_path):
