@@ -321,13 +321,27 @@ def piece_corridors(region: np.ndarray, pieces: np.ndarray, kept: list[int]) -> 
     remaining = list(kept[1:])
     while remaining:
         tree = cKDTree(points[joined])
+        low, high = points[joined].min(axis=0), points[joined].max(axis=0)
         for k in remaining:
             # Only a nearer pair than the best so far matters: the search stops at its distance.
             bound = best[k][0] if k in best else np.inf
-            distance, index = tree.query(points[k], distance_upper_bound=bound)
+            # Only k's pixels no farther from the joined piece's box than that (or than the
+            # pixel nearest the box is from the piece) can be nearest: the tree answers each
+            # pixel on its own, so asking for these alone finds the same pixel and partner.
+            gap = np.maximum(np.maximum(low - points[k], points[k] - high), 0)
+            box2 = gap[:, 0] * gap[:, 0] + gap[:, 1] * gap[:, 1]
+            if not np.isfinite(bound):
+                bound_px = int(np.argmin(box2))
+                reach = float(tree.query(points[k][bound_px])[0])
+            else:
+                reach = bound
+            near = np.flatnonzero(box2 <= reach * reach + 1e-6)
+            if len(near) == 0:
+                continue
+            distance, index = tree.query(points[k][near], distance_upper_bound=bound)
             i = int(np.argmin(distance))
             if distance[i] < bound:
-                best[k] = (float(distance[i]), i, joined, int(index[i]))
+                best[k] = (float(distance[i]), int(near[i]), joined, int(index[i]))
         joined = min(remaining, key=lambda k: (best[k][0], kept.index(k)))
         _, i, other, j = best[joined]
         corridors.append((tuple(int(v) for v in points[joined][i]), tuple(int(v) for v in points[other][j])))
@@ -349,14 +363,28 @@ def close_corners(region: np.ndarray) -> np.ndarray:
         A region whose pieces are 4-connected (well-composed), a superset of ``region``.
     """
     region = region.copy()
-    while True:
-        a, b, c, d = region[:-1, :-1], region[:-1, 1:], region[1:, :-1], region[1:, 1:]
-        falling = a & d & ~b & ~c  # upper left and lower right
-        rising = b & c & ~a & ~d  # upper right and lower left
-        if not (falling.any() or rising.any()):
-            return region
-        region[:-1, 1:] |= falling
-        region[:-1, :-1] |= rising
+    height, width = region.shape
+    if height < 2 or width < 2:
+        return region
+    a, b, c, d = region[:-1, :-1], region[:-1, 1:], region[1:, :-1], region[1:, 1:]
+    # The 2 x 2 blocks (by their upper left pixel) where two pixels touch at a corner only.
+    falling = np.flatnonzero(a & d & ~b & ~c)  # upper left and lower right
+    rising = np.flatnonzero(b & c & ~a & ~d)  # upper right and lower left
+    rows, cols = np.divmod(np.concatenate([falling, rising]), width - 1)
+    while len(rows):
+        cols[: len(falling)] += 1  # falling: fill the upper right pixel; rising: the upper left
+        region[rows, cols] = True
+        # A block that had such a corner got a pixel: only blocks holding a filled pixel can
+        # have one now.
+        rows = np.concatenate([rows - 1, rows - 1, rows, rows])
+        cols = np.concatenate([cols - 1, cols, cols - 1, cols])
+        inside = (rows >= 0) & (rows < height - 1) & (cols >= 0) & (cols < width - 1)
+        rows, cols = rows[inside], cols[inside]
+        a, b, c, d = region[rows, cols], region[rows, cols + 1], region[rows + 1, cols], region[rows + 1, cols + 1]
+        fall, rise = a & d & ~b & ~c, b & c & ~a & ~d
+        falling = np.flatnonzero(fall)
+        rows, cols = np.concatenate([rows[fall], rows[rise]]), np.concatenate([cols[fall], cols[rise]])
+    return region
 
 
 def trace_pieces(mask: np.ndarray) -> list[np.ndarray]:

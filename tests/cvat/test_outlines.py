@@ -17,7 +17,8 @@ from scipy import ndimage
 from annotate_rgbd.annotation.model import Shape
 from annotate_rgbd.config.settings import load_config
 from annotate_rgbd.cvat import read_cvat
-from annotate_rgbd.cvat.from_masks import kept_pieces, label_boxes, outline_planes, plane_outlines
+from annotate_rgbd.cvat.from_masks import (close_corners, kept_pieces, label_boxes, outline_planes, piece_corridors,
+                                          plane_outlines)
 from annotate_rgbd.cvat.rings import _Simplifier, meeting_edges, simplify_ring
 from annotate_rgbd.propose import run_propose
 from annotate_rgbd.segment.rasterize import rasterize_frame
@@ -178,6 +179,55 @@ def test_kept_pieces_are_the_large_8_connected_pieces_largest_first(seed, min_pi
     assert np.array_equal(region, np.isin(found, chosen + 1))
     for p in kept:  # every kept piece is one of ndimage's pieces, whole
         assert len(np.unique(found[pieces == p])) == 1 and np.array_equal(found == found[pieces == p][0], pieces == p)
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_piece_corridors_join_each_piece_to_the_nearest_joined_one(seed):
+    # Prim's tree over the pieces' border pixels, against all pairwise distances: each corridor
+    # starts at the first border pixel (raster order) of the piece nearest to those joined, and
+    # ends at a border pixel of a joined piece at that distance.
+    mask = speckled(seed, planes=6) >= 3
+    region, pieces, kept = kept_pieces(mask, 20)
+    if len(kept) < 3:
+        pytest.skip("fewer than three pieces")
+    border = region & ~ndimage.binary_erosion(region, structure=ndimage.generate_binary_structure(2, 1))
+    ys, xs = np.nonzero(border)
+    points = {k: np.stack([xs, ys], axis=1)[pieces[ys, xs] == k] for k in kept}
+    joined, remaining = [kept[0]], list(kept[1:])
+    for start, end in piece_corridors(region, pieces, kept):
+        gaps = {k: min(np.sqrt(((points[k][:, None] - points[j][None]) ** 2).sum(-1)).min() for j in joined) for k in remaining}
+        nearest = min(remaining, key=lambda k: (gaps[k], kept.index(k)))
+        to_joined = np.concatenate([points[j] for j in joined])
+        distances = np.sqrt(((points[nearest][:, None] - to_joined[None]) ** 2).sum(-1)).min(axis=1)
+        assert start == tuple(points[nearest][np.argmax(distances <= gaps[nearest])].tolist())
+        assert np.hypot(start[0] - end[0], start[1] - end[1]) == pytest.approx(gaps[nearest])
+        assert any(tuple(p) == end for p in to_joined.tolist())
+        joined.append(nearest)
+        remaining.remove(nearest)
+    assert not remaining
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_close_corners_fills_as_passes_over_the_whole_region_do(seed):
+    # Pass after pass over every 2 x 2 block, each filling the upper right pixel of a falling
+    # corner and the upper left of a rising one, until none is left (chains of diagonal pixels
+    # need several passes).
+    rng = np.random.default_rng(seed)
+    region = rng.random((40, 50)) < (0.2 if seed % 2 else 0.5)
+    region[5:25, 5:25] = np.eye(20, dtype=bool) | np.eye(20, dtype=bool)[::-1]  # long diagonals
+    expected = region.copy()
+    passes = 0
+    while True:
+        a, b, c, d = expected[:-1, :-1], expected[:-1, 1:], expected[1:, :-1], expected[1:, 1:]
+        falling, rising = a & d & ~b & ~c, b & c & ~a & ~d
+        if not (falling.any() or rising.any()):
+            break
+        expected[:-1, 1:] |= falling
+        expected[:-1, :-1] |= rising
+        passes += 1
+    assert passes >= 2
+    assert np.array_equal(close_corners(region), expected)
+    assert np.array_equal(close_corners(region[:1]), region[:1]) and close_corners(region[:0]).shape == (0, 50)
 
 
 def test_anchored_simplification_is_douglas_peucker_on_each_chain():
