@@ -116,7 +116,8 @@ def cloud_cells(
         raise ValueError(f"a {height} x {width} depth image holds no {cell_px} x {cell_px} cell")
     z = np.asarray(depth_m, dtype=np.float32)
     with np.errstate(invalid="ignore"):
-        z = np.where(z > 0, z, np.float32(np.nan))  # NaN stays NaN; zero and negative become NaN
+        # NaN stays NaN; zero and negative become NaN (depth_to_metres leaves none: a copy then)
+        z = np.where(z > 0, z, np.float32(np.nan)) if (z <= 0).any() else z.copy()
     ray_x, ray_y = (ray.astype(np.float32) for ray in ray_grid(camera, height, width))
     sigma = np.asarray(noise(z), dtype=np.float32)
 

@@ -40,7 +40,7 @@ def assign_pixels(cells: CloudCells, region: np.ndarray, planes: np.ndarray, ban
     # A pixel is taken when it lies nearer than ``best``: first the band itself (just above it,
     # so that a pixel on the band's edge is in; NaN where the depth is invalid: never taken),
     # then the nearest plane's distance so far.
-    best = np.nextafter(np.float32(band_k) * cells.sigma, np.float32(np.inf))
+    best = _just_above(np.float32(band_k) * cells.sigma)
     labels = np.zeros((height, width), dtype=np.uint8 if planes.shape[0] < 256 else np.int32)
     grid = region.reshape(rows, cols)
     ring = np.ones((3, 3), dtype=np.uint8)
@@ -64,6 +64,17 @@ def assign_pixels(cells: CloudCells, region: np.ndarray, planes: np.ndarray, ban
         np.copyto(labels[r0:r1, c0:c1], k, where=claim)
         np.copyto(best[r0:r1, c0:c1], dist, where=claim)
     return labels
+
+
+def _just_above(values: np.ndarray) -> np.ndarray:
+    """``np.nextafter(values, inf)`` of float32 values: the next float32 up, by the bit pattern
+    (one more) where the values are positive and finite, several times faster."""
+    values = np.asarray(values, dtype=np.float32)
+    above = (values.view(np.int32) + np.int32(1)).view(np.float32)
+    odd = ~(values > 0) | (values == np.inf)  # zero, negative, infinite, NaN: numpy's own
+    if odd.any():
+        above[odd] = np.nextafter(values[odd], np.float32(np.inf))
+    return above
 
 
 def claim_windows(cells: CloudCells, region: np.ndarray) -> list:

@@ -20,6 +20,7 @@ from annotate_rgbd.config.propose import DetectorConfig
 from annotate_rgbd.cvat.from_masks import plane_outlines
 from annotate_rgbd.detect import detect_planes
 from annotate_rgbd.detect.cells import cloud_cells
+from annotate_rgbd.geometry.noise import SENSOR_MODELS
 from annotate_rgbd.segment.rasterize import polygon_window
 
 KINECT = Camera(525.0, 525.0, 319.5, 239.5, 5000.0)
@@ -315,6 +316,34 @@ def test_cell_segment_boxes_are_scipys_find_objects(seed):
     grid[grid == 3] = 0
     assert _boxes(grid) == ndimage.find_objects(grid)
     assert _boxes(grid, 12) == ndimage.find_objects(grid, max_label=12)
+
+
+def test_just_above_is_nextafter_towards_infinity():
+    from annotate_rgbd.detect.refine import _just_above
+
+    rng = np.random.default_rng(1)
+    tiny, big = np.finfo(np.float32).smallest_subnormal, np.finfo(np.float32).max
+    values = np.concatenate([rng.uniform(0, 0.1, 1000), rng.uniform(-5, 5, 100),
+                             [0.0, -0.0, tiny, -tiny, big, -big, np.inf, -np.inf, np.nan]]).astype(np.float32)
+    with np.errstate(over="ignore"):  # the largest float32 goes to infinity
+        expected = np.nextafter(values, np.float32(np.inf))
+    assert np.array_equal(_just_above(values).view(np.int32)[:-1], expected.view(np.int32)[:-1])
+    assert np.isnan(_just_above(values)[-1])
+
+
+def test_zero_and_negative_depths_are_invalid(room):
+    depth = np.array(room[0], dtype=np.float32)
+    holes = np.random.default_rng(2).random(depth.shape) < 0.2
+    with_nan = depth.copy()
+    with_nan[holes] = np.nan
+    sigma = SENSOR_MODELS["kinect_v1"].sigma
+    a = cloud_cells(with_nan, KINECT, 20, sigma, 3.0, 0.5)
+    assert not np.shares_memory(a.depth, with_nan)
+    for invalid in (0.0, -1.0):
+        other = depth.copy()
+        other[holes] = invalid
+        b = cloud_cells(other, KINECT, 20, sigma, 3.0, 0.5)
+        assert np.array_equal(a.depth, b.depth, equal_nan=True) and np.array_equal(a.scatter, b.scatter)
 
 
 def test_no_depth_no_planes():
