@@ -35,7 +35,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from .rings import ring_simplifications
+from .rings import ring_simplifications, sorted_unique
 
 #: Pieces of a plane's mask smaller than this are left out of its polygon (speckle, not area).
 MIN_PIECE_PX = 20
@@ -261,7 +261,7 @@ def corridor_ends(contour: np.ndarray, corridors: np.ndarray) -> np.ndarray:
     fine = contour.reshape(-1, 2)
     inside = corridors[fine[:, 1] // 2 - 1, fine[:, 0] // 2 - 1]
     change = np.flatnonzero(inside != np.roll(inside, 1))  # edge (i - 1, i) crosses a corridor's end
-    return np.unique(np.concatenate([change, (change - 1) % len(fine)]))
+    return sorted_unique(change, (change - 1) % len(fine))
 
 
 def kept_pieces(mask: np.ndarray, min_piece: int | None, most: int = 0) -> tuple[np.ndarray, np.ndarray, list[int]]:
@@ -449,7 +449,7 @@ def simple_outline(ring: np.ndarray, tolerance_px: float, max_vertices: int = 0,
     """
     # The straight runs of the trace carry no shape: only their ends (and the anchors) can be vertices.
     anchors = np.asarray(anchors, dtype=np.intp)
-    turns = np.union1d(_corners(ring), anchors) if len(anchors) else _corners(ring)
+    turns = sorted_unique(_corners(ring), anchors) if len(anchors) else _corners(ring)
     corners = ring[turns]
     kept = np.searchsorted(turns, anchors)
     if not max_vertices:

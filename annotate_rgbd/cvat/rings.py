@@ -34,6 +34,30 @@ _BUDGET_STEP = 0.8
 _TOLERANCE_STEP = 0.1
 
 
+def sorted_unique(*arrays) -> np.ndarray:
+    """The sorted distinct values of integer arrays: ``np.unique`` of one, ``np.union1d`` of
+    several, by sorting (numpy's own hash first, several times slower on the few hundred or
+    thousand values of a ring).
+
+    Parameters
+    ----------
+    *arrays : array_like of int
+        Any shapes (flattened).
+
+    Returns
+    -------
+    ndarray of int, shape (N,)
+        Ascending, each value once; the dtype of the arrays joined.
+    """
+    values = np.sort(np.concatenate([np.asarray(a).ravel() for a in arrays]))
+    if len(values) < 2:
+        return values
+    keep = np.empty(len(values), dtype=bool)
+    keep[0] = True
+    np.not_equal(values[1:], values[:-1], out=keep[1:])
+    return values[keep]
+
+
 def simplify_ring(ring: np.ndarray, tolerance: float, max_vertices: int = 0) -> np.ndarray:
     """The vertices of a closed outline to keep so that the polygon through them stays within
     ``tolerance`` of the outline, has at most ``max_vertices`` vertices and is simple.
@@ -84,7 +108,7 @@ def ring_simplifications(ring: np.ndarray, tolerance: float, budgets, anchors=()
         raise ValueError(f"vertex budgets must be 0 or at least 3, got {list(budgets)}")
     if len(ring) <= 3:
         return [np.arange(len(ring)) for _ in budgets]
-    simplify = _Simplifier(ring, np.unique(np.asarray(anchors, dtype=np.intp)))
+    simplify = _Simplifier(ring, sorted_unique(np.asarray(anchors, dtype=np.intp)))
     free = simplify(tolerance)
     results: list[np.ndarray] = []
     simple_free = _repair(ring, free)
@@ -137,16 +161,16 @@ class _Simplifier:
             else:
                 found = np.zeros((0, 2), dtype=np.int32)
             keys = (found[:, 0].astype(np.int64) << 32) + found[:, 1]
-            kept = np.union1d(self.order[np.searchsorted(self.sorted_keys, keys)], self.anchors)
+            kept = sorted_unique(self.order[np.searchsorted(self.sorted_keys, keys)], self.anchors)
             if len(kept) >= 3:
                 return kept
-        return np.union1d(_best_first(self.ring, tolerance, 0), self.anchors).astype(np.intp)
+        return sorted_unique(np.asarray(_best_first(self.ring, tolerance, 0), dtype=np.intp), self.anchors).astype(np.intp)
 
     def within(self, tolerance: float, budget: int) -> np.ndarray:
         """The vertices kept at the smallest tolerance (at least ``tolerance``, found by bisection
         to :data:`_TOLERANCE_STEP`) that leaves at most ``budget`` of them."""
         if self.points is None:
-            return np.union1d(_best_first(self.ring, tolerance, budget), self.anchors).astype(np.intp)
+            return sorted_unique(np.asarray(_best_first(self.ring, tolerance, budget), dtype=np.intp), self.anchors).astype(np.intp)
         extent = float(np.ptp(self.ring, axis=0).max())
         low, high = tolerance, max(tolerance, 0.25)
         keep = self(high)
@@ -211,7 +235,7 @@ def meeting_edges(points: np.ndarray) -> np.ndarray:
     pairs = np.concatenate(found).astype(np.intp)
     if len(pairs) == 0:
         return pairs
-    key = np.unique(pairs[:, 0] * m + pairs[:, 1])  # sorted by (i, j), each pair once
+    key = sorted_unique(pairs[:, 0] * m + pairs[:, 1])  # sorted by (i, j), each pair once
     return np.stack([key // m, key % m], axis=1)
 
 
@@ -313,7 +337,7 @@ def _repair(ring: np.ndarray, keep: list[int]) -> np.ndarray:
         if len(pairs) == 0:
             break
         closed = keep + [n]
-        farthest = {edge: _farthest(ring, closed[edge], closed[edge + 1]) for edge in np.unique(pairs).tolist()}
+        farthest = {edge: _farthest(ring, closed[edge], closed[edge + 1]) for edge in sorted_unique(pairs).tolist()}
         added = set()
         for i, j in pairs.tolist():  # of two edges that meet, the one farther from its chain
             distance, split = max(farthest[i], farthest[j])

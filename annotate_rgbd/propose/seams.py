@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from annotate_rgbd.cvat.rings import sorted_unique
 from annotate_rgbd.geometry.camera import Camera
 
 
@@ -59,10 +60,10 @@ def seam_pairs(labels: np.ndarray, reach: int) -> dict[tuple[int, int], tuple[np
     key = np.minimum(label_one, label_two) * n + np.maximum(label_one, label_two)
     # Each pair's pixels, sorted and unique, for all pairs at once: (pair, pixel) as one integer.
     size = labels.size
-    low = np.unique(key * size + low_pixel)
-    high = np.unique(key * size + high_pixel)
+    low = sorted_unique(key * size + low_pixel)
+    high = sorted_unique(key * size + high_pixel)
     low_key, high_key = low // size, high // size
-    keys = np.unique(low_key)  # = np.unique(high_key): each meeting adds a pixel to both sides
+    keys = sorted_unique(low_key)  # = np.unique(high_key): each meeting adds a pixel to both sides
     low_bounds = np.searchsorted(low_key, keys).tolist() + [len(low)]
     high_bounds = np.searchsorted(high_key, keys).tolist() + [len(high)]
     low_pixels, high_pixels = low % size, high % size

@@ -19,7 +19,7 @@ from annotate_rgbd.config.settings import load_config
 from annotate_rgbd.cvat import read_cvat
 from annotate_rgbd.cvat.from_masks import (close_corners, kept_pieces, label_boxes, outline_planes, piece_corridors,
                                           plane_outlines)
-from annotate_rgbd.cvat.rings import _Simplifier, meeting_edges, simplify_ring
+from annotate_rgbd.cvat.rings import _Simplifier, meeting_edges, simplify_ring, sorted_unique
 from annotate_rgbd.propose import run_propose
 from annotate_rgbd.segment.rasterize import rasterize_frame
 
@@ -228,6 +228,14 @@ def test_close_corners_fills_as_passes_over_the_whole_region_do(seed):
     assert passes >= 2
     assert np.array_equal(close_corners(region), expected)
     assert np.array_equal(close_corners(region[:1]), region[:1]) and close_corners(region[:0]).shape == (0, 50)
+
+
+def test_sorted_unique_is_numpys_unique_and_union():
+    rng = np.random.default_rng(4)
+    for size in (0, 1, 2, 7, 500):
+        a, b = rng.integers(-20, 40, size), rng.integers(0, 9, (3, 4)).astype(np.intp)
+        assert np.array_equal(sorted_unique(a), np.unique(a)) and sorted_unique(a).dtype == np.unique(a).dtype
+        assert np.array_equal(sorted_unique(a, b), np.union1d(a, b))
 
 
 def test_anchored_simplification_is_douglas_peucker_on_each_chain():
