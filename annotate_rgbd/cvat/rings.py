@@ -138,7 +138,7 @@ class _Simplifier:
             sorted_keys = keys[order]
             if not (sorted_keys[1:] == sorted_keys[:-1]).any():  # distinct vertices
                 self.points = points.astype(np.int32).reshape(-1, 1, 2)
-                self.order, self.sorted_keys = order, sorted_keys
+                self.order, self.sorted_keys, self.keys = order, sorted_keys, keys
                 self.chains = self._chains() if len(anchors) >= 2 else []
 
     def _chains(self) -> list[np.ndarray]:
@@ -166,6 +166,20 @@ class _Simplifier:
                 return kept
         return sorted_unique(np.asarray(_best_first(self.ring, tolerance, 0), dtype=np.intp), self.anchors).astype(np.intp)
 
+    def count(self, tolerance: float) -> int:
+        """``len(self(tolerance))``, without finding which vertices those are."""
+        if self.points is not None:
+            if len(self.anchors) < 2:
+                found = cv2.approxPolyDP(self.points, 4.0 * tolerance, closed=True).reshape(-1, 2)
+                keys = (found[:, 0].astype(np.int64) << 32) + found[:, 1]
+                size = len(sorted_unique(keys, self.keys[self.anchors]))
+            else:  # each chain keeps its two ends (anchors) and vertices between them, all distinct
+                size = len(self.anchors) + sum(len(cv2.approxPolyDP(chain, 4.0 * tolerance, closed=False)) - 2
+                                               for chain in self.chains)
+            if size >= 3:
+                return size
+        return len(self(tolerance))
+
     def within(self, tolerance: float, budget: int) -> np.ndarray:
         """The vertices kept at the smallest tolerance (at least ``tolerance``, found by bisection
         to :data:`_TOLERANCE_STEP`) that leaves at most ``budget`` of them."""
@@ -173,21 +187,20 @@ class _Simplifier:
             return sorted_unique(np.asarray(_best_first(self.ring, tolerance, budget), dtype=np.intp), self.anchors).astype(np.intp)
         extent = float(np.ptp(self.ring, axis=0).max())
         low, high = tolerance, max(tolerance, 0.25)
-        keep = self(high)
-        while len(keep) > budget and high <= extent:  # past the extent: the anchors and a triangle
+        size = self.count(high)
+        while size > budget and high <= extent:  # past the extent: the anchors and a triangle
             low, high = high, 2.0 * high
-            keep = self(high)
-        if len(keep) > budget:
-            return keep
+            size = self.count(high)
+        if size > budget:
+            return self(high)
         step = _TOLERANCE_STEP
         while high - low > step:
             middle = 0.5 * (low + high)
-            trial = self(middle)
-            if len(trial) <= budget:
-                high, keep = middle, trial
+            if self.count(middle) <= budget:
+                high = middle
             else:
                 low = middle
-        return keep
+        return self(high)
 
 
 def meeting_edges(points: np.ndarray) -> np.ndarray:

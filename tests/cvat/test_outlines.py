@@ -258,6 +258,9 @@ def test_anchored_simplification_is_douglas_peucker_on_each_chain():
             for x, y in cv2.approxPolyDP(chain, 4 * tolerance, closed=False).reshape(-1, 2).tolist():
                 expected.add(int(np.flatnonzero((points[:, 0] == x) & (points[:, 1] == y))[0]))
         assert simplify(tolerance).tolist() == sorted(expected)
+    for some in (anchors[:0], anchors[:1], anchors):  # counted without the vertices: as many
+        counted = _Simplifier(ring, some)
+        assert [counted.count(t) for t in (0.1, 0.6, 3.0, 40.0, 500.0)] == [len(counted(t)) for t in (0.1, 0.6, 3.0, 40.0, 500.0)]
 
 
 def test_outlines_of_real_proposals_are_simple_and_small(tmp_path):
