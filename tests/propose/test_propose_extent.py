@@ -10,7 +10,7 @@ from annotate_rgbd.annotation.model import Shape
 from annotate_rgbd.config.masks import RansacConfig
 from annotate_rgbd.geometry.camera import Camera, ray_grid
 from annotate_rgbd.geometry.noise import NoiseSettings, noise_scale
-from annotate_rgbd.propose.detect_job import polygon_fit, surface_areas
+from annotate_rgbd.propose.detect_job import label_counts, polygon_fit, surface_areas
 from annotate_rgbd.propose.extent import SCALE_POINTS, plane_scales
 from annotate_rgbd.segment.rasterize import fill_window, shape_mask
 
@@ -104,3 +104,9 @@ def test_polygon_fit_counts_the_filled_pixels_of_each_plane():
     unlimited_iou = [np.count_nonzero(full(fill_window(p, height, width)) & (labels == 2)) /
                      np.count_nonzero(full(fill_window(p, height, width)) | (labels == 2)) for p in (unlimited[1], polygons[1])]
     assert cost[1] == unlimited_iou[0] - unlimited_iou[1] and np.isnan(cost[[0, 2]]).all()
+
+
+@pytest.mark.parametrize("n", [0, 3, 70])
+def test_label_counts_are_the_pixels_of_each_label(n):
+    labels = np.random.default_rng(n).integers(0, n + 3, size=(50, 60)).astype(np.uint16)
+    assert label_counts(labels, n).tolist() == [int(np.sum(labels == k)) for k in range(1, n + 1)]
