@@ -38,14 +38,17 @@ def seam_pairs(labels: np.ndarray, reach: int) -> dict[tuple[int, int], tuple[np
     labels = np.asarray(labels)
     height, width = labels.shape
     flat = labels.ravel()
+    labelled = flat > 0
     first, second = [], []
     for shift in range(1, reach + 1):
         # Pixel pairs (p, p + step) along rows (step = shift; not across a row's end) and columns.
         for step in (shift, shift * width):
             if step >= flat.size:
                 continue
-            la, lb = flat[:-step], flat[step:]
-            at = np.flatnonzero((la != lb) & (la > 0) & (lb > 0))
+            meet = flat[:-step] != flat[step:]
+            meet &= labelled[:-step]
+            meet &= labelled[step:]
+            at = np.flatnonzero(meet)
             if step == shift:
                 at = at[at % width < width - shift]
             first.append(at)

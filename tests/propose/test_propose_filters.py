@@ -250,3 +250,20 @@ def test_seam_pairs_match_a_pixel_by_pixel_search(reach):
     for key, (low, high) in pairs.items():
         assert low.tolist() == sorted(expected[key][0])
         assert high.tolist() == sorted(expected[key][1])
+
+
+def test_plane_centroids_and_distances_are_the_sums_over_their_pixels():
+    # Against np.bincount over the whole image (its sums run in raster order, as the job's over
+    # the labelled pixels do): equal to the last bit.
+    depth = wall_with_things(np.random.default_rng(5))
+    depth[400:, :100] = np.nan
+    found = propose_planes(depth, CAMERA, DetectorConfig(), ProposeConfig(), NoiseSettings(), FilterConfig())
+    k = len(found.areas)
+    assert k >= 2
+    flat = found.labels.ravel()
+    rays = (np.arange(640) - CAMERA.cx) / CAMERA.fx, (np.arange(480) - CAMERA.cy) / CAMERA.fy
+    x = (rays[0].astype(np.float32)[None, :] * depth).ravel().astype(np.float64)
+    y = (rays[1].astype(np.float32)[:, None] * depth).ravel().astype(np.float64)
+    sums = [np.bincount(flat, weights=np.nan_to_num(v), minlength=k + 1)[1:] for v in (x, y, depth.ravel().astype(np.float64))]
+    assert np.array_equal(found.centroids, np.stack(sums, axis=1) / found.areas[:, None])
+    assert np.array_equal(found.areas, np.bincount(flat, minlength=k + 1)[1:])
