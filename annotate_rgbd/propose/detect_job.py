@@ -15,7 +15,7 @@ import numpy as np
 from annotate_rgbd.config.propose import DetectorConfig, ProposeConfig
 from annotate_rgbd.config.masks import RansacConfig
 from annotate_rgbd.config.settings import FilterConfig
-from annotate_rgbd.cvat.from_masks import draw_order, outline_planes, polygon_coverage
+from annotate_rgbd.cvat.from_masks import draw_order, label_boxes, outline_planes, polygon_coverage
 from annotate_rgbd.detect import detect_planes
 from annotate_rgbd.detect.refine import relabel
 from annotate_rgbd.errors import InputError
@@ -185,9 +185,10 @@ def propose_planes(
     groups = merge_groups(joined, sigma, settings.merge_excess, scales)[seams]
     labels, planes, areas, centroids = _apply_groups(detection.labels, moments, groups, min_area)
     # The planes' extents; their CVAT polygons are drawn at the end.
-    windows = piece_windows(labels, settings.outline_tolerance_px)
+    boxes = label_boxes(labels, len(areas))
+    windows = piece_windows(labels, settings.outline_tolerance_px, boxes=boxes)
     coverage = polygon_coverage(labels, windows)
-    objects = objects_on_planes(planes, areas, centroids, coverage, neighbour_shares(labels, settings.object_ring_px),
+    objects = objects_on_planes(planes, areas, centroids, coverage, neighbour_shares(labels, settings.object_ring_px, boxes),
                                 settings.object_height, settings.object_inside, detector.min_angle_deg)
     early = [{"area": int(areas[k]), "reason": "on_plane", "mean_distance": None, "invalid_ratio": None,
               "equation": [float(v) for v in planes[k]]} for k in np.flatnonzero(objects)]
@@ -197,7 +198,7 @@ def propose_planes(
         # Each plane's pixels inside its outline, within its own (scaled) noise band.
         table = np.zeros(len(areas) + 1, dtype=labels.dtype)
         table[kept + 1] = np.arange(1, len(kept) + 1)
-        scales = plane_scales(relabel(labels, table, labels.dtype), points, planes, noise, ransac)
+        scales = plane_scales(relabel(labels, table, labels.dtype), points, planes, noise, ransac, [boxes[k] for k in kept])
         labels = assign_in_outlines(points, planes, windows, scales, noise)
         counts = label_counts(labels, len(kept))
         small = counts < min_area

@@ -26,7 +26,8 @@ SCALE_POINTS = 4000
 
 
 def plane_scales(
-    labels: np.ndarray, points: np.ndarray, planes: np.ndarray, noise: NoiseSettings, ransac: RansacConfig | None = None
+    labels: np.ndarray, points: np.ndarray, planes: np.ndarray, noise: NoiseSettings, ransac: RansacConfig | None = None,
+    boxes: list | None = None,
 ) -> np.ndarray:
     """How much noisier than the model each plane's pixels are, as ``cvat2mask``'s fits find it.
 
@@ -40,6 +41,8 @@ def plane_scales(
     noise : NoiseSettings
     ransac : RansacConfig, optional
         Its ``min_noise_scale`` and ``max_noise_scale``, as ``cvat2mask`` uses them (defaults).
+    boxes : list, optional
+        :func:`annotate_rgbd.cvat.from_masks.label_boxes` of ``labels`` for labels 1..K, when known.
 
     Returns
     -------
@@ -51,7 +54,7 @@ def plane_scales(
     width = labels.shape[1]
     cloud = points.reshape(-1, 3)
     scales = np.ones(len(planes))
-    for k, box in enumerate(label_boxes(labels, len(planes))):
+    for k, box in enumerate(label_boxes(labels, len(planes)) if boxes is None else boxes):
         if box is None:
             members = np.zeros(0, dtype=np.intp)
         else:
@@ -110,7 +113,7 @@ def assign_in_outlines(
     return labels
 
 
-def piece_windows(labels: np.ndarray, tolerance_px: float, min_piece: int = MIN_PIECE_PX) -> list:
+def piece_windows(labels: np.ndarray, tolerance_px: float, min_piece: int = MIN_PIECE_PX, boxes: list | None = None) -> list:
     """Each label's extent: the pixels inside the simplified outline of any of its pieces of at
     least ``min_piece`` pixels (the largest when none is), holes filled.
 
@@ -125,6 +128,8 @@ def piece_windows(labels: np.ndarray, tolerance_px: float, min_piece: int = MIN_
         0 = none, else 1..K, each present.
     tolerance_px : float
     min_piece : int
+    boxes : list, optional
+        :func:`annotate_rgbd.cvat.from_masks.label_boxes` of ``labels``, when known.
 
     Returns
     -------
@@ -133,7 +138,7 @@ def piece_windows(labels: np.ndarray, tolerance_px: float, min_piece: int = MIN_
     """
     height, width = labels.shape
     windows = []
-    for label, box in enumerate(label_boxes(labels), start=1):
+    for label, box in enumerate(label_boxes(labels) if boxes is None else boxes, start=1):
         if box is None:
             windows.append((0, 0, np.zeros((0, 0), dtype=bool)))
             continue

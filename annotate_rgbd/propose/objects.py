@@ -16,7 +16,7 @@ import numpy as np
 from annotate_rgbd.cvat.from_masks import label_boxes
 
 
-def neighbour_shares(labels: np.ndarray, ring_px: int) -> np.ndarray:
+def neighbour_shares(labels: np.ndarray, ring_px: int, boxes: list | None = None) -> np.ndarray:
     """Which planes surround each plane: of the labelled pixels within ``ring_px`` pixels around
     a plane's mask (other planes' pixels; unlabelled ones, such as an object's rims, do not
     count), the share each plane holds.
@@ -27,6 +27,8 @@ def neighbour_shares(labels: np.ndarray, ring_px: int) -> np.ndarray:
         Planes 1..K, 0 for none.
     ring_px : int
         Width of the ring, pixels (>= 1).
+    boxes : list, optional
+        :func:`annotate_rgbd.cvat.from_masks.label_boxes` of ``labels``, when known.
 
     Returns
     -------
@@ -39,7 +41,7 @@ def neighbour_shares(labels: np.ndarray, ring_px: int) -> np.ndarray:
     shares = np.zeros((k, k))
     height, width = labels.shape
     kernel = np.ones((2 * ring_px + 1, 2 * ring_px + 1), np.uint8)
-    for p, window in enumerate(label_boxes(labels, k)):
+    for p, window in enumerate(label_boxes(labels, k) if boxes is None else boxes):
         if window is None:
             continue
         rows = slice(max(window[0].start - ring_px, 0), min(window[0].stop + ring_px, height))
