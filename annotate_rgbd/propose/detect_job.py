@@ -211,13 +211,10 @@ def propose_planes(
         table = np.zeros(len(areas) + 1, dtype=labels.dtype)
         table[kept + 1] = np.arange(1, len(kept) + 1)
         labels, areas, centroids = relabel(labels, table, labels.dtype), areas[kept], centroids[kept]
-    # Sums over each plane's pixels (all with valid depth) as np.bincount adds them, in raster
-    # order: over the labelled pixels alone.
-    at = np.flatnonzero(labels.ravel())
-    which = labels.ravel()[at].astype(np.intp)
+    flat = labels.ravel().astype(np.intp)
     if settings.widen_to_noise:
-        cloud = points.reshape(-1, 3)
-        centroids = np.stack([np.bincount(which, weights=cloud[at, i], minlength=len(areas) + 1)[1:]
+        # Labelled pixels have valid depth: the sums need no NaN guard (label 0's are not read).
+        centroids = np.stack([np.bincount(flat, weights=points[..., i].astype(np.float64).ravel(), minlength=len(areas) + 1)[1:]
                               for i in range(3)], axis=1) / np.maximum(areas, 1)[:, None]
     # The labeller's polygons: simple, within the tolerance and the vertex budget.
     final = outline_planes(labels, settings.outline_tolerance_px, settings.max_vertices)
@@ -229,7 +226,7 @@ def propose_planes(
     ray_distance = camera_distances(depth, camera)
     valid = ~np.isnan(depth)
     # Every pixel of the detector's labels has valid depth: the mean needs only the sums.
-    distance = np.bincount(which, weights=ray_distance.ravel()[at], minlength=len(areas) + 1)[1:] / areas
+    distance = np.bincount(flat, weights=ray_distance.ravel(), minlength=len(areas) + 1)[1:] / areas
     z_order = draw_order(labels, windows, distance, coverage)
     drawn = paint(windows, z_order, labels.shape)
     stats = statistics_of_distances(drawn, ray_distance, valid)
