@@ -317,17 +317,21 @@ def piece_corridors(region: np.ndarray, pieces: np.ndarray, kept: list[int]) -> 
     corridors = []
     from scipy.spatial import cKDTree  # here: SciPy takes a while to load, and only planes of several pieces need it
 
+    boxes = {k: (points[k].min(axis=0).tolist(), points[k].max(axis=0).tolist()) for k in kept}
     joined = kept[0]
     remaining = list(kept[1:])
     while remaining:
-        tree = cKDTree(points[joined])
-        low, high = points[joined].min(axis=0), points[joined].max(axis=0)
+        tree = None  # built when a piece asks
+        low, high = (np.array(v) for v in boxes[joined])
         for k in remaining:
             # Only a nearer pair than the best so far matters: the search stops at its distance.
             bound = best[k][0] if k in best else np.inf
+            if np.isfinite(bound) and _box_gap2(boxes[k], boxes[joined]) > bound * bound + 1e-6:
+                continue  # the pieces' boxes lie farther apart than that
             # Only k's pixels no farther from the joined piece's box than that (or than the
             # pixel nearest the box is from the piece) can be nearest: the tree answers each
             # pixel on its own, so asking for these alone finds the same pixel and partner.
+            tree = cKDTree(points[joined]) if tree is None else tree
             gap = np.maximum(np.maximum(low - points[k], points[k] - high), 0)
             box2 = gap[:, 0] * gap[:, 0] + gap[:, 1] * gap[:, 1]
             if not np.isfinite(bound):
@@ -347,6 +351,13 @@ def piece_corridors(region: np.ndarray, pieces: np.ndarray, kept: list[int]) -> 
         corridors.append((tuple(int(v) for v in points[joined][i]), tuple(int(v) for v in points[other][j])))
         remaining.remove(joined)
     return corridors
+
+
+def _box_gap2(a: tuple, b: tuple) -> int:
+    """Squared distance between two boxes ``((x0, y0), (x1, y1))`` of integer points."""
+    dx = max(a[0][0] - b[1][0], b[0][0] - a[1][0], 0)
+    dy = max(a[0][1] - b[1][1], b[0][1] - a[1][1], 0)
+    return dx * dx + dy * dy
 
 
 def close_corners(region: np.ndarray) -> np.ndarray:
