@@ -267,6 +267,7 @@ def corridor_ends(contour: np.ndarray, corridors: np.ndarray) -> np.ndarray:
 def kept_pieces(mask: np.ndarray, min_piece: int | None, most: int = 0) -> tuple[np.ndarray, np.ndarray, list[int]]:
     """The pieces of a mask to outline (see :func:`join_pieces`): their pixels, the piece labels
     and the kept pieces' labels, largest first (ties: lowest label, first in raster order)."""
+    mask = np.asarray(mask, dtype=bool)
     count, pieces = cv2.connectedComponents(mask.view(np.uint8), connectivity=8, ltype=cv2.CV_32S)
     if count <= 1:
         return np.zeros(mask.shape, dtype=bool), pieces, []
