@@ -456,26 +456,40 @@ def merge_groups(moments: Moments, sigma, excess_k: float, scales: np.ndarray | 
     current = Moments(moments.count.copy(), moments.mean.copy(), moments.scatter.copy())
     scale2 = np.ones(n) if scales is None else np.asarray(scales, dtype=np.float64) ** 2
     alive = current.count > 0
+    # Every pair's joint moments, noise scale and ratio, (a, b) at [a, b] with a < b: a merge
+    # changes only the pairs of the label that grew (the others' values are as before, bit for bit).
+    ratio, pair_scale2 = np.full((n, n), np.inf), np.zeros((n, n))
+    joint = Moments(np.zeros((n, n)), np.zeros((n, n, 3)), np.zeros((n, n, 3, 3)))
+
+    def update(a: np.ndarray, b: np.ndarray) -> None:
+        pairs = merge_pairs(current, a, b)
+        joint_ms = residual_ms(pairs.count, fit_planes(pairs.mean, pairs.scatter)[1])
+        ms_a = residual_ms(current.count[a], fit_planes(current.mean[a], current.scatter[a])[1])
+        ms_b = residual_ms(current.count[b], fit_planes(current.mean[b], current.scatter[b])[1])
+        added = joint_ms - (current.count[a] * ms_a + current.count[b] * ms_b) / pairs.count
+        pair_scale2[a, b] = (current.count[a] * scale2[a] + current.count[b] * scale2[b]) / pairs.count
+        ratio[a, b] = added / (excess_k * pair_scale2[a, b] * sigma(pairs.mean[:, 2]) ** 2)
+        joint.count[a, b], joint.mean[a, b], joint.scatter[a, b] = pairs.count, pairs.mean, pairs.scatter
+
+    idx = np.flatnonzero(alive)
+    i, j = np.triu_indices(len(idx), 1)
+    update(idx[i], idx[j])
     while alive.sum() > 1:
         idx = np.flatnonzero(alive)
         i, j = np.triu_indices(len(idx), 1)
         a, b = idx[i], idx[j]
-        joint = merge_pairs(current, a, b)
-        joint_ms = residual_ms(joint.count, fit_planes(joint.mean, joint.scatter)[1])
-        ms_a = residual_ms(current.count[a], fit_planes(current.mean[a], current.scatter[a])[1])
-        ms_b = residual_ms(current.count[b], fit_planes(current.mean[b], current.scatter[b])[1])
-        added = joint_ms - (current.count[a] * ms_a + current.count[b] * ms_b) / joint.count
-        pair_scale2 = (current.count[a] * scale2[a] + current.count[b] * scale2[b]) / joint.count
-        ratio = added / (excess_k * pair_scale2 * sigma(joint.mean[:, 2]) ** 2)
-        best = int(np.argmin(ratio))  # first minimum: deterministic
-        if ratio[best] > 1:
+        best = int(np.argmin(ratio[a, b]))  # first minimum: deterministic
+        if ratio[a[best], b[best]] > 1:
             break
-        keep, gone = min(a[best], b[best]), max(a[best], b[best])
+        keep, gone = a[best], b[best]
         current.count[keep], current.mean[keep], current.scatter[keep] = (
-            joint.count[best], joint.mean[best], joint.scatter[best])
-        scale2[keep] = pair_scale2[best]
+            joint.count[keep, gone], joint.mean[keep, gone], joint.scatter[keep, gone])
+        scale2[keep] = pair_scale2[keep, gone]
         alive[gone] = False
         group[group == gone] = keep
+        others = np.flatnonzero(alive)
+        others = others[others != keep]
+        update(np.minimum(others, keep), np.maximum(others, keep))
     return group
 
 
