@@ -15,7 +15,8 @@ import numpy as np
 from annotate_rgbd.config.propose import DetectorConfig, ProposeConfig
 from annotate_rgbd.config.masks import RansacConfig
 from annotate_rgbd.config.settings import FilterConfig
-from annotate_rgbd.cvat.from_masks import draw_order, label_boxes, outline_planes, polygon_coverage
+from annotate_rgbd.cvat.from_masks import draw_order, outline_planes, polygon_coverage
+from annotate_rgbd.cvat.pieces import label_boxes
 from annotate_rgbd.detect import detect_planes
 from annotate_rgbd.detect.refine import relabel
 from annotate_rgbd.errors import InputError
