@@ -15,6 +15,7 @@ produce exports for fixtures, sample data, proposals and tests. One job per modu
 - :mod:`~annotate_rgbd.cvat.notes`: what reading noticed, for the report;
 - :mod:`~annotate_rgbd.cvat.writer`: :func:`write_cvat_video`, :func:`write_cvat_images`;
 - :mod:`~annotate_rgbd.cvat.from_masks`: label masks -> the polygons and drawing order written for CVAT;
+- :mod:`~annotate_rgbd.cvat.pieces`: a mask's pieces, their boxes, the corridors joining them;
 - :mod:`~annotate_rgbd.cvat.rings`: simple polygons from traced outlines, under a vertex budget.
 
 Rules the reader follows (checked against CVAT's exporter and interpolation code):

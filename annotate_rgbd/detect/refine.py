@@ -110,7 +110,7 @@ def claim_windows(cells: CloudCells, region: np.ndarray) -> list:
 
 def _boxes(labels: np.ndarray, n: int | None = None) -> list:
     """The bounding box of each label 1..n, as ``scipy.ndimage.find_objects`` gives them (for the
-    small cell grid; :func:`annotate_rgbd.cvat.from_masks.label_boxes` is faster on images).
+    small cell grid; :func:`annotate_rgbd.cvat.pieces.label_boxes` is faster on images).
 
     Parameters
     ----------

@@ -8,6 +8,7 @@ module:
   :func:`annotate_rgbd.detect.detect_planes`, merging of coplanar pieces, polygons in draw
   order (:mod:`annotate_rgbd.cvat.from_masks`), the drop rules of
   :mod:`annotate_rgbd.segment.filters`), run in helper processes;
+- :mod:`~annotate_rgbd.propose.measures`: what a plane's polygon fills and covers;
 - :mod:`~annotate_rgbd.propose.link`: detections -> tracks (with or without poses);
 - :mod:`~annotate_rgbd.propose.output`: polygon tracks as CVAT XML, colour masks;
 - :mod:`~annotate_rgbd.propose.run`: :func:`run_propose`, the whole sequence.

@@ -15,7 +15,8 @@ import numpy as np
 from annotate_rgbd.config.propose import DetectorConfig, ProposeConfig
 from annotate_rgbd.config.masks import RansacConfig
 from annotate_rgbd.config.settings import FilterConfig
-from annotate_rgbd.cvat.from_masks import draw_order, label_boxes, outline_planes, polygon_coverage
+from annotate_rgbd.cvat.from_masks import draw_order, outline_planes, polygon_coverage
+from annotate_rgbd.cvat.pieces import label_boxes
 from annotate_rgbd.detect import detect_planes
 from annotate_rgbd.detect.refine import relabel
 from annotate_rgbd.errors import InputError
@@ -24,9 +25,9 @@ from annotate_rgbd.geometry.noise import NoiseSettings
 from annotate_rgbd.geometry.planes import Moments, fit_planes, merge_pairs, pool_groups, residual_ms
 from annotate_rgbd.io.sequence import read_depth
 from annotate_rgbd.segment.filters import camera_distances, drop_reasons, statistics_of_distances
-from annotate_rgbd.annotation.model import Shape
-from annotate_rgbd.segment.rasterize import fill_window, shape_mask
+from annotate_rgbd.segment.rasterize import fill_window
 from .extent import assign_in_outlines, piece_windows, plane_scales
+from .measures import label_counts, polygon_fit, surface_areas
 from .objects import neighbour_shares, objects_on_planes
 from .seams import seam_groups
 
@@ -262,108 +263,6 @@ def propose_planes(
     )
 
 
-def polygon_fit(labels: np.ndarray, polygons: list, unlimited: list, filled: list | None = None,
-                areas: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
-    """How well each plane's polygon fits its pixels, on the pixels ``cvat2mask`` fills
-    (:func:`annotate_rgbd.segment.rasterize.shape_mask`), and what the vertex budget cost: the
-    IoU of the polygon at the tolerance alone less the polygon's, both filled as
-    :func:`annotate_rgbd.segment.rasterize.fill_window` fills them (an outline of hundreds of
-    vertices fills 30 times faster so; the difference is within a few thousandths of the exact one).
-
-    Parameters
-    ----------
-    labels : ndarray of int, shape (H, W)
-        Planes 1..K.
-    polygons : list of ndarray, shape (V, 2)
-        The polygon of each plane.
-    unlimited : list of (ndarray or None)
-        Each plane's polygon at the tolerance alone, where the budget stopped it earlier.
-    filled : list of (int, int, ndarray of bool), optional
-        ``fill_window`` of each polygon, when already drawn.
-    areas : ndarray of int, shape (K,), optional
-        Pixels of each plane, when already counted.
-
-    Returns
-    -------
-    pixels : ndarray of int64, shape (K,)
-        Pixels inside each polygon.
-    iou : ndarray of float64, shape (K,)
-        IoU of the polygon's pixels with the plane's.
-    cost : ndarray of float64, shape (K,)
-        IoU of the polygon at the tolerance alone minus ``iou``; NaN where the budget did not
-        stop the simplification.
-    """
-    areas = label_counts(labels, len(polygons)) if areas is None else areas
-
-    def fit(k: int, window: tuple) -> tuple[int, float]:
-        top, left, inside_polygon = window
-        rows, cols = inside_polygon.shape
-        inside = np.count_nonzero((labels[top : top + rows, left : left + cols] == k + 1) & inside_polygon)
-        pixels = np.count_nonzero(inside_polygon)
-        return pixels, inside / max(pixels + int(areas[k]) - inside, 1)
-
-    pixels, iou = np.zeros(len(polygons), dtype=np.int64), np.zeros(len(polygons))
-    cost = np.full(len(polygons), np.nan)
-    for k, polygon in enumerate(polygons):
-        pixels[k], iou[k] = fit(k, shape_mask(Shape("polygon", polygon), *labels.shape))
-        if unlimited[k] is not None:
-            drawn = fill_window(polygon, *labels.shape) if filled is None else filled[k]
-            cost[k] = fit(k, fill_window(unlimited[k], *labels.shape))[1] - fit(k, drawn)[1]
-    return pixels, iou, cost
-
-
-def label_counts(labels: np.ndarray, n: int) -> np.ndarray:
-    """Pixels of each label 1..n (``np.bincount(labels.ravel())[1:n + 1]``, one comparison per
-    label: several times faster for the few labels of a frame).
-
-    Parameters
-    ----------
-    labels : ndarray of int, shape (H, W)
-    n : int
-
-    Returns
-    -------
-    ndarray of int64, shape (n,)
-    """
-    if n > 64:
-        return np.bincount(labels.ravel(), minlength=n + 1)[1 : n + 1].astype(np.int64)
-    return np.array([np.count_nonzero(labels == k) for k in range(1, n + 1)], dtype=np.int64)
-
-
-def surface_areas(windows: list, planes: np.ndarray, camera: Camera) -> np.ndarray:
-    """Area of each plane inside its outline, square metres: what the polygon covers on the
-    plane, whether or not the sensor returned depth there (a black screen's depth is speckled).
-
-    A pixel looking along ``r = ((u - cx) / fx, (v - cy) / fy, 1)`` meets the plane ``n . X + d
-    = 0`` at depth ``z = d / |n . r|`` and covers ``z**2 / (|fx fy| |n . r|)`` of it (``z**2 /
-    |fx fy|`` where the plane faces the camera; more as it turns away, counted up to grazing
-    rays at ``|n . r| = 0.1``).
-
-    Parameters
-    ----------
-    windows : list of (int, int, ndarray of bool)
-        The filled outline of plane ``k`` at position ``k - 1`` as ``(top, left, window)``.
-    planes : ndarray of float, shape (K, 4)
-        Unit normals, ``d > 0``.
-    camera : Camera
-
-    Returns
-    -------
-    ndarray of float64, shape (K,)
-    """
-    areas = np.zeros(len(planes))
-    for k, (top, left, window) in enumerate(windows):
-        if not window.any():
-            continue
-        a, b, c, d = np.asarray(planes[k], dtype=np.float64)
-        # |n . r| on the window's rows and columns, then at its pixels in raster order.
-        across = a * (np.arange(left, left + window.shape[1]) - camera.cx) / camera.fx
-        down = b * (np.arange(top, top + window.shape[0]) - camera.cy) / camera.fy
-        facing = np.abs(across[None, :] + down[:, None] + c)[window]
-        areas[k] = d * d / abs(camera.fx * camera.fy) * np.sum(np.maximum(facing, 0.1) ** -3.0)
-    return areas
-
-
 def keep_planes(proposal: FrameProposal, keep: np.ndarray, reason) -> FrameProposal:
     """The proposal with only the planes ``keep`` selects, renumbered 1.. in their order; the
     others join ``dropped`` with their reason.
@@ -456,26 +355,40 @@ def merge_groups(moments: Moments, sigma, excess_k: float, scales: np.ndarray | 
     current = Moments(moments.count.copy(), moments.mean.copy(), moments.scatter.copy())
     scale2 = np.ones(n) if scales is None else np.asarray(scales, dtype=np.float64) ** 2
     alive = current.count > 0
+    # Every pair's joint moments, noise scale and ratio, (a, b) at [a, b] with a < b: a merge
+    # changes only the pairs of the label that grew (the others' values are as before, bit for bit).
+    ratio, pair_scale2 = np.full((n, n), np.inf), np.zeros((n, n))
+    joint = Moments(np.zeros((n, n)), np.zeros((n, n, 3)), np.zeros((n, n, 3, 3)))
+
+    def update(a: np.ndarray, b: np.ndarray) -> None:
+        pairs = merge_pairs(current, a, b)
+        joint_ms = residual_ms(pairs.count, fit_planes(pairs.mean, pairs.scatter)[1])
+        ms_a = residual_ms(current.count[a], fit_planes(current.mean[a], current.scatter[a])[1])
+        ms_b = residual_ms(current.count[b], fit_planes(current.mean[b], current.scatter[b])[1])
+        added = joint_ms - (current.count[a] * ms_a + current.count[b] * ms_b) / pairs.count
+        pair_scale2[a, b] = (current.count[a] * scale2[a] + current.count[b] * scale2[b]) / pairs.count
+        ratio[a, b] = added / (excess_k * pair_scale2[a, b] * sigma(pairs.mean[:, 2]) ** 2)
+        joint.count[a, b], joint.mean[a, b], joint.scatter[a, b] = pairs.count, pairs.mean, pairs.scatter
+
+    idx = np.flatnonzero(alive)
+    i, j = np.triu_indices(len(idx), 1)
+    update(idx[i], idx[j])
     while alive.sum() > 1:
         idx = np.flatnonzero(alive)
         i, j = np.triu_indices(len(idx), 1)
         a, b = idx[i], idx[j]
-        joint = merge_pairs(current, a, b)
-        joint_ms = residual_ms(joint.count, fit_planes(joint.mean, joint.scatter)[1])
-        ms_a = residual_ms(current.count[a], fit_planes(current.mean[a], current.scatter[a])[1])
-        ms_b = residual_ms(current.count[b], fit_planes(current.mean[b], current.scatter[b])[1])
-        added = joint_ms - (current.count[a] * ms_a + current.count[b] * ms_b) / joint.count
-        pair_scale2 = (current.count[a] * scale2[a] + current.count[b] * scale2[b]) / joint.count
-        ratio = added / (excess_k * pair_scale2 * sigma(joint.mean[:, 2]) ** 2)
-        best = int(np.argmin(ratio))  # first minimum: deterministic
-        if ratio[best] > 1:
+        best = int(np.argmin(ratio[a, b]))  # first minimum: deterministic
+        if ratio[a[best], b[best]] > 1:
             break
-        keep, gone = min(a[best], b[best]), max(a[best], b[best])
+        keep, gone = a[best], b[best]
         current.count[keep], current.mean[keep], current.scatter[keep] = (
-            joint.count[best], joint.mean[best], joint.scatter[best])
-        scale2[keep] = pair_scale2[best]
+            joint.count[keep, gone], joint.mean[keep, gone], joint.scatter[keep, gone])
+        scale2[keep] = pair_scale2[keep, gone]
         alive[gone] = False
         group[group == gone] = keep
+        others = np.flatnonzero(alive)
+        others = others[others != keep]
+        update(np.minimum(others, keep), np.maximum(others, keep))
     return group
 
 

@@ -16,7 +16,8 @@ import cv2
 import numpy as np
 
 from annotate_rgbd.config.masks import RansacConfig
-from annotate_rgbd.cvat.from_masks import MIN_PIECE_PX, kept_pieces, label_boxes, to_image, trace_pieces
+from annotate_rgbd.cvat.from_masks import MIN_PIECE_PX, to_image, trace_pieces
+from annotate_rgbd.cvat.pieces import kept_pieces, label_boxes
 from annotate_rgbd.geometry.noise import NoiseSettings, noise_scale
 from annotate_rgbd.segment.rasterize import fill_window
 
@@ -42,7 +43,7 @@ def plane_scales(
     ransac : RansacConfig, optional
         Its ``min_noise_scale`` and ``max_noise_scale``, as ``cvat2mask`` uses them (defaults).
     boxes : list, optional
-        :func:`annotate_rgbd.cvat.from_masks.label_boxes` of ``labels`` for labels 1..K, when known.
+        :func:`annotate_rgbd.cvat.pieces.label_boxes` of ``labels`` for labels 1..K, when known.
 
     Returns
     -------
@@ -129,7 +130,7 @@ def piece_windows(labels: np.ndarray, tolerance_px: float, min_piece: int = MIN_
     tolerance_px : float
     min_piece : int
     boxes : list, optional
-        :func:`annotate_rgbd.cvat.from_masks.label_boxes` of ``labels``, when known.
+        :func:`annotate_rgbd.cvat.pieces.label_boxes` of ``labels``, when known.
 
     Returns
     -------

@@ -13,7 +13,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from annotate_rgbd.cvat.from_masks import label_boxes
+from annotate_rgbd.cvat.pieces import label_boxes
 
 
 def neighbour_shares(labels: np.ndarray, ring_px: int, boxes: list | None = None) -> np.ndarray:
@@ -28,7 +28,7 @@ def neighbour_shares(labels: np.ndarray, ring_px: int, boxes: list | None = None
     ring_px : int
         Width of the ring, pixels (>= 1).
     boxes : list, optional
-        :func:`annotate_rgbd.cvat.from_masks.label_boxes` of ``labels``, when known.
+        :func:`annotate_rgbd.cvat.pieces.label_boxes` of ``labels``, when known.
 
     Returns
     -------

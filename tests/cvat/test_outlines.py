@@ -17,8 +17,8 @@ from scipy import ndimage
 from annotate_rgbd.annotation.model import Shape
 from annotate_rgbd.config.settings import load_config
 from annotate_rgbd.cvat import read_cvat
-from annotate_rgbd.cvat.from_masks import (close_corners, kept_pieces, label_boxes, outline_planes, piece_corridors,
-                                          plane_outlines)
+from annotate_rgbd.cvat.from_masks import outline_planes, plane_outlines
+from annotate_rgbd.cvat.pieces import close_corners, kept_pieces, label_boxes, piece_corridors
 from annotate_rgbd.cvat.rings import _Simplifier, meeting_edges, simplify_ring, sorted_unique
 from annotate_rgbd.propose import run_propose
 from annotate_rgbd.segment.rasterize import rasterize_frame

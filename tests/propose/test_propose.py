@@ -86,6 +86,47 @@ def test_pieces_of_one_plane_merge_and_parallel_planes_do_not():
     assert groups[2] != groups[0]
 
 
+@pytest.mark.parametrize("seed", range(4))
+def test_merge_groups_merges_as_recomputing_every_pair_each_round_does(seed):
+    # Pieces of a few planes (several merges, chains of them) against the greedy merge that fits
+    # every pair of the current groups again in each round.
+    from annotate_rgbd.geometry.planes import fit_planes, merge_pairs, residual_ms
+
+    rng = np.random.default_rng(seed)
+    sigma, excess = NOISE.model.sigma, ProposeConfig().merge_excess
+    normals = [np.array(v) / np.linalg.norm(v) for v in ([0.0, -0.8, -0.6], [0.3, 0.0, -1.0], [0.0, 0.0, -1.0])]
+    labels, depth = np.zeros((H, W), np.uint8), np.full((H, W), np.nan)
+    for k in range(1, 13):
+        top, left = int(rng.integers(0, H - 60)), int(rng.integers(0, W - 80))
+        plane = normals[k % 3], 1.2 + 0.6 * (k % 3) + (0.03 if k == 7 else 0.0)
+        labels[top : top + 50, left : left + 70] = k
+        z = plane_depth(*plane)[top : top + 50, left : left + 70]
+        depth[top : top + 50, left : left + 70] = z + rng.normal(0, 1, z.shape) * sigma(z)
+    moments = label_moments(labels, depth, CAMERA)
+    scales = 1 + rng.random(len(moments.count)) * (seed % 2)
+    expected = np.arange(len(moments.count))
+    current = Moments(moments.count.copy(), moments.mean.copy(), moments.scatter.copy())
+    scale2, alive = scales**2, moments.count > 0
+    while alive.sum() > 1:
+        idx = np.flatnonzero(alive)
+        i, j = np.triu_indices(len(idx), 1)
+        a, b = idx[i], idx[j]
+        joint = merge_pairs(current, a, b)
+        ms = [residual_ms(m.count, fit_planes(m.mean, m.scatter)[1]) for m in (joint, current.take(a), current.take(b))]
+        added = ms[0] - (current.count[a] * ms[1] + current.count[b] * ms[2]) / joint.count
+        pair = (current.count[a] * scale2[a] + current.count[b] * scale2[b]) / joint.count
+        ratio = added / (excess * pair * sigma(joint.mean[:, 2]) ** 2)
+        best = int(np.argmin(ratio))
+        if ratio[best] > 1:
+            break
+        keep, gone = a[best], b[best]
+        current.count[keep], current.mean[keep], current.scatter[keep] = joint.count[best], joint.mean[best], joint.scatter[best]
+        scale2[keep], alive[gone] = pair[best], False
+        expected[expected == gone] = keep
+    assert len(np.unique(expected)) < len(expected) - 2  # several merges
+    assert merge_groups(moments, sigma, excess, scales).tolist() == expected.tolist()
+
+
 def test_draw_order_puts_the_plane_that_fills_an_overlap_on_top():
     labels = np.zeros((100, 120), np.uint8)
     labels[10:90, 10:110] = 1   # a wall

@@ -1,5 +1,5 @@
-"""Each proposed plane's extent and numbers (annotate_rgbd.propose.extent, the helpers of
-annotate_rgbd.propose.detect_job), against direct computations over every pixel."""
+"""Each proposed plane's extent and numbers (annotate_rgbd.propose.extent and .measures),
+against direct computations over every pixel."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from annotate_rgbd.annotation.model import Shape
 from annotate_rgbd.config.masks import RansacConfig
 from annotate_rgbd.geometry.camera import Camera, ray_grid
 from annotate_rgbd.geometry.noise import NoiseSettings, noise_scale
-from annotate_rgbd.propose.detect_job import label_counts, polygon_fit, surface_areas
+from annotate_rgbd.propose.measures import label_counts, polygon_fit, surface_areas
 from annotate_rgbd.propose.extent import SCALE_POINTS, plane_scales
 from annotate_rgbd.segment.rasterize import fill_window, shape_mask
 
