@@ -13,6 +13,7 @@ from annotate_rgbd.geometry.camera import Camera, backproject, ray_grid
 from annotate_rgbd.config.settings import PropagateConfig, RansacConfig, RefineConfig
 from annotate_rgbd.geometry.noise import ConstantNoise, NoiseSettings
 from annotate_rgbd.geometry.planes import weighted_plane_fit
+from .bend import plane_bends
 from .ransac import PlaneFit, fit_plane, on_expected_plane
 
 
@@ -135,6 +136,10 @@ def refine_planes(
                 break
             on_plane_s, residual_s = _inlier_test(table, labels_s, depth_s, camera_s, band_s, noise.k)
     on_plane, residual = _inlier_test(table, on_valid, depth_m, camera, band, noise.k)
+    if coherence and refine.bend_rounds:
+        # The sensor's disparity error bows a real plane by millimetres: test against the
+        # plane's bent surface (:mod:`annotate_rgbd.segment.bend`); the window test follows it.
+        on_plane, residual = _bent_inlier_test(table, on_plane, on_valid, depth_m, camera, band, noise.k, refine)
     if coherence:
         score, usable = window_scores(residual, on_plane, refine.coherence_window, refine.min_window_inliers)
         centre, spread = _score_statistics(score, usable, on_valid, n_labels, step=4)
@@ -397,6 +402,21 @@ def _inlier_test(
     fitted = table[:, :3].any(axis=1).astype(np.float32)  # a plane has a unit normal
     with np.errstate(invalid="ignore"):
         on_plane = (np.abs(signed) < band) & (label_lookup(fitted, labels) > 0)
+        residual = signed * (np.float32(k) / band)
+    return on_plane, residual
+
+
+def _bent_inlier_test(
+    table: np.ndarray, on_plane: np.ndarray, labels: np.ndarray, depth_m: np.ndarray, camera: Camera,
+    band: np.ndarray, k: float, refine: RefineConfig,
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_inlier_test` against each plane's bent surface (:func:`plane_bends`) instead of
+    its flat plane."""
+    signed = signed_distances(depth_m, *(label_lookup(table[:, i], labels) for i in range(4)), camera)
+    fitted = np.flatnonzero(table[:, :3].any(axis=1))
+    signed -= plane_bends(signed, on_plane, labels, fitted, depth_m, band, camera, refine.bend_rounds, refine.bend_cell)
+    with np.errstate(invalid="ignore"):
+        on_plane = (np.abs(signed) < band) & (label_lookup(np.isin(np.arange(len(table)), fitted).astype(np.float32), labels) > 0)
         residual = signed * (np.float32(k) / band)
     return on_plane, residual
 
