@@ -67,16 +67,41 @@ def excluded_regions(
     reach = np.maximum(band, np.float32(near))
     with np.errstate(invalid="ignore"):
         touching = np.isfinite(signed) & (np.abs(signed) <= reach) & ~own
-    ring = cv2.dilate(own.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
-    count, components = cv2.connectedComponents(touching.astype(np.uint8), connectivity=8)
-    linked = np.bincount(components[ring & touching], minlength=count) > 0
+    count, components, stats, _ = cv2.connectedComponentsWithStats(touching.view(np.uint8), connectivity=8)
+    # The ring around the outline, on the outline's window (and a pixel round it).
+    near_own = _window(own, 1)
+    ring = cv2.dilate(own[near_own].view(np.uint8), np.ones((3, 3), np.uint8)).view(bool)
+    linked = np.bincount(components[near_own][ring & touching[near_own]], minlength=count) > 0
     linked[0] = False
-    excluded = linked[components]
-    if margin > 0 and excluded.any():
+    excluded = np.zeros(own.shape, dtype=bool)
+    if not linked.any():
+        return excluded
+    # Only the linked pieces' window is looked at again (the pieces' boxes, from their statistics).
+    left, top = stats[linked, cv2.CC_STAT_LEFT].min(), stats[linked, cv2.CC_STAT_TOP].min()
+    right = (stats[linked, cv2.CC_STAT_LEFT] + stats[linked, cv2.CC_STAT_WIDTH]).max()
+    bottom = (stats[linked, cv2.CC_STAT_TOP] + stats[linked, cv2.CC_STAT_HEIGHT]).max()
+    window = (slice(int(top), int(bottom)), slice(int(left), int(right)))
+    found = linked[components[window]]
+    if margin > 0 and found.any():
+        # The outline's pixels within the margin of the window, dilated, cut back to it.
+        height, width = own.shape
+        outer = (slice(max(int(top) - margin, 0), min(int(bottom) + margin, height)),
+                 slice(max(int(left) - margin, 0), min(int(right) + margin, width)))
         size = 2 * margin + 1
         disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
-        excluded &= ~cv2.dilate(own.astype(np.uint8), disk).astype(bool)
+        grown = cv2.dilate(own[outer].view(np.uint8), disk).view(bool)
+        found &= ~grown[int(top) - outer[0].start : int(bottom) - outer[0].start,
+                        int(left) - outer[1].start : int(right) - outer[1].start]
+    excluded[window] = found
     return excluded
+
+
+def _window(mask: np.ndarray, pad: int) -> tuple[slice, slice]:
+    """The box of a mask's pixels, ``pad`` pixels wider on every side (within the image)."""
+    left, top, width, height = cv2.boundingRect(mask.view(np.uint8))
+    rows, cols = mask.shape
+    return (slice(max(top - pad, 0), min(top + height + pad, rows)),
+            slice(max(left - pad, 0), min(left + width + pad, cols)))
 
 
 def region_outlines(region: np.ndarray, min_pixels: int, tolerance: float) -> list[np.ndarray]:

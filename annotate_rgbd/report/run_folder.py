@@ -35,7 +35,11 @@ MAX_REPORT_BYTES = 1 << 30
 #: Reading bound of one line of the shapes record (thousands of vertices per frame fit easily).
 MAX_SHAPES_LINE = 64 << 20
 SHAPES_FORMAT = "annotate-rgbd drawn shapes"
-SHAPES_VERSION = 2
+#: Version 3 holds every polygon's vertices as base64 of little-endian float64 (x, y) pairs;
+#: version 2 held them as JSON lists of numbers (still read).
+SHAPES_VERSION = 3
+#: Record versions :func:`read_drawn_shapes` reads.
+SHAPES_VERSIONS_READ = (2, 3)
 
 
 @dataclass(frozen=True)
@@ -136,12 +140,50 @@ def mask_plane_ids(image_bgr: np.ndarray, keys: np.ndarray, values: np.ndarray, 
     return np.where(known, values[index] if len(values) else 0, 0)
 
 
+def points_to_json(points: np.ndarray) -> str:
+    """Polygon vertices as a JSON value: base64 of their little-endian float64 bytes (exact, and
+    a hundred times faster to write than numbers: a run's carried layers are millions of them).
+
+    Parameters
+    ----------
+    points : ndarray, shape (V, 2)
+
+    Returns
+    -------
+    str
+    """
+    return base64.b64encode(np.ascontiguousarray(points, dtype="<f8").tobytes()).decode("ascii")
+
+
+def points_from_json(value: object) -> np.ndarray:
+    """Inverse of :func:`points_to_json`; also reads a list of ``[x, y]`` (version 2 records).
+
+    Returns
+    -------
+    ndarray of float64, shape (V, 2)
+
+    Raises
+    ------
+    RecordError
+        Not base64 of whole (x, y) pairs, nor a list of pairs.
+    """
+    if isinstance(value, str):
+        try:
+            data = base64.b64decode(value, validate=True)
+        except ValueError:
+            raise RecordError("points: not base64") from None
+        if len(data) % 16:
+            raise RecordError(f"points: {len(data)} bytes are no whole (x, y) pairs of float64")
+        return np.frombuffer(data, dtype="<f8").astype(np.float64).reshape(-1, 2)
+    return np.asarray(value, dtype=np.float64).reshape(-1, 2)
+
+
 def shapes_to_json(shapes: Sequence[tuple[int, Shape]]) -> list[dict]:
     """A frame's ``(plane id, shape)`` pairs as JSON values (exact: floats round-trip)."""
     entries = []
     for plane, shape in shapes:
         entry = {"plane": int(plane), "kind": shape.kind, "z_order": int(shape.z_order),
-                 "points": np.asarray(shape.points, dtype=np.float64).tolist()}
+                 "points": points_to_json(shape.points)}
         if shape.bitmap is not None:
             entry["size"] = list(shape.bitmap.shape)
             entry["bits"] = base64.b64encode(np.packbits(shape.bitmap, axis=None).tobytes()).decode("ascii")
@@ -165,7 +207,7 @@ def shapes_from_json(entries: object) -> list[tuple[int, Shape]]:
             kind = entry["kind"]
             if kind not in AREA_KINDS:
                 raise RecordError(f"unknown shape kind {kind!r}")
-            points = np.asarray(entry["points"], dtype=np.float64).reshape(-1, 2)
+            points = points_from_json(entry["points"])
             bitmap = None
             if "bits" in entry:
                 height, width = (int(v) for v in entry["size"])
@@ -184,8 +226,8 @@ def shapes_from_json(entries: object) -> list[tuple[int, Shape]]:
 def carried_to_json(carried: Sequence[tuple]) -> list[dict]:
     """A frame's carried planes (:class:`DrawnFrame`) as JSON values (exact: floats round-trip)."""
     return [{"position": int(position), "plane": int(plane), "z_order": int(z_order),
-             "layers": [[int(sign), np.asarray(polygon, dtype=np.float64).tolist()] for sign, polygon in layers],
-             "beyond": [np.asarray(polygon, dtype=np.float64).tolist() for polygon in beyond]}
+             "layers": [[int(sign), points_to_json(polygon)] for sign, polygon in layers],
+             "beyond": [points_to_json(polygon) for polygon in beyond]}
             for position, plane, z_order, layers, beyond in carried]
 
 
@@ -202,10 +244,11 @@ def carried_from_json(entries: object) -> list[tuple]:
     carried = []
     try:
         for entry in entries:
-            layers = tuple((1 if int(sign) > 0 else -1, np.asarray(points, dtype=np.float64).reshape(-1, 2))
-                           for sign, points in entry["layers"])
-            beyond = tuple(np.asarray(points, dtype=np.float64).reshape(-1, 2) for points in entry["beyond"])
+            layers = tuple((1 if int(sign) > 0 else -1, points_from_json(points)) for sign, points in entry["layers"])
+            beyond = tuple(points_from_json(points) for points in entry["beyond"])
             carried.append((int(entry["position"]), int(entry["plane"]), int(entry["z_order"]), layers, beyond))
+    except RecordError:
+        raise
     except (KeyError, TypeError, ValueError) as exc:
         raise RecordError(f"carried entry: {exc}") from None
     return carried
@@ -252,7 +295,7 @@ def read_drawn_shapes(out_dir: Path, masks: set[str], command: str = "cvat2mask"
         header = _json_line(handle.readline(MAX_SHAPES_LINE + 1), path, 1)
         if not isinstance(header, dict) or header.get("format") != SHAPES_FORMAT:
             raise InputError(path, "not a drawn-shapes record")
-        if header.get("version") != SHAPES_VERSION:
+        if header.get("version") not in SHAPES_VERSIONS_READ:
             raise InputError(path, f"a drawn-shapes record of another version ({header.get('version')!r}, "
                                    f"this is {SHAPES_VERSION}); {again}")
         for number, line in enumerate(iter(lambda: handle.readline(MAX_SHAPES_LINE + 1), b""), start=2):

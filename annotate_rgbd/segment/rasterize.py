@@ -14,7 +14,6 @@ the colour pixel its 3-D point projects to (:func:`draw_on_depth_grid`).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Iterable, Sequence
 
 import cv2
@@ -23,6 +22,7 @@ import numpy as np
 from annotate_rgbd.annotation.model import Shape
 from annotate_rgbd.geometry.camera import Camera
 from annotate_rgbd.geometry.registration import ColourCamera, colour_pixel_grid, sample_labels
+from .spans import fill_spans, polygon_spans
 
 
 #: The drawing order below every drawn shape (CVAT's z_order is a 32-bit integer).
@@ -162,130 +162,6 @@ def polygon_window(points: np.ndarray, height: int, width: int) -> tuple[int, in
     return fill_spans(spans, 0)
 
 
-@dataclass(frozen=True)
-class PolygonSpans:
-    """The inside spans of several polygons (:func:`polygon_spans`).
-
-    Parameters
-    ----------
-    top, bottom : ndarray of int64, shape (P,)
-        First and last image row of each polygon's window (``bottom < top``: the polygon lies
-        outside the image).
-    start : ndarray of int64, shape (P + 1,)
-        Polygon ``p``'s spans are ``start[p]`` to ``start[p + 1]`` of the arrays below.
-    row : ndarray of int64, shape (S,)
-        Image row of each span.
-    first, stop : ndarray of int32, shape (S,)
-        Columns ``first`` to ``stop - 1`` are inside (``first < stop``); the spans of one
-        polygon's row are disjoint and in ascending order.
-    """
-
-    top: np.ndarray
-    bottom: np.ndarray
-    start: np.ndarray
-    row: np.ndarray
-    first: np.ndarray
-    stop: np.ndarray
-
-
-def polygon_spans(polygons: Sequence[np.ndarray], height: int, width: int) -> PolygonSpans:
-    """The pixels of several polygons as spans of rows: the pixels whose centres are inside.
-
-    Scanline fill, vectorised over the edges of all the polygons at once: each edge crosses the
-    pixel-centre lines of the rows it spans (half-open in y), at one x each; sorted by polygon,
-    row and x, pairs of crossings bound the inside spans. The work grows with the crossings
-    (about twice the rows for a convex outline), not with rows times vertices, and a few dozen
-    array operations serve all the polygons (the layers carried to a frame are a hundred).
-
-    Parameters
-    ----------
-    polygons : sequence of ndarray, shape (N, 2)
-        Vertices (x, y) in CVAT coordinates (pixel ``(col, row)`` has its centre at
-        ``(col + 0.5, row + 0.5)``).
-    height, width : int
-        Image size.
-
-    Returns
-    -------
-    PolygonSpans
-    """
-    count = len(polygons)
-    sizes = np.array([len(p) for p in polygons], dtype=np.int64)
-    vertices = (np.concatenate([np.asarray(p, dtype=np.float64).reshape(-1, 2) for p in polygons])
-                if count else np.zeros((0, 2)))
-    first_vertex = np.cumsum(sizes) - sizes
-    top = np.zeros(count, dtype=np.int64)
-    bottom = np.full(count, -1, dtype=np.int64)
-    used = sizes > 0
-    x0, y0 = vertices[:, 0], vertices[:, 1]
-    if used.any():
-        low = np.minimum.reduceat(y0, first_vertex[used])
-        high = np.maximum.reduceat(y0, first_vertex[used])
-        top[used] = np.maximum(np.floor(low - 0.5), 0)
-        bottom[used] = np.minimum(np.ceil(high - 0.5), height - 1)
-    # Each edge's end: the next vertex, the first one after the last.
-    following = np.arange(1, len(vertices) + 1)
-    following[first_vertex[used] + sizes[used] - 1] = first_vertex[used]
-    x1, y1 = x0[following], y0[following]
-    polygon = np.repeat(np.arange(count), sizes)
-    edge_top, edge_bottom = top[polygon], bottom[polygon]
-    # An edge counts for the rows whose centre r + 0.5 lies in [min(y0, y1), max(y0, y1)): r from
-    # ceil(min - 0.5) to ceil(max - 0.5) - 1 (none for a horizontal edge), within its window.
-    first_row = np.clip(np.ceil(np.minimum(y0, y1) - 0.5), edge_top, edge_bottom + 1).astype(np.int64)
-    stop_row = np.clip(np.ceil(np.maximum(y0, y1) - 0.5), edge_top, edge_bottom + 1).astype(np.int64)
-    spanned = np.where(edge_bottom >= edge_top, stop_row - first_row, 0)
-    edges = np.flatnonzero(spanned > 0)
-    counts = spanned[edges]
-    edge = np.repeat(edges, counts)
-    offsets = np.cumsum(counts) - counts
-    rows = first_row[edge] + (np.arange(edge.size) - np.repeat(offsets, counts))
-    centre_y = rows + 0.5
-    xs = x0[edge] + (centre_y - y0[edge]) * (x1[edge] - x0[edge]) / (y1[edge] - y0[edge])
-    owner = polygon[edge]
-    order = np.lexsort((xs, rows, owner))
-    rows, xs, owner = rows[order], xs[order], owner[order]
-    # Pairs within a polygon's row: crossings 0-1, 2-3, ... (a row's last crossing without a
-    # partner, on a degenerate outline, bounds nothing).
-    key = owner * (height + 1) + rows
-    row_start = np.searchsorted(key, key, side="left")
-    start = np.flatnonzero(((np.arange(key.size) - row_start) % 2 == 0)[:-1] & (key[1:] == key[:-1]))
-    # Pixels with centre c + 0.5 in [start, end): c from ceil(start - 0.5) to ceil(end - 0.5) - 1.
-    first = np.ceil(xs[start] - 0.5).clip(0, width).astype(np.int32)
-    stop = np.ceil(xs[start + 1] - 0.5).clip(0, width).astype(np.int32)
-    filled = stop > first
-    owner = owner[start][filled]
-    return PolygonSpans(top, bottom, np.searchsorted(owner, np.arange(count + 1)), rows[start][filled],
-                        first[filled], stop[filled])
-
-
-def fill_spans(spans: PolygonSpans, index: int) -> tuple[int, int, np.ndarray]:
-    """One polygon of :func:`polygon_spans` as a boolean window of the image.
-
-    Returns
-    -------
-    top, left : int
-        Position of the window in the image: its rows are the polygon's rows, its columns those
-        its spans reach.
-    inside : ndarray of bool, shape (rows, cols)
-        Empty (0, 0) when no pixel centre lies inside.
-    """
-    a, b = int(spans.start[index]), int(spans.start[index + 1])
-    if b == a:
-        return 0, 0, np.zeros((0, 0), dtype=bool)
-    top = int(spans.top[index])
-    span_rows, first, stop = spans.row[a:b] - top, spans.first[a:b], spans.stop[a:b]
-    left, right = int(first.min()), int(stop.max())
-    # +1 where a span starts, -1 where it stops (a row's spans are disjoint: no two starts nor two
-    # stops share a pixel), summed along each row: inside where the sum is positive. The row sums
-    # are differences of OpenCV's integral image (exact: small integers in float32).
-    steps = np.zeros((int(spans.bottom[index]) - top + 1, right - left + 1), dtype=np.float32)
-    steps[span_rows, first - left] += 1
-    steps[span_rows, stop - left] -= 1
-    total = cv2.integral(steps, sdepth=cv2.CV_32F)
-    inside = (total[1:, 1:-1] - total[:-1, 1:-1]) > 0.5
-    return top, left, inside
-
-
 def fill_window(polygon: np.ndarray, height: int, width: int) -> tuple[int, int, np.ndarray]:
     """The pixels of a polygon, as a boolean window of the image, filled by OpenCV.
 
@@ -364,23 +240,96 @@ def paint_window(layers: Iterable[tuple[int, np.ndarray]], height: int, width: i
         covers the pixel (the window may be empty).
     """
     layers = list(layers)
-    spans = polygon_spans([polygon for _, polygon in layers], height, width)
-    windows = []
-    for index, (sign, _) in enumerate(layers):
-        top, left, inside = fill_spans(spans, index)
-        if inside.size:
-            windows.append((np.int8(1 if sign > 0 else -1), top, left, inside))
-    if not windows:
+    return paint_values([polygon for _, polygon in layers], [1 if sign > 0 else -1 for sign, _ in layers],
+                        height, width)
+
+
+def paint_values(polygons: Sequence[np.ndarray], values: Sequence[int], height: int,
+                 width: int) -> tuple[int, int, np.ndarray]:
+    """Paint polygons in order, each with its value, over the ones before, on the window of the
+    image they span.
+
+    The work grows with the polygons' spans, not with their pixels: a span toggles its polygon's
+    bit where it starts and where it stops; between toggles, an exclusive or over them gives the
+    polygons holding the pixels, the highest bit the last of them, and that polygon's value
+    fills the stretch.
+
+    Parameters
+    ----------
+    polygons : sequence of ndarray, shape (V, 2)
+        In CVAT image coordinates, the one painted first first.
+    values : sequence of int
+        Each polygon's value, non-zero, within int8.
+    height, width : int
+        Image size.
+
+    Returns
+    -------
+    top, left : int
+        Position of the window in the image: the rows of the polygons that hold a pixel, and the
+        columns their pixels reach.
+    painted : ndarray of int8, shape (rows, cols)
+        The value of the last polygon holding each pixel, 0 where none does (the window may be
+        empty).
+    """
+    spans = polygon_spans(polygons, height, width)
+    counts = np.diff(spans.start)
+    used = counts > 0
+    if not used.any():
         return 0, 0, np.zeros((0, 0), dtype=np.int8)
-    top = min(w[1] for w in windows)
-    left = min(w[2] for w in windows)
-    bottom = max(w[1] + w[3].shape[0] for w in windows)
-    right = max(w[2] + w[3].shape[1] for w in windows)
-    verdict = np.zeros((bottom - top, right - left), dtype=np.int8)
-    for sign, row, col, inside in windows:
-        rows, cols = inside.shape
-        np.copyto(verdict[row - top : row - top + rows, col - left : col - left + cols], sign, where=inside)
-    return top, left, verdict
+    top, bottom = int(spans.top[used].min()), int(spans.bottom[used].max()) + 1
+    left, right = int(spans.first.min()), int(spans.stop.max())
+    rows, cols = bottom - top, right - left
+    owner = np.repeat(np.arange(len(polygons)), counts)
+    # Every span toggles its polygon's bit where it starts and where it stops, at its position in
+    # the window read row after row (a span that stops at a row's end toggles at the next row's
+    # start: the same place).
+    start = (spans.row - top) * cols - left
+    position = np.concatenate([[0], start + spans.first, start + spans.stop])
+    toggled = np.concatenate([[-1], owner, owner])
+    order = np.argsort(position, kind="stable")
+    position, toggled = position[order], toggled[order]
+    # Between two toggles the polygons covering a pixel stay the same: one value per stretch.
+    stretch = np.ones(position.size, dtype=bool)
+    np.not_equal(position[1:], position[:-1], out=stretch[1:])
+    begins = np.flatnonzero(stretch)
+    words = -(-len(polygons) // 64)
+    bits = np.zeros((position.size, words), dtype=np.uint64)
+    real = toggled >= 0
+    bits[np.flatnonzero(real), toggled[real] // 64] = np.left_shift(np.uint64(1), (toggled[real] % 64).astype(np.uint64))
+    cover = np.bitwise_xor.accumulate(np.bitwise_xor.reduceat(bits, begins, axis=0), axis=0)
+    last = _last_polygon(cover)
+    value = np.where(last >= 0, np.asarray(values, dtype=np.int8)[np.maximum(last, 0)], np.int8(0))
+    inside = position[begins] < rows * cols
+    begins_at = position[begins][inside]
+    lengths = np.diff(begins_at, append=rows * cols)
+    painted = np.repeat(value[inside], lengths).reshape(rows, cols)
+    return top, left, painted
+
+
+def _last_polygon(cover: np.ndarray) -> np.ndarray:
+    """The highest bit set in each row of 64-bit words (word ``w`` bit ``b``: polygon
+    ``64 w + b``), -1 where none is.
+
+    Parameters
+    ----------
+    cover : ndarray of uint64, shape (N, words)
+
+    Returns
+    -------
+    ndarray of int64, shape (N,)
+    """
+    held = cover != 0
+    if cover.shape[1] == 1:
+        word, value = np.zeros(len(cover), dtype=np.int64), cover[:, 0]
+    else:
+        word = cover.shape[1] - 1 - np.argmax(held[:, ::-1], axis=1)
+        value = cover[np.arange(len(cover)), word]
+    # Each half word is exact in float64, whose exponent tells its highest bit (frexp(0): 0).
+    high = np.frexp((value >> np.uint64(32)).astype(np.float64))[1]
+    low = np.frexp((value & np.uint64(0xFFFFFFFF)).astype(np.float64))[1]
+    bit = np.where(high > 0, high + 31, low - 1)
+    return np.where(held.any(axis=1), 64 * word + bit, -1)
 
 
 def carried_shapes(
@@ -413,19 +362,12 @@ def carried_shapes(
     for position, plane_id, z_order, layers, beyond in reversed(list(carried)):  # later positions first
         # Painted on the window the polygons span, not on the whole image: what the keyframes
         # say (+1 inside, -1 excluded), and past their views (2) where they say nothing.
-        said_window = paint_window(layers, height, width)
-        beyond_window = paint_window([(1, quad) for quad in beyond], height, width)
-        painted = [w for w in (beyond_window, said_window) if w[2].size]
-        if not painted:
+        # Past the views first: what any keyframe says goes over it.
+        top, left, said = paint_values([*beyond, *(polygon for _, polygon in layers)],
+                                       [2] * len(beyond) + [1 if sign > 0 else -1 for sign, _ in layers], height, width)
+        if not said.size:
             continue
-        top, left = min(w[0] for w in painted), min(w[1] for w in painted)
-        bottom = max(w[0] + w[2].shape[0] for w in painted)
-        right = max(w[1] + w[2].shape[1] for w in painted)
-        said = np.zeros((bottom - top, right - left), dtype=np.int8)
-        for (row, col, verdict), weight in ((beyond_window, 2), (said_window, 1)):
-            rows, cols = verdict.shape
-            np.copyto(said[row - top : row - top + rows, col - left : col - left + cols], verdict * np.int8(weight),
-                      where=verdict != 0)
+        bottom, right = top + said.shape[0], left + said.shape[1]
         outside = said == -1
         for mask, z in ((said == 2, BOTTOM_Z_ORDER), (said == 1, z_order)):  # inserted in reverse
             if mask.any():

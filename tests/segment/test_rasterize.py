@@ -124,3 +124,28 @@ def test_carried_shapes_paint_what_the_last_layer_says_on_the_whole_image(seed):
         painted[top : top + window.shape[0], left : left + window.shape[1]] = window
         np.testing.assert_array_equal(painted, expected[z])
     np.testing.assert_array_equal(excluded.get(9, np.zeros((height, width), bool)), verdict < 0)
+
+
+@pytest.mark.parametrize("count", [1, 7, 64, 65, 150])
+def test_paint_values_gives_each_pixel_the_value_of_the_last_polygon_holding_it(count):
+    # Spans toggle one bit per polygon (several 64-bit words past 64 polygons): the result must
+    # be painting the polygons one after the other on the whole image (each filled as a shape is,
+    # which the tests above hold to the centre-in-polygon rule).
+    from annotate_rgbd.segment.rasterize import paint_values
+
+    rng = np.random.default_rng(count)
+    height, width = 40, 55
+    polygons = []
+    for _ in range(count):
+        n = rng.integers(3, 10)
+        points = rng.uniform([-15, -15], [70, 55], (n, 2))  # self-crossing ones too (even-odd)
+        polygons.append(np.round(points * 2) / 2 if rng.random() < 0.3 else points)  # on pixel centres
+    values = rng.choice([-1, 1, 2, 5], count)
+    expected = np.zeros((height, width), np.int8)
+    for points, value in zip(polygons, values):  # one polygon at a time, each filled on its own
+        top, left, inside = shape_mask(Shape("polygon", points), height, width)
+        expected[top : top + inside.shape[0], left : left + inside.shape[1]][inside] = value
+    top, left, painted = paint_values(polygons, values.tolist(), height, width)
+    whole = np.zeros((height, width), np.int8)
+    whole[top : top + painted.shape[0], left : left + painted.shape[1]] = painted
+    np.testing.assert_array_equal(whole, expected)
