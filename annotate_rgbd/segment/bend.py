@@ -136,7 +136,12 @@ def cell_medians(
         return empty, empty, np.zeros(0)
     values = np.where(inliers, distance, np.float32(np.nan))[cut]
     values = values.reshape(hc, cell, wc, cell).transpose(0, 2, 1, 3)[counted].reshape(-1, cell * cell)
-    medians = np.nanmedian(values, axis=1)
+    # np.nanmedian row by row, from one sort (NaN sorts last): the middle of each row's values.
+    values.sort(axis=1)
+    count = np.count_nonzero(~np.isnan(values), axis=1)
+    low = np.take_along_axis(values, ((count - 1) // 2)[:, None], axis=1)[:, 0]
+    high = np.take_along_axis(values, (count // 2)[:, None], axis=1)[:, 0]
+    medians = (low.astype(np.float64) + high) / 2
     rows, cols = np.nonzero(counted)
     return rows * cell + cell // 2, cols * cell + cell // 2, medians
 
