@@ -61,6 +61,13 @@ def bend_terms(x: np.ndarray, y: np.ndarray, z: np.ndarray) -> np.ndarray:
     return np.stack([np.ones_like(x), x, y, x * x, x * y, y * y], axis=1) * (z * z)[:, None]
 
 
+def bend_at(coefficients: np.ndarray, x: np.ndarray, y: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """The bend (m) at rays ``(x, y)`` and depths ``z`` of any broadcastable shapes (float32):
+    :func:`bend_terms` times ``coefficients``, without building the terms."""
+    c = np.asarray(coefficients, dtype=np.float32)
+    return (c[0] + c[1] * x + c[2] * y + c[3] * x * x + c[4] * x * y + c[5] * y * y) * z * z
+
+
 def fit_bend(x: np.ndarray, y: np.ndarray, z: np.ndarray, distance: np.ndarray, band: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
     """Fit the bend to cells' median distances, trimming cells off it.
 
@@ -201,10 +208,8 @@ def plane_bends(
             if found is None:
                 break
             coefficients, kept = found
-            c = coefficients.astype(np.float32)
-            surface = c[0] + c[1] * x + c[2] * y + c[3] * x * x + c[4] * x * y + c[5] * y * y
             low, high = medians[usable][kept].min(), medians[usable][kept].max()
-            bend = np.clip(surface * depth * depth, np.float32(low), np.float32(high))
+            bend = np.clip(bend_at(coefficients, x, y, depth), np.float32(low), np.float32(high))
             with np.errstate(invalid="ignore"):
                 inliers = mine & (np.abs(distance - bend) < band_box)
         if bend is not None:

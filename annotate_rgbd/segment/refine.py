@@ -135,11 +135,15 @@ def refine_planes(
             if np.abs(table - before).max(initial=0.0) < SETTLED:
                 break
             on_plane_s, residual_s = _inlier_test(table, labels_s, depth_s, camera_s, band_s, noise.k)
-    on_plane, residual = _inlier_test(table, on_valid, depth_m, camera, band, noise.k)
+    signed = _plane_distances(table, on_valid, depth_m, camera)
+    on_plane, residual = _band_test(signed, table, on_valid, band, noise.k)
     if coherence and refine.bend_rounds:
         # The sensor's disparity error bows a real plane by millimetres: test against the
         # plane's bent surface (:mod:`annotate_rgbd.segment.bend`); the window test follows it.
-        on_plane, residual = _bent_inlier_test(table, on_plane, on_valid, depth_m, camera, band, noise.k, refine)
+        fitted = np.flatnonzero(table[:, :3].any(axis=1))
+        signed -= plane_bends(signed, on_plane, on_valid, fitted, depth_m, band, camera, refine.bend_rounds,
+                              refine.bend_cell)
+        on_plane, residual = _band_test(signed, table, on_valid, band, noise.k)
     if coherence:
         score, usable = window_scores(residual, on_plane, refine.coherence_window, refine.min_window_inliers)
         centre, spread = _score_statistics(score, usable, on_valid, n_labels, step=4)
@@ -397,26 +401,21 @@ def _inlier_test(
     """Pixels within their plane's band, and every pixel's signed distance to its plane in
     noise units (``k`` times distance over band); ``table`` holds each label's plane, zeros for
     a label without one."""
-    # Distance of every pixel to its own label's plane.
-    signed = signed_distances(depth_m, *(label_lookup(table[:, i], labels) for i in range(4)), camera)
+    return _band_test(_plane_distances(table, labels, depth_m, camera), table, labels, band, k)
+
+
+def _plane_distances(table: np.ndarray, labels: np.ndarray, depth_m: np.ndarray, camera: Camera) -> np.ndarray:
+    """Every pixel's signed distance (m) to its own label's plane of ``table``."""
+    return signed_distances(depth_m, *(label_lookup(table[:, i], labels) for i in range(4)), camera)
+
+
+def _band_test(
+    signed: np.ndarray, table: np.ndarray, labels: np.ndarray, band: np.ndarray | float, k: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_inlier_test` from the pixels' signed distances (m) to their surfaces."""
     fitted = table[:, :3].any(axis=1).astype(np.float32)  # a plane has a unit normal
     with np.errstate(invalid="ignore"):
         on_plane = (np.abs(signed) < band) & (label_lookup(fitted, labels) > 0)
-        residual = signed * (np.float32(k) / band)
-    return on_plane, residual
-
-
-def _bent_inlier_test(
-    table: np.ndarray, on_plane: np.ndarray, labels: np.ndarray, depth_m: np.ndarray, camera: Camera,
-    band: np.ndarray, k: float, refine: RefineConfig,
-) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`_inlier_test` against each plane's bent surface (:func:`plane_bends`) instead of
-    its flat plane."""
-    signed = signed_distances(depth_m, *(label_lookup(table[:, i], labels) for i in range(4)), camera)
-    fitted = np.flatnonzero(table[:, :3].any(axis=1))
-    signed -= plane_bends(signed, on_plane, labels, fitted, depth_m, band, camera, refine.bend_rounds, refine.bend_cell)
-    with np.errstate(invalid="ignore"):
-        on_plane = (np.abs(signed) < band) & (label_lookup(np.isin(np.arange(len(table)), fitted).astype(np.float32), labels) > 0)
         residual = signed * (np.float32(k) / band)
     return on_plane, residual
 
