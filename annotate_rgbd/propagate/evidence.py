@@ -24,7 +24,7 @@ import numpy as np
 
 from annotate_rgbd.geometry.camera import Camera
 from annotate_rgbd.geometry.noise import NoiseSettings
-from annotate_rgbd.segment.refine import band_image, signed_distances
+from annotate_rgbd.segment.distances import band_image, signed_distances
 
 
 def excluded_regions(

@@ -16,7 +16,9 @@ import numpy as np
 from annotate_rgbd.config.settings import RefineConfig
 from annotate_rgbd.geometry.camera import Camera, backproject
 from annotate_rgbd.geometry.noise import NoiseSettings
-from .refine import ids_nearby, label_lookup, signed_distances, window_scores
+from .distances import signed_distances
+from .refine import label_lookup, window_scores
+from .rims import ids_nearby
 
 
 def grow_planes(

@@ -9,12 +9,14 @@ from typing import Collection, Mapping
 import cv2
 import numpy as np
 
-from annotate_rgbd.geometry.camera import Camera, backproject, ray_grid
+from annotate_rgbd.geometry.camera import Camera, backproject
 from annotate_rgbd.config.settings import PropagateConfig, RansacConfig, RefineConfig
-from annotate_rgbd.geometry.noise import ConstantNoise, NoiseSettings
+from annotate_rgbd.geometry.noise import NoiseSettings
 from annotate_rgbd.geometry.planes import weighted_plane_fit
 from .bend import plane_bends
 from .ransac import PlaneFit, fit_plane, on_expected_plane
+from .distances import band_image, signed_distances
+from .rims import near_surfaces_in_front
 
 
 def refine_planes(
@@ -42,7 +44,7 @@ def refine_planes(
     and inliers whose window score lies beyond ``refine.coherence_limit`` spreads, or whose
     window holds under ``refine.min_inlier_density`` inliers, are dropped. Last, inliers within
     ``rim_pixels`` of a surface in front of their plane inside its shape are dropped
-    (:func:`near_surfaces_in_front`).
+    (:func:`annotate_rgbd.segment.rims.near_surfaces_in_front`).
 
     Parameters
     ----------
@@ -176,89 +178,6 @@ def _fit_near(
     inliers = np.abs(points @ fit.equation[:3] + fit.equation[3]) <= band
     return replace(fit, inliers=inliers)
 
-
-def near_surfaces_in_front(in_front: np.ndarray, labels: np.ndarray, rim_pixels: int) -> np.ndarray:
-    """The pixels of each plane's shape within ``rim_pixels`` of a surface in front of the plane.
-
-    Where an object stands on a plane (a book on a table, a whiteboard on a wall), the foot of
-    its sides lies within the plane's noise band: depth cannot tell those pixels from the plane,
-    and a 7x7 window (:func:`window_scores`) straddling both surfaces cannot either. And depth
-    sensors smear depth across the edge of a nearer surface (Kinect v1's correlation window,
-    stereo matching): the plane's pixels next to it are the least reliable ones. So a plane
-    gives up a thin rim around whatever stands in front of it inside its shape. Specks of noise
-    beyond the band are not surfaces: only pixels in front of the plane that fill a 3x3 square
-    (a morphological opening) count. A surface in front of one plane takes no rim from another
-    plane's pixels: where two planes' shapes meet, each is judged against its own plane.
-
-    Parameters
-    ----------
-    in_front : ndarray of bool, shape (H, W)
-        Pixels with depth in a plane's shape whose 3-D point lies in front of that plane (on
-        the camera's side) and off it.
-    labels : ndarray of non-negative int, shape (H, W)
-        The plane id of each pixel's shape (0 = none).
-    rim_pixels : int
-        Width of the rim (px, Euclidean; 0: nothing).
-
-    Returns
-    -------
-    ndarray of bool, shape (H, W)
-        Pixels of a shape within ``rim_pixels`` of a surface in front of the same shape's plane.
-    """
-    if rim_pixels <= 0:
-        return np.zeros(labels.shape, dtype=bool)
-    surfaces = cv2.morphologyEx(in_front.astype(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)) > 0
-    if not surfaces.any():
-        return surfaces
-    # Where three planes' surfaces meet within a rim, the middle one is missed.
-    lowest, highest = ids_nearby(labels * surfaces, rim_pixels)
-    return (labels > 0) & ((highest == labels) | (lowest == labels))
-
-
-def ids_nearby(ids: np.ndarray, radius: int) -> tuple[np.ndarray, np.ndarray]:
-    """The lowest and the highest non-zero id within ``radius`` pixels (Euclidean) of each pixel.
-
-    Two image-wide dilations, whatever the number of ids (a pixel near three or more ids sees
-    only these two).
-
-    Parameters
-    ----------
-    ids : ndarray of non-negative int, shape (H, W)
-        0 = none.
-    radius : int
-
-    Returns
-    -------
-    lowest, highest : ndarray of int, shape (H, W)
-        0 where no id lies within ``radius``; uint8 or uint16 when those hold every id, else int64.
-    """
-    offsets = np.arange(-radius, radius + 1)
-    disk = (offsets[:, None] ** 2 + offsets[None, :] ** 2 <= radius * radius).astype(np.uint8)
-    top = int(ids.max(initial=0))
-    # The narrowest type cv2.dilate takes that holds every id and top + 1 (float32: exact to 2^24).
-    work = np.float32 if top + 1 >= 2**16 else (np.uint16 if top + 1 >= 2**8 else np.uint8)
-    shapes = ids.astype(work, copy=False)
-    highest = cv2.dilate(shapes, disk, borderValue=0)
-    # The lowest id as the highest of top + 1 - id (0 stays 0), and back.
-    present = shapes > 0
-    flipped = cv2.dilate((work(top + 1) - shapes) * present, disk, borderValue=0)
-    lowest = (work(top + 1) - flipped) * (flipped > 0)
-    if work is np.float32:  # ids beyond uint16 (rare): back to integers
-        return lowest.astype(np.int64), highest.astype(np.int64)
-    return lowest, highest
-
-
-def signed_distances(
-    depth_m: np.ndarray, a: np.ndarray | float, b: np.ndarray | float, c: np.ndarray | float, d: np.ndarray | float,
-    camera: Camera,
-) -> np.ndarray:
-    """Every pixel's signed distance (m) to the plane ``a x + b y + c z + d = 0`` (unit normal;
-    one plane, or one per pixel as images): ``z (a x_n + b y_n + c) + d`` with ``x_n = (col -
-    cx) / fx``, ``y_n = (row - cy) / fy`` the pixel's ray at ``z = 1``. float32 is ample: depth
-    has 0.2 mm steps, and bands are millimetres or more. NaN where the depth is."""
-    ray_x, ray_y = ray_grid(camera, *depth_m.shape, np.float32)
-    with np.errstate(invalid="ignore"):
-        return depth_m * (a * ray_x[None, :] + b * ray_y[:, None] + c) + d
 
 
 #: The core re-fits (``refine.core_refits``) stop once no plane's normal or offset moved by this
@@ -435,22 +354,6 @@ def grid_pixels(labels: np.ndarray, plane_id: int, count: int, max_points: int) 
     if rows.size < 3 and step > 1:
         return np.nonzero(labels == plane_id)
     return rows * step, cols * step
-
-
-def band_image(depth_m: np.ndarray, noise: NoiseSettings) -> np.ndarray | float:
-    """The inlier band at every pixel's depth (float32; NaN where the depth is), or one number
-    when the band does not depend on depth (a fixed ``distance_threshold``)."""
-    if noise.floor >= noise.cap:
-        return float(noise.floor)
-    model = noise.model
-    if isinstance(model, ConstantNoise):
-        return float(np.clip(noise.k * model.value, noise.floor, noise.cap))
-    # k (a + b (z - c)^2), clipped: a few passes of float32 arithmetic over the image.
-    z = depth_m - np.float32(model.c)
-    band = z * z
-    band *= np.float32(noise.k * model.b)
-    band += np.float32(noise.k * model.a)
-    return np.clip(band, np.float32(noise.floor), np.float32(noise.cap), out=band)
 
 
 def label_lookup(table: np.ndarray, labels: np.ndarray) -> np.ndarray:

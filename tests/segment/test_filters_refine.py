@@ -6,7 +6,8 @@ from annotate_rgbd.config.settings import FilterConfig, RansacConfig
 from annotate_rgbd.segment.filters import INVALID_DEPTH, TOO_FAR, TOO_FEW_POINTS, drop_reasons, label_histogram, plane_statistics
 from annotate_rgbd.geometry.noise import SENSOR_MODELS, NoiseSettings, inlier_band
 from annotate_rgbd.segment.ransac import fit_plane
-from annotate_rgbd.segment.refine import band_image, refine_planes
+from annotate_rgbd.segment.distances import band_image
+from annotate_rgbd.segment.refine import refine_planes
 
 #: A fixed 2 cm band, as ``ransac.distance_threshold = 0.02`` gives.
 FIXED = NoiseSettings.fixed(0.02)

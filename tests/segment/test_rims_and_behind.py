@@ -13,7 +13,8 @@ from annotate_rgbd.config.settings import Config, RansacConfig, RefineConfig, co
 from annotate_rgbd.errors import InputError
 from annotate_rgbd.geometry.noise import SENSOR_MODELS, NoiseSettings
 from annotate_rgbd.segment.ransac import fit_plane
-from annotate_rgbd.segment.refine import near_surfaces_in_front, refine_planes
+from annotate_rgbd.segment.refine import refine_planes
+from annotate_rgbd.segment.rims import near_surfaces_in_front
 from annotate_rgbd.segment.frame import segment_frame
 
 KINECT = NoiseSettings(SENSOR_MODELS["kinect_v1"])
@@ -187,7 +188,7 @@ def test_shapes_carried_by_poses_do_not_look_behind():
 
 @pytest.mark.parametrize("top", [7, 255, 256, 70_000])
 def test_ids_nearby_against_a_brute_force_search(top):
-    from annotate_rgbd.segment.refine import ids_nearby
+    from annotate_rgbd.segment.rims import ids_nearby
 
     rng = np.random.default_rng(top)
     ids = np.where(rng.random((30, 40)) < 0.03, rng.integers(1, top + 1, (30, 40)), 0)
