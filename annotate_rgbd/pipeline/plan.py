@@ -30,7 +30,9 @@ from annotate_rgbd.report.palette import plane_colours
 from .part_overlap import part_pair_iou
 from annotate_rgbd.annotation.parts import Part, frame_owners, place_parts
 from annotate_rgbd.io.poses import FramePoses, Trajectory, load_trajectory, missing_poses_text, poses_at
-from annotate_rgbd.propagate.carry import TrackLift, carried_layers, fit_keyframes, keyframe_frames, lift_tracks, time_samples
+from annotate_rgbd.propagate.carry import carried_layers
+from annotate_rgbd.propagate.keyframes import fit_keyframes, keyframe_frames, time_samples
+from annotate_rgbd.propagate.lift import TrackLift, lift_tracks
 from annotate_rgbd.propagate.timing import TimeOffset, estimate_time_offset
 from annotate_rgbd.report.records import NO_RGB_FRAME, OUTSIDE_ANNOTATION, RGB_NOT_ANNOTATED, FrameRecord
 from annotate_rgbd.io.sequence import Sequence, associate, camera_problem, read_depth, read_sequence
