@@ -196,7 +196,7 @@ class PropagateConfig:
         drawn vertices to the image; a labeller's few pixels of slack).
     beyond_reach : float
         How far past a keyframe image's border an outline that the border cut is carried, at
-        most, as a share of the image's size (:func:`annotate_rgbd.propagate.carry.beyond_the_border`).
+        most, as a share of the image's size (:func:`annotate_rgbd.propagate.lift.beyond_the_border`).
     time_offset : float
         Seconds added to every frame's timestamp before the trajectory is read, when known
         (TUM freiburg1: about -0.02 s, the offset that makes its fused surfaces sharpest).

@@ -98,7 +98,7 @@ class SceneResult:
     review_page : Path, optional
         ``review.html``, written with overlays.
     propagation : object, optional
-        With camera poses: what they gave the run (:class:`annotate_rgbd.pipeline.plan.Propagation`).
+        With camera poses: what they gave the run (:class:`annotate_rgbd.pipeline.propagation.Propagation`).
     sequence : Path, optional
         The sequence folder (the failed frames' messages start with their path in it).
     """

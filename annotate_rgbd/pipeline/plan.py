@@ -5,14 +5,15 @@ measures how the tracks of consecutive parts overlap (:mod:`annotate_rgbd.pipeli
 gives every track its global plane (:mod:`annotate_rgbd.annotation.stitch`); :func:`plan_frames`, a pure
 function, then decides for every depth frame whether it gets a mask, and builds its
 :class:`~annotate_rgbd.report.records.FrameRecord` and, for a mask, its
-:class:`~annotate_rgbd.pipeline.frame_job.FrameJob`.
+:class:`~annotate_rgbd.pipeline.frame_job.FrameJob`. With camera poses,
+:func:`annotate_rgbd.pipeline.propagation.plan_propagation` lifts the keyframes first, and
+:func:`plan_frames` carries them to every frame.
 """
 
 from __future__ import annotations
 
 import logging
-from collections import Counter
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Mapping, Sequence as SequenceType
 
@@ -28,10 +29,10 @@ from annotate_rgbd.geometry.lift import plane_to_camera
 from annotate_rgbd.io.outdir import ID_MASKS, RAW_MASKS
 from annotate_rgbd.report.palette import plane_colours
 from .part_overlap import part_pair_iou
+from .propagation import Propagation, plan_propagation, propagation_warnings
 from annotate_rgbd.annotation.parts import Part, frame_owners, place_parts
-from annotate_rgbd.io.poses import FramePoses, Trajectory, load_trajectory, missing_poses_text, poses_at
-from annotate_rgbd.propagate.carry import TrackLift, carried_layers, fit_keyframes, keyframe_frames, lift_tracks, time_samples
-from annotate_rgbd.propagate.timing import TimeOffset, estimate_time_offset
+from annotate_rgbd.propagate.carry import carried_layers
+from annotate_rgbd.propagate.keyframes import keyframe_frames
 from annotate_rgbd.report.records import NO_RGB_FRAME, OUTSIDE_ANNOTATION, RGB_NOT_ANNOTATED, FrameRecord
 from annotate_rgbd.io.sequence import Sequence, associate, camera_problem, read_depth, read_sequence
 from annotate_rgbd.annotation.stitch import PartTracks, TrackPlane, assign_planes, label_conflicts
@@ -102,54 +103,6 @@ class RunPlan:
     def n_planes(self) -> int:
         """Number of global planes."""
         return len(self.colours)
-
-
-@dataclass
-class Propagation:
-    """What the camera poses give a run (:mod:`annotate_rgbd.propagate.carry`).
-
-    Parameters
-    ----------
-    path : str
-        The trajectory (a file, or a folder of pose files).
-    lifts : dict of (str, int) to TrackLift
-        (part, track id) -> its keyframes lifted onto their planes.
-    depth_poses : FramePoses
-        The pose of every depth frame (``ok`` False where the trajectory has none).
-    trajectory : Trajectory, optional
-        The poses read, on the sequence's clock.
-    clock : str
-        What the sequence's timestamps count.
-    depth_times : ndarray, optional
-        The depth frames' timestamps (for the time ranges of frames without a pose).
-    warnings : list of str
-        What reading the trajectory found implausible.
-    time_offset : float
-        Seconds added to the depth timestamps to read the trajectory (configured plus estimated).
-    estimate : TimeOffset, optional
-        What the estimate of the offset found.
-    """
-
-    path: str
-    lifts: dict[tuple[str, int], TrackLift]
-    depth_poses: FramePoses
-    trajectory: Trajectory | None = None
-    clock: str = "seconds"
-    depth_times: np.ndarray | None = None
-    warnings: list[str] = field(default_factory=list)
-    time_offset: float = 0.0
-    estimate: TimeOffset | None = None
-
-    def to_json(self) -> dict:
-        """The report's ``propagation`` section."""
-        return {
-            "poses": self.path,
-            "time_offset_s": round(self.time_offset, 4),
-            "time_offset_estimate": self.estimate.to_json() if self.estimate is not None else None,
-            "frames_with_pose": int(np.count_nonzero(self.depth_poses.ok)),
-            "tracks": [lift.to_json() for lift in self.lifts.values()],
-            "inconsistent_tracks": [f"{lift.part}:{lift.track}" for lift in self.lifts.values() if not lift.consistent],
-        }
 
 
 @dataclass(frozen=True)
@@ -247,77 +200,6 @@ def plan_run(
     _warn(warnings, frame_warnings)
     _warn(warnings, first_frames)
     return RunPlan(sequence, parts, tracks, colours, frames, jobs, warnings, notes, propagation)
-
-
-def plan_propagation(
-    path: Path, sequence: Sequence, parts: SequenceType[Part], tracks: SequenceType[TrackPlane],
-    depth_of_rgb: dict[int, int], config: Config,
-) -> Propagation:
-    """Read the trajectory, fit every track's keyframe planes (reads the depth frames nearest
-    the keyframes), estimate the trajectory's time offset from them
-    (:func:`annotate_rgbd.propagate.timing.estimate_time_offset`), give every depth frame its
-    pose and lift the keyframes."""
-    loaded = load_trajectory(path, sequence.depth.timestamps, sequence.clock)
-    for note in loaded.notes:
-        log.info(note)
-    trajectory = loaded.trajectory
-    gap = config.sequence.max_pose_gap
-    plane_of = {(t.part, t.track): t.plane for t in tracks}
-    wanted = [
-        (p.name, p.annotation.tracks, [plane_of[(p.name, t.track_id)] for t in p.annotation.tracks], p.rgb_of_frame)
-        for p in parts
-    ]
-    fitted = fit_keyframes(wanted, depth_of_rgb, [sequence.root / f for f in sequence.depth.files], config)
-    settings = config.propagate
-    times = np.asarray(sequence.depth.timestamps, dtype=np.float64) + settings.time_offset
-    offset = TimeOffset()
-    if settings.time_offset_search > 0:
-        offset = estimate_time_offset(trajectory, time_samples(fitted, times, config), settings.time_offset_search,
-                                      settings.time_offset_step, gap, settings.same_surface_offset,
-                                      config.inlier_band().model.sigma)
-    depth_poses = poses_at(trajectory, times + offset.offset, gap)
-    lifts = lift_tracks(fitted, depth_poses, config)
-    return Propagation(str(Path(path).absolute()), {(lift.part, lift.track): lift for lift in lifts}, depth_poses,
-                       trajectory, sequence.clock, sequence.depth.timestamps, loaded.warnings,
-                       settings.time_offset + offset.offset, offset)
-
-
-def propagation_warnings(propagation: Propagation) -> list[str]:
-    """What reading the trajectory found implausible, a warning per track whose lifted keyframes
-    disagree, one for frames without a pose (with the time ranges when frames lie outside the
-    trajectory) and one when no keyframe could be lifted at all."""
-    lines = list(propagation.warnings)
-    lines += [
-        f"{lift.part} track {lift.track} (plane {lift.plane}): "
-        f"{_keyframes_lie(lift.substantial)} off the plane its other keyframes agree on (up to {lift.angle:.1f} degrees, {100 * lift.offset:.1f} cm): "
-        "a shape over another surface or clutter, two surfaces under one track, or poses that are off; "
-        "they were lifted onto the agreed plane"
-        for lift in propagation.lifts.values() if not lift.consistent
-    ]
-    missing = int(np.count_nonzero(~propagation.depth_poses.ok))
-    if missing:
-        frames = f"{missing} depth frame{'s have' if missing > 1 else ' has'}"
-        whose = "their" if missing > 1 else "its"
-        line = f"{propagation.path}: {frames} no pose; {whose} shapes are interpolated in 2-D"
-        if propagation.trajectory is not None:
-            ranges = missing_poses_text(propagation.trajectory, propagation.depth_times,
-                                        propagation.depth_poses.reasons, propagation.clock)
-            line += f" ({ranges})" if ranges else ""
-        lines.append(line)
-    failed = [(lift, frame, reason) for lift in propagation.lifts.values() for frame, reason in lift.failed]
-    if failed and not any(lift.keyframes for lift in propagation.lifts.values()):
-        reasons = Counter(reason for _, _, reason in failed)
-        lift, frame, reason = next(f for f in failed if f[2] == reasons.most_common(1)[0][0])
-        lines.append(f"{propagation.path}: none of the {len(failed)} keyframes could be lifted onto its plane "
-                     f"({reasons[reason]} like {lift.part} track {lift.track} frame {frame}: {reason}); "
-                     "every shape is interpolated in 2-D")
-    return lines
-
-
-def _keyframes_lie(frames) -> str:
-    """``keyframe 6 lies`` / ``keyframes 6, 9 lie``."""
-    frames = list(frames)
-    return f"keyframe {frames[0]} lies" if len(frames) == 1 else f"keyframes {', '.join(map(str, frames))} lie"
 
 
 def label_warnings(annotations: SequenceType[Annotation], labels: SequenceType[str]) -> list[str]:

@@ -18,7 +18,7 @@ from annotate_rgbd.config.settings import PropagateConfig, load_config
 from annotate_rgbd.cvat import read_cvat, write_cvat_video
 from annotate_rgbd.geometry.lift import plane_agreement
 from annotate_rgbd.pipeline.scene import run_cvat2mask
-from annotate_rgbd.propagate.carry import consensus_plane
+from annotate_rgbd.propagate.lift import consensus_plane
 from annotate_rgbd.synthetic import make_sequence
 
 CAMERA = Camera(fx=262.5, fy=262.5, cx=159.5, cy=119.5, depth_scale=5000.0)
@@ -231,7 +231,7 @@ def test_review_of_a_run_with_poses_draws_the_shapes_the_poses_carried(rendered,
 
 
 def test_outline_edges_on_the_image_border_are_carried_past_it():
-    from annotate_rgbd.propagate.carry import beyond_the_border
+    from annotate_rgbd.propagate.lift import beyond_the_border
 
     reach = PropagateConfig().beyond_reach
 
