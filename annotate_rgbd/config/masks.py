@@ -119,10 +119,6 @@ class RefineConfig:
         Drop a plane's pixels this close to a surface standing in front of it inside its shape
         (:func:`annotate_rgbd.segment.rims.near_surfaces_in_front`; ``docs/refinement.md`` for
         the measurement behind 2). 0: keep them.
-    occluding_rim_pixels : int
-        Drop a plane's pixels this close to a surface behind it: its occluding edges, where a
-        depth sensor gives the farther surface's first pixels the plane's depth
-        (:func:`annotate_rgbd.segment.rims.near_surfaces_behind`). 0: keep them.
     coherence_window : int
         Side (px, odd) of the window in which a plane's residuals (in noise units) are averaged
         to find surfaces that stand off it by less than the inlier band (a whiteboard on a
@@ -160,7 +156,6 @@ class RefineConfig:
 
     grow_pixels: int = 3
     rim_pixels: int = 2
-    occluding_rim_pixels: int = 0
     coherence_window: int = 7
     coherence_limit: float = 5.0
     min_window_inliers: int = 4
@@ -268,7 +263,6 @@ def range_checks(config: Any) -> list[tuple[str, bool, str]]:
         ("refine.coherence_window", refine.coherence_window == 0
          or (3 <= refine.coherence_window <= 51 and refine.coherence_window % 2 == 1),
          "must be 0 (no window test) or odd in [3, 51]"),
-        ("refine.occluding_rim_pixels", 0 <= refine.occluding_rim_pixels <= 50, "must be in [0, 50]"),
         ("refine.coherence_limit", 0 < refine.coherence_limit <= 100, "must be in (0, 100]"),
         ("refine.min_window_inliers", 1 <= refine.min_window_inliers, "must be >= 1"),
         ("refine.min_inlier_density", 0 <= refine.min_inlier_density <= 1, "must be in [0, 1]"),

@@ -10,21 +10,13 @@ from annotate_rgbd.geometry.noise import ConstantNoise, NoiseSettings
 
 def signed_distances(
     depth_m: np.ndarray, a: np.ndarray | float, b: np.ndarray | float, c: np.ndarray | float, d: np.ndarray | float,
-    camera: Camera, window: tuple[slice, slice, int, int] | None = None,
+    camera: Camera,
 ) -> np.ndarray:
     """Every pixel's signed distance (m) to the plane ``a x + b y + c z + d = 0`` (unit normal;
     one plane, or one per pixel as images): ``z (a x_n + b y_n + c) + d`` with ``x_n = (col -
     cx) / fx``, ``y_n = (row - cy) / fy`` the pixel's ray at ``z = 1``. float32 is ample: depth
-    has 0.2 mm steps, and bands are millimetres or more. NaN where the depth is.
-
-    ``window``, when given, is ``(rows, cols, height, width)``: ``depth_m`` is that part (two
-    slices) of an image of that size, and the rays are that part's."""
-    if window is None:
-        ray_x, ray_y = ray_grid(camera, *depth_m.shape, np.float32)
-    else:
-        rows, cols, height, width = window
-        ray_x, ray_y = ray_grid(camera, height, width, np.float32)
-        ray_x, ray_y = ray_x[cols], ray_y[rows]
+    has 0.2 mm steps, and bands are millimetres or more. NaN where the depth is."""
+    ray_x, ray_y = ray_grid(camera, *depth_m.shape, np.float32)
     with np.errstate(invalid="ignore"):
         return depth_m * (a * ray_x[None, :] + b * ray_y[:, None] + c) + d
 

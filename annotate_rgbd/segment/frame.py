@@ -20,7 +20,6 @@ from annotate_rgbd.geometry.registration import sample_labels
 from .rasterize import carried_shapes, draw_on_depth_grid
 from annotate_rgbd.segment.plane_record import PlaneRecord
 from .refine import refine_planes
-from .rims import near_surfaces_behind
 
 
 @dataclass
@@ -110,16 +109,6 @@ def segment_frame(
         labels, beyond = grow_connected(labels, drawn, claimed, depth_m, growing, config.camera, band, config.refine,
                                         excluded)
         grown = {plane_id: count + beyond.get(plane_id, 0) for plane_id, count in grown.items()}
-    if config.refine.occluding_rim_pixels:
-        # Last, so that growing cannot take back what a plane's occluding edges smeared.
-        rim = near_surfaces_behind(labels, depth_m, equations, config.camera, band, config.refine.occluding_rim_pixels)
-        if rim.any():
-            lost = labels * rim
-            labels = labels * ~rim
-            top = len(inlier_count)
-            inlier_count = inlier_count - label_histogram(lost * (lost == drawn), top)
-            lost_grown = label_histogram(lost * (lost != drawn), top)
-            grown = {plane_id: count - int(lost_grown[plane_id]) for plane_id, count in grown.items()}
     result = FrameResult(labels=labels, drawn=drawn, colour_grid=colour_grid)
     for i, plane_id in enumerate(stats.plane_ids.tolist()):
         measured = dict(
