@@ -14,8 +14,8 @@ from annotate_rgbd.config.settings import PropagateConfig, RansacConfig, RefineC
 from annotate_rgbd.geometry.noise import NoiseSettings
 from annotate_rgbd.geometry.planes import weighted_plane_fit
 from .bend import plane_bends
-from .ransac import PlaneFit, fit_plane, on_expected_plane
 from .distances import band_image, signed_distances
+from .ransac import PlaneFit, fit_plane, on_expected_plane
 from .rims import near_surfaces_in_front
 
 
@@ -177,7 +177,6 @@ def _fit_near(
     band = noise.scaled(fit.noise_scale).band(points[:, 2])
     inliers = np.abs(points @ fit.equation[:3] + fit.equation[3]) <= band
     return replace(fit, inliers=inliers)
-
 
 
 #: The core re-fits (``refine.core_refits``) stop once no plane's normal or offset moved by this

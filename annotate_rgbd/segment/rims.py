@@ -17,10 +17,11 @@ def near_surfaces_in_front(in_front: np.ndarray, labels: np.ndarray, rim_pixels:
 
     Where an object stands on a plane (a book on a table, a whiteboard on a wall), the foot of
     its sides lies within the plane's noise band: depth cannot tell those pixels from the plane,
-    and a 7x7 window (:func:`window_scores`) straddling both surfaces cannot either. And depth
-    sensors smear depth across the edge of a nearer surface (Kinect v1's correlation window,
-    stereo matching): the plane's pixels next to it are the least reliable ones. So a plane
-    gives up a thin rim around whatever stands in front of it inside its shape. Specks of noise
+    and a 7x7 window (:func:`annotate_rgbd.segment.refine.window_scores`) straddling both
+    surfaces cannot either. And depth sensors smear depth across the edge of a nearer surface
+    (Kinect v1's correlation window, stereo matching): the plane's pixels next to it are the
+    least reliable ones. So a plane gives up a thin rim around whatever stands in front of it
+    inside its shape. Specks of noise
     beyond the band are not surfaces: only pixels in front of the plane that fill a 3x3 square
     (a morphological opening) count. A surface in front of one plane takes no rim from another
     plane's pixels: where two planes' shapes meet, each is judged against its own plane.
