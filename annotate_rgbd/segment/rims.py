@@ -21,10 +21,10 @@ def near_surfaces_in_front(in_front: np.ndarray, labels: np.ndarray, rim_pixels:
     surfaces cannot either. And depth sensors smear depth across the edge of a nearer surface
     (Kinect v1's correlation window, stereo matching): the plane's pixels next to it are the
     least reliable ones. So a plane gives up a thin rim around whatever stands in front of it
-    inside its shape. Specks of noise
-    beyond the band are not surfaces: only pixels in front of the plane that fill a 3x3 square
-    (a morphological opening) count. A surface in front of one plane takes no rim from another
-    plane's pixels: where two planes' shapes meet, each is judged against its own plane.
+    inside its shape. Specks of noise beyond the band are not surfaces: only pixels in front of
+    the plane that fill a 3x3 square (a morphological opening) count. A surface in front of one
+    plane takes no rim from another plane's pixels: where two planes' shapes meet, each is
+    judged against its own plane.
 
     Parameters
     ----------
