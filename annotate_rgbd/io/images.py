@@ -7,6 +7,7 @@ is read from its header before decoding, so that no input costs unbounded time o
 
 from __future__ import annotations
 
+import errno
 import struct
 import zlib
 from pathlib import Path
@@ -15,6 +16,7 @@ import cv2
 import numpy as np
 
 from annotate_rgbd.errors import InputError
+from .bounded import read_stream_bounded
 from .inputs import open_input
 
 #: Largest image decoded (:data:`annotate_rgbd.io.limits.MAX_IMAGE_PIXELS`), checked in a PNG's
@@ -92,16 +94,18 @@ def read_bytes(path: Path, max_bytes: int = MAX_IMAGE_BYTES) -> np.ndarray:
     InputError
         Missing, unreadable, not a regular file (FIFO, device, folder) or too large.
     """
-    # A plain read, not np.fromfile: numpy turns an interrupt (Ctrl-C, a KeyboardInterrupt
+    # Plain reads, not np.fromfile: numpy turns an interrupt (Ctrl-C, a KeyboardInterrupt
     # raised while it checks whether the handle is a path) into "TypeError: expected str, bytes
-    # or os.PathLike object", and the run then ends with status 1 instead of 130.
+    # or os.PathLike object", and the run then ends with status 1 instead of 130. In pieces:
+    # read(max_bytes + 1) would reserve the whole bound at once.
     with open_input(path, max_bytes) as handle:
         try:
-            data = handle.read(max_bytes + 1)
+            data = read_stream_bounded(handle, max_bytes, path)
         except OSError as exc:
+            if exc.errno == errno.EFBIG:  # it grew after it was opened
+                raise InputError(path, f"file is over {max_bytes / 2**20:.0f} MiB; at most "
+                                       f"{max_bytes / 2**20:.0f} MiB are read") from None
             raise InputError(path, f"cannot read ({exc.strerror})") from None
-    if len(data) > max_bytes:  # it grew after it was opened
-        raise InputError(path, f"file is over {max_bytes / 2**20:.0f} MiB; at most {max_bytes / 2**20:.0f} MiB are read")
     return np.frombuffer(data, dtype=np.uint8)
 
 
