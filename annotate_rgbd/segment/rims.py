@@ -68,7 +68,8 @@ def ids_nearby(ids: np.ndarray, radius: int) -> tuple[np.ndarray, np.ndarray]:
     lowest, highest : ndarray of int, shape (H, W)
         0 where no id lies within ``radius``; uint8 or uint16 when those hold every id, else int64.
     """
-    disk = _disk(radius)
+    offsets = np.arange(-radius, radius + 1)
+    disk = (offsets[:, None] ** 2 + offsets[None, :] ** 2 <= radius * radius).astype(np.uint8)
     top = int(ids.max(initial=0))
     # The narrowest type cv2.dilate takes that holds every id and top + 1 (float32: exact to 2^24).
     work = np.float32 if top + 1 >= 2**16 else (np.uint16 if top + 1 >= 2**8 else np.uint8)
@@ -81,9 +82,3 @@ def ids_nearby(ids: np.ndarray, radius: int) -> tuple[np.ndarray, np.ndarray]:
     if work is np.float32:  # ids beyond uint16 (rare): back to integers
         return lowest.astype(np.int64), highest.astype(np.int64)
     return lowest, highest
-
-
-def _disk(radius: int) -> np.ndarray:
-    """A Euclidean disk of ``radius`` pixels, as OpenCV's structuring element."""
-    offsets = np.arange(-radius, radius + 1)
-    return (offsets[:, None] ** 2 + offsets[None, :] ** 2 <= radius * radius).astype(np.uint8)
