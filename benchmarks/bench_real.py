@@ -90,6 +90,12 @@ def main() -> None:
     print()
     for line in target_lines(results):
         print(line)
+    losses = deficit_lines(results)
+    if losses:
+        print("\nwhere each row with poses loses against the dense row (share of its mean-IoU deficit, per "
+              "ground-truth plane: frames x IoU lost):")
+        for line in losses:
+            print(line)
     print(f"\nbenchmark took {time.perf_counter() - started:.0f} s")
 
 
@@ -192,6 +198,48 @@ def target_lines(results: dict) -> list[str]:
         ok = proposed["precision"] >= PROPOSE_TARGET and proposed["recall"] >= PROPOSE_TARGET
         lines.append(f"target: propose precision and recall >= {PROPOSE_TARGET}: {'met' if ok else 'NOT met'} "
                      f"({proposed['precision']:.3f} / {proposed['recall']:.3f})")
+    return lines
+
+
+def plane_deficits(result: dict, dense: dict) -> list[tuple[str, str, int, float, float, float]]:
+    """Where a run loses mean IoU against the dense row, by ground-truth plane.
+
+    Both are the kit's ``evaluate.py --json`` results, whose ``planes`` give each ground-truth
+    plane's frames and mean IoU; the run's mean IoU is the mean over all (frame, plane) pairs,
+    so a plane's part of the deficit is its frames times its IoU lost.
+
+    Returns
+    -------
+    list of (plane, name, frames, dense IoU, IoU, share)
+        Planes that lost IoU, the largest share first; ``share`` is the plane's part of the
+        summed losses (planes that gained are left out of the sum).
+    """
+    lost = []
+    for plane, entry in result.get("planes", {}).items():
+        reference = dense.get("planes", {}).get(plane)
+        if reference is None:
+            continue
+        loss = entry["frames"] * (reference["mean_iou"] - entry["mean_iou"])
+        if loss > 0:
+            lost.append((plane, entry["name"], entry["frames"], reference["mean_iou"], entry["mean_iou"], loss))
+    total = sum(row[-1] for row in lost)
+    return [(*row[:-1], row[-1] / total) for row in sorted(lost, key=lambda row: -row[-1])]
+
+
+def deficit_lines(results: dict, top: int = 4) -> list[str]:
+    """One line per sparse variant with poses: its ``top`` planes of :func:`plane_deficits`."""
+    dense = results.get("full_pose") or results.get("full_nopose")
+    if not dense or "planes" not in dense:
+        return []
+    lines = []
+    for variant, label in LABELS.items():
+        posed = results.get(f"{variant}_pose")
+        if variant == "full" or not posed or "planes" not in posed:
+            continue
+        parts = [f"{name} {share:.0%} ({iou:.2f} against {reference:.2f} on {frames} frames)"
+                 for _, name, frames, reference, iou, share in plane_deficits(posed, dense)[:top]]
+        if parts:
+            lines.append(f"  {label}: " + "; ".join(parts))
     return lines
 
 
