@@ -1,1 +1,2 @@
-"""Camera model, sensor noise, plane fits and plane transforms: pure numpy, no files, no runs."""
+"""Camera model, sensor noise, plane fits and plane transforms, and the exact medians they take
+(:mod:`.statistics`): pure numpy, no files, no runs."""

@@ -33,6 +33,8 @@ from typing import Any, Mapping, Union
 
 import numpy as np
 
+from .statistics import median
+
 
 @dataclass(frozen=True)
 class ConstantNoise:
@@ -354,4 +356,4 @@ def noise_scale(points: np.ndarray, equation: np.ndarray, noise: NoiseSettings) 
         return 1.0
     # Each side of the plane on its own: a surface in the band on one side (a whiteboard on a
     # wall, a book on a table) widens that side only; the narrower side is the plane's noise.
-    return max(1.0, 1.4826 * float(min(np.median(front), np.median(behind))))
+    return max(1.0, 1.4826 * float(min(median(front), median(behind))))

@@ -30,6 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .noise import NoiseSettings
+from .statistics import median
 
 
 @dataclass(frozen=True)
@@ -394,5 +395,5 @@ def refit_plane(
         # distance / (band / k), summed over the inliers without copying them out
         ratio = np.divide(distance, band, out=np.zeros_like(distance), where=inliers)
         rms = k * float(np.sqrt(np.einsum("n,n->", ratio, ratio) / after))
-        band_median = float(noise.band(np.median(coords[2, inliers])))
+        band_median = float(noise.band(median(coords[2, inliers])))
     return Refit(equation, inliers, before, after, rms, band_median)

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from annotate_rgbd.geometry.statistics import median
 from annotate_rgbd.io.poses import Trajectory, poses_at
 
 
@@ -122,7 +123,7 @@ def pair_residuals(samples: list[KeyframeSample], first: np.ndarray, second: np.
     for j, (a, b) in enumerate(zip(first.tolist(), second.tolist())):
         to_b = np.abs(world_points[a] @ world_planes[b, :3] + world_planes[b, 3])
         to_a = np.abs(world_points[b] @ world_planes[a, :3] + world_planes[a, 3])
-        residuals[j] = np.median(np.concatenate([to_b, to_a]))
+        residuals[j] = median(np.concatenate([to_b, to_a]))
     return residuals
 
 

@@ -26,6 +26,7 @@ import cv2
 import numpy as np
 
 from annotate_rgbd.geometry.camera import Camera, ray_grid
+from annotate_rgbd.geometry.statistics import median
 
 #: Cells whose median lies farther than this many (normal-scaled) median absolute deviations
 #: from the bend are left out of its fit: far in the tail for the cells of one smooth surface.
@@ -94,8 +95,8 @@ def fit_bend(x: np.ndarray, y: np.ndarray, z: np.ndarray, distance: np.ndarray, 
     distance = np.asarray(distance, dtype=np.float64)
     if distance.size < MIN_CELLS:
         return None
-    deviation = np.abs(distance - np.median(distance))
-    kept = deviation <= TRIM * 1.4826 * np.median(deviation) + 1e-5
+    deviation = np.abs(distance - median(distance))
+    kept = deviation <= TRIM * 1.4826 * median(deviation) + 1e-5
     terms = bend_terms(x, y, z)
     weight = 1.0 / np.asarray(band, dtype=np.float64)
     coefficients = None
@@ -104,12 +105,12 @@ def fit_bend(x: np.ndarray, y: np.ndarray, z: np.ndarray, distance: np.ndarray, 
             return None
         coefficients = np.linalg.lstsq(terms[kept] * weight[kept, None], distance[kept] * weight[kept], rcond=None)[0]
         residual = distance - terms @ coefficients
-        now = np.abs(residual) <= TRIM * 1.4826 * np.median(np.abs(residual[kept])) + 1e-5
+        now = np.abs(residual) <= TRIM * 1.4826 * median(np.abs(residual[kept])) + 1e-5
         if (now == kept).all():
             break
         kept = now
-    flat = np.median(np.abs(distance[kept] - np.median(distance[kept])))
-    if np.median(np.abs(residual[kept])) > SIGNIFICANT * flat:
+    flat = median(np.abs(distance[kept] - median(distance[kept])))
+    if median(np.abs(residual[kept])) > SIGNIFICANT * flat:
         return None
     return coefficients, kept
 

@@ -12,6 +12,7 @@ from annotate_rgbd.config.settings import PropagateConfig, RansacConfig
 from annotate_rgbd.geometry.lift import plane_agreement
 from annotate_rgbd.geometry.noise import NoiseSettings, noise_scale
 from annotate_rgbd.geometry.planes import refit_plane
+from annotate_rgbd.geometry.statistics import median
 
 
 #: Least-squares re-fits of a RANSAC plane to its inliers (the second settles the inlier set).
@@ -111,7 +112,7 @@ def fit_plane(
         sample = points[:: -(-len(points) // config.max_points)]
         if len(sample) < 3:  # a stride over very few points (max_points = 3) can leave two
             sample = points[: max(config.max_points, 3)]
-    threshold = config.band_share * float(noise.band(np.median(sample[:, 2])))
+    threshold = config.band_share * float(noise.band(median(sample[:, 2])))
     equation, inliers = _ransac(sample, threshold, config)
     if expected is not None and inliers < config.exhaustive_below * len(sample):
         # Open3D stops searching once its plane is likely the best given the share of points it
@@ -168,7 +169,7 @@ def _surface_behind(
         signed = sample @ candidate[:3] + candidate[3]
         on_candidate = np.abs(signed) <= threshold
         in_front = np.count_nonzero(on_plane & (signed < -band)) <= IN_FRONT_SLACK * np.count_nonzero(on_plane)
-        near = -np.median(sample[on_candidate] @ equation[:3] + equation[3]) <= config.max_behind_depth
+        near = -median(sample[on_candidate] @ equation[:3] + equation[3]) <= config.max_behind_depth
         if in_front and near and (
             expected is None or same_surface(candidate, expected, sample[on_candidate], propagate)
         ):
