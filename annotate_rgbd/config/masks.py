@@ -214,10 +214,14 @@ class PropagateConfig:
         ``noise.cap`` of it, that the labeller saw and did not draw are not the plane on other
         frames either.
     exclude_margin : int
-        Pixels next to a keyframe's outline that are never excluded: the labeller's outline is
-        up to 2 px off the real edge (the kit's simulated labeller and this project's renderer
-        jitter by +-2 px) and the poses put it another 1-2 px off (TUM fr1_rpy's mocap against
-        ICP on the fused mesh: median 0.2 degrees, 1.8 px at fx 517).
+        Pixels next to a keyframe's outline that are never excluded (0: what the outline left
+        out starts at the outline). A labeller's outline is up to 2 px off the real edge and the
+        poses put it another 1-2 px off, but the outline and what it left out are carried
+        together, with one pose: a margin only hands the carried plane a strip of what touches
+        it. Measured 2026-11-27, 4 px -> 0: TUM fr1_rpy (benchmarks/bench_real.py, strict
+        ground truth) a keyframe every 10th frame 0.898 -> 0.904 mean IoU, leak 3.0 -> 2.4 %
+        (2 px: 0.902, 2.7 %), every 30th 0.874 -> 0.877, leak 4.0 -> 3.5 %; the rendered walk
+        (benchmarks/bench_propagate.py) every 10th 0.967 -> 0.974, every 30th 0.962 -> 0.964.
     outline_tolerance : float
         Largest distance (px) of a carried exclusion outline from the traced one.
     """
@@ -232,7 +236,7 @@ class PropagateConfig:
     time_offset_step: float = 0.005
     keyframes_each_side: int = 3
     exclude: bool = True
-    exclude_margin: int = 4
+    exclude_margin: int = 0
     outline_tolerance: float = 1.0
 
 

@@ -42,7 +42,7 @@ that is not listed is an error, so a typo never goes unnoticed::
     time_offset_step = 0.005
     keyframes_each_side = 3
     exclude = true      # carry what keyframe outlines left out, too
-    exclude_margin = 4
+    exclude_margin = 0
     outline_tolerance = 1.0
     [[parts]]           # where a part starts in the RGB list (repeat per part)
     file = "950-1900.xml"
