@@ -98,14 +98,15 @@ def segment_frame(
                for plane_id, r in zip(stats.plane_ids.tolist(), reasons)]
     inlier_count = label_histogram(refined, int(drawn.max(initial=0)) + 1)
     equations = {plane_id: fit.equation for plane_id, fit in fits.items()}
-    labels, grown = grow_planes(refined, drawn, depth_m, equations, config.camera, band, config.refine.grow_pixels)
+    if colour_grid is not None:  # what the keyframes excluded, drawn on the colour grid
+        excluded = {plane_id: sample_labels(mask.astype(np.uint8), *colour_grid) > 0 for plane_id, mask in excluded.items()}
+    labels, grown = grow_planes(refined, drawn, depth_m, equations, config.camera, band, config.refine.grow_pixels,
+                                excluded)
     growing = {plane_id: equation for plane_id, equation in equations.items() if plane_id in propagated}
     if growing and config.refine.grow_pixels:
         # Where a plane went on beyond every keyframe's view, nobody outlined it; shapes carried
         # by poses (an outline's extension past a keyframe's border above all) are guesses.
         claimed = (drawn > 0) & ~np.isin(drawn, list(propagated))
-        if colour_grid is not None:  # what the keyframes excluded, drawn on the colour grid
-            excluded = {plane_id: sample_labels(mask.astype(np.uint8), *colour_grid) > 0 for plane_id, mask in excluded.items()}
         labels, beyond = grow_connected(labels, drawn, claimed, depth_m, growing, config.camera, band, config.refine,
                                         excluded)
         grown = {plane_id: count + beyond.get(plane_id, 0) for plane_id, count in grown.items()}

@@ -232,3 +232,20 @@ def test_zero_depth_is_invalid_too():
     labels, grown = grow_planes(drawn.copy(), drawn, depth, {1: TILTED}, camera, NoiseSettings(ConstantNoise(0.6), K, FLOOR, 2.0), 5)
     assert not labels[45:50, 60:90].any()
     assert (labels[70:75, 60:90] == 1).all()
+
+
+def test_a_plane_does_not_grow_into_what_was_excluded_for_it():
+    camera = CAMERAS["tum"]
+    truth, depth, drawn = scene(camera)
+    refined = refine(drawn, depth, camera, {1: TILTED})
+    left = box(0, H, 0, 43)  # what a keyframe left out of plane 1: left of the drawn shape
+    noise = NoiseSettings(KINECT, K, FLOOR, CAP)
+    free, _ = grow_planes(refined, drawn, depth, {1: TILTED}, camera, noise, 4)
+    kept, grown = grow_planes(refined, drawn, depth, {1: TILTED}, camera, noise, 4, {1: left})
+    assert (free[left] == 1).sum() > 100  # without the exclusion it grows into cols 40-42
+    assert not (kept[left] == 1).any()
+    np.testing.assert_array_equal(kept[~left], free[~left])  # everywhere else as before
+    assert grown[1] == int(((kept == 1) & (drawn == 0)).sum())
+    # What was excluded for another plane does not hold this one back.
+    other, _ = grow_planes(refined, drawn, depth, {1: TILTED}, camera, noise, 4, {2: left})
+    np.testing.assert_array_equal(other, free)
