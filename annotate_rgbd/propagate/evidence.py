@@ -35,8 +35,9 @@ def excluded_regions(
 
     A pixel is excluded when it lies outside the outline (``own``), has depth, lies within
     ``max(band(z), near)`` of the plane (either side), is linked to the outline by an
-    8-connected chain of such pixels, and lies more than ``margin`` pixels from the outline (a
-    labeller's outline is a pixel or two off the real edge; growing takes that strip back).
+    8-connected chain of such pixels, and lies more than ``margin`` pixels from the outline
+    (``propagate.exclude_margin``, 0 by default: a margin leaves the carried plane a strip of
+    what touches it, and on real frames that strip is more clutter than plane).
 
     Parameters
     ----------
