@@ -92,8 +92,8 @@ def main() -> None:
         print(line)
     losses = deficit_lines(results)
     if losses:
-        print("\nwhere each row with poses loses against the dense row (share of its mean-IoU deficit, per "
-              "ground-truth plane: frames x IoU lost):")
+        print("\nwhere each row with poses loses against the dense row, per ground-truth plane (frames x IoU "
+              "lost, as a share of the summed losses; planes that gained left out):")
         for line in losses:
             print(line)
     print(f"\nbenchmark took {time.perf_counter() - started:.0f} s")

@@ -220,8 +220,11 @@ class PropagateConfig:
         together, with one pose: a margin only hands the carried plane a strip of what touches
         it. Measured 2026-11-27, 4 px -> 0: TUM fr1_rpy (benchmarks/bench_real.py, strict
         ground truth) a keyframe every 10th frame 0.898 -> 0.904 mean IoU, leak 3.0 -> 2.4 %
-        (2 px: 0.902, 2.7 %), every 30th 0.874 -> 0.877, leak 4.0 -> 3.5 %; the rendered walk
-        (benchmarks/bench_propagate.py) every 10th 0.967 -> 0.974, every 30th 0.962 -> 0.964.
+        (2 px: 0.902, 2.7 %), every 30th 0.874 -> 0.877, leak 4.0 -> 3.5 % (leak: the share of
+        the ground truth's "no plane" pixels given a plane, docs/benchmarks.md); the rendered
+        walk (benchmarks/bench_propagate.py) every 10th 0.967 -> 0.974, every 30th 0.962 ->
+        0.964, but its variant with near-coplanar wall objects and noisy poses every 30th 0.929
+        -> 0.926 (every 10th 0.935 -> 0.941).
     outline_tolerance : float
         Largest distance (px) of a carried exclusion outline from the traced one.
     """

@@ -11,15 +11,15 @@ import numpy as np
 
 
 def median(values: np.ndarray) -> np.floating:
-    """The median of a 1-D floating-point array: the same number as ``np.median`` (NaN when a
+    """The median of a 1-D float32 or float64 array: the same number as ``np.median`` (NaN when a
     value is NaN; the mean of the two middle values of an even count), in a quarter of its time
     on a few hundred values.
 
     Parameters
     ----------
-    values : ndarray of float, shape (N,)
-        Not modified. Anything else (empty, several dimensions, integers) is passed to
-        ``np.median``.
+    values : ndarray of float32 or float64, shape (N,)
+        Not modified. Anything else (empty, several dimensions, integers, float16, whose
+        ``np.median`` averages in float32) is passed to ``np.median``.
 
     Returns
     -------
@@ -28,7 +28,7 @@ def median(values: np.ndarray) -> np.floating:
     """
     values = np.asarray(values)
     n = values.size
-    if n == 0 or values.ndim != 1 or not np.issubdtype(values.dtype, np.floating):
+    if n == 0 or values.ndim != 1 or values.dtype not in (np.float32, np.float64):
         return np.median(values)
     middle = (n - 1) // 2
     # The last position too: NaN sorts last, and any NaN makes the median NaN (as np.median).

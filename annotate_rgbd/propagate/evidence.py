@@ -11,7 +11,8 @@ both would take those surfaces. So each keyframe also hands on **what it exclude
 outside its outline whose depth lies within reach of its plane (inside the plane's band, or up to
 ``near`` in front of or behind it) and that connect to the outline through such pixels: the
 surfaces touching the plane that the labeller saw and did not draw. Lifted onto the plane and
-projected like the outline, they are taken from the carried plane on every other frame.
+projected like the outline, they are taken from the carried plane on the other frames where that
+keyframe is among the nearest (unless a nearer keyframe outlined them).
 
 Pure functions of arrays: :func:`excluded_regions` on the keyframe's image, :func:`region_outlines`
 to carry them as polygons.

@@ -40,6 +40,8 @@ def test_the_middle_two_of_an_even_count_without_overflow_of_an_odd_one():
 
 def test_other_input_goes_to_numpy():
     assert median(np.array([1, 2, 3, 4])) == 2.5
+    halves = np.array([1.0, 60000.0, 65504.0, 65504.0], dtype=np.float16)  # np.median averages in float32
+    assert median(halves) == np.median(halves) and type(median(halves)) is type(np.median(halves))
     assert median(np.array([[1.0, 5.0], [3.0, 4.0]])) == 3.5
     with pytest.warns(RuntimeWarning):
         assert np.isnan(median(np.array([], dtype=np.float64)))

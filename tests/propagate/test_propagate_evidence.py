@@ -103,6 +103,9 @@ def test_what_the_outline_left_out_touching_the_plane_is_excluded():
     # it, but not the strip along the outline nor anything inside it.
     assert excluded[60:160, 210:280].all() and excluded[:, 290:].all()
     assert not excluded[:, :204].any()
+    # Without a margin (the default) what was left out starts right at the outline.
+    flush = excluded_regions(own, depth, plane, CAMERA, noise, 0.1, 0)
+    assert flush[:, 200:].all() and not flush[:, :200].any()
     # The box stands 0.5 m in front: not excluded (depth tells it apart on every frame), and it
     # is inside the outline anyway. With the picture 20 cm proud, it is not excluded either.
     far = depth.copy()

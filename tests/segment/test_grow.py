@@ -249,3 +249,26 @@ def test_a_plane_does_not_grow_into_what_was_excluded_for_it():
     # What was excluded for another plane does not hold this one back.
     other, _ = grow_planes(refined, drawn, depth, {1: TILTED}, camera, noise, 4, {2: left})
     np.testing.assert_array_equal(other, free)
+
+
+def test_a_pixel_excluded_for_one_plane_can_still_go_to_its_neighbour():
+    # Two coplanar planes side by side, drawn with a 6-px gap between them: the gap lies within
+    # grow_pixels of both. What was excluded for plane 1 goes to plane 2, which may take it.
+    camera = CAMERAS["tum"]
+    rng = np.random.default_rng(3)
+    depth = noisy(plane_depth(camera, TILTED), rng)
+    drawn = np.zeros((H, W), dtype=np.uint8)
+    drawn[30:90, 20:77] = 1
+    drawn[30:90, 83:140] = 2
+    equations = {1: TILTED, 2: TILTED}
+    refined = refine(drawn, depth, camera, equations)
+    gap = box(30, 90, 77, 83)
+    noise = NoiseSettings(KINECT, K, FLOOR, CAP)
+    free, _ = grow_planes(refined, drawn, depth, equations, camera, noise, 4)
+    assert (free[gap] == 1).sum() > 100 and (free[gap] == 2).sum() > 100  # the lower id wins ties
+    kept, _ = grow_planes(refined, drawn, depth, equations, camera, noise, 4, {1: gap})
+    assert not (kept[gap] == 1).any()
+    # Plane 2 takes what plane 1 may not, as far as its own 4 px reach (cols 79-82; 77-78 stay free).
+    reach = box(30, 90, 79, 83)
+    assert (kept[reach] == 2).sum() >= reach.sum() - 3 and (kept[reach] == 2).sum() > (free[reach] == 2).sum()
+    assert not kept[box(30, 90, 77, 79)].any()
