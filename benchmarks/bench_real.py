@@ -21,7 +21,8 @@ the view; ``once``: once per appearance), ``annotate-rgbd cvat2mask`` runs on it
 recall at IoU 0.8, leak (the share of ground-truth "no plane" pixels given a plane). It prints
 the table of issue 26 and whether its targets are met (with poses: a keyframe every 10th frame
 mean IoU >= 0.946 and leak <= 2 %, every 30th >= 0.93, once per appearance >= 0.90, never below
-2-D interpolation; dense >= 0.96; propose precision and recall >= 0.7).
+2-D interpolation; dense >= 0.96; propose precision and recall >= 0.7), and for every sparse row
+with poses where it loses against the dense row, by ground-truth plane (:func:`plane_deficits`).
 
 Without the kit or the scene it prints one line and exits 0.
 """
