@@ -107,6 +107,8 @@ def grow_planes(
     table = np.zeros((top + 1, 4))
     for plane_id, equation in equations.items():
         table[int(plane_id)] = equation
+    # Each growing plane's excluded pixels among the free ones, read once for both candidates.
+    barred = [(plane_id, mask[rows, cols]) for plane_id, mask in (excluded or {}).items() if plane_id in grown]
     best_id = np.zeros(rows.size, dtype=np.int64)
     best_distance = np.full(rows.size, np.inf)
     # Lowest id first, so that an equal distance keeps the lower id.
@@ -114,8 +116,8 @@ def grow_planes(
         plane = table[candidates]
         distance = np.abs(np.einsum("ij,ij->i", points, plane[:, :3]) + plane[:, 3])
         better = (candidates > 0) & (distance <= band) & (distance < best_distance)
-        for plane_id, mask in (excluded or {}).items():
-            better &= ~((candidates == plane_id) & mask[rows, cols])
+        for plane_id, out in barred:
+            better &= ~((candidates == plane_id) & out)
         best_id[better], best_distance[better] = candidates[better], distance[better]
     taken = best_id > 0
     labels[rows[taken], cols[taken]] = best_id[taken]
