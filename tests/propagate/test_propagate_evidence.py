@@ -7,6 +7,7 @@ import json
 
 import cv2
 import numpy as np
+import pytest
 from scipy.spatial.transform import Rotation
 
 from annotate_rgbd.annotation.model import Shape
@@ -17,7 +18,7 @@ from annotate_rgbd.geometry.noise import NoiseSettings
 from annotate_rgbd.io.poses import Trajectory
 from annotate_rgbd.pipeline.scene import run_cvat2mask
 from annotate_rgbd.propagate.evidence import excluded_regions, region_outlines
-from annotate_rgbd.propagate.timing import KeyframeSample, estimate_time_offset
+from annotate_rgbd.propagate.timing import KeyframeSample, estimate_time_offset, keyframe_pairs, pair_residuals
 from annotate_rgbd.segment.frame import segment_frame
 from annotate_rgbd.segment.rasterize import paint_layers, rasterize_frame
 from annotate_rgbd.synthetic import make_sequence
@@ -78,6 +79,32 @@ def test_the_time_offset_is_found_from_the_keyframes_planes_and_is_zero_for_exac
     assert abs(estimate_time_offset(early, samples, 0.1, 0.005, 0.05, 0.05).offset + 0.045) < 0.002
     # Too few keyframes to tell: no offset.
     assert estimate_time_offset(late, samples[:1], 0.1, 0.005, 0.05, 0.05).offset == 0.0
+
+
+def test_pair_residuals_are_each_pair_s_median_point_to_plane_distance():
+    rng = np.random.default_rng(8)
+    samples = []
+    for index in range(9):
+        plane = rng.normal(size=4)
+        plane[:3] /= np.linalg.norm(plane[:3])
+        # some keyframes with no points (a pair of two of them has no residual)
+        samples.append(KeyframeSample(index % 2, float(index), rng.normal(size=(int(rng.integers(0, 30)) * (index % 4 > 0), 3)), plane))
+    first, second = keyframe_pairs(samples, 12)
+    rotations = Rotation.random(len(samples), random_state=2).as_matrix()
+    translations = rng.normal(size=(len(samples), 3))
+    got = pair_residuals(samples, first, second, rotations, translations)
+    for j, (a, b) in enumerate(zip(first, second)):
+        # Independently: each keyframe's points and plane in the world, then distances both ways.
+        points_a = samples[a].points @ rotations[a].T + translations[a]
+        points_b = samples[b].points @ rotations[b].T + translations[b]
+        distances = []
+        for points, (k, plane) in ((points_a, (b, samples[b].plane)), (points_b, (a, samples[a].plane))):
+            normal = rotations[k] @ plane[:3]
+            distances.extend(np.abs(points @ normal + plane[3] - normal @ translations[k]))
+        if distances:
+            assert got[j] == pytest.approx(np.median(distances), rel=1e-9, abs=1e-12)
+        else:
+            assert np.isnan(got[j])
 
 
 def _wall_scene():
