@@ -14,7 +14,7 @@ import cv2
 import numpy as np
 
 from annotate_rgbd.config.settings import RefineConfig
-from annotate_rgbd.geometry.camera import Camera, backproject
+from annotate_rgbd.geometry.camera import Camera, backproject, ray_grid
 from annotate_rgbd.geometry.noise import NoiseSettings
 from .distances import signed_distances
 from .refine import label_lookup, window_scores
@@ -192,36 +192,52 @@ def grow_connected(
     if not free.any():
         return labels, grown
     drawn = np.asarray(drawn)
-    band = np.asarray(noise.band(depth), dtype=np.float32)
     ids = sorted(grown)
-    candidate = np.zeros(labels.shape, dtype=labels.dtype)
-    best = np.full(labels.shape, np.inf, dtype=np.float32)
-    residual = np.zeros(labels.shape, dtype=np.float32)
     growing = np.zeros(max(int(labels.max(initial=0)), ids[-1]) + 1, dtype=np.uint8)
     growing[ids] = 1
     own = label_lookup(growing, labels).view(bool)  # pixels of the growing planes
+    table = np.zeros((len(growing), 4), dtype=np.float32)
+    for plane_id in ids:
+        table[plane_id] = equations[plane_id]
+    ray_x, ray_y = ray_grid(camera, *labels.shape, np.float32)
+    k = np.float32(noise.k)
     # Each free pixel goes to the nearest plane it lies on (a tie: the lowest id), but never to a
     # plane whose own shape covers it: those pixels refinement left out (a whiteboard on a wall).
+    # On the free pixels only, gathered once.
+    free_at = np.flatnonzero(free)
+    z = depth.ravel()[free_at]
+    x, y = ray_x[free_at % labels.shape[1]], ray_y[free_at // labels.shape[1]]
+    band = np.asarray(noise.band(z), dtype=np.float32)
+    drawn_here = drawn.ravel()[free_at]
+    candidate_here = np.zeros(free_at.size, dtype=labels.dtype)
+    best = np.full(free_at.size, np.inf, dtype=np.float32)
+    residual_here = np.zeros(free_at.size, dtype=np.float32)
     for plane_id in ids:
-        signed = signed_distances(depth, *(np.float32(v) for v in equations[plane_id]), camera)
+        a, b, c, d = table[plane_id]
+        signed = z * (a * x + b * y + c) + d  # as segment.distances.signed_distances, pixel by pixel
         distance = np.abs(signed)
-        with np.errstate(invalid="ignore"):
-            closer = distance <= band
-            closer &= distance < best
-        closer &= free
-        closer &= drawn != plane_id
+        closer = (distance <= band) & (distance < best) & (drawn_here != plane_id)
         if excluded and plane_id in excluded:
-            closer &= ~excluded[plane_id]
-        candidate[closer] = plane_id
-        np.copyto(best, distance, where=closer)
-        scored = closer | ((labels == plane_id) & np.isfinite(signed))
-        with np.errstate(invalid="ignore"):
-            np.copyto(residual, signed * np.float32(noise.k) / band, where=scored)
-    # The window test of refinement (a doormat on the floor lies within its band): residuals in
-    # noise units, averaged over each candidate's window, must look like the plane's noise.
+            closer &= ~np.asarray(excluded[plane_id]).ravel()[free_at]
+        candidate_here[closer] = plane_id
+        best[closer] = distance[closer]
+        residual_here[closer] = (signed * k / band)[closer]
+    if not candidate_here.any():
+        return labels, grown
+    candidate = np.zeros(labels.shape, dtype=labels.dtype)
+    candidate.ravel()[free_at] = candidate_here
+    # The growing planes' own pixels with depth: their residuals to their own plane.
+    signed = signed_distances(depth, *(label_lookup(table[:, i], labels) for i in range(4)), camera)
+    residual = np.zeros(labels.shape, dtype=np.float32)
+    with np.errstate(invalid="ignore"):
+        np.copyto(residual, signed * k / np.asarray(noise.band(depth), dtype=np.float32), where=own & np.isfinite(signed))
+    residual.ravel()[free_at] = residual_here
     score, usable = window_scores(residual, own | (candidate > 0), refine.coherence_window, refine.min_window_inliers)
     candidate[~(usable & (np.abs(score) <= refine.coherence_limit))] = 0
+    left_over = np.bincount(candidate.ravel()[free_at], minlength=len(growing))
     for plane_id in ids:
+        if not left_over[plane_id]:
+            continue  # nothing to take
         mine = labels == plane_id
         if not mine.any():
             continue

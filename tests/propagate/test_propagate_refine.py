@@ -116,6 +116,19 @@ def test_claimed_pixels_a_surface_on_the_plane_and_its_own_left_out_pixels_are_n
     assert taken[90:, 60:97].mean() > 0.99
 
 
+def test_a_free_pixel_on_two_growing_planes_equally_goes_to_the_lower_id():
+    depth = floor_depth(height=0.5)
+    floor = np.array([0.0, -1.0, 0.0, 0.5])
+    labels = np.zeros(SHAPE, np.uint8)
+    labels[70:, :40] = 2
+    labels[70:, 120:] = 1  # the same floor under two ids; the free floor between touches both
+    noise = NoiseSettings(SENSOR_MODELS["kinect_v1"], 3.0, 0.002, 0.1)
+    grown_labels, grown = grow_connected(labels, labels.copy(), np.zeros(SHAPE, bool), depth,
+                                         {2: floor, 1: floor.copy()}, CAMERA, noise)
+    assert (grown_labels[70:, 40:120] == 1).all()
+    assert grown == {1: 80 * (SHAPE[0] - 70), 2: 0}
+
+
 def test_only_planes_carried_by_poses_grow_past_their_shapes():
     depth = floor_depth(height=0.5)
     raw = np.nan_to_num(depth * CAMERA.depth_scale).round().astype(np.uint16)
