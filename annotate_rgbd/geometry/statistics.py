@@ -2,9 +2,7 @@
 
 ``np.median`` handles any shape and axis, and costs about 15 microseconds even for a few hundred
 values; the time-offset search (:mod:`annotate_rgbd.propagate.timing`) takes some 30,000 medians
-and the sensor's bend (:mod:`annotate_rgbd.segment.bend`) some 15,000 per 300 frames. Where the
-samples are many small segments of one array (a median per keyframe pair), :func:`segment_medians`
-takes them all from one sort.
+and the sensor's bend (:mod:`annotate_rgbd.segment.bend`) some 15,000 per 300 frames.
 """
 
 from __future__ import annotations
@@ -41,39 +39,3 @@ def median(values: np.ndarray) -> np.floating:
         part = np.partition(values, (middle, middle + 1, n - 1))
         centre = (part[middle] + part[middle + 1]) / 2
     return part[-1] if np.isnan(part[-1]) else centre
-
-
-def segment_medians(values: np.ndarray, segment: np.ndarray, count: int) -> np.ndarray:
-    """The median of the values of each segment (NaN for a segment without values or with a NaN):
-    the numbers ``np.median`` gives segment by segment, from one row-wise sort (each segment a
-    row padded to the longest: meant for segments of similar sizes).
-
-    Parameters
-    ----------
-    values : ndarray of float64, shape (M,)
-    segment : ndarray of int, shape (M,)
-        Each value's segment, in ``[0, count)``.
-    count : int
-        Number of segments.
-
-    Returns
-    -------
-    ndarray of float64, shape (count,)
-    """
-    values = np.asarray(values, dtype=np.float64)
-    segment = np.asarray(segment, dtype=np.int64)
-    size = np.bincount(segment, minlength=count)
-    begin = np.cumsum(size) - size
-    order = np.argsort(segment, kind="stable")
-    # One row per segment, padded with +inf (sorted after every value; NaN sorts after it, and a
-    # segment with a NaN is NaN below): a row-wise sort is far cheaper than sorting on two keys.
-    rows = np.full((count, int(size.max(initial=0))), np.inf)
-    rows[segment[order], np.arange(len(values)) - begin[segment[order]]] = values[order]
-    rows.sort(axis=1)
-    medians = np.full(count, np.nan)
-    some = np.flatnonzero(size > 0)
-    low = rows[some, (size[some] - 1) // 2]
-    high = rows[some, size[some] // 2]
-    medians[some] = (low + high) / 2
-    medians[np.bincount(segment, weights=np.isnan(values), minlength=count) > 0] = np.nan
-    return medians

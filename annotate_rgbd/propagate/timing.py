@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from annotate_rgbd.geometry.statistics import segment_medians
+from annotate_rgbd.geometry.statistics import median
 from annotate_rgbd.io.poses import Trajectory, poses_at
 
 
@@ -113,28 +113,18 @@ def pair_residuals(samples: list[KeyframeSample], first: np.ndarray, second: np.
     -------
     ndarray of float64, shape (P,)
     """
-    planes = np.array([sample.plane for sample in samples], dtype=np.float64).reshape(-1, 4)
-    normals = np.einsum("kij,kj->ki", rotations, planes[:, :3])
-    offsets = planes[:, 3] - np.einsum("ki,ki->k", normals, translations)
-    counts = np.array([len(sample.points) for sample in samples], dtype=np.int64)
-    starts = np.cumsum(counts) - counts
-    owner = np.repeat(np.arange(len(samples)), counts)
-    points = np.concatenate([sample.points for sample in samples]) if samples else np.zeros((0, 3))
-    world = np.einsum("nij,nj->ni", rotations[owner], points) + translations[owner]
-    pair = np.arange(len(first))
-    # Every pair's distances at once: the first's points to the second's plane, then the second's
-    # points to the first's; each entry tagged with its pair.
-    point = np.concatenate([_ranges(starts[first], counts[first]), _ranges(starts[second], counts[second])])
-    plane = np.concatenate([np.repeat(second, counts[first]), np.repeat(first, counts[second])])
-    of_pair = np.concatenate([np.repeat(pair, counts[first]), np.repeat(pair, counts[second])])
-    distance = np.abs(np.einsum("ij,ij->i", world[point], normals[plane]) + offsets[plane])
-    return segment_medians(distance, of_pair, len(first))
-
-
-def _ranges(begin: np.ndarray, length: np.ndarray) -> np.ndarray:
-    """``concatenate([arange(b, b + n) for b, n in zip(begin, length)])`` without the loop."""
-    ends = np.cumsum(length)
-    return np.repeat(begin - (ends - length), length) + np.arange(int(ends[-1]) if len(ends) else 0)
+    world_planes = np.empty((len(samples), 4))
+    world_points = []
+    for i, sample in enumerate(samples):
+        normal = rotations[i] @ sample.plane[:3]
+        world_planes[i] = np.append(normal, sample.plane[3] - normal @ translations[i])
+        world_points.append(sample.points @ rotations[i].T + translations[i])
+    residuals = np.empty(len(first))
+    for j, (a, b) in enumerate(zip(first.tolist(), second.tolist())):
+        to_b = np.abs(world_points[a] @ world_planes[b, :3] + world_planes[b, 3])
+        to_a = np.abs(world_points[b] @ world_planes[a, :3] + world_planes[a, 3])
+        residuals[j] = median(np.concatenate([to_b, to_a]))
+    return residuals
 
 
 def estimate_time_offset(

@@ -1,9 +1,9 @@
-"""geometry.statistics.median and segment_medians against np.median, value and type."""
+"""geometry.statistics.median against np.median, value and type."""
 
 import numpy as np
 import pytest
 
-from annotate_rgbd.geometry.statistics import median, segment_medians
+from annotate_rgbd.geometry.statistics import median
 
 
 @pytest.mark.parametrize("dtype", [np.float64, np.float32])
@@ -45,25 +45,3 @@ def test_other_input_goes_to_numpy():
     assert median(np.array([[1.0, 5.0], [3.0, 4.0]])) == 3.5
     with pytest.warns(RuntimeWarning):
         assert np.isnan(median(np.array([], dtype=np.float64)))
-
-
-def test_segment_medians_are_numpy_s_segment_by_segment():
-    rng = np.random.default_rng(3)
-    for trial in range(300):
-        count = int(rng.integers(1, 12))
-        segment = rng.integers(0, count, size=int(rng.integers(0, 200)))
-        # ties (a tenth's steps), odd and even sizes, segments left empty, NaN here and there
-        values = rng.integers(-20, 20, size=segment.size) * 0.1 if trial % 2 else rng.normal(size=segment.size)
-        if trial % 4 == 0 and segment.size:
-            values[rng.integers(segment.size)] = np.nan
-        got = segment_medians(values, segment, count)
-        expected = np.array([np.median(values[segment == i]) if (segment == i).any() else np.nan for i in range(count)])
-        np.testing.assert_array_equal(got, expected)
-
-
-def test_segment_medians_of_a_hand_worked_case():
-    values = np.array([5.0, 1.0, 9.0, 2.0, 4.0, np.nan, 7.0])
-    segment = np.array([0, 0, 0, 1, 1, 2, 2])
-    got = segment_medians(values, segment, 4)
-    np.testing.assert_array_equal(got[:2], [5.0, 3.0])
-    assert np.isnan(got[2]) and np.isnan(got[3])  # a NaN in it; no value at all
