@@ -12,7 +12,7 @@ which they agree best.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -129,7 +129,7 @@ def pair_residuals(samples: list[KeyframeSample], first: np.ndarray, second: np.
 
 def estimate_time_offset(
     trajectory: Trajectory, samples: list[KeyframeSample], search: float, step: float, max_gap: float,
-    same_surface: float, sigma=None, max_per_group: int = 12,
+    same_surface: float, sigma=None, max_per_group: int = 12, max_points: int = 100,
 ) -> TimeOffset:
     """The offset to add to the depth timestamps under which the keyframes' planes agree best.
 
@@ -159,6 +159,11 @@ def estimate_time_offset(
         pair counts the same.
     max_per_group : int
         Keyframes of a group compared pairwise, at most (taken evenly in time).
+    max_points : int
+        Points of each keyframe compared, at most (every k-th: a fit's points lie on a grid over
+        the plane, so these spread over it too). A pair's residual is a median: on TUM fr1_rpy
+        and the rendered walk, 100 points a keyframe instead of up to 1,000 find the same offset
+        (-0.023 s and 0) in half the time.
 
     Returns
     -------
@@ -170,6 +175,8 @@ def estimate_time_offset(
     times = np.array([s.time for s in samples])
     depths = np.array([float(np.median(s.points[:, 2])) for s in samples])
     scale = np.ones(len(first)) if sigma is None else np.asarray(sigma(np.maximum(depths[first], depths[second])))
+    samples = [replace(s, points=s.points[:: -(-len(s.points) // max_points)]) if len(s.points) > max_points else s
+               for s in samples]
 
     def residuals(offset: float) -> np.ndarray:
         poses = poses_at(trajectory, times + offset, max_gap)
