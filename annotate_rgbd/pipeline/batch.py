@@ -68,7 +68,7 @@ def run_batch(
                     config = (spec.config if isinstance(spec.config, Config)
                               else load_run_config(spec.sequence, spec.config, spec.overrides))
                     plan = plan_run(spec.sequence, spec.annotations, spec.out, config, spec.offsets, spec.raw_masks,
-                                    spec.overlays, poses=spec.poses, instance_ids=spec.instance_ids)
+                                    spec.overlays, poses=spec.poses, instance_ids=spec.instance_ids, helpers=helpers)
             except InputError as exc:
                 outcomes[position] = SceneResult(spec.name, spec.out, str(exc), exc)
                 continue

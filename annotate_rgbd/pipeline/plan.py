@@ -36,6 +36,7 @@ from annotate_rgbd.propagate.keyframes import keyframe_frames
 from annotate_rgbd.report.records import NO_RGB_FRAME, OUTSIDE_ANNOTATION, RGB_NOT_ANNOTATED, FrameRecord
 from annotate_rgbd.io.sequence import Sequence, associate, camera_problem, read_depth, read_sequence
 from annotate_rgbd.annotation.stitch import PartTracks, TrackPlane, assign_planes, label_conflicts
+from annotate_rgbd.pool import HelperPool
 
 log = logging.getLogger("annotate_rgbd")
 
@@ -136,13 +137,15 @@ def plan_run(
     overlays: bool = False,
     poses: str | Path | None = None,
     instance_ids: bool = False,
+    helpers: HelperPool | None = None,
 ) -> RunPlan:
     """Read the inputs and decide, for every depth frame, whether and how it gets a mask.
 
     Parameters are those of :func:`annotate_rgbd.pipeline.run_cvat2mask`; ``poses`` (else the
     configuration's ``sequence.poses``, else the layout's own poses) is a trajectory
     (:func:`annotate_rgbd.io.poses.read_trajectory`) that carries keyframe shapes to every frame
-    (:mod:`annotate_rgbd.propagate.carry`).
+    (:mod:`annotate_rgbd.propagate.carry`); ``helpers`` (helper processes, already started for
+    the frames) fit the keyframes' planes too.
 
     Returns
     -------
@@ -189,7 +192,7 @@ def plan_run(
         log.info("poses: the %s layout's per-frame camera-to-world poses (%s); give --poses for another trajectory",
                  sequence.layout, poses)
     if poses:
-        propagation = plan_propagation(Path(poses), sequence, parts, tracks, depth_of_rgb, config)
+        propagation = plan_propagation(Path(poses), sequence, parts, tracks, depth_of_rgb, config, helpers)
         _warn(warnings, propagation_warnings(propagation))
         if any(t.keyframes is not None and len(t.shapes) > len(t.keyframes) for a in annotations for t in a.tracks):
             notes.append("with poses, the shapes between keyframes (CVAT's interpolation) are not used: "

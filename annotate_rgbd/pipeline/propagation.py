@@ -24,6 +24,7 @@ from annotate_rgbd.io.poses import FramePoses, Trajectory, load_trajectory, miss
 from annotate_rgbd.propagate.keyframes import fit_keyframes, time_samples
 from annotate_rgbd.propagate.lift import TrackLift, lift_tracks
 from annotate_rgbd.propagate.timing import TimeOffset, estimate_time_offset
+from annotate_rgbd.pool import HelperPool
 from annotate_rgbd.io.sequence import Sequence
 from annotate_rgbd.annotation.stitch import TrackPlane
 
@@ -81,12 +82,12 @@ class Propagation:
 
 def plan_propagation(
     path: Path, sequence: Sequence, parts: SequenceType[Part], tracks: SequenceType[TrackPlane],
-    depth_of_rgb: dict[int, int], config: Config,
+    depth_of_rgb: dict[int, int], config: Config, helpers: HelperPool | None = None,
 ) -> Propagation:
     """Read the trajectory, fit every track's keyframe planes (reads the depth frames nearest
     the keyframes), estimate the trajectory's time offset from them
     (:func:`annotate_rgbd.propagate.timing.estimate_time_offset`), give every depth frame its
-    pose and lift the keyframes."""
+    pose and lift the keyframes. ``helpers`` (helper processes) fit keyframe frames too."""
     loaded = load_trajectory(path, sequence.depth.timestamps, sequence.clock)
     for note in loaded.notes:
         log.info(note)
@@ -97,7 +98,7 @@ def plan_propagation(
         (p.name, p.annotation.tracks, [plane_of[(p.name, t.track_id)] for t in p.annotation.tracks], p.rgb_of_frame)
         for p in parts
     ]
-    fitted = fit_keyframes(wanted, depth_of_rgb, [sequence.root / f for f in sequence.depth.files], config)
+    fitted = fit_keyframes(wanted, depth_of_rgb, [sequence.root / f for f in sequence.depth.files], config, helpers)
     settings = config.propagate
     times = np.asarray(sequence.depth.timestamps, dtype=np.float64) + settings.time_offset
     offset = TimeOffset()

@@ -24,6 +24,7 @@ from annotate_rgbd.segment.rasterize import draw_on_depth_grid
 from annotate_rgbd.segment.ransac import fit_plane
 from annotate_rgbd.segment.refine import grid_pixels
 from annotate_rgbd.io.sequence import read_depth
+from annotate_rgbd.pool import HelperPool, run_jobs
 from .evidence import excluded_regions, region_outlines
 from .timing import KeyframeSample
 
@@ -163,6 +164,7 @@ def fit_keyframes(
     depth_of_rgb: dict[int, int],
     depth_files: list[Path],
     config: Config,
+    helpers: HelperPool | None = None,
 ) -> list[FittedTrack]:
     """Fit the plane under every keyframe shape on its depth frame (reads those depth frames).
 
@@ -176,6 +178,9 @@ def fit_keyframes(
     depth_files : list of Path
         The sequence's depth files, in depth order.
     config : Config
+    helpers : HelperPool, optional
+        Helper processes that fit keyframe frames too (:func:`annotate_rgbd.pool.run_jobs`);
+        None: this process fits them all. The fits are the same either way.
 
     Returns
     -------
@@ -183,9 +188,14 @@ def fit_keyframes(
         Part by part, in track order; a track drawn on every frame of its life (nothing to carry
         anywhere) has no keyframes.
     """
-    fitted_tracks = []
+    # First what to fit (one job per keyframe frame), then the fits (in the helper processes
+    # too, when given), then each track's keyframes in frame order, as fitting frame by frame.
+    fitted_tracks: list[FittedTrack] = []
+    frames = []  # (the part's tracks, frame, depth index, tracks to fit, tracks that cannot be)
+    jobs = []
     for part, tracks, plane_ids, rgb_of_frame in parts:
         part_tracks = [FittedTrack(part, track, plane) for track, plane in zip(tracks, plane_ids)]
+        fitted_tracks += part_tracks
         keyframes_at: dict[int, list[int]] = {}
         for i, track in enumerate(tracks):
             drawn = keyframe_frames(track)
@@ -194,30 +204,43 @@ def fit_keyframes(
             for frame in drawn:
                 keyframes_at.setdefault(frame, []).append(i)
         for frame in sorted(keyframes_at):
-            wanted = []
             rgb = rgb_of_frame.get(frame)
             depth = depth_of_rgb.get(rgb, -1) if rgb is not None else -1
-            for i in keyframes_at[frame]:
-                outline = outline_of(tracks[i].shapes[frame])
-                if outline is None:
-                    part_tracks[i].failed.append((frame, "mask shapes are not propagated"))
-                elif depth < 0:
-                    part_tracks[i].keyframes.append((frame, outline, depth, "no depth frame near the keyframe"))
-                else:
-                    wanted.append(i)
-            if not wanted:
-                continue
-            shapes = [(i + 1, t.shapes[frame]) for i, t in enumerate(tracks) if frame in t.shapes]
-            try:
-                planes, size = keyframe_planes(shapes, [i + 1 for i in wanted], depth_files[depth], config)
-            except InputError as exc:
-                planes, size = {i + 1: f"unreadable depth ({exc.message})" for i in wanted}, None
-            for i in wanted:
-                part_tracks[i].keyframes.append((frame, outline_of(tracks[i].shapes[frame]), depth, planes[i + 1]))
-                if size is not None:
-                    part_tracks[i].sizes[frame] = size
-        fitted_tracks += part_tracks
+            cannot = [i for i in keyframes_at[frame] if outline_of(tracks[i].shapes[frame]) is None or depth < 0]
+            wanted = [i for i in keyframes_at[frame] if i not in cannot]
+            if wanted:
+                shapes = [(i + 1, t.shapes[frame]) for i, t in enumerate(tracks) if frame in t.shapes]
+                jobs.append((shapes, [i + 1 for i in wanted], depth_files[depth], config))
+            frames.append((part_tracks, frame, depth, wanted, cannot))
+    fits = [None] * len(jobs)
+    for outcome in run_jobs(jobs, keyframe_job, helpers):
+        fits[outcome.index] = outcome.value if outcome.error is None else outcome.error
+    fits.reverse()  # popped in the order the jobs were made
+    for part_tracks, frame, depth, wanted, cannot in frames:
+        for i in cannot:
+            outline = outline_of(part_tracks[i].track.shapes[frame])
+            if outline is None:
+                part_tracks[i].failed.append((frame, "mask shapes are not propagated"))
+            else:
+                part_tracks[i].keyframes.append((frame, outline, depth, "no depth frame near the keyframe"))
+        if not wanted:
+            continue
+        fit = fits.pop()
+        if isinstance(fit, InputError):
+            planes, size = {i + 1: f"unreadable depth ({fit.message})" for i in wanted}, None
+        else:
+            planes, size = fit
+        for i in wanted:
+            part_tracks[i].keyframes.append((frame, outline_of(part_tracks[i].track.shapes[frame]), depth, planes[i + 1]))
+            if size is not None:
+                part_tracks[i].sizes[frame] = size
     return fitted_tracks
+
+
+def keyframe_job(job: tuple) -> tuple[dict, tuple[int, int]]:
+    """:func:`keyframe_planes` of one job ``(shapes, wanted, depth_path, config)``: the function
+    :func:`fit_keyframes` gives :func:`annotate_rgbd.pool.run_jobs`."""
+    return keyframe_planes(*job)
 
 
 def time_samples(fitted: list[FittedTrack], depth_timestamps: np.ndarray, config: Config) -> list[KeyframeSample]:

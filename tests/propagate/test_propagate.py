@@ -87,6 +87,18 @@ def test_poses_carry_keyframes_to_the_frames_between(rendered, tmp_path):
     assert posed.written == flat.written
 
 
+def test_helper_processes_fit_the_keyframes_to_the_same_planes_and_masks(rendered, tmp_path):
+    config = load_config(rendered["config"])
+    for workers in (1, 2):  # with 2, the helper fits keyframe frames while this process does too
+        run_cvat2mask(rendered["sequence"], [rendered["keyframes"]], tmp_path / str(workers), config,
+                      poses=rendered["poses"], workers=workers)
+    one, two = (json.loads((tmp_path / w / "report.json").read_text()) for w in ("1", "2"))
+    assert one["propagation"] == two["propagation"] and one["propagation"]["tracks"]
+    masks = sorted(p.name for p in (tmp_path / "1" / "masks").iterdir())
+    assert masks and masks == sorted(p.name for p in (tmp_path / "2" / "masks").iterdir())
+    assert all((tmp_path / "1" / "masks" / m).read_bytes() == (tmp_path / "2" / "masks" / m).read_bytes() for m in masks)
+
+
 def test_lifted_planes_are_the_rendered_planes(rendered, tmp_path):
     config = load_config(rendered["config"])
     run = run_cvat2mask(rendered["sequence"], [rendered["keyframes"]], tmp_path / "out", config, poses=rendered["poses"])
