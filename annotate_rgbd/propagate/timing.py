@@ -12,7 +12,7 @@ which they agree best.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -31,7 +31,8 @@ class KeyframeSample:
     time : float
         The depth frame's timestamp (s).
     points : ndarray of float64, shape (V, 3)
-        Points on the fitted plane, camera frame (m): the keyframe's outline lifted onto it.
+        Points on the fitted plane, camera frame (m): the fit's inliers among the grid points it
+        was fitted to (:func:`annotate_rgbd.propagate.keyframes.keyframe_planes`).
     plane : ndarray of float64, shape (4,)
         The fitted plane, camera frame (unit normal).
     """
@@ -129,7 +130,7 @@ def pair_residuals(samples: list[KeyframeSample], first: np.ndarray, second: np.
 
 def estimate_time_offset(
     trajectory: Trajectory, samples: list[KeyframeSample], search: float, step: float, max_gap: float,
-    same_surface: float, sigma=None, max_per_group: int = 12, max_points: int = 300,
+    same_surface: float, sigma=None, max_per_group: int = 12,
 ) -> TimeOffset:
     """The offset to add to the depth timestamps under which the keyframes' planes agree best.
 
@@ -159,15 +160,6 @@ def estimate_time_offset(
         pair counts the same.
     max_per_group : int
         Keyframes of a group compared pairwise, at most (taken evenly in time).
-    max_points : int
-        Points of each keyframe compared, at most (every k-th: a fit's points lie on a grid over
-        the plane, so these spread over it too). A pair's residual is a median, and the search's
-        time goes mostly to the pairs, not their points: on TUM fr1_rpy (every 10th frame a
-        keyframe) 300 points instead of up to 1,000 find the same offset (-0.023 s) in 1.5 s
-        instead of 2.8 s; on the rendered walk with a 0.03 s clock offset and noisy poses they
-        found 0.027 / 0.0295 s where all points found 0.030 / 0.0255 s (a keyframe every 10th /
-        30th frame: the search's own scatter), with the same mask quality (100 points: 0.023 s
-        at every 30th, mean IoU 0.0008 lower).
 
     Returns
     -------
@@ -179,8 +171,6 @@ def estimate_time_offset(
     times = np.array([s.time for s in samples])
     depths = np.array([float(np.median(s.points[:, 2])) for s in samples])
     scale = np.ones(len(first)) if sigma is None else np.asarray(sigma(np.maximum(depths[first], depths[second])))
-    samples = [replace(s, points=s.points[:: -(-len(s.points) // max_points)]) if len(s.points) > max_points else s
-               for s in samples]
 
     def residuals(offset: float) -> np.ndarray:
         poses = poses_at(trajectory, times + offset, max_gap)

@@ -18,7 +18,19 @@ def signed_distances(
     has 0.2 mm steps, and bands are millimetres or more. NaN where the depth is."""
     ray_x, ray_y = ray_grid(camera, *depth_m.shape, np.float32)
     with np.errstate(invalid="ignore"):
-        return depth_m * (a * ray_x[None, :] + b * ray_y[:, None] + c) + d
+        return plane_distance(depth_m, ray_x[None, :], ray_y[:, None], a, b, c, d)
+
+
+def plane_distance(
+    z: np.ndarray, x: np.ndarray, y: np.ndarray, a: np.ndarray | float, b: np.ndarray | float,
+    c: np.ndarray | float, d: np.ndarray | float,
+) -> np.ndarray:
+    """The signed distance (m) of the point at depth ``z`` on the ray ``(x, y, 1)`` to the plane
+    ``a x + b y + c z + d = 0`` (unit normal): ``z (a x + b y + c) + d``, for any broadcastable
+    shapes. One formula, in one order of operations, for :func:`signed_distances` and for callers
+    that gather pixels first (:func:`annotate_rgbd.segment.grow.grow_connected`): float32 gives
+    the same numbers either way."""
+    return z * (a * x + b * y + c) + d
 
 
 def band_image(depth_m: np.ndarray, noise: NoiseSettings) -> np.ndarray | float:

@@ -16,7 +16,7 @@ import numpy as np
 from annotate_rgbd.config.settings import RefineConfig
 from annotate_rgbd.geometry.camera import Camera, backproject, ray_grid
 from annotate_rgbd.geometry.noise import NoiseSettings
-from .distances import signed_distances
+from .distances import plane_distance, signed_distances
 from .refine import label_lookup, window_scores
 from .rims import ids_nearby
 
@@ -195,10 +195,9 @@ def grow_connected(
     ids = sorted(grown)
     growing = np.zeros(max(int(labels.max(initial=0)), ids[-1]) + 1, dtype=np.uint8)
     growing[ids] = 1
-    own = label_lookup(growing, labels).view(bool)  # pixels of the growing planes
-    table = np.zeros((len(growing), 4), dtype=np.float32)
+    plane_table = np.zeros((len(growing), 4), dtype=np.float32)  # (a, b, c, d) per id; 0: not growing
     for plane_id in ids:
-        table[plane_id] = equations[plane_id]
+        plane_table[plane_id] = equations[plane_id]
     ray_x, ray_y = ray_grid(camera, *labels.shape, np.float32)
     k = np.float32(noise.k)
     # Each free pixel goes to the nearest plane it lies on (a tie: the lowest id), but never to a
@@ -208,35 +207,35 @@ def grow_connected(
     z = depth.ravel()[free_at]
     x, y = ray_x[free_at % labels.shape[1]], ray_y[free_at // labels.shape[1]]
     band = np.asarray(noise.band(z), dtype=np.float32)
-    drawn_here = drawn.ravel()[free_at]
-    candidate_here = np.zeros(free_at.size, dtype=labels.dtype)
+    drawn_free = drawn.ravel()[free_at]
+    candidate_free = np.zeros(free_at.size, dtype=labels.dtype)
     best = np.full(free_at.size, np.inf, dtype=np.float32)
-    residual_here = np.zeros(free_at.size, dtype=np.float32)
+    residual_free = np.zeros(free_at.size, dtype=np.float32)
     for plane_id in ids:
-        a, b, c, d = table[plane_id]
-        signed = z * (a * x + b * y + c) + d  # as segment.distances.signed_distances, pixel by pixel
+        signed = plane_distance(z, x, y, *plane_table[plane_id])
         distance = np.abs(signed)
-        closer = (distance <= band) & (distance < best) & (drawn_here != plane_id)
+        closer = (distance <= band) & (distance < best) & (drawn_free != plane_id)
         if excluded and plane_id in excluded:
             closer &= ~np.asarray(excluded[plane_id]).ravel()[free_at]
-        candidate_here[closer] = plane_id
+        candidate_free[closer] = plane_id
         best[closer] = distance[closer]
-        residual_here[closer] = (signed * k / band)[closer]
-    if not candidate_here.any():
+        residual_free[closer] = (signed * k / band)[closer]
+    if not candidate_free.any():
         return labels, grown
     candidate = np.zeros(labels.shape, dtype=labels.dtype)
-    candidate.ravel()[free_at] = candidate_here
+    candidate.ravel()[free_at] = candidate_free
     # The growing planes' own pixels with depth: their residuals to their own plane.
-    signed = signed_distances(depth, *(label_lookup(table[:, i], labels) for i in range(4)), camera)
+    own = label_lookup(growing, labels).view(bool)
+    signed = signed_distances(depth, *(label_lookup(plane_table[:, i], labels) for i in range(4)), camera)
     residual = np.zeros(labels.shape, dtype=np.float32)
     with np.errstate(invalid="ignore"):
         np.copyto(residual, signed * k / np.asarray(noise.band(depth), dtype=np.float32), where=own & np.isfinite(signed))
-    residual.ravel()[free_at] = residual_here
+    residual.ravel()[free_at] = residual_free
     score, usable = window_scores(residual, own | (candidate > 0), refine.coherence_window, refine.min_window_inliers)
     candidate[~(usable & (np.abs(score) <= refine.coherence_limit))] = 0
-    left_over = np.bincount(candidate.ravel()[free_at], minlength=len(growing))
+    candidates_left = np.bincount(candidate.ravel()[free_at], minlength=len(growing))
     for plane_id in ids:
-        if not left_over[plane_id]:
+        if not candidates_left[plane_id]:
             continue  # nothing to take
         mine = labels == plane_id
         if not mine.any():

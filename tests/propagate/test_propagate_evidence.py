@@ -4,7 +4,6 @@ and keyframes used as drawn."""
 from __future__ import annotations
 
 import json
-from dataclasses import replace
 import warnings
 
 import cv2
@@ -81,23 +80,6 @@ def test_the_time_offset_is_found_from_the_keyframes_planes_and_is_zero_for_exac
     assert abs(estimate_time_offset(early, samples, 0.1, 0.005, 0.05, 0.05).offset + 0.045) < 0.002
     # Too few keyframes to tell: no offset.
     assert estimate_time_offset(late, samples[:1], 0.1, 0.005, 0.05, 0.05).offset == 0.0
-
-
-def test_the_offset_search_compares_at_most_max_points_of_each_keyframe_spread_over_it(monkeypatch):
-    from annotate_rgbd.propagate import timing
-
-    trajectory, pose = _swinging_trajectory()
-    rng = np.random.default_rng(4)
-    samples = _samples(pose, 100.3 + np.arange(0, 3.0, 0.33), [np.array([0.0, 0.0, 1.0, 0.0])], rng)
-    samples = [replace(s, points=np.repeat(s.points, 30, axis=0)[:350]) for s in samples]  # 350 points each
-    seen = []
-    real = timing.pair_residuals
-    monkeypatch.setattr(timing, "pair_residuals", lambda s, *a: seen.append([k.points for k in s]) or real(s, *a))
-    late = Trajectory(trajectory.timestamps + 0.03, trajectory.translations, trajectory.quaternions)
-    found = estimate_time_offset(late, samples, 0.1, 0.005, 0.05, 0.05, max_points=100)
-    assert abs(found.offset - 0.03) < 0.002
-    assert {len(points) for call in seen for points in call} == {88}  # every 4th of 350: spread over all
-    assert all(np.array_equal(points, sample.points[::4]) for points, sample in zip(seen[0], samples))
 
 
 def test_pair_residuals_are_each_pair_s_median_point_to_plane_distance():
