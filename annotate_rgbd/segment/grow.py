@@ -231,6 +231,8 @@ def grow_connected(
     with np.errstate(invalid="ignore"):
         np.copyto(residual, signed * k / np.asarray(noise.band(depth), dtype=np.float32), where=own & np.isfinite(signed))
     residual.ravel()[free_at] = residual_free
+    # The window test of refinement (a doormat on the floor lies within its band): residuals in
+    # noise units, averaged over each candidate's window, must look like the plane's noise.
     score, usable = window_scores(residual, own | (candidate > 0), refine.coherence_window, refine.min_window_inliers)
     candidate[~(usable & (np.abs(score) <= refine.coherence_limit))] = 0
     candidates_left = np.bincount(candidate.ravel()[free_at], minlength=len(growing))
