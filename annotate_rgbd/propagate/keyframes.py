@@ -191,7 +191,7 @@ def fit_keyframes(
     # First what to fit (one job per keyframe frame), then the fits (in the helper processes
     # too, when given), then each track's keyframes in frame order, as fitting frame by frame.
     fitted_tracks: list[FittedTrack] = []
-    frames = []  # (the part's tracks, frame, depth index, tracks to fit, tracks that cannot be)
+    frames = []  # (the part's tracks, frame, depth index, its job or None, [(track, outline, why not)])
     jobs = []
     for part, tracks, plane_ids, rgb_of_frame in parts:
         part_tracks = [FittedTrack(part, track, plane) for track, plane in zip(tracks, plane_ids)]
@@ -206,33 +206,33 @@ def fit_keyframes(
         for frame in sorted(keyframes_at):
             rgb = rgb_of_frame.get(frame)
             depth = depth_of_rgb.get(rgb, -1) if rgb is not None else -1
-            cannot = [i for i in keyframes_at[frame] if outline_of(tracks[i].shapes[frame]) is None or depth < 0]
-            wanted = [i for i in keyframes_at[frame] if i not in cannot]
+            keyframe_shapes = []
+            for i in keyframes_at[frame]:
+                outline = outline_of(tracks[i].shapes[frame])
+                why = ("mask shapes are not propagated" if outline is None
+                       else "no depth frame near the keyframe" if depth < 0 else None)
+                keyframe_shapes.append((i, outline, why))
+            wanted = [i + 1 for i, _, why in keyframe_shapes if why is None]
+            job = None
             if wanted:
+                job = len(jobs)
                 shapes = [(i + 1, t.shapes[frame]) for i, t in enumerate(tracks) if frame in t.shapes]
-                jobs.append((shapes, [i + 1 for i in wanted], depth_files[depth], config))
-            frames.append((part_tracks, frame, depth, wanted, cannot))
-    fits = [None] * len(jobs)
+                jobs.append((shapes, wanted, depth_files[depth], config))
+            frames.append((part_tracks, frame, depth, job, keyframe_shapes))
+    fits: list = [None] * len(jobs)
     for outcome in run_jobs(jobs, keyframe_job, helpers):
         fits[outcome.index] = outcome.value if outcome.error is None else outcome.error
-    fits.reverse()  # popped in the order the jobs were made
-    for part_tracks, frame, depth, wanted, cannot in frames:
-        for i in cannot:
-            outline = outline_of(part_tracks[i].track.shapes[frame])
-            if outline is None:
-                part_tracks[i].failed.append((frame, "mask shapes are not propagated"))
-            else:
-                part_tracks[i].keyframes.append((frame, outline, depth, "no depth frame near the keyframe"))
-        if not wanted:
-            continue
-        fit = fits.pop()
+    for part_tracks, frame, depth, job, keyframe_shapes in frames:
+        fit = fits[job] if job is not None else ({}, None)
         if isinstance(fit, InputError):
-            planes, size = {i + 1: f"unreadable depth ({fit.message})" for i in wanted}, None
-        else:
-            planes, size = fit
-        for i in wanted:
-            part_tracks[i].keyframes.append((frame, outline_of(part_tracks[i].track.shapes[frame]), depth, planes[i + 1]))
-            if size is not None:
+            fit = ({i + 1: f"unreadable depth ({fit.message})" for i, _, why in keyframe_shapes if why is None}, None)
+        planes, size = fit
+        for i, outline, why in keyframe_shapes:
+            if outline is None:
+                part_tracks[i].failed.append((frame, why))
+                continue
+            part_tracks[i].keyframes.append((frame, outline, depth, why or planes[i + 1]))
+            if size is not None:  # fitted (a frame without depth has no fit, so no size)
                 part_tracks[i].sizes[frame] = size
     return fitted_tracks
 

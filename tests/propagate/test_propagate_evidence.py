@@ -193,3 +193,27 @@ def test_poses_change_nothing_when_every_frame_is_drawn(tmp_path):
         assert np.array_equal(cv2.imread(str(mask)), cv2.imread(str(tmp_path / "posed" / "masks" / mask.name)))
     report = json.loads((tmp_path / "posed" / "report.json").read_text())
     assert not any(p["propagated"] for f in report["frames"] if f["status"] == "written" for p in f["kept"])
+
+
+def test_each_keyframe_is_fitted_or_says_why_not_in_frame_order(tmp_path):
+    from annotate_rgbd.annotation.model import Track
+    from annotate_rgbd.propagate.keyframes import fit_keyframes
+
+    depth = np.full((240, 320), 2.0 * CAMERA.depth_scale, dtype=np.uint16)  # a wall 2 m away
+    cv2.imwrite(str(tmp_path / "wall.png"), depth)
+    (tmp_path / "broken.png").write_text("not a png")
+    square = Shape("polygon", np.array([[40.0, 40.0], [200.0, 40.0], [200.0, 200.0], [40.0, 200.0]]))
+    mask = Shape("mask", np.array([[40.0, 40.0]]), bitmap=np.ones((20, 20), dtype=bool))
+    track = Track(1, "plane", {0: square, 1: square, 2: square, 3: mask, 4: square}, keyframes=frozenset({0, 1, 2, 3}))
+    config = load_config(None, {"camera.fx": CAMERA.fx, "camera.fy": CAMERA.fy, "camera.cx": CAMERA.cx,
+                                "camera.cy": CAMERA.cy})
+    # frame 0 on the wall, frame 1 on an unreadable file, frame 2 without a depth frame near it
+    fitted, = fit_keyframes([("part.xml", [track], [7], {f: f for f in range(5)})], {0: 0, 1: 1}, [tmp_path / "wall.png", tmp_path / "broken.png"], config)
+    assert fitted.plane == 7
+    assert [k[0] for k in fitted.keyframes] == [0, 1, 2]
+    plane = fitted.keyframes[0][3][0]
+    assert abs(abs(plane[2]) - 1) < 1e-6 and abs(abs(plane[3]) - 2.0) < 1e-3
+    assert fitted.keyframes[1][3].startswith("unreadable depth (") and fitted.keyframes[1][2] == 1
+    assert fitted.keyframes[2][3] == "no depth frame near the keyframe" and fitted.keyframes[2][2] == -1
+    assert fitted.failed == [(3, "mask shapes are not propagated")]
+    assert set(fitted.sizes) == {0}
