@@ -1,8 +1,9 @@
 """Exact order statistics of the small samples the fits take, without numpy's general machinery.
 
 ``np.median`` handles any shape and axis, and costs about 15 microseconds even for a few hundred
-values; the time-offset search (:mod:`annotate_rgbd.propagate.timing`) takes some 30,000 medians
-and the sensor's bend (:mod:`annotate_rgbd.segment.bend`) some 15,000 per 300 frames.
+values; the plane fits (:mod:`annotate_rgbd.geometry.planes`, :mod:`annotate_rgbd.segment.ransac`)
+take thousands of medians and the sensor's bend (:mod:`annotate_rgbd.segment.bend`) some 15,000
+per 300 frames.
 """
 
 from __future__ import annotations

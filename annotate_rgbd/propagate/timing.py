@@ -16,7 +16,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from annotate_rgbd.geometry.statistics import median
 from annotate_rgbd.io.poses import Trajectory, poses_at
 
 
@@ -98,33 +97,50 @@ def keyframe_pairs(samples: list[KeyframeSample], max_per_group: int) -> tuple[n
 
 def pair_residuals(samples: list[KeyframeSample], first: np.ndarray, second: np.ndarray,
                    rotations: np.ndarray, translations: np.ndarray) -> np.ndarray:
-    """How far apart each pair's planes are in the world under the given poses: the median
-    distance of the first keyframe's points to the second's plane and of the second's points to
-    the first's (m; NaN where a pose is missing).
+    """How far apart each pair's planes are in the world under each of several sets of poses:
+    the median distance of the first keyframe's points to the second's plane and of the second's
+    points to the first's (m; NaN where a pair has no points).
+
+    The world is never built point by point: the second keyframe's world plane, seen from the
+    first keyframe's camera, is a plane in that camera's frame (rotated normal
+    ``R_a^T R_b n_b``, offset ``d_b + (R_b n_b) . (t_a - t_b)``), so each keyframe's points are
+    measured once against one such plane per set of poses.
 
     Parameters
     ----------
     samples : list of KeyframeSample
     first, second : ndarray of int, shape (P,)
-    rotations : ndarray, shape (K, 3, 3)
-        Camera-to-world rotation of every sample's depth frame.
-    translations : ndarray, shape (K, 3)
+    rotations : ndarray, shape (O, K, 3, 3)
+        Camera-to-world rotation of every sample's depth frame, for each of ``O`` sets of poses
+        (one per tried time offset).
+    translations : ndarray, shape (O, K, 3)
 
     Returns
     -------
-    ndarray of float64, shape (P,)
+    ndarray of float64, shape (O, P)
     """
-    world_planes = np.empty((len(samples), 4))
-    world_points = []
-    for i, sample in enumerate(samples):
-        normal = rotations[i] @ sample.plane[:3]
-        world_planes[i] = np.append(normal, sample.plane[3] - normal @ translations[i])
-        world_points.append(sample.points @ rotations[i].T + translations[i])
-    residuals = np.empty(len(first))
+    rotations = np.asarray(rotations, dtype=np.float64)
+    translations = np.asarray(translations, dtype=np.float64)
+    sets = rotations.shape[0]
+    planes = np.array([s.plane for s in samples], dtype=np.float64).reshape(-1, 4)
+    world_normals = np.einsum("okij,kj->oki", rotations, planes[:, :3])  # (O, K, 3)
+
+    def seen_from(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Keyframe b's plane in keyframe a's camera frame, per pair and set: (O, P, 3), (O, P)."""
+        normals = np.einsum("opji,opj->opi", rotations[:, a], world_normals[:, b])
+        shift = np.einsum("opi,opi->op", world_normals[:, b], translations[:, a] - translations[:, b])
+        return normals, planes[b, 3] + shift
+
+    to_second, to_second_offset = seen_from(first, second)
+    to_first, to_first_offset = seen_from(second, first)
+    residuals = np.full((sets, len(first)), np.nan)
     for j, (a, b) in enumerate(zip(first.tolist(), second.tolist())):
-        to_b = np.abs(world_points[a] @ world_planes[b, :3] + world_planes[b, 3])
-        to_a = np.abs(world_points[b] @ world_planes[a, :3] + world_planes[a, 3])
-        residuals[j] = median(np.concatenate([to_b, to_a]))
+        if len(samples[a].points) + len(samples[b].points) == 0:
+            continue
+        distances = np.concatenate([
+            np.abs(to_second[:, j] @ samples[a].points.T + to_second_offset[:, j, None]),
+            np.abs(to_first[:, j] @ samples[b].points.T + to_first_offset[:, j, None])], axis=1)
+        residuals[:, j] = np.median(distances, axis=1)
     return residuals
 
 
@@ -172,14 +188,18 @@ def estimate_time_offset(
     depths = np.array([float(np.median(s.points[:, 2])) for s in samples])
     scale = np.ones(len(first)) if sigma is None else np.asarray(sigma(np.maximum(depths[first], depths[second])))
 
-    def residuals(offset: float) -> np.ndarray:
-        poses = poses_at(trajectory, times + offset, max_gap)
-        found = pair_residuals(samples, first, second, np.nan_to_num(poses.rotations), np.nan_to_num(poses.translations))
-        found[~(poses.ok[first] & poses.ok[second])] = np.nan
+    def residuals(offsets: np.ndarray) -> np.ndarray:
+        """(offsets, pairs): NaN where a keyframe has no pose."""
+        poses = poses_at(trajectory, (times[None, :] + offsets[:, None]).reshape(-1), max_gap)
+        shape = (len(offsets), len(samples))
+        found = pair_residuals(samples, first, second, np.nan_to_num(poses.rotations).reshape(*shape, 3, 3),
+                               np.nan_to_num(poses.translations).reshape(*shape, 3))
+        ok = poses.ok.reshape(shape)
+        found[~(ok[:, first] & ok[:, second])] = np.nan
         return found
 
     coarse = np.unique(np.append(np.arange(-search, search + step / 2, step), 0.0))
-    table = np.array([residuals(float(offset)) for offset in coarse])  # (offsets, pairs)
+    table = residuals(coarse)  # (offsets, pairs)
     usable = np.isfinite(table).all(axis=0) & (np.where(np.isfinite(table), table, np.inf).min(axis=0) <= same_surface)
     zero = table[int(np.flatnonzero(coarse == 0.0)[0])]
     if not usable.any():
@@ -190,7 +210,7 @@ def estimate_time_offset(
 
     best = float(coarse[int(np.argmin([score(row) for row in table]))])
     fine = np.arange(best - step, best + step + step / 20, step / 10)
-    fine_rows = [residuals(float(offset)) for offset in fine]
+    fine_rows = residuals(fine)
     best_index = int(np.argmin([score(row) for row in fine_rows]))
     best, at_best = float(fine[best_index]), fine_rows[best_index]
     pairs = int(np.count_nonzero(usable))

@@ -4,7 +4,6 @@ and keyframes used as drawn."""
 from __future__ import annotations
 
 import json
-import warnings
 
 import cv2
 import numpy as np
@@ -91,23 +90,24 @@ def test_pair_residuals_are_each_pair_s_median_point_to_plane_distance():
         # some keyframes with no points (a pair of two of them has no residual)
         samples.append(KeyframeSample(index % 2, float(index), rng.normal(size=(int(rng.integers(0, 30)) * (index % 4 > 0), 3)), plane))
     first, second = keyframe_pairs(samples, 12)
-    rotations = Rotation.random(len(samples), random_state=2).as_matrix()
-    translations = rng.normal(size=(len(samples), 3))
-    with np.errstate(all="ignore"), warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)  # numpy's median of a pair without points
-        got = pair_residuals(samples, first, second, rotations, translations)
-    for j, (a, b) in enumerate(zip(first, second)):
-        # Independently: each keyframe's points and plane in the world, then distances both ways.
-        points_a = samples[a].points @ rotations[a].T + translations[a]
-        points_b = samples[b].points @ rotations[b].T + translations[b]
-        distances = []
-        for points, (k, plane) in ((points_a, (b, samples[b].plane)), (points_b, (a, samples[a].plane))):
-            normal = rotations[k] @ plane[:3]
-            distances.extend(np.abs(points @ normal + plane[3] - normal @ translations[k]))
-        if distances:
-            assert got[j] == pytest.approx(np.median(distances), rel=1e-9, abs=1e-12)
-        else:
-            assert np.isnan(got[j])
+    sets = 3  # poses for three tried offsets at once
+    rotations = Rotation.random(sets * len(samples), random_state=2).as_matrix().reshape(sets, len(samples), 3, 3)
+    translations = rng.normal(size=(sets, len(samples), 3))
+    got = pair_residuals(samples, first, second, rotations, translations)
+    assert got.shape == (sets, len(first))
+    for o in range(sets):
+        for j, (a, b) in enumerate(zip(first, second)):
+            # Independently: each keyframe's points and plane in the world, then distances both ways.
+            points_a = samples[a].points @ rotations[o, a].T + translations[o, a]
+            points_b = samples[b].points @ rotations[o, b].T + translations[o, b]
+            distances = []
+            for points, (k, plane) in ((points_a, (b, samples[b].plane)), (points_b, (a, samples[a].plane))):
+                normal = rotations[o, k] @ plane[:3]
+                distances.extend(np.abs(points @ normal + plane[3] - normal @ translations[o, k]))
+            if distances:
+                assert got[o, j] == pytest.approx(np.median(distances), rel=1e-9, abs=1e-12)
+            else:
+                assert np.isnan(got[o, j])
 
 
 def _wall_scene():
