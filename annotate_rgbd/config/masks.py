@@ -37,7 +37,8 @@ class FilterConfig:
 
 @dataclass(frozen=True)
 class RansacConfig:
-    """Open3D ``segment_plane`` settings.
+    """RANSAC settings: Open3D's ``segment_plane`` and the exhaustive search of pose-carried
+    shapes (:func:`annotate_rgbd.segment.ransac.every_hypothesis`).
 
     Parameters
     ----------
@@ -48,10 +49,11 @@ class RansacConfig:
         the sensor's noise, ``[noise]`` (:class:`annotate_rgbd.geometry.noise.NoiseSettings`). A value
         > 0 replaces the noise model, whatever ``[noise]`` says.
     num_iterations : int
-        RANSAC iterations (Open3D stops earlier once the inlier set is certain).
+        RANSAC iterations (Open3D stops earlier once the inlier set is certain; the exhaustive
+        search tries them all).
     seed : int
-        Seed of Open3D's random generator, set before every fit so that a re-run gives
-        identical masks.
+        Seed of Open3D's random generator, set before every fit, and of the exhaustive search's
+        (numpy's), so that a re-run gives identical masks.
     max_points : int
         RANSAC looks for the plane among at most this many of a plane's points, spread evenly
         over it (a regular pixel grid); every pixel is then tested against that plane. On the
@@ -65,7 +67,8 @@ class RansacConfig:
         benchmarks/bench_refine.py: the wall behind a whiteboard went from mean IoU 0.86 to 0.94
         (0.34 of the band gave the same).
     exhaustive_below : float
-        For a shape carried by camera poses, RANSAC runs again through all its iterations when
+        For a shape carried by camera poses, RANSAC runs again through all its iterations
+        (every hypothesis scored, :func:`annotate_rgbd.segment.ransac.every_hypothesis`) when
         its plane holds under this share of the points (a wall half covered by a whiteboard:
         Open3D stops early on a plane leaning between two surfaces of about half each). This
         project's choice, between those halves and a plane that clearly dominates.

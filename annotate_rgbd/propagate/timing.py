@@ -131,15 +131,17 @@ def pair_residuals(samples: list[KeyframeSample], first: np.ndarray, second: np.
         shift = np.einsum("opi,opi->op", world_normals[:, b], translations[:, a] - translations[:, b])
         return normals, planes[b, 3] + shift
 
-    to_second, to_second_offset = seen_from(first, second)
-    to_first, to_first_offset = seen_from(second, first)
+    second_in_first, second_in_first_offset = seen_from(first, second)
+    first_in_second, first_in_second_offset = seen_from(second, first)
     residuals = np.full((sets, len(first)), np.nan)
     for j, (a, b) in enumerate(zip(first.tolist(), second.tolist())):
         if len(samples[a].points) + len(samples[b].points) == 0:
             continue
+        # einsum, not ``@``: no BLAS threads (geometry.planes._fit says why).
         distances = np.concatenate([
-            np.abs(to_second[:, j] @ samples[a].points.T + to_second_offset[:, j, None]),
-            np.abs(to_first[:, j] @ samples[b].points.T + to_first_offset[:, j, None])], axis=1)
+            np.abs(np.einsum("oi,ni->on", second_in_first[:, j], samples[a].points) + second_in_first_offset[:, j, None]),
+            np.abs(np.einsum("oi,ni->on", first_in_second[:, j], samples[b].points) + first_in_second_offset[:, j, None])],
+            axis=1)
         residuals[:, j] = np.median(distances, axis=1)
     return residuals
 
@@ -205,13 +207,17 @@ def estimate_time_offset(
     if not usable.any():
         return TimeOffset(pairs=0)
 
-    def score(found: np.ndarray) -> float:
-        return float(np.mean(np.minimum(found[usable], same_surface) / scale[usable]))
+    def scores(found: np.ndarray) -> np.ndarray:
+        """Per offset (row): NaN where a usable pair has no pose."""
+        return np.mean(np.minimum(found[:, usable], same_surface) / scale[usable], axis=1)
 
-    best = float(coarse[int(np.argmin([score(row) for row in table]))])
+    best = float(coarse[int(np.argmin(scores(table)))])
     fine = np.arange(best - step, best + step + step / 20, step / 10)
     fine_rows = residuals(fine)
-    best_index = int(np.argmin([score(row) for row in fine_rows]))
+    fine_scores = scores(fine_rows)
+    if not np.isfinite(fine_scores).any():  # no poses around the best offset but at it
+        fine, fine_rows, fine_scores = np.array([best]), residuals(np.array([best])), np.zeros(1)
+    best_index = int(np.nanargmin(fine_scores))  # the fine grid may reach past the trajectory
     best, at_best = float(fine[best_index]), fine_rows[best_index]
     pairs = int(np.count_nonzero(usable))
     at_zero = float(np.median(zero[usable]))

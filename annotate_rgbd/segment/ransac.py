@@ -1,6 +1,6 @@
-"""Finding one plane among a shape's 3-D points: Open3D RANSAC (or every hypothesis scored at
-once, :func:`every_hypothesis`), the surface behind it, the weighted re-fit and the plane's own
-noise scale (:func:`fit_plane`)."""
+"""Finding one plane among a shape's 3-D points: Open3D RANSAC (or every hypothesis of a
+RANSAC scored at once, :func:`every_hypothesis`), the surface behind it, the weighted re-fit
+and the plane's own noise scale (:func:`fit_plane`)."""
 
 from __future__ import annotations
 
@@ -24,8 +24,9 @@ BEHIND_CANDIDATES = 3
 DEFAULT_PROBABILITY = 0.99999999
 #: The share of a plane's points that may lie behind a plane that replaces it (noise, edges).
 IN_FRONT_SLACK = 0.02
-#: Hypotheses scored together by :func:`every_hypothesis` (a block of distances fits the cache).
-HYPOTHESES_PER_BLOCK = 100
+#: Point-to-plane distances computed at once by :func:`every_hypothesis` (1 MiB of float64):
+#: a block of hypotheses is this many distances over the number of points, at most 100.
+DISTANCES_PER_BLOCK = 2**17
 
 
 @dataclass(frozen=True)
@@ -120,7 +121,7 @@ def fit_plane(
     if expected is not None and inliers < config.exhaustive_below * len(sample):
         # Open3D stops searching once its plane is likely the best given the share of points it
         # holds; with two surfaces of about half each it can stop on a plane leaning between them.
-        again = _ransac(sample, threshold, config, exhaustive=True)
+        again = every_hypothesis(sample, threshold, config.num_iterations, config.seed)
         equation, inliers = again if again[1] > inliers else (equation, inliers)
     band = noise.band(sample[:, 2])
     behind = False
@@ -223,11 +224,10 @@ def on_expected_plane(points: np.ndarray, expected: np.ndarray, propagate: Propa
     return bool(np.count_nonzero(distance <= propagate.same_surface_offset) >= ON_EXPECTED_SHARE * len(points))
 
 
-def _ransac(sample: np.ndarray, threshold: float, config: RansacConfig, exhaustive: bool = False) -> tuple[np.ndarray, int]:
+def _ransac(sample: np.ndarray, threshold: float, config: RansacConfig) -> tuple[np.ndarray, int]:
     """Open3D's RANSAC plane through ``sample`` (unit normal towards the camera) and its number
-    of inliers within ``threshold``; with ``exhaustive``, :func:`every_hypothesis`."""
-    if exhaustive:
-        return every_hypothesis(sample, threshold, config.num_iterations, config.seed)
+    of inliers within ``threshold``; it stops once its plane is likely the best (Open3D's
+    default confidence)."""
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.ascontiguousarray(sample)))
     threads = o3d.utility.get_max_threads()
     o3d.utility.set_max_threads(1)
@@ -235,7 +235,7 @@ def _ransac(sample: np.ndarray, threshold: float, config: RansacConfig, exhausti
         o3d.utility.random.seed(config.seed)
         model, inliers = cloud.segment_plane(distance_threshold=threshold, ransac_n=3,
                                              num_iterations=config.num_iterations,
-                                             probability=1.0 if exhaustive else DEFAULT_PROBABILITY)
+                                             probability=DEFAULT_PROBABILITY)
     finally:
         o3d.utility.set_max_threads(threads)
     equation = np.asarray(model, dtype=np.float64)
@@ -243,36 +243,39 @@ def _ransac(sample: np.ndarray, threshold: float, config: RansacConfig, exhausti
     return (-equation if equation[3] < 0 else equation), len(inliers)
 
 
-def every_hypothesis(sample: np.ndarray, threshold: float, iterations: int, seed: int) -> tuple[np.ndarray, int]:
-    """RANSAC through all its iterations, the hypotheses scored together: the plane of the
-    3-point sample with the most points within ``threshold`` (the first of equals), re-fitted
+def every_hypothesis(points: np.ndarray, threshold: float, iterations: int, seed: int) -> tuple[np.ndarray, int]:
+    """RANSAC through all its iterations, the hypotheses scored together: the plane through
+    three of the points with the most points within ``threshold`` (the first of equals), re-fitted
     by least squares to those points, as Open3D's ``segment_plane`` returns it.
 
-    Open3D scores its hypotheses one at a time, each a pass over the points (16 ms for 1,000
-    hypotheses on 1,000 points); here blocks of them are one matrix product (about 3 ms).
-    Degenerate samples (a repeated or collinear point) hold no points.
+    Open3D scores its hypotheses one at a time, each a pass over the points (14-16 ms for 1,000
+    hypotheses on 1,000 points); here a block of up to 100 of them is one product of arrays
+    (3-5 ms in all). Each hypothesis is three distinct points, as Open3D draws them; unlike
+    Open3D, equal counts are not told apart by the inliers' summed distance. Degenerate
+    hypotheses (three collinear points) hold no points.
 
     Parameters
     ----------
-    sample : ndarray of float64, shape (N, 3)
-        Points (m), N >= 3.
+    points : ndarray of float64, shape (N, 3)
+        Finite points (m), N >= 3.
     threshold : float
         Largest distance (m) of an inlier, exclusive (as Open3D's).
     iterations : int
-        Hypotheses tried.
+        Hypotheses tried (at least 1).
     seed : int
-        Seed of the hypotheses' generator (numpy's, not Open3D's: other samples than
-        ``segment_plane`` draws with the same seed).
+        Seed of the hypotheses' generator (numpy's: other triples than ``segment_plane`` draws
+        with the same seed).
 
     Returns
     -------
     equation : ndarray of float64, shape (4,)
-        Unit normal towards the camera (``d >= 0``); all zeros when every sample was degenerate.
+        Unit normal towards the camera (``d >= 0``); the best hypothesis itself when its inliers
+        lie on one line, all zeros when no hypothesis holds 3 points.
     inliers : int
         Points within ``threshold`` of the best hypothesis (as Open3D counts them).
     """
-    sample = np.asarray(sample, dtype=np.float64)
-    corners = sample[np.random.default_rng(seed).integers(0, len(sample), (max(int(iterations), 1), 3))]
+    points = np.asarray(points, dtype=np.float64)
+    corners = points[_distinct_triples(len(points), max(int(iterations), 1), np.random.default_rng(seed))]
     normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
     length = np.linalg.norm(normals, axis=1)
     usable = length > 0
@@ -280,16 +283,39 @@ def every_hypothesis(sample: np.ndarray, threshold: float, iterations: int, seed
     planes[usable, :3] = normals[usable] / length[usable, None]
     planes[:, 3] = -np.einsum("ij,ij->i", planes[:, :3], corners[:, 0])
     counts = np.zeros(len(planes), dtype=np.int64)
-    points = sample.T
-    for start in range(0, len(planes), HYPOTHESES_PER_BLOCK):
-        block = slice(start, start + HYPOTHESES_PER_BLOCK)
-        distance = planes[block, :3] @ points
+    coords = np.ascontiguousarray(points.T)
+    per_block = int(np.clip(DISTANCES_PER_BLOCK // max(len(points), 1), 1, 100))
+    for start in range(0, len(planes), per_block):
+        block = slice(start, start + per_block)
+        # einsum, not ``@``: no BLAS threads (geometry.planes._fit says why).
+        distance = np.einsum("ij,jn->in", planes[block, :3], coords)
         distance += planes[block, 3, None]
         np.abs(distance, out=distance)
         counts[block] = np.count_nonzero(distance < threshold, axis=1)
     counts[~usable] = 0
     best = int(np.argmax(counts))
-    if counts[best] < 3:  # every sample degenerate (3 points of a usable one are its inliers)
+    if counts[best] < 3:  # no usable hypothesis (its own three points are its inliers)
         return np.zeros(4), 0
-    inliers = np.abs(sample @ planes[best, :3] + planes[best, 3]) < threshold
-    return weighted_plane_fit(sample[inliers]), int(counts[best])
+    plane = planes[best]
+    try:
+        plane = weighted_plane_fit(points[np.abs(points @ plane[:3] + plane[3]) < threshold])
+    except ValueError:  # inliers on one line (three nearly collinear points, a tiny threshold)
+        pass
+    return (-plane if plane[3] < 0 else plane), int(counts[best])
+
+
+def _distinct_triples(count: int, triples: int, rng: np.random.Generator) -> np.ndarray:
+    """``triples`` rows of three distinct indices below ``count`` (>= 3), uniformly drawn.
+
+    Returns
+    -------
+    ndarray of int64, shape (triples, 3)
+    """
+    first = rng.integers(0, count, triples)
+    second = rng.integers(0, count - 1, triples)
+    second += second >= first  # skip the first
+    third = rng.integers(0, count - 2, triples)
+    low, high = np.minimum(first, second), np.maximum(first, second)
+    third += third >= low  # skip both, the lower first
+    third += third >= high
+    return np.stack([first, second, third], axis=1)

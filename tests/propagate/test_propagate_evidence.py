@@ -81,6 +81,26 @@ def test_the_time_offset_is_found_from_the_keyframes_planes_and_is_zero_for_exac
     assert estimate_time_offset(late, samples[:1], 0.1, 0.005, 0.05, 0.05).offset == 0.0
 
 
+def test_keyframes_without_a_pose_at_some_tried_offset_are_left_out_of_the_time_offset():
+    trajectory, pose = _swinging_trajectory()
+    rng = np.random.default_rng(6)
+    planes = [np.array([0.0, 0.0, 1.0, 0.0]), np.array([1.0, 0.0, 0.0, -2.0])]
+    times = 100.3 + np.arange(0, 3.0, 0.33)
+    samples = _samples(pose, times, planes, rng)
+    late = Trajectory(trajectory.timestamps + 0.03, trajectory.translations, trajectory.quaternions)
+    # A drop-out of the motion capture around the fourth keyframe time, wider than the search
+    # (+-0.1 s) and the largest gap between poses (0.05 s): no pose there at any tried offset.
+    hole = np.abs(late.timestamps - times[3]) < 0.3
+    holed = Trajectory(late.timestamps[~hole], late.translations[~hole], late.quaternions[~hole])
+    found = estimate_time_offset(holed, samples, 0.1, 0.005, 0.05, 0.05)
+    # The same as never having had those keyframes: their pairs are not compared.
+    kept = [sample for sample in samples if sample.time != times[3]]
+    assert len(kept) == len(samples) - len(planes)
+    assert found == estimate_time_offset(holed, kept, 0.1, 0.005, 0.05, 0.05)
+    assert 0 < found.pairs < estimate_time_offset(late, samples, 0.1, 0.005, 0.05, 0.05).pairs
+    assert abs(found.offset - 0.03) < 0.002
+
+
 def test_pair_residuals_are_each_pair_s_median_point_to_plane_distance():
     rng = np.random.default_rng(8)
     samples = []

@@ -162,11 +162,16 @@ def test_a_carried_shape_whose_ransac_plane_holds_few_points_gets_an_exhaustive_
     points = np.vstack([wall, recess])
     calls = []
 
-    def stand_in(sample, threshold, config, exhaustive=False):
-        calls.append(exhaustive)
-        return (np.array([0.0, 0.0, -1.0, 2.0]), 550) if exhaustive else (np.array([0.0, 0.0, -1.0, 2.10]), 450)
+    def early_stop(sample, threshold, config):
+        calls.append(False)
+        return np.array([0.0, 0.0, -1.0, 2.10]), 450
 
-    monkeypatch.setattr(ransac, "_ransac", stand_in)
+    def exhaustive(sample, threshold, iterations, seed):
+        calls.append(True)
+        return np.array([0.0, 0.0, -1.0, 2.0]), 550
+
+    monkeypatch.setattr(ransac, "_ransac", early_stop)
+    monkeypatch.setattr(ransac, "every_hypothesis", exhaustive)
     expected = np.array([0.0, 0.0, -1.0, 2.0])
     fit = fit_plane(points, RansacConfig(max_points=0), KINECT, look_behind=False, expected=expected)
     assert calls[:2] == [False, True]

@@ -4,7 +4,8 @@ a plain loop over the same hypotheses."""
 import numpy as np
 import pytest
 
-from annotate_rgbd.segment.ransac import HYPOTHESES_PER_BLOCK, every_hypothesis
+from annotate_rgbd.segment import ransac
+from annotate_rgbd.segment.ransac import _distinct_triples, every_hypothesis
 
 
 def _two_surfaces(rng, near=400, far=600, gap=0.02, noise=0.003):
@@ -18,7 +19,7 @@ def _loop_reference(sample, threshold, iterations, seed):
     """One hypothesis at a time: its plane from the 3 points' cross product, its inliers counted
     point by point (strictly within the threshold); the first best one wins, re-fitted by SVD
     to its inliers."""
-    corners = np.random.default_rng(seed).integers(0, len(sample), (iterations, 3))
+    corners = _distinct_triples(len(sample), iterations, np.random.default_rng(seed))
     best, best_count = None, -1
     for a, b, c in corners:
         normal = np.cross(sample[b] - sample[a], sample[c] - sample[a])
@@ -37,11 +38,13 @@ def _loop_reference(sample, threshold, iterations, seed):
     return (-plane if plane[3] < 0 else plane), best_count
 
 
-@pytest.mark.parametrize("iterations", [1, HYPOTHESES_PER_BLOCK - 1, 2 * HYPOTHESES_PER_BLOCK + 37])
-def test_the_plane_and_its_count_are_the_plain_loop_s(iterations):
+@pytest.mark.parametrize("iterations", [1, 99, 237])
+def test_the_plane_and_its_count_are_the_plain_loop_s(iterations, monkeypatch):
     rng = np.random.default_rng(iterations)
     sample = _two_surfaces(rng, near=120, far=180)
     threshold = 0.004
+    # Blocks of 100 hypotheses: 1, 99 and 237 end inside the first, at its end and in a third.
+    monkeypatch.setattr(ransac, "DISTANCES_PER_BLOCK", 100 * len(sample))
     equation, count = every_hypothesis(sample, threshold, iterations, seed=7)
     expected, expected_count = _loop_reference(sample, threshold, iterations, seed=7)
     assert count == expected_count
@@ -68,9 +71,40 @@ def test_it_finds_the_surface_with_more_points():
         assert plane[3] == pytest.approx(2.0, abs=0.003) and abs(found - count) <= 0.05 * count
 
 
+def test_a_point_at_the_threshold_is_not_an_inlier_and_the_first_of_equals_wins():
+    # A triangle on z = 2 m and a point exactly a quarter metre above its centroid (all exact in
+    # binary, and so is the triangle's plane). The triangle's plane holds 3 points, the one
+    # above lying exactly on the threshold; a plane through the point above and two corners
+    # misses the third corner by more: every hypothesis holds 3 points, and the first one wins.
+    sample = np.array([[0.0, 0.0, 2.0], [3.0, 0.0, 2.0], [0.0, 3.0, 2.0], [1.0, 1.0, 2.25]])
+    winners = set()
+    for seed in range(12):
+        equation, count = every_hypothesis(sample, 0.25, 6, seed=seed)
+        expected, expected_count = _loop_reference(sample, 0.25, 6, seed=seed)
+        assert count == expected_count == 3
+        assert np.allclose(equation, expected, atol=1e-12)
+        winners.add(tuple(equation.round(6)))
+    assert len(winners) > 1  # which three points come first decides
+
+
+def test_triples_are_three_distinct_points_drawn_evenly():
+    rng = np.random.default_rng(5)
+    triples = _distinct_triples(7, 70_000, rng)
+    assert triples.shape == (70_000, 3) and triples.min() == 0 and triples.max() == 6
+    assert np.all((triples[:, 0] != triples[:, 1]) & (triples[:, 0] != triples[:, 2]) & (triples[:, 1] != triples[:, 2]))
+    for column in triples.T:  # each index about a seventh of the time in every position
+        assert np.allclose(np.bincount(column, minlength=7) / len(column), 1 / 7, atol=0.01)
+    assert len(np.unique(np.sort(triples, axis=1), axis=0)) == 35  # every 3-subset of 7 occurs
+    assert np.all(np.sort(_distinct_triples(3, 20, rng), axis=1) == [0, 1, 2])
+
+
 def test_degenerate_samples_hold_no_points():
-    same = np.tile([[0.1, 0.2, 1.5]], (10, 1))
-    equation, count = every_hypothesis(same, 0.01, 50, seed=0)
-    assert count == 0 and np.array_equal(equation, np.zeros(4))
     on_a_line = np.c_[np.linspace(0, 1, 20), np.zeros(20), np.full(20, 2.0)]
-    assert every_hypothesis(on_a_line, 0.01, 50, seed=0)[1] == 0
+    equation, count = every_hypothesis(on_a_line, 0.01, 50, seed=0)
+    assert count == 0 and np.array_equal(equation, np.zeros(4))
+    # Nearly collinear (1e-12 m off the line): a hypothesis holds points, but its inliers admit no
+    # least-squares plane; the hypothesis itself comes back, normal towards the camera.
+    rng = np.random.default_rng(2)
+    almost = on_a_line + rng.normal(0, 1e-12, on_a_line.shape)
+    equation, count = every_hypothesis(almost, 0.01, 50, seed=0)
+    assert count >= 3 and np.linalg.norm(equation[:3]) == pytest.approx(1.0) and equation[3] >= 0
