@@ -24,10 +24,14 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 
-#: Runs in a fresh interpreter with one revision's package first on the path.
+#: Runs in a fresh interpreter with one revision's package first on the path (and a neutral
+#: working folder: ``python -c`` puts the current folder before ``PYTHONPATH``, and run from the
+#: repository root it would import this revision whatever the path says). It prints the seconds,
+#: the frames written and the package's folder, which the caller checks.
 TIMED_RUN = """
 import json, sys, time
 from pathlib import Path
+import annotate_rgbd
 from annotate_rgbd.geometry.camera import Camera
 from annotate_rgbd.config.settings import Config
 from annotate_rgbd.pipeline.execute import prepare_process
@@ -39,7 +43,7 @@ prepare_process(workers)
 config = Config(camera=Camera(**json.loads(camera)))
 started = time.perf_counter()
 run = run_cvat2mask(sequence, [annotations], out, config, workers=workers, force=True)
-print(time.perf_counter() - started, run.written)
+print(time.perf_counter() - started, run.written, Path(annotate_rgbd.__file__).resolve().parent.parent)
 """
 
 
@@ -74,7 +78,7 @@ def main() -> int:
         floor = float("inf")
         for round_ in range(1, args.rounds + 1):
             done = subprocess.run([sys.executable, "-c", TIMED_FLOOR.format(floor=IO_FLOOR), str(sequence / "depth")],
-                                  capture_output=True, text=True, check=True)
+                                  capture_output=True, text=True, check=True, cwd=tmp)
             floor = min(floor, float(done.stdout.split()[0]))
             line = [f"I/O floor: {1000 * float(done.stdout.split()[0]) / args.frames:.1f} ms/frame"]
             for name, tree in revisions.items():
@@ -82,12 +86,16 @@ def main() -> int:
                 done = subprocess.run(
                     [sys.executable, "-c", TIMED_RUN, str(sequence), str(annotations), str(out), camera_json,
                      str(args.workers)],
-                    capture_output=True, text=True, env={"PYTHONPATH": str(tree), "PATH": "/usr/bin:/bin"},
+                    capture_output=True, text=True, env={"PYTHONPATH": str(tree), "PATH": "/usr/bin:/bin"}, cwd=tmp,
                 )
                 if done.returncode != 0:
                     print(done.stderr, file=sys.stderr)
                     return 1
-                seconds = float(done.stdout.split()[0])
+                seconds, _, imported = done.stdout.split(maxsplit=2)
+                if Path(imported.strip()) != tree.resolve():
+                    print(f"{name}: the run imported the package from {imported.strip()}, not {tree}", file=sys.stderr)
+                    return 1
+                seconds = float(seconds)
                 best[name] = min(best[name], seconds)
                 line.append(f"{name}: {1000 * seconds / args.frames:.1f} ms/frame")
             print(f"round {round_}: " + ", ".join(line))
