@@ -212,12 +212,11 @@ def estimate_time_offset(
         return np.mean(np.minimum(found[:, usable], same_surface) / scale[usable], axis=1)
 
     best = float(coarse[int(np.argmin(scores(table)))])
-    fine = np.arange(best - step, best + step + step / 20, step / 10)
+    # The fine grid holds the best coarse offset exactly (its score is finite); it may reach past
+    # the trajectory, where offsets without poses score NaN.
+    fine = best + np.arange(-10, 11) * (step / 10)
     fine_rows = residuals(fine)
-    fine_scores = scores(fine_rows)
-    if not np.isfinite(fine_scores).any():  # no poses around the best offset but at it
-        fine, fine_rows, fine_scores = np.array([best]), residuals(np.array([best])), np.zeros(1)
-    best_index = int(np.nanargmin(fine_scores))  # the fine grid may reach past the trajectory
+    best_index = int(np.nanargmin(scores(fine_rows)))
     best, at_best = float(fine[best_index]), fine_rows[best_index]
     pairs = int(np.count_nonzero(usable))
     at_zero = float(np.median(zero[usable]))
