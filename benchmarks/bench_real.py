@@ -22,7 +22,10 @@ recall at IoU 0.8, leak (the share of ground-truth "no plane" pixels given a pla
 the table of issue 26 and whether its targets are met (with poses: a keyframe every 10th frame
 mean IoU >= 0.946 and leak <= 2 %, every 30th >= 0.93, once per appearance >= 0.90, never below
 2-D interpolation; dense >= 0.96; propose precision and recall >= 0.7), and for every sparse row
-with poses where it loses against the dense row, by ground-truth plane (:func:`plane_deficits`).
+with poses where it loses against the dense row, by ground-truth plane (:func:`plane_deficits`),
+and how much of what it misses lies where a nearby keyframe's labeller left the plane out
+(:func:`excluded_misses`: the simulated labeller follows the ground truth, and where that changes
+its mind about a surface from one keyframe to the next, the nearest keyframe decides).
 
 Without the kit or the scene it prints one line and exits 0.
 """
@@ -38,6 +41,8 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
+
 ROOT = Path(__file__).resolve().parent.parent
 KIT = ROOT.parent / "shared" / "realdata_kit"
 #: Variant name -> the keyframe spacing given to thin_keyframes.py (None: the dense export).
@@ -47,6 +52,10 @@ LABELS = {"full": "every frame", "every10": "every 10th frame", "every30": "ever
 #: Issue 26's targets, with poses: variant -> smallest mean IoU (and largest leak).
 TARGETS = {"full": (0.96, None), "every10": (0.946, 0.02), "every30": (0.93, None), "once": (0.90, None)}
 PROPOSE_TARGET = 0.7
+#: The kit's ground-truth value for "don't care" pixels (boundary bands, ambiguous depth).
+GT_IGNORE = 65535
+#: Pixels inside a left-out region beyond which a miss is not an outline or pose a few pixels off.
+EXCLUDED_INNER_PX = 5
 
 
 def main() -> None:
@@ -96,6 +105,11 @@ def main() -> None:
         print("\nwhere each row with poses loses against the dense row, per ground-truth plane (frames x IoU "
               "lost, as a share of the summed losses; planes that gained left out):")
         for line in losses:
+            print(line)
+    explained = excluded_lines(scene / "eval" / args.gt, out / "runs", results)
+    if explained:
+        print("\nwhat each row with poses misses of what the dense row labels right, on the planes the poses carried:")
+        for line in explained:
             print(line)
     print(f"\nbenchmark took {time.perf_counter() - started:.0f} s")
 
@@ -243,6 +257,104 @@ def deficit_lines(results: dict, top: int = 4) -> list[str]:
             lines.append(f"  {label}: " + "; ".join(parts))
     return lines
 
+
+def excluded_misses(gt_dir: Path, run_dir: Path, dense_dir: Path, inner_px: int = 5) -> dict[str, int]:
+    """Of what a run with poses misses, how much lies where its keyframes left the plane out.
+
+    On every frame, for every plane the poses carried there (the run's shapes record), the
+    *missed* pixels are those of the plane's ground-truth plane that the dense run gives the plane
+    and this run does not. Of them, *excluded* are those the carried layers mark as left out of
+    the plane (what a nearby keyframe's labeller saw touching the plane and did not draw:
+    :mod:`annotate_rgbd.propagate.evidence`), and *deep* those more than ``inner_px`` pixels
+    inside such a region (not an outline or pose a few pixels off). Each plane of the run stands
+    for the ground-truth plane it overlaps most in the dense run on every 10th frame (both runs
+    number the tracks of one export alike).
+
+    Parameters
+    ----------
+    gt_dir : Path
+        The kit's per-frame ground truth (uint16 PNGs: plane ids, 0 none, :data:`GT_IGNORE`).
+    run_dir, dense_dir : Path
+        Finished ``cvat2mask`` output folders (masks, report, shapes record) of the run with
+        poses and of the dense row.
+    inner_px : int
+
+    Returns
+    -------
+    dict of str to int
+        ``missed``, ``excluded`` and ``deep`` pixel counts, summed over the frames.
+    """
+    import cv2
+    from annotate_rgbd.report.run_folder import colour_table, read_drawn_shapes, read_report
+    from annotate_rgbd.segment.rasterize import paint_layers
+
+    names = sorted(path.name for path in (run_dir / "masks").glob("*.png") if (gt_dir / path.name).is_file())
+    run_ids, dense_ids = colour_table(read_report(run_dir)), colour_table(read_report(dense_dir))
+    overlap: dict[tuple[int, int], int] = {}
+    for name in names[::10]:  # the planes' correspondence, from every 10th frame
+        truth = cv2.imread(str(gt_dir / name), cv2.IMREAD_UNCHANGED).astype(np.int64)
+        dense = _plane_labels(dense_dir / "masks" / name, dense_ids)
+        kept = (truth != 0) & (truth != GT_IGNORE) & (dense > 0)
+        pairs, counts = np.unique(dense[kept] * GT_IGNORE + truth[kept], return_counts=True)
+        for pair, count in zip(pairs.tolist(), counts.tolist()):
+            plane, truth_plane = divmod(pair, GT_IGNORE)
+            overlap[plane, truth_plane] = overlap.get((plane, truth_plane), 0) + count
+    truth_of: dict[int, int] = {}
+    for (plane, truth_plane), count in sorted(overlap.items(), key=lambda item: item[1]):
+        truth_of[plane] = truth_plane  # the largest overlap comes last
+    drawn = read_drawn_shapes(run_dir, {f"masks/{name}" for name in names})
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * inner_px + 1, 2 * inner_px + 1))
+    totals = {"missed": 0, "excluded": 0, "deep": 0}
+    for name in names:
+        carried = drawn[f"masks/{name}"].carried
+        if not carried:
+            continue
+        truth = cv2.imread(str(gt_dir / name), cv2.IMREAD_UNCHANGED).astype(np.int64)
+        labels = _plane_labels(run_dir / "masks" / name, run_ids)
+        dense = _plane_labels(dense_dir / "masks" / name, dense_ids)
+        for _, plane, _, layers, _ in carried:
+            if plane not in truth_of:
+                continue
+            missed = (truth == truth_of[plane]) & (dense == plane) & (labels != plane)
+            _, left_out = paint_layers(layers, *truth.shape)
+            inner = cv2.erode(left_out.view(np.uint8), kernel).view(bool)
+            totals["missed"] += int(np.count_nonzero(missed))
+            totals["excluded"] += int(np.count_nonzero(missed & left_out))
+            totals["deep"] += int(np.count_nonzero(missed & inner))
+    return totals
+
+
+def _plane_labels(path: Path, colours: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """Plane id of every pixel of a run's colour mask (0: black)."""
+    import cv2
+    from annotate_rgbd.report.run_folder import mask_plane_ids
+
+    return mask_plane_ids(cv2.imread(str(path), cv2.IMREAD_COLOR), *colours, path)
+
+
+def excluded_lines(gt_dir: Path, runs: Path, results: dict) -> list[str]:
+    """One line per sparse variant with poses that ran: :func:`excluded_misses` against the
+    dense row of the same invocation (a folder left from an earlier one is not used)."""
+    from annotate_rgbd.errors import InputError
+
+    ran = {name for name, result in results.items() if "mean_iou" in result and not result.get("returncode")}
+    dense = next((name for name in ("full_pose", "full_nopose") if name in ran), None)
+    if dense is None:
+        return []
+    lines = []
+    for variant, label in LABELS.items():
+        if variant == "full" or f"{variant}_pose" not in ran:
+            continue
+        try:
+            counts = excluded_misses(gt_dir, runs / f"{variant}_pose", runs / dense, EXCLUDED_INNER_PX)
+        except InputError as exc:
+            lines.append(f"  {label}: not measured ({exc})")
+            continue
+        missed = max(counts["missed"], 1)
+        lines.append(f"  {label}: {counts['missed']:,} pixels; {counts['excluded'] / missed:.0%} where a nearby "
+                     f"keyframe left the plane out, {counts['deep'] / missed:.0%} more than {EXCLUDED_INNER_PX} px "
+                     "inside such a region")
+    return lines
 
 if __name__ == "__main__":
     main()

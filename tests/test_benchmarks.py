@@ -1,8 +1,11 @@
-"""The real-data benchmark's arithmetic (benchmarks/bench_real.py), on made-up kit results."""
+"""The real-data benchmark's arithmetic (benchmarks/bench_real.py), on made-up kit results and runs."""
 
 import importlib.util
+import shutil
 from pathlib import Path
 
+import cv2
+import numpy as np
 import pytest
 
 SCRIPT = Path(__file__).resolve().parent.parent / "benchmarks" / "bench_real.py"
@@ -39,3 +42,75 @@ def test_deficit_lines_compare_each_posed_row_with_the_dense_row(bench_real):
     lines = bench_real.deficit_lines(results, top=1)
     assert lines == ["  every 10th frame: desk 67% (0.85 against 0.95 on 400 frames)"]
     assert bench_real.deficit_lines({"every10_pose": SPARSE}) == []  # no dense row: nothing to compare
+
+
+def _run_folder(tmp_path, name: str, labels: np.ndarray, carried: list) -> Path:
+    """A finished cvat2mask output folder whose masks are ``labels`` (plane ids) on each frame and
+    whose shapes record says the poses carried ``carried`` to each."""
+    from annotate_rgbd.report.run_folder import colour_table, read_report, write_drawn_shapes
+
+    folder = tmp_path / name
+    shutil.copytree(tmp_path / "base", folder)
+    keys, ids = colour_table(read_report(folder))
+    colours = np.zeros((int(ids.max()) + 1, 3), np.uint8)
+    for key, plane in zip(keys.tolist(), ids.tolist()):
+        colours[plane] = (key & 0xFF, key >> 8 & 0xFF, key >> 16)  # BGR, as OpenCV writes
+    masks = sorted(p.name for p in (folder / "masks").glob("*.png"))
+    for mask in masks:
+        cv2.imwrite(str(folder / "masks" / mask), colours[labels])
+    write_drawn_shapes(folder, [(f"masks/{mask}", [], carried) for mask in masks])
+    return folder
+
+
+def _box(x0, y0, x1, y1) -> np.ndarray:
+    return np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]], dtype=np.float64)
+
+
+def test_excluded_misses_counts_what_a_keyframe_left_out(bench_real, tmp_path):
+    """Made-up runs on a 320 x 240 grid: the ground truth has its plane 7 on rows 0-99, the dense
+    run plane 1 on rows 0-89, the posed run only on rows 0-49; its keyframes left rows 50-79 out of
+    plane 1."""
+    from annotate_rgbd.pipeline.scene import run_cvat2mask
+    from annotate_rgbd.synthetic import make_sequence
+    from annotate_rgbd.cvat import write_cvat_video
+    from annotate_rgbd.config.settings import load_config
+    from annotate_rgbd.geometry.camera import Camera
+
+    camera = Camera(fx=262.5, fy=262.5, cx=159.5, cy=119.5, depth_scale=5000.0)
+    annotation = make_sequence(tmp_path / "sequence", n_frames=2, width=320, height=240, camera=camera, seed=5,
+                               dropped_rgb_frames=())
+    write_cvat_video(annotation, tmp_path / "export.xml", width=320, height=240)
+    config = load_config(None, {"camera.fx": 262.5, "camera.fy": 262.5, "camera.cx": 159.5, "camera.cy": 119.5})
+    run_cvat2mask(tmp_path / "sequence", [tmp_path / "export.xml"], tmp_path / "base", config)
+    masks = sorted(p.name for p in (tmp_path / "base" / "masks").glob("*.png"))
+    assert len(masks) == 2
+    truth = np.zeros((240, 320), np.uint16)
+    truth[:100] = 7  # the ground truth's plane 7 is the runs' plane 1
+    truth[100:] = bench_real.GT_IGNORE
+    (tmp_path / "gt").mkdir()
+    for mask in masks:
+        cv2.imwrite(str(tmp_path / "gt" / mask), truth)
+    dense_labels = np.zeros((240, 320), np.intp)
+    dense_labels[:90] = 1
+    run_labels = np.zeros((240, 320), np.intp)
+    run_labels[:50] = 1
+    layers = ((1, _box(0, 0, 320, 50)), (-1, _box(0, 50, 320, 80)))
+    dense = _run_folder(tmp_path, "dense", dense_labels, [])
+    posed = _run_folder(tmp_path, "posed", run_labels, [(0, 1, 0, layers, ())])
+    counts = bench_real.excluded_misses(tmp_path / "gt", posed, dense, inner_px=5)
+    # Missed (what the dense run has right): rows 50-89, 40 x 320 a frame; left out: rows 50-79;
+    # more than 5 px inside: rows 55-74 (the image's border does not count as the region's edge).
+    assert counts == {"missed": 2 * 40 * 320, "excluded": 2 * 30 * 320, "deep": 2 * 20 * 320}
+    # A plane the poses did not carry is not counted.
+    assert bench_real.excluded_misses(tmp_path / "gt", dense, dense)["missed"] == 0
+
+
+def test_excluded_lines_use_only_runs_of_this_invocation(bench_real, tmp_path):
+    # A dense row left in the folder by an earlier invocation is not compared with.
+    (tmp_path / "full_pose" / "masks").mkdir(parents=True)
+    (tmp_path / "every10_pose" / "masks").mkdir(parents=True)
+    assert bench_real.excluded_lines(tmp_path, tmp_path, {"every10_pose": {"mean_iou": 0.9}}) == []
+    # A run that failed is not read: one line says so when its folder cannot be read.
+    results = {"full_pose": {"mean_iou": 0.9, "returncode": 0}, "every10_pose": {"mean_iou": 0.8}}
+    lines = bench_real.excluded_lines(tmp_path, tmp_path, results)
+    assert len(lines) == 1 and lines[0].startswith("  every 10th frame: not measured (") and "report" in lines[0]
