@@ -23,9 +23,8 @@ the table of issue 26 and whether its targets are met (with poses: a keyframe ev
 mean IoU >= 0.946 and leak <= 2 %, every 30th >= 0.93, once per appearance >= 0.90, never below
 2-D interpolation; dense >= 0.96; propose precision and recall >= 0.7), and for every sparse row
 with poses where it loses against the dense row, by ground-truth plane (:func:`plane_deficits`),
-and how much of what it misses lies where a nearby keyframe's labeller left the plane out
-(:func:`excluded_misses`: the simulated labeller follows the ground truth, and where that changes
-its mind about a surface from one keyframe to the next, the nearest keyframe decides).
+and how much of what it misses (of what the dense row labels right) lies where a nearby keyframe's
+labeller left the plane out (:func:`excluded_misses`).
 
 Without the kit or the scene it prints one line and exits 0.
 """
@@ -258,7 +257,7 @@ def deficit_lines(results: dict, top: int = 4) -> list[str]:
     return lines
 
 
-def excluded_misses(gt_dir: Path, run_dir: Path, dense_dir: Path, inner_px: int = 5) -> dict[str, int]:
+def excluded_misses(gt_dir: Path, run_dir: Path, dense_dir: Path, inner_px: int = EXCLUDED_INNER_PX) -> dict[str, int]:
     """Of what a run with poses misses, how much lies where its keyframes left the plane out.
 
     On every frame, for every plane the poses carried there (the run's shapes record), the
@@ -267,8 +266,8 @@ def excluded_misses(gt_dir: Path, run_dir: Path, dense_dir: Path, inner_px: int 
     the plane (what a nearby keyframe's labeller saw touching the plane and did not draw:
     :mod:`annotate_rgbd.propagate.evidence`), and *deep* those more than ``inner_px`` pixels
     inside such a region (not an outline or pose a few pixels off). Each plane of the run stands
-    for the ground-truth plane it overlaps most in the dense run on every 10th frame (both runs
-    number the tracks of one export alike).
+    for the ground-truth plane it overlaps most in the dense run over all frames (the two exports,
+    thinned from one file, number their tracks, and so their planes, alike).
 
     Parameters
     ----------
@@ -278,11 +277,18 @@ def excluded_misses(gt_dir: Path, run_dir: Path, dense_dir: Path, inner_px: int 
         Finished ``cvat2mask`` output folders (masks, report, shapes record) of the run with
         poses and of the dense row.
     inner_px : int
+        How far inside a left-out region (pixels) a miss counts as *deep*.
 
     Returns
     -------
     dict of str to int
         ``missed``, ``excluded`` and ``deep`` pixel counts, summed over the frames.
+
+    Raises
+    ------
+    InputError
+        A folder without a report or shapes record, or an image that cannot be read or is not
+        the size of the ground truth.
     """
     import cv2
     from annotate_rgbd.report.run_folder import colour_table, read_drawn_shapes, read_report
@@ -290,51 +296,76 @@ def excluded_misses(gt_dir: Path, run_dir: Path, dense_dir: Path, inner_px: int 
 
     names = sorted(path.name for path in (run_dir / "masks").glob("*.png") if (gt_dir / path.name).is_file())
     run_ids, dense_ids = colour_table(read_report(run_dir)), colour_table(read_report(dense_dir))
-    overlap: dict[tuple[int, int], int] = {}
-    for name in names[::10]:  # the planes' correspondence, from every 10th frame
-        truth = cv2.imread(str(gt_dir / name), cv2.IMREAD_UNCHANGED).astype(np.int64)
-        dense = _plane_labels(dense_dir / "masks" / name, dense_ids)
-        kept = (truth != 0) & (truth != GT_IGNORE) & (dense > 0)
-        pairs, counts = np.unique(dense[kept] * GT_IGNORE + truth[kept], return_counts=True)
-        for pair, count in zip(pairs.tolist(), counts.tolist()):
-            plane, truth_plane = divmod(pair, GT_IGNORE)
-            overlap[plane, truth_plane] = overlap.get((plane, truth_plane), 0) + count
-    truth_of: dict[int, int] = {}
-    for (plane, truth_plane), count in sorted(overlap.items(), key=lambda item: item[1]):
-        truth_of[plane] = truth_plane  # the largest overlap comes last
     drawn = read_drawn_shapes(run_dir, {f"masks/{name}" for name in names})
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * inner_px + 1, 2 * inner_px + 1))
-    totals = {"missed": 0, "excluded": 0, "deep": 0}
+    # One pass: per (run plane, ground-truth value) the dense run's overlap, and the three counts
+    # as if that value were the plane's ground-truth plane; the correspondence is chosen at the end.
+    overlap: dict[tuple[int, int], int] = {}
+    counts: dict[tuple[int, int], np.ndarray] = {}
     for name in names:
-        carried = drawn[f"masks/{name}"].carried
-        if not carried:
+        truth = _read_truth(gt_dir / name)
+        dense = _plane_labels(dense_dir / "masks" / name, dense_ids, truth.shape)
+        known = (truth != 0) & (truth != GT_IGNORE)
+        _add(overlap, dense[known & (dense > 0)], truth[known & (dense > 0)])
+        left_out: dict[int, np.ndarray] = {}
+        for _, plane, _, layers, _ in drawn[f"masks/{name}"].carried:  # a plane's entries together
+            painted = paint_layers(layers, *truth.shape)[1]
+            left_out[plane] = left_out[plane] | painted if plane in left_out else painted
+        if not left_out:
             continue
-        truth = cv2.imread(str(gt_dir / name), cv2.IMREAD_UNCHANGED).astype(np.int64)
-        labels = _plane_labels(run_dir / "masks" / name, run_ids)
-        dense = _plane_labels(dense_dir / "masks" / name, dense_ids)
-        for _, plane, _, layers, _ in carried:
-            if plane not in truth_of:
-                continue
-            missed = (truth == truth_of[plane]) & (dense == plane) & (labels != plane)
-            _, left_out = paint_layers(layers, *truth.shape)
-            inner = cv2.erode(left_out.view(np.uint8), kernel).view(bool)
-            totals["missed"] += int(np.count_nonzero(missed))
-            totals["excluded"] += int(np.count_nonzero(missed & left_out))
-            totals["deep"] += int(np.count_nonzero(missed & inner))
-    return totals
+        labels = _plane_labels(run_dir / "masks" / name, run_ids, truth.shape)
+        for plane, region in left_out.items():
+            missed = known & (dense == plane) & (labels != plane)
+            inner = cv2.erode(region.view(np.uint8), kernel).view(bool)
+            for kind, where in enumerate((missed, missed & region, missed & inner)):
+                values, found = np.unique(truth[where], return_counts=True)
+                for value, count in zip(values.tolist(), found.tolist()):
+                    counts.setdefault((plane, value), np.zeros(3, np.int64))[kind] += count
+    truth_of: dict[int, tuple[int, int]] = {}  # plane -> (overlap, ground-truth plane); a tie: the lower id
+    for (plane, value), count in overlap.items():
+        truth_of[plane] = max(truth_of.get(plane, (0, 0)), (count, -value))
+    totals = np.zeros(3, np.int64)
+    for (plane, value), found in counts.items():
+        if plane in truth_of and -truth_of[plane][1] == value:
+            totals += found
+    return dict(zip(("missed", "excluded", "deep"), totals.tolist()))
 
 
-def _plane_labels(path: Path, colours: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
-    """Plane id of every pixel of a run's colour mask (0: black)."""
+def _add(overlap: dict, planes: np.ndarray, truth: np.ndarray) -> None:
+    """Add the pixel counts of each (plane, ground-truth value) pair to ``overlap``."""
+    pairs, found = np.unique(planes.astype(np.int64) << 16 | truth, return_counts=True)  # truth < 2**16
+    for pair, count in zip(pairs.tolist(), found.tolist()):
+        key = (pair >> 16, pair & 0xFFFF)
+        overlap[key] = overlap.get(key, 0) + count
+
+
+def _read_truth(path: Path) -> np.ndarray:
+    """One frame of the kit's ground truth, as int64."""
     import cv2
+    from annotate_rgbd.errors import InputError
+
+    truth = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if truth is None or truth.ndim != 2:
+        raise InputError(path, "not a one-channel ground-truth image")
+    return truth.astype(np.int64)
+
+
+def _plane_labels(path: Path, colours: tuple[np.ndarray, np.ndarray], shape: tuple[int, int]) -> np.ndarray:
+    """Plane id of every pixel of a run's colour mask (0: black), of the ground truth's size."""
+    import cv2
+    from annotate_rgbd.errors import InputError
     from annotate_rgbd.report.run_folder import mask_plane_ids
 
-    return mask_plane_ids(cv2.imread(str(path), cv2.IMREAD_COLOR), *colours, path)
+    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if image is None or image.shape[:2] != shape:
+        raise InputError(path, "unreadable, or not the size of the ground truth")
+    return mask_plane_ids(image, *colours, path)
 
 
 def excluded_lines(gt_dir: Path, runs: Path, results: dict) -> list[str]:
-    """One line per sparse variant with poses that ran: :func:`excluded_misses` against the
-    dense row of the same invocation (a folder left from an earlier one is not used)."""
+    """One line per sparse variant with poses: :func:`excluded_misses` against the dense row,
+    for the rows in ``results`` that were scored (a run folder whose row is not there, or failed,
+    is not read)."""
     from annotate_rgbd.errors import InputError
 
     ran = {name for name, result in results.items() if "mean_iou" in result and not result.get("returncode")}
@@ -355,6 +386,8 @@ def excluded_lines(gt_dir: Path, runs: Path, results: dict) -> list[str]:
                      f"keyframe left the plane out, {counts['deep'] / missed:.0%} more than {EXCLUDED_INNER_PX} px "
                      "inside such a region")
     return lines
+
+
 
 if __name__ == "__main__":
     main()

@@ -8,6 +8,8 @@ import cv2
 import numpy as np
 import pytest
 
+from annotate_rgbd.errors import InputError
+
 SCRIPT = Path(__file__).resolve().parent.parent / "benchmarks" / "bench_real.py"
 
 
@@ -67,9 +69,12 @@ def _box(x0, y0, x1, y1) -> np.ndarray:
 
 
 def test_excluded_misses_counts_what_a_keyframe_left_out(bench_real, tmp_path):
-    """Made-up runs on a 320 x 240 grid: the ground truth has its plane 7 on rows 0-99, the dense
-    run plane 1 on rows 0-89, the posed run only on rows 0-49; its keyframes left rows 50-79 out of
-    plane 1."""
+    """Made-up runs on a 320 x 240 grid, two frames alike. Ground truth: plane 7 on rows 0-99,
+    plane 9 on rows 100-139, "don't care" below. Dense run: plane 1 on rows 0-89, plane 2 on rows
+    90-199 (most of it on "don't care", then on plane 9: it stands for plane 9). Posed run: plane 1
+    on rows 0-49 and plane 3 on rows 60-69, plane 2 on rows 120-199; its keyframes left rows
+    50-79 and, in a second entry of the same plane, rows 80-84 out of plane 1, and rows 95-119 out
+    of plane 2."""
     from annotate_rgbd.pipeline.scene import run_cvat2mask
     from annotate_rgbd.synthetic import make_sequence
     from annotate_rgbd.cvat import write_cvat_video
@@ -84,33 +89,44 @@ def test_excluded_misses_counts_what_a_keyframe_left_out(bench_real, tmp_path):
     run_cvat2mask(tmp_path / "sequence", [tmp_path / "export.xml"], tmp_path / "base", config)
     masks = sorted(p.name for p in (tmp_path / "base" / "masks").glob("*.png"))
     assert len(masks) == 2
-    truth = np.zeros((240, 320), np.uint16)
-    truth[:100] = 7  # the ground truth's plane 7 is the runs' plane 1
-    truth[100:] = bench_real.GT_IGNORE
+    truth = np.full((240, 320), bench_real.GT_IGNORE, np.uint16)
+    truth[:100] = 7
+    truth[100:140] = 9
     (tmp_path / "gt").mkdir()
     for mask in masks:
         cv2.imwrite(str(tmp_path / "gt" / mask), truth)
     dense_labels = np.zeros((240, 320), np.intp)
-    dense_labels[:90] = 1
+    dense_labels[:90], dense_labels[90:200] = 1, 2
     run_labels = np.zeros((240, 320), np.intp)
-    run_labels[:50] = 1
-    layers = ((1, _box(0, 0, 320, 50)), (-1, _box(0, 50, 320, 80)))
+    run_labels[:50], run_labels[60:70], run_labels[120:200] = 1, 3, 2
+    first = ((1, _box(0, 0, 320, 50)), (-1, _box(0, 50, 320, 80)))
+    second = ((-1, _box(0, 80, 320, 85)),)
+    desk = ((-1, _box(0, 95, 320, 120)), (1, _box(0, 120, 320, 200)))
     dense = _run_folder(tmp_path, "dense", dense_labels, [])
-    posed = _run_folder(tmp_path, "posed", run_labels, [(0, 1, 0, layers, ())])
+    posed = _run_folder(tmp_path, "posed", run_labels, [(0, 1, 0, first, ()), (1, 1, 0, second, ()), (2, 2, 0, desk, ())])
     counts = bench_real.excluded_misses(tmp_path / "gt", posed, dense, inner_px=5)
-    # Missed (what the dense run has right): rows 50-89, 40 x 320 a frame; left out: rows 50-79;
-    # more than 5 px inside: rows 55-74 (the image's border does not count as the region's edge).
-    assert counts == {"missed": 2 * 40 * 320, "excluded": 2 * 30 * 320, "deep": 2 * 20 * 320}
-    # A plane the poses did not carry is not counted.
+    # Plane 1 (plane 7): missed rows 50-89 (plane 3's too), left out rows 50-84, deep rows 55-79
+    # (the image's border does not count as the region's edge). Plane 2 (plane 9): missed rows
+    # 100-119 (rows 90-99 are plane 7's), left out there all of them, deep rows 100-114.
+    per_frame = {"missed": (40 + 20) * 320, "excluded": (35 + 20) * 320, "deep": (25 + 15) * 320}
+    assert counts == {kind: 2 * count for kind, count in per_frame.items()}
+    # A run without carried planes has nothing to count.
     assert bench_real.excluded_misses(tmp_path / "gt", dense, dense)["missed"] == 0
+    # An image of another size than the ground truth: one clear error.
+    cv2.imwrite(str(tmp_path / "gt" / masks[0]), truth[:100])
+    with pytest.raises(InputError, match="not the size of the ground truth"):
+        bench_real.excluded_misses(tmp_path / "gt", posed, dense)
 
 
-def test_excluded_lines_use_only_runs_of_this_invocation(bench_real, tmp_path):
-    # A dense row left in the folder by an earlier invocation is not compared with.
+def test_excluded_lines_read_only_the_rows_that_were_scored(bench_real, tmp_path):
     (tmp_path / "full_pose" / "masks").mkdir(parents=True)
     (tmp_path / "every10_pose" / "masks").mkdir(parents=True)
+    # A dense row that is not among the results (a folder left from another invocation): none.
     assert bench_real.excluded_lines(tmp_path, tmp_path, {"every10_pose": {"mean_iou": 0.9}}) == []
-    # A run that failed is not read: one line says so when its folder cannot be read.
+    # A row that failed is not read.
+    failed = {"full_pose": {"mean_iou": 0.9, "returncode": 0}, "every10_pose": {"mean_iou": 0.8, "returncode": 1}}
+    assert bench_real.excluded_lines(tmp_path, tmp_path, failed) == []
+    # A scored row whose folder cannot be read: one line says so.
     results = {"full_pose": {"mean_iou": 0.9, "returncode": 0}, "every10_pose": {"mean_iou": 0.8}}
     lines = bench_real.excluded_lines(tmp_path, tmp_path, results)
     assert len(lines) == 1 and lines[0].startswith("  every 10th frame: not measured (") and "report" in lines[0]
