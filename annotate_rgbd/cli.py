@@ -196,7 +196,7 @@ def cvat2mask(
         counts = summarize(report.frames)
         summary = (
             f"{report.written} masks in {out / 'masks'} ({report.counts.made} made, "
-            f"{report.counts.reused} unchanged), {report.n_planes} planes, {counts.skipped} "
+            f"{report.counts.reused} unchanged), {len({track.plane for track in report.tracks})} planes, {counts.skipped} "
             f"frame{'s' if counts.skipped != 1 else ''} skipped, "
             f"{counts.planes_dropped} of {counts.planes_kept + counts.planes_dropped} planes drawn on frames dropped "
             "(no depth or too far)"

@@ -128,8 +128,8 @@ def _export(run_dir: Path, report: RunRecord, xml_path: Path, tolerance_px: floa
 
 
 def check_target(run_dir: Path, xml_path: Path) -> None:
-    """Refuse to write the export over a file of the run it is made from (its report, tables,
-    masks): the run would be lost.
+    """Refuse to write the export into a folder that does not exist, or over a file of the run it
+    is made from (its report, tables, masks): the run would be lost.
 
     Raises
     ------
@@ -137,6 +137,8 @@ def check_target(run_dir: Path, xml_path: Path) -> None:
     """
     if is_stream(xml_path):
         return
+    if not xml_path.parent.is_dir():
+        raise OutputError(xml_path, f"cannot write output: its folder {xml_path.parent} does not exist")
     target = xml_path.resolve()
     try:
         inside = target.relative_to(run_dir.resolve()).parts

@@ -341,6 +341,14 @@ def test_export_into_a_full_device_is_one_line(finished):
     assert os.path.exists("/dev/full") and not os.path.isfile("/dev/full")
 
 
+def test_export_into_a_folder_that_does_not_exist_says_so(finished):
+    target = finished.root / "nodir" / "sub" / "r.xml"
+    result = invoke("export-cvat", finished.out, target)
+    assert result.exit_code == 1
+    assert error_line(result) == f"error: {target}: cannot write output: its folder {target.parent} does not exist"
+    assert not (finished.root / "nodir").exists()
+
+
 @pytest.mark.parametrize("name", ["report.json", "planes.csv", "masks/x.xml"])
 def test_export_never_overwrites_the_run_it_exports(finished, name):
     before = snapshot(finished.out, skip=finished.root / "none")

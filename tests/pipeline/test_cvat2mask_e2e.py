@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import json
 import logging
+import re
 import shutil
 from pathlib import Path
 
@@ -267,3 +268,21 @@ def test_instance_id_masks_hold_the_plane_ids_of_planes_csv(tmp_path):
                                      "--config", str(SAMPLE_DATA / "camera.toml")])
     assert again.exit_code == 0 and "removed 19 instance-id masks no longer asked for (masks_id/)" in again.output
     assert not (out / "masks_id").exists()
+
+
+def test_the_summary_counts_the_planes_not_the_highest_plane_id(tmp_path):
+    # The first track carries plane_id 7 (a labeller deleted the planes before it in CVAT): the
+    # nine others get ids 8-16, so the ids reach 16, but the run has 10 planes, as planes.csv.
+    text = ANNOTATIONS.read_text(encoding="utf-8")
+    first = text.index('<track id="0"')
+    end = text.index("</track>", first)
+    track = re.sub(r'(<polygon [^>]*?)\s*/>', r'\1><attribute name="plane_id">7</attribute></polygon>', text[first:end])
+    export = tmp_path / "ids.xml"
+    export.write_text(text[:first] + track + text[end:], encoding="utf-8")
+    result = CliRunner().invoke(app, ["cvat2mask", str(SEQUENCE), str(export), "--config", str(SAMPLE_DATA / "camera.toml"),
+                                      "--out", str(tmp_path / "out")])
+    assert result.exit_code == 0, result.output
+    with open(tmp_path / "out" / "planes.csv", newline="", encoding="utf-8") as handle:
+        rows = list(csv.DictReader(handle))
+    assert len(rows) == 10 and max(int(row["plane_id"]) for row in rows) == 16
+    assert "10 planes," in result.output
