@@ -53,7 +53,7 @@ def motion_problem(timestamps: np.ndarray, translations: np.ndarray, quaternions
     str or None
         A camera beyond :data:`MAX_POSITION` from the origin, or a median speed above
         :data:`MAX_SPEED` or turn rate above :data:`MAX_TURN_RATE` (with, when read as
-        world-to-camera the speed is plausible, that suggestion).
+        world-to-camera or in millimetres the speed is plausible, that suggestion).
     """
     farthest = float(np.max(np.abs(translations)))  # a coordinate: a norm of 1e300 overflows
     if not farthest <= MAX_POSITION:
@@ -73,6 +73,9 @@ def motion_problem(timestamps: np.ndarray, translations: np.ndarray, quaternions
         if _median_speed(centres, seconds) <= MAX_SPEED:
             line += (f"; read as world-to-camera it moves {_median_speed(centres, seconds):.3g} m/s: "
                      "is the file world-to-camera? (invert every pose)")
+        elif speed / 1000.0 <= MAX_SPEED:
+            line += (f"; in millimetres it would move {speed / 1000.0:.3g} m/s: are the translations in "
+                     "millimetres? (divide them by 1000)")
         return line
     if turn_rate > MAX_TURN_RATE:
         return (f"the camera turns {turn_rate:.3g} degrees/s (median between consecutive poses), implausible "

@@ -245,6 +245,7 @@ def walk(n: int = 60) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         (lambda t, r, c: (t, r, c), None),
         (lambda t, r, c: (t, r, c + 1e300), "the camera lies 1e+300 m from the world origin"),
         (lambda t, r, c: (t, r, c * 1000.0), "implausible for an RGB-D camera read as camera-to-world in metres"),
+        (lambda t, r, c: (t, r, c * 1000.0), "are the translations in millimetres? (divide them by 1000)"),
         # World-to-camera stored as if camera-to-world: R^T and -R^T c, the camera 30 m out.
         (lambda t, r, c: (t, r.transpose(0, 2, 1), -np.einsum("nji,nj->ni", r, c + [30.0, 0, 0])),
          "read as world-to-camera it moves"),
@@ -260,6 +261,15 @@ def test_implausible_motion_gets_one_line(tmp_path, change, words):
         assert loaded.warnings == []
     else:
         assert len(loaded.warnings) == 1 and words in loaded.warnings[0] and loaded.warnings[0].startswith(f"{path}: ")
+
+
+def test_millimetres_are_suggested_only_where_they_make_the_motion_plausible(tmp_path):
+    times, rotations, centres = walk()
+    times = 1000.0 + (times - 1000.0) / 50000.0  # the walk 50,000 times faster: a thousandth is still too fast
+    path = tmp_path / "trajectory.txt"
+    path.write_text(tum_text(times, rotations, centres))
+    warnings = load_trajectory(path, times, SECONDS).warnings
+    assert len(warnings) == 1 and warnings[0].endswith("read as camera-to-world in metres")
 
 
 @pytest.mark.parametrize(
