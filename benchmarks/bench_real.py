@@ -291,6 +291,7 @@ def excluded_misses(gt_dir: Path, run_dir: Path, dense_dir: Path, inner_px: int 
         the size of the ground truth.
     """
     import cv2
+    from annotate_rgbd.evaluate.metrics import plane_overlaps
     from annotate_rgbd.report.run_folder import colour_table, read_drawn_shapes, read_report
     from annotate_rgbd.segment.rasterize import paint_layers
 
@@ -306,7 +307,10 @@ def excluded_misses(gt_dir: Path, run_dir: Path, dense_dir: Path, inner_px: int 
         truth = _read_truth(gt_dir / name)
         dense = _plane_labels(dense_dir / "masks" / name, dense_ids, truth.shape)
         known = (truth != 0) & (truth != GT_IGNORE)
-        _add(overlap, dense[known & (dense > 0)], truth[known & (dense > 0)])
+        table = plane_overlaps(np.where(known, truth, 0), dense)
+        for plane, value, count in zip(table.pred_labels[table.pred_index].tolist(),
+                                       table.gt_labels[table.gt_index].tolist(), table.intersection.tolist()):
+            overlap[plane, value] = overlap.get((plane, value), 0) + count
         left_out: dict[int, np.ndarray] = {}
         for _, plane, _, layers, _ in drawn[f"masks/{name}"].carried:  # a plane's entries together
             painted = paint_layers(layers, *truth.shape)[1]
@@ -329,14 +333,6 @@ def excluded_misses(gt_dir: Path, run_dir: Path, dense_dir: Path, inner_px: int 
         if plane in truth_of and -truth_of[plane][1] == value:
             totals += found
     return dict(zip(("missed", "excluded", "deep"), totals.tolist()))
-
-
-def _add(overlap: dict, planes: np.ndarray, truth: np.ndarray) -> None:
-    """Add the pixel counts of each (plane, ground-truth value) pair to ``overlap``."""
-    pairs, found = np.unique(planes.astype(np.int64) << 16 | truth, return_counts=True)  # truth < 2**16
-    for pair, count in zip(pairs.tolist(), found.tolist()):
-        key = (pair >> 16, pair & 0xFFFF)
-        overlap[key] = overlap.get(key, 0) + count
 
 
 def _read_truth(path: Path) -> np.ndarray:
