@@ -25,7 +25,7 @@ import numpy as np
 from annotate_rgbd.annotation.model import AREA_KINDS, Shape
 from annotate_rgbd.errors import InputError
 from annotate_rgbd.io.files import open_regular
-from annotate_rgbd.io.outdir import REPORT, SHAPES_RECORD, read_bounded
+from annotate_rgbd.io.outdir import JOURNAL, REPORT, SHAPES_RECORD, read_bounded
 from annotate_rgbd.report.proposals import is_proposals, proposals_record
 from annotate_rgbd.report.records import RecordError, RunRecord
 from annotate_rgbd.report.validation import check_run, load_json
@@ -72,9 +72,11 @@ def read_report(out_dir: str | Path, proposals: bool = False) -> RunRecord:
     Raises
     ------
     InputError
-        No report (the folder is not the output of a finished run) or not a report.
+        No report (the folder is not the output of a finished run), not a report, or a
+        ``cvat2mask`` run in the folder did not finish (:func:`check_finished`).
     """
     path = Path(out_dir) / REPORT
+    check_finished(Path(out_dir))
     try:
         data = read_bounded(path, MAX_REPORT_BYTES)
     except FileNotFoundError:
@@ -99,6 +101,26 @@ def read_report(out_dir: str | Path, proposals: bool = False) -> RunRecord:
     except RecordError as exc:
         raise InputError(path, f"not a cvat2mask report as annotate-rgbd writes it (edited or damaged?): {exc}") from None
     return record
+
+
+def check_finished(out_dir: Path) -> None:
+    """Refuse a folder where a ``cvat2mask`` run started and did not finish.
+
+    A run keeps its journal (:data:`annotate_rgbd.io.outdir.JOURNAL`) from its start until it
+    has written ``report.json``. A journal left behind means the run was interrupted, stopped by
+    a fatal problem, or is still running: the masks it made sit beside an earlier run's report
+    and tables, which no longer describe them.
+
+    Raises
+    ------
+    InputError
+        Naming the journal and what to do.
+    """
+    journal = out_dir / JOURNAL
+    if journal.is_file() or journal.is_symlink():
+        raise InputError(journal, "a cvat2mask run in this folder did not finish (interrupted, stopped by an error,"
+                                  " or still running): its masks may not match report.json; run the same"
+                                  " cvat2mask command again to finish it")
 
 
 def colour_table(report: RunRecord) -> tuple[np.ndarray, np.ndarray]:

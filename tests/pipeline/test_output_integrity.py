@@ -134,6 +134,37 @@ def test_stress_random_interruptions_with_changing_settings_never_leave_a_wrong_
     assert rounds >= 12
 
 
+def _stop_after(frames: int):
+    def progress(done: int, total: int) -> None:
+        if done >= frames:
+            raise KeyboardInterrupt
+    return progress
+
+
+@pytest.mark.parametrize("command", [["review"], ["stats"], ["export-cvat", "{out}/again.xml"],
+                                     ["export", "{out}/../export", "--format", "planes"]])
+def test_readers_refuse_a_folder_whose_rerun_was_interrupted(clean_run, tmp_path, command):
+    # A re-run with other settings, interrupted: some masks are the new run's, report.json and
+    # planes.csv still the earlier run's. Every command that reads the folder must say so.
+    out = tmp_path / "out"
+    shutil.copytree(clean_run, out)
+    with pytest.raises(KeyboardInterrupt):
+        run_cvat2mask(SEQUENCE, [ANNOTATIONS], out, load_config(CAMERA, {"ransac.distance_threshold": 0.005}),
+                      progress=_stop_after(6))
+    assert _masks(out) != _masks(clean_run) and (out / "report.json").is_file()
+    args = [part.format(out=out) for part in command]
+    result = CliRunner().invoke(app, [args[0], str(out), *args[1:]])
+    assert result.exit_code == 1, result.output
+    lines = result.output.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"error: {out / JOURNAL}: "), lines
+    assert "did not finish" in lines[0] and "run the same cvat2mask command again" in lines[0]
+    assert not (out / "again.xml").exists() and not (tmp_path / "export").exists()
+    # Finishing the run makes the folder readable again.
+    run_cvat2mask(SEQUENCE, [ANNOTATIONS], out, load_config(CAMERA, {"ransac.distance_threshold": 0.005}))
+    result = CliRunner().invoke(app, [args[0], str(out), *args[1:]])
+    assert result.exit_code == 0, result.output
+
+
 # --- Lock: one run at a time in a folder ------------------------------------------------------
 
 
