@@ -43,23 +43,46 @@ def rgb_indices(annotation: Annotation, rgb: FrameList, offset: int = 0) -> tupl
     missing: list[str] = []
     if annotation.image_names:
         by_name = _name_index(rgb)
+        unknown = []
         for frame in annotation.frames:
             name = annotation.image_names.get(frame)
             index = _lookup(by_name, name) if name is not None else None
             if index is None:
-                missing.append(f"frame {frame}: image {name!r} is not in the RGB list")
+                unknown.append((frame, name))
             else:
                 mapping[frame] = index
+        if len(unknown) == 1:
+            missing.append(f"frame {unknown[0][0]}: image {unknown[0][1]!r} is not in the RGB list")
+        elif unknown:
+            names = ", ".join(repr(name) for _, name in unknown[:3]) + (", ..." if len(unknown) > 3 else "")
+            missing.append(f"{frame_ranges([f for f, _ in unknown])}: their images ({names}) are not in the RGB list")
     else:
-        for frame in annotation.frames:
-            index = frame + offset
-            if 0 <= index < len(rgb):
-                mapping[frame] = index
-            else:
-                missing.append(f"frame {frame}: RGB index {index} is beyond the {len(rgb)} RGB frames")
+        beyond = [frame for frame in annotation.frames if not 0 <= frame + offset < len(rgb)]
+        mapping = {frame: frame + offset for frame in annotation.frames if 0 <= frame + offset < len(rgb)}
+        if len(beyond) == 1:
+            missing.append(f"frame {beyond[0]}: RGB index {beyond[0] + offset} is beyond the {len(rgb)} RGB frames")
+        elif beyond:
+            shift = f"frame {'-' if offset < 0 else '+'} {abs(offset)}"
+            missing.append(f"{frame_ranges(beyond)}: their RGB indices ({shift}) are beyond the "
+                           f"{len(rgb)} RGB frames")
     if not mapping:
         raise InputError(annotation.path, f"no annotated frame is in the sequence ({missing[0]})")
     return mapping, missing
+
+
+def frame_ranges(frames: list[int], shown: int = 3) -> str:
+    """Frame numbers in a line: ``"frames 11-15, 219-220 (7 frames)"``; after ``shown`` runs of
+    consecutive numbers, ``", ..."``."""
+    if len(frames) == 1:
+        return f"frame {frames[0]}"
+    runs: list[list[int]] = []
+    for frame in sorted(frames):
+        if runs and frame == runs[-1][1] + 1:
+            runs[-1][1] = frame
+        else:
+            runs.append([frame, frame])
+    text = ", ".join(f"{a}" if a == b else f"{a}-{b}" for a, b in runs[:shown])
+    return f"frames {text}{', ...' if len(runs) > shown else ''} ({len(frames)} frames)"
 
 
 def _name_index(rgb: FrameList) -> dict[str, int]:
