@@ -64,6 +64,7 @@ sections that change how a mask is made (``[filter]``, ``[ransac]``, ``[refine]`
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
 import types
 import typing
@@ -78,10 +79,13 @@ from annotate_rgbd.io.bounded import read_input
 from annotate_rgbd.geometry.noise import NoiseSettings, noise_settings_from_mapping
 from annotate_rgbd.geometry.registration import ColourCamera, colour_camera_from_mapping
 from annotate_rgbd.io.poses import DEFAULT_MAX_POSE_GAP
+from .camera_checks import partial_intrinsics
 from .evaluate import EvaluateConfig
 from .masks import FilterConfig, PropagateConfig, RansacConfig, RefineConfig, range_checks
 from .propose import DetectorConfig, LinkConfig, ProposeConfig
 from .toml_input import NestedTooDeep, read_toml
+
+log = logging.getLogger("annotate_rgbd")
 
 
 @dataclass(frozen=True)
@@ -305,6 +309,9 @@ def load_config(source: str | Path | None = None, overrides: Mapping[str, Any] |
     if source is not None:
         origin, text = _read_source(source)
         values = read_toml(text, origin)
+        problem = partial_intrinsics(values.get("camera"), DEFAULT_CAMERA)
+        if problem is not None:
+            log.warning("%s: %s", origin, problem)
     poses = values.get("sequence", {}).get("poses") if isinstance(values.get("sequence"), Mapping) else None
     if isinstance(poses, str) and poses and isinstance(origin, Path):
         values["sequence"]["poses"] = str(origin.parent / poses)  # relative to the file

@@ -10,12 +10,13 @@ place (:mod:`annotate_rgbd.io.layouts`) into one model, re-exported here with th
   per-frame poses (``poses``);
 - :func:`read_sequence`: the layout recognised by its files; a folder that fits none is one
   error line naming every layout known;
-- :func:`associate`: each depth frame's nearest colour frame; :func:`camera_problem`: intrinsics
-  that do not fit the images.
+- :func:`associate`: each depth frame's nearest colour frame; :func:`camera_problem` and
+  :func:`focal_problem`: intrinsics that do not fit the images.
 """
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -38,7 +39,7 @@ from .layouts.tum import list_image_folder, read_associations, read_frame_list
 __all__ = [
     "EXPECTED", "FRAME_NUMBERS", "IMAGE_SUFFIXES", "LAYOUTS", "MAX_FRAMES", "MAX_IMAGE_BYTES", "MAX_IMAGE_PIXELS",
     "MAX_LIST_BYTES", "MAX_LIST_LINES", "MAX_TIMESTAMP", "NO_DEPTH_16", "PNG_SIGNATURE", "SECONDS", "ColourCamera",
-    "FrameList", "LayoutCamera", "Sequence", "associate", "camera_problem", "check_depth_names", "check_inside",
+    "FrameList", "LayoutCamera", "Sequence", "associate", "camera_problem", "focal_problem", "intrinsics_problems", "check_depth_names", "check_inside",
     "decode_image", "list_image_folder", "open_input", "open_regular", "parse_timestamp", "png_size",
     "read_associations", "read_bytes", "read_depth", "read_frame_list", "read_image", "read_rgb", "read_sequence",
 ]
@@ -182,3 +183,44 @@ def camera_problem(cx: float, cy: float, width: int, height: int) -> str | None:
         f"the camera's principal point ({cx:g}, {cy:g}) is {where} the {width}x{height} depth "
         "images: are the [camera] intrinsics for another resolution?"
     )
+
+
+#: Horizontal fields of view of depth cameras, degrees: a Kinect v1 58, a Kinect v2 70, a
+#: RealSense D435 87, an Azure Kinect's wide mode 120. Outside these bounds the focal length is
+#: almost surely not in pixels of these images.
+FIELD_OF_VIEW = (30.0, 150.0)
+
+
+def focal_problem(fx: float, fy: float, width: int, height: int) -> str | None:
+    """Why focal lengths ``fx``, ``fy`` (pixels) look wrong for ``width x height`` images: a
+    horizontal field of view outside :data:`FIELD_OF_VIEW`, or pixels far from square.
+
+    Parameters
+    ----------
+    fx, fy : float
+        Focal lengths in pixels (a negative one flips its axis).
+    width, height : int
+        Size of the depth images.
+
+    Returns
+    -------
+    str or None
+        A one-line warning, or ``None`` when the focal lengths are plausible.
+    """
+    fov = math.degrees(2.0 * math.atan2(width / 2.0, abs(fx)))
+    if not FIELD_OF_VIEW[0] <= fov <= FIELD_OF_VIEW[1]:
+        return (f"the camera's fx = {fx:g} gives the {width}x{height} depth images a {fov:.0f} degree field of view "
+                f"(depth cameras: {FIELD_OF_VIEW[0]:.0f}-{FIELD_OF_VIEW[1]:.0f}): are the [camera] intrinsics in pixels "
+                "and for this resolution?")
+    ratio = abs(fy) / abs(fx)
+    if not 0.8 <= ratio <= 1.25:
+        return (f"the camera's fy = {fy:g} is {ratio:.2f} times fx = {fx:g} (square pixels: about 1): "
+                "are the [camera] intrinsics right?")
+    return None
+
+
+def intrinsics_problems(fx: float, fy: float, cx: float, cy: float, width: int, height: int) -> list[str]:
+    """:func:`camera_problem` and :func:`focal_problem` together: the warnings (zero to two
+    lines) for a depth camera's intrinsics on ``width x height`` depth images."""
+    found = (camera_problem(cx, cy, width, height), focal_problem(fx, fy, width, height))
+    return [problem for problem in found if problem is not None]

@@ -34,7 +34,9 @@ from annotate_rgbd.annotation.parts import Part, frame_owners, place_parts
 from annotate_rgbd.propagate.carry import carried_layers
 from annotate_rgbd.propagate.keyframes import keyframe_frames
 from annotate_rgbd.report.records import NO_RGB_FRAME, OUTSIDE_ANNOTATION, RGB_NOT_ANNOTATED, FrameRecord
-from annotate_rgbd.io.sequence import Sequence, associate, camera_problem, read_depth, read_sequence
+from annotate_rgbd.io.sequence import (
+    Sequence, associate, camera_problem, intrinsics_problems, read_depth, read_sequence,
+)
 from annotate_rgbd.annotation.stitch import PartTracks, TrackPlane, assign_planes, label_conflicts
 from annotate_rgbd.pool import HelperPool
 
@@ -358,7 +360,8 @@ def check_first_frames(jobs: SequenceType[tuple[int, FrameJob]], config: Config)
     Returns
     -------
     list of str
-        A warning when the camera's principal point does not fit the first frame, and one when
+        A warning when the camera's principal point or focal lengths do not fit the first frame
+        (:func:`annotate_rgbd.io.sequence.intrinsics_problems`), and one when
         the first frames' depth at the configured scale is not what an indoor sensor sees
         (:func:`annotate_rgbd.geometry.depth_range.depth_scale_hint`).
 
@@ -381,9 +384,10 @@ def check_first_frames(jobs: SequenceType[tuple[int, FrameJob]], config: Config)
         height, width = depth.shape
         check_size(job, (height, width), config.colour_camera)
         medians.append(median_raw_depth(depth))
-        problem = camera_problem(config.camera.cx, config.camera.cy, width, height)
-        if number == 0 and problem is not None:
-            warnings.append(f"{job.depth_path}: {problem}")
+        camera = config.camera
+        if number == 0:
+            problems = intrinsics_problems(camera.fx, camera.fy, camera.cx, camera.cy, width, height)
+            warnings.extend(f"{job.depth_path}: {problem}" for problem in problems)
         colour = config.colour_camera
         problem = None if colour is None else camera_problem(colour.cx, colour.cy, colour.width, colour.height)
         if number == 0 and problem is not None:

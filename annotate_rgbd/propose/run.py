@@ -19,7 +19,7 @@ from annotate_rgbd.geometry.depth_range import depth_scale_hint, median_raw_dept
 from annotate_rgbd.geometry.lift import plane_to_world
 from annotate_rgbd.pool import default_workers, run_jobs, start_helpers
 from annotate_rgbd.io.poses import load_trajectory, missing_poses_text, poses_at
-from annotate_rgbd.io.sequence import associate, read_depth, read_sequence
+from annotate_rgbd.io.sequence import associate, intrinsics_problems, read_depth, read_sequence
 from annotate_rgbd.io.outdir import MASKS, OutputFolder, read_bounded, remove_review_files, remove_stale_files
 from annotate_rgbd.io.writer import write_json
 from annotate_rgbd.logs import group_problems
@@ -134,8 +134,7 @@ def _run(sequence, folder: OutputFolder, config, poses_path, helpers, progress) 
     chosen = chosen[matched[chosen]]
     if len(chosen) == 0:
         raise InputError(sequence.root, "no depth frame has an RGB frame within max_time_diff: nothing to propose")
-    hint = _depth_scale_hint(sequence, chosen, config)
-    if hint is not None:
+    for hint in _camera_hints(sequence, chosen, config):
         result.warnings.append(hint)
         log.warning("%s", hint)
     frame_poses = None
@@ -298,16 +297,28 @@ def _masks_of_report(out_dir: Path) -> set[str]:
         return set()
 
 
-def _depth_scale_hint(sequence, chosen: np.ndarray, config: Config) -> str | None:
-    """:func:`annotate_rgbd.geometry.depth_range.depth_scale_hint` on the first processed frames."""
-    medians = []
+def _camera_hints(sequence, chosen: np.ndarray, config: Config) -> list[str]:
+    """Warnings about the camera from the first processed frames: intrinsics that do not fit the
+    first readable one, unless it is too small for the detector
+    (:func:`annotate_rgbd.io.sequence.intrinsics_problems`), depth units
+    (:func:`annotate_rgbd.geometry.depth_range.depth_scale_hint`)."""
+    medians, hints, checked = [], [], False
+    camera = config.camera
     for i in chosen[:FIRST_FRAMES].tolist():
+        path = sequence.root / sequence.depth.files[i]
         try:
-            medians.append(median_raw_depth(read_depth(sequence.root / sequence.depth.files[i])))
+            depth = read_depth(path)
         except InputError:
             continue  # reported with its frame
-    hint = depth_scale_hint(medians, config.camera.depth_scale)
-    return None if hint is None else f"{sequence.root / Path(sequence.depth.files[0]).parent}: {hint}"
+        if not checked and min(depth.shape) >= config.detect.cell_px:  # a smaller frame is skipped, said so
+            problems = intrinsics_problems(camera.fx, camera.fy, camera.cx, camera.cy, *depth.shape[::-1])
+            hints.extend(f"{path}: {problem}" for problem in problems)
+            checked = True
+        medians.append(median_raw_depth(depth))
+    hint = depth_scale_hint(medians, camera.depth_scale)
+    if hint is not None:
+        hints.append(f"{sequence.root / Path(sequence.depth.files[0]).parent}: {hint}")
+    return hints
 
 
 def _frame_poses(path, sequence, times: np.ndarray, config: Config, warnings: list[str]):

@@ -150,7 +150,8 @@ def format_stats_json(stats: dict) -> str:
 
 #: The likely cause when most planes of a run are dropped for one reason.
 DROP_HINTS = {
-    "too_far": "is camera.depth_scale right for this sensor? (TUM, ICL-NUIM: 5000 per metre; RealSense: 1000)",
+    "too_far": "is camera.depth_scale right for this sensor? (TUM, ICL-NUIM: 5000 per metre; RealSense: 1000); "
+               "are the [camera] focal lengths in pixels of these images?",
     "invalid_depth": "is the depth registered to the RGB images, and are the polygons drawn on them?",
     "too_few_points": "are the shapes tiny, or the depth images of another size than the annotated ones?",
 }
