@@ -156,6 +156,9 @@ class SceneRun:
         What earlier runs in ``out_dir`` recorded (read when the scene starts).
     review_page : Path, optional
         ``review.html``, written by :func:`annotate_rgbd.pipeline.finish.finish_scene` with overlays.
+    rgb_problems : list of InputError
+        RGB images that could not be read for an overlay (drawn on grey instead), in the order
+        the frames finished.
     """
 
     name: str
@@ -168,6 +171,7 @@ class SceneRun:
     previous: Previous = field(default_factory=Previous)
     review_page: Path | None = None
     folder: OutputFolder | None = field(default=None, repr=False)
+    rgb_problems: list[InputError] = field(default_factory=list)
 
     def open(self, force: bool) -> None:
         """Take the output folder for this run (:class:`annotate_rgbd.io.outdir.OutputFolder`:
@@ -306,6 +310,8 @@ def execute_scenes(
             else:
                 frame.write(outcome.value.made, mask)
                 scene.counts.made += 1
+                if outcome.value.rgb_problem is not None:
+                    scene.rgb_problems.append(outcome.value.rgb_problem)
                 try:
                     journals[id(scene)].record(job.mask_path.name, outcome.value.made)
                 except OutputError as exc:
@@ -322,6 +328,9 @@ def execute_scenes(
         # In frame order, whatever order the workers finished in; a problem many frames share once.
         with scene_warnings(scene.name if scene_names else None):
             for line in scene.failures():
-                message = f"{line}; skipped"
+                message = f"{line}; failed (no mask)"
                 scene.plan.warnings.append(message)
                 log.warning(message)
+            for line in group_problems(sorted((str(e.path), e.message) for e in scene.rgb_problems)):
+                scene.plan.warnings.append(line)
+                log.warning(line)

@@ -137,10 +137,13 @@ class FrameOutcome:
     made : MaskRecord or None
         The planes of the mask just made; None when the outputs were up to date and reused
         (their recorded planes stand).
+    rgb_problem : InputError, optional
+        The frame's RGB image could not be read for its overlay (drawn on grey instead).
     """
 
     fingerprint: str
     made: MaskRecord | None = None
+    rgb_problem: InputError | None = None
 
     @property
     def reused(self) -> bool:
@@ -217,7 +220,7 @@ def run_frame_job(task: FrameTask) -> FrameOutcome:
     if job.propagated is not None:
         result.kept = [replace(r, propagated=r.plane in job.propagated) for r in result.kept]
         result.dropped = [replace(r, propagated=r.plane in job.propagated) for r in result.dropped]
-    written = {}
+    written, rgb_problem, unfinished = {}, None, set()
     if job.raw_mask_path is not None:
         written[job.raw_mask_path] = write_png(job.raw_mask_path, colourize(result.drawn, colours))
     if job.id_mask_path is not None:
@@ -225,11 +228,15 @@ def run_frame_job(task: FrameTask) -> FrameOutcome:
     if job.overlay_path is not None:
         from annotate_rgbd.review.overlay import overlay_for_frame  # only when overlays are wanted (SciPy is slow to import)
 
-        written[job.overlay_path] = write_png(job.overlay_path, overlay_for_frame(job.rgb_path, result, colours))
+        overlay, rgb_problem = overlay_for_frame(job.rgb_path, result, colours)
+        written[job.overlay_path] = write_png(job.overlay_path, overlay)
+        if rgb_problem is not None:  # recorded without a digest: the next run draws it again
+            unfinished.add(job.overlay_path)
     # The mask last: a frame whose mask exists has all its outputs.
     written[job.mask_path] = write_png(job.mask_path, colourize(result.labels, colours))
-    outputs = tuple(sorted((relative_output(p), data_digest(data)) for p, data in written.items()))
-    return FrameOutcome(made_from, MaskRecord(made_from, tuple(result.kept), tuple(result.dropped), outputs))
+    outputs = tuple(sorted((relative_output(p), "" if p in unfinished else data_digest(data))
+                           for p, data in written.items()))
+    return FrameOutcome(made_from, MaskRecord(made_from, tuple(result.kept), tuple(result.dropped), outputs), rgb_problem)
 
 
 class SizeMismatch(InputError):

@@ -13,8 +13,9 @@
 * **dropped plane** - the polygon outlined with a dashed line (plane colour and black), not
   tinted, with ``<id> dropped: <reason>`` in a black box.
 
-:func:`overlay_for_frame` reads the frame's RGB image first: ``cvat2mask --overlays`` calls it
-with the result it has just segmented, so that no frame is segmented twice.
+:func:`overlay_for_frame` reads the frame's RGB image first (a missing or unreadable one: plain
+grey, and a warning): ``cvat2mask --overlays`` calls it with the result it has just segmented,
+so that no frame is segmented twice.
 :func:`contact_sheet` puts a few overlays in a grid for a quick look or a bug report.
 """
 
@@ -28,11 +29,14 @@ import cv2
 import numpy as np
 from scipy import ndimage
 
+from annotate_rgbd.errors import InputError
 from annotate_rgbd.segment.frame import FrameResult
 from annotate_rgbd.io.sequence import read_rgb
 
 log = logging.getLogger("annotate_rgbd")
 
+#: Background of an overlay whose RGB image is missing or unreadable.
+NO_RGB_GREY = 96
 #: Weight of the plane colour in the tint of a kept plane.
 TINT_ALPHA = 0.45
 #: Weight of the plane colour on grown pixels: they stand out against the tint.
@@ -130,7 +134,7 @@ def render_overlay(
     return out
 
 
-def overlay_for_frame(rgb_path: Path, result: FrameResult, colours: np.ndarray) -> np.ndarray:
+def overlay_for_frame(rgb_path: Path, result: FrameResult, colours: np.ndarray) -> tuple[np.ndarray, InputError | None]:
     """Read a frame's RGB image and draw its review overlay.
 
     Parameters
@@ -144,23 +148,26 @@ def overlay_for_frame(rgb_path: Path, result: FrameResult, colours: np.ndarray) 
 
     Returns
     -------
-    ndarray of uint8, shape (H, W, 3)
+    overlay : ndarray of uint8, shape (H, W, 3)
         The overlay on the depth grid: with a colour camera of its own (``result.colour_grid``)
         the RGB image is resampled where each depth pixel lies in it; else an RGB image of
-        another size is resized to it.
-
-    Raises
-    ------
-    InputError
-        The RGB image is missing or unreadable.
+        another size is resized to it. A missing or unreadable RGB image leaves the frame's
+        mask reviewable: the overlay is drawn on plain grey (:data:`NO_RGB_GREY`).
+    problem : InputError or None
+        Why the RGB image could not be used, for a warning (its message ends in "its overlay is
+        drawn on grey").
     """
-    rgb = read_rgb(rgb_path)
     height, width = result.labels.shape
+    try:
+        rgb = read_rgb(rgb_path)
+    except InputError as exc:
+        grey = np.full((height, width, 3), NO_RGB_GREY, dtype=np.uint8)
+        return render_overlay(grey, result, colours), InputError(exc.path, f"{exc.message}; its overlay is drawn on grey")
     if result.colour_grid is not None:
         rgb = cv2.remap(rgb, *result.colour_grid, interpolation=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
     elif rgb.shape[:2] != (height, width):
         rgb = cv2.resize(rgb, (width, height), interpolation=cv2.INTER_AREA)
-    return render_overlay(rgb, result, colours)
+    return render_overlay(rgb, result, colours), None
 
 
 def stripes(shape: tuple[int, int], period: int = STRIPE_PERIOD, width: int = STRIPE_WIDTH) -> np.ndarray:

@@ -32,6 +32,7 @@ from annotate_rgbd.geometry.registration import ColourCamera
 from annotate_rgbd.io.outdir import OVERLAYS, REVIEW_RECORD, OutputFolder, file_digest, read_review_record
 from annotate_rgbd.io.sequence import read_depth, read_image, read_rgb
 from annotate_rgbd.io.writer import write_bytes_atomic, write_png
+from annotate_rgbd.logs import group_problems
 from annotate_rgbd.pool import run_jobs, start_helpers
 from annotate_rgbd.report.records import FrameRecord, RunRecord
 from annotate_rgbd.segment.plane_record import PlaneRecord
@@ -59,11 +60,15 @@ class ReviewOutput:
         The overlay images written.
     page, sheet : Path or None
         ``review.html`` and ``contact_sheet.png``, where written.
+    warnings : list of str
+        Problems that did not stop the review (RGB images that could not be read: their
+        overlays drawn on grey), one line each, also logged.
     """
 
     overlays: list[Path] = field(default_factory=list)
     page: Path | None = None
     sheet: Path | None = None
+    warnings: list[str] = field(default_factory=list)
 
 
 def review_run(
@@ -139,13 +144,19 @@ def write_review(
             for f in written
         ]
         folder.expect(f"{OVERLAYS}/{task.path.name}" for task in tasks)
+        rgb_problems = []
         with start_helpers(workers, [__name__]) or nullcontext() as helpers:
             for done, outcome in enumerate(run_jobs(tasks, write_overlay, helpers), start=1):
                 if outcome.error is not None:
                     raise outcome.error
+                if outcome.value is not None:
+                    rgb_problems.append(outcome.value)
                 if progress:
                     progress(done, len(written))
         output.overlays = [task.path for task in tasks]
+        output.warnings = group_problems(sorted((str(e.path), e.message) for e in rgb_problems))
+        for line in output.warnings:
+            log.warning("%s", line)
     available = [f for f in written if _overlay_path(out_dir, f).is_file()]
     if page:
         output.page = out_dir / PAGE_NAME
@@ -195,10 +206,11 @@ class OverlayTask:
     carried: tuple = ()
 
 
-def write_overlay(task: OverlayTask) -> None:
+def write_overlay(task: OverlayTask) -> InputError | None:
     """Draw one frame's overlay from the run's records and write it (run in a helper process).
     With a colour camera of its own (``registration``: the depth camera and the colour camera)
-    the shapes are taken to the depth grid through the frame's depth, as the frame's job did."""
+    the shapes are taken to the depth grid through the frame's depth, as the frame's job did.
+    Returns why the RGB image could not be used (the overlay is then drawn on grey), or None."""
     labels = mask_plane_ids(read_image(task.mask, cv2.IMREAD_COLOR), task.keys, task.values, task.mask)
     grid = None
     if task.registration is None:
@@ -211,7 +223,9 @@ def write_overlay(task: OverlayTask) -> None:
         drawn, grid = draw_on_depth_grid(shapes, depth_m, camera, colour)
     result = FrameResult(labels=labels, drawn=drawn, kept=list(task.kept), dropped=list(task.dropped),
                          colour_grid=grid)
-    write_png(task.path, overlay_for_frame(task.rgb, result, task.colours))
+    overlay, rgb_problem = overlay_for_frame(task.rgb, result, task.colours)
+    write_png(task.path, overlay)
+    return rgb_problem
 
 
 def _overlay_path(out_dir: Path, frame: FrameRecord) -> Path:

@@ -494,7 +494,7 @@ def test_unusable_depth_frame_is_skipped_and_reported(scene, how, problem):
     result = scene.run()
     assert result.exit_code == 1, result.stderr  # a failed frame fails the run, after every other mask
     message = f"{path}: {problem}"
-    assert f"warning: {message}; skipped" in result.stderr.splitlines()
+    assert f"warning: {message}; failed (no mask)" in result.stderr.splitlines()
     assert f"  failed: {message}" in result.stdout.splitlines()
     report = scene.report()
     entry = report["frames"][1]

@@ -137,7 +137,7 @@ def test_a_depth_png_announcing_a_huge_image_fails_its_frame_alone(tmp_path, siz
         f"{bomb}: the PNG header says {size[0]}x{size[1]} pixels ({size[0] * size[1] / 1e6:.0f} Mpixel); images "
         f"over {MAX_IMAGE_PIXELS / 1e6:.0f} Mpixel are refused (a corrupt file or a decompression bomb)"
     )
-    assert f"warning: {message}; skipped" in result.stderr.splitlines()
+    assert f"warning: {message}; failed (no mask)" in result.stderr.splitlines()
     frames = report_of(out)["frames"]
     assert [f["status"] for f in frames] == ["written", "failed", "written"]
     assert frames[1]["error"] == message

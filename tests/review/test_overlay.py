@@ -14,6 +14,7 @@ from annotate_rgbd.review.overlay import (
     contact_sheet,
     inner_boundary,
     label_points,
+    NO_RGB_GREY,
     overlay_for_frame,
     render_overlay,
     stripes,
@@ -136,9 +137,22 @@ def test_overlay_for_frame_reads_and_fits_the_rgb_to_the_depth_grid(frame, tmp_p
     _, result, colours, *_ = frame
     path = tmp_path / "rgb.png"
     cv2.imwrite(str(path), np.full((2 * H, 2 * W, 3), GREY, dtype=np.uint8))
-    overlay = overlay_for_frame(path, result, colours)
-    assert overlay.shape == (H, W, 3)
+    overlay, problem = overlay_for_frame(path, result, colours)
+    assert overlay.shape == (H, W, 3) and problem is None
     assert np.array_equal(overlay, frame[4])
+
+
+@pytest.mark.parametrize("content", [None, b"not an image"])
+def test_an_unreadable_rgb_image_gives_the_overlay_on_grey_and_says_why(frame, tmp_path, content):
+    rgb, result, colours, *_ = frame
+    path = tmp_path / "rgb.png"
+    if content is not None:
+        path.write_bytes(content)
+    overlay, problem = overlay_for_frame(path, result, colours)
+    # The same drawing as on an RGB image of plain grey.
+    grey = np.full_like(rgb, NO_RGB_GREY)
+    assert np.array_equal(overlay, render_overlay(grey, result, colours))
+    assert problem.path == path and problem.message.endswith("; its overlay is drawn on grey")
 
 
 def test_contact_sheet_places_thumbnails_in_reading_order():

@@ -101,6 +101,44 @@ def test_review_reads_the_run_not_its_inputs(tmp_path, monkeypatch):
         assert path.read_bytes() == (work / "with_overlays" / "overlays" / path.name).read_bytes()
 
 
+def test_unreadable_rgb_images_cost_their_overlays_colour_not_the_frame(tmp_path):
+    """A missing and a corrupt RGB image: ``cvat2mask --overlays`` still makes every mask and
+    overlay (those two on grey) with one warning line for each problem; a re-run redraws the two once
+    the images are back; ``review`` does the same without stopping."""
+    sequence = tmp_path / "sequence"
+    shutil.copytree(SAMPLE_DATA / "sequence", sequence)
+    config = load_config(SAMPLE_DATA / "camera.toml")
+    clean = run_cvat2mask(sequence, [SAMPLE_DATA / "annotations.xml"], tmp_path / "clean", config, overlays=True)
+    frames = [f for f in clean.frames if f.written][3:5]
+    broken = [sequence / f.rgb for f in frames]
+    saved = [path.read_bytes() for path in broken]
+    broken[0].unlink()
+    broken[1].write_bytes(b"not a jpeg")
+    out = tmp_path / "out"
+    result = run_cvat2mask(sequence, [SAMPLE_DATA / "annotations.xml"], out, config, overlays=True)
+    assert result.counts.failed == 0 and result.written == clean.written
+    lines = [w for w in result.warnings if "overlay is drawn on grey" in w]
+    assert lines == [f"{broken[0]}: file not found; its overlay is drawn on grey",
+                     f"{broken[1]}: not a readable image (corrupt or unsupported format); its overlay is drawn on grey"]
+    for name in sorted(p.name for p in (tmp_path / "clean" / "masks").iterdir()):
+        assert (out / "masks" / name).read_bytes() == (tmp_path / "clean" / "masks" / name).read_bytes()
+    greyed = {Path(f.mask).name for f in frames}
+    for name in sorted(p.name for p in (tmp_path / "clean" / "overlays").iterdir()):
+        same = (out / "overlays" / name).read_bytes() == (tmp_path / "clean" / "overlays" / name).read_bytes()
+        assert same == (name not in greyed), name
+    # review: the same warnings, every overlay written.
+    output = review_run(out, page=True, sheet=False)
+    assert len(output.overlays) == clean.written and output.warnings == lines
+    # With the images back, a re-run redraws those two frames only.
+    for path, data in zip(broken, saved):
+        path.write_bytes(data)
+    again = run_cvat2mask(sequence, [SAMPLE_DATA / "annotations.xml"], out, config, overlays=True)
+    assert (again.counts.made, again.counts.reused) == (2, clean.written - 2)
+    assert not [w for w in again.warnings if "grey" in w]
+    for name in greyed:
+        assert (out / "overlays" / name).read_bytes() == (tmp_path / "clean" / "overlays" / name).read_bytes()
+
+
 def test_review_without_the_drawn_shapes_record_says_what_to_do(finished_run, tmp_path):
     out = tmp_path / "out"
     shutil.copytree(finished_run, out, ignore=shutil.ignore_patterns("overlays"))
