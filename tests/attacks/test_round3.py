@@ -644,6 +644,6 @@ def test_a_problem_many_frames_share_is_said_once(tmp_path):
     depth = tmp_path / "seq" / "depth"
     problem = (f"{depth / f'{timestamp(1)}.png'}, {depth / f'{timestamp(3)}.png'}, {depth / f'{timestamp(4)}.png'}: "
                "depth image is 8-bit; expected 16-bit depth (TUM / ICL-NUIM PNG)")
-    assert [line for line in result.stderr.splitlines() if line.startswith("warning:")] == [f"warning: {problem}; skipped"]
+    assert [line for line in result.stderr.splitlines() if line.startswith("warning:")] == [f"warning: {problem}; failed (no mask)"]
     assert f"  failed: {problem}" in result.stdout.splitlines()
     assert "3 masks in" in result.stdout and "3 frames failed" in result.stdout
