@@ -30,7 +30,7 @@ from annotate_rgbd.annotation.model import PLANE_ID, Shape
 from annotate_rgbd.config.propose import EXPORT_MAX_VERTICES, EXPORT_TOLERANCE_PX
 from annotate_rgbd.cvat.from_masks import draw_order, piece_outlines
 from annotate_rgbd.errors import InputError, OutputError
-from annotate_rgbd.io.outdir import TOP_LEVEL_NAMES, reading
+from annotate_rgbd.io.outdir import OUTPUTS_RECORD, TOP_LEVEL_NAMES, reading
 from annotate_rgbd.io.writer import is_stream
 from annotate_rgbd.logs import group_problems
 from annotate_rgbd.propose.output import TrackShapes, write_polygon_tracks
@@ -128,8 +128,10 @@ def _export(run_dir: Path, report: RunRecord, xml_path: Path, tolerance_px: floa
 
 
 def check_target(run_dir: Path, xml_path: Path) -> None:
-    """Refuse to write the export into a folder that does not exist, or over a file of the run it
-    is made from (its report, tables, masks): the run would be lost.
+    """Refuse to write the export into a folder that does not exist, over a file of the run it
+    is made from (its report, tables, masks: the run would be lost), or over a file of any other
+    annotate-rgbd output folder (another run's ``proposals.xml``: its report would no longer
+    describe it).
 
     Raises
     ------
@@ -143,9 +145,13 @@ def check_target(run_dir: Path, xml_path: Path) -> None:
     try:
         inside = target.relative_to(run_dir.resolve()).parts
     except ValueError:
-        return
+        inside = ()
     if inside and inside[0] in TOP_LEVEL_NAMES:
         raise OutputError(xml_path, f"is {'/'.join(inside)} of the run being exported; write the export elsewhere")
+    for folder in (target.parent, target.parent.parent):  # a top-level file, or one in masks/ ...
+        if (folder / OUTPUTS_RECORD).is_file() and target.relative_to(folder).parts[0] in TOP_LEVEL_NAMES:
+            raise OutputError(xml_path, f"is {target.relative_to(folder).as_posix()} of the annotate-rgbd output "
+                                        f"folder {folder}; write the export elsewhere")
 
 
 def _keyframes(report: RunRecord) -> list:

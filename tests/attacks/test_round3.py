@@ -359,6 +359,22 @@ def test_export_never_overwrites_the_run_it_exports(finished, name):
     assert snapshot(finished.out, skip=finished.root / "none") == before
 
 
+@pytest.mark.parametrize("name", ["proposals.xml", "report.json", "masks/x.xml"])
+def test_export_never_overwrites_another_output_folders_files(finished, tmp_path, name):
+    # Another annotate-rgbd output folder (a copy of the run: its outputs record is what marks it).
+    other = tmp_path / "other"
+    shutil.copytree(finished.out, other)
+    (other / "proposals.xml").write_text("<annotations/>")
+    before = snapshot(other, skip=tmp_path / "none")
+    result = invoke("export-cvat", finished.out, other / name)
+    assert result.exit_code == 1
+    assert error_line(result) == (f"error: {other / name}: is {name} of the annotate-rgbd output folder {other}; "
+                                  "write the export elsewhere")
+    assert snapshot(other, skip=tmp_path / "none") == before
+    # A file of the user's own name in that folder is theirs to write.
+    assert invoke("export-cvat", finished.out, other / "round2.xml").exit_code == 0
+
+
 def test_per_frame_csv_to_dev_stdout_puts_the_means_on_standard_error(finished):
     masks = finished.out / "masks"
     result = run_limited(["evaluate", masks, masks, "--per-frame", "/dev/stdout"], cwd=finished.root)
