@@ -121,7 +121,8 @@ def coverage_hint(a0: float, a1: float, b0: float, b1: float, clock: str, n_pose
     A unit: the ranges overlap once the trajectory's (or the frames') timestamps are divided by
     1e9, 1e6 or 1e3, and the samples are then no closer than :data:`MIN_SAMPLE_SPACING` on
     average (no sensor runs faster). An offset: the durations agree (within a factor of 2, in
-    some unit) but the ranges do not overlap. Otherwise the trajectory is likely another sequence's.
+    some unit) but the ranges do not overlap. A trajectory that covers one end of the frames but
+    stops (or starts) inside them: cut short. Otherwise the trajectory is likely another sequence's.
     Frame numbers (``clock``) have no unit: only the last is said.
     """
     if _overlap(a0, a1, b0, b1) >= 0.5:
@@ -140,6 +141,12 @@ def coverage_hint(a0: float, a1: float, b0: float, b1: float, clock: str, n_pose
                 unit = "" if scale == 1.0 else f" with the trajectory in {name}"
                 return (f"the durations agree{unit} but the trajectory starts {b0 - a0 / scale:+.10g} s from the "
                         "frames: a clock offset, or the trajectory of another recording of the same length")
+        covered = _overlap(a0, a1, b0, b1)
+        if covered > 0.0 and (a0 <= b0 or a1 >= b1):  # one end inside the frames: cut short?
+            where = (f"ends {b1 - a1:.3g} s before the last depth frame" if a0 <= b0 else
+                     f"starts {a0 - b0:.3g} s after the first depth frame")
+            return (f"the trajectory {where} and covers {covered:.0%} of the frames' time: was it recorded or cut "
+                    "short? (frames outside it get no pose)")
         return "the ranges hardly overlap: is it this sequence's trajectory?"
     return ("the ranges hardly overlap: is it this sequence's trajectory? (its frames are numbers, and poses are "
             "matched to them by frame number: a TUM line's timestamp must be the frame's number)")

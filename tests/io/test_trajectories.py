@@ -398,6 +398,18 @@ def test_kitti_rows_on_a_timestamped_sequence_are_its_depth_frames_in_order(rend
     assert "go up to frame 12, but the sequence has 12 depth frames" in result.output.strip().splitlines()[-1]
 
 
+@pytest.mark.parametrize("a0, a1, expect", [
+    # The trajectory stops 0.77 s into a 1.3 s sequence (a new user's cut file): 40 % covered.
+    (1305031225.933, 1305031233.393, "the trajectory ends 0.773 s before the last depth frame and covers 40% of"),
+    (1305031233.9, 1305031240.0, "the trajectory starts 1.03 s after the first depth frame and covers 21% of"),
+    (1305031233.0, 1305031233.5, "the ranges hardly overlap"),  # inside the frames: neither end covered
+    (1305031100.0, 1305031110.0, "the ranges hardly overlap"),  # no overlap, another length
+])
+def test_a_trajectory_cut_short_is_said_to_be(a0, a1, expect):
+    b0, b1 = 1305031232.869, 1305031234.166
+    assert coverage_hint(a0, a1, b0, b1, SECONDS, 700, 40).startswith(expect)
+
+
 def test_numbered_frames_get_no_unit_hint():
     assert coverage_hint(0, 99, 100, 300, FRAME_NUMBERS).startswith("the ranges hardly overlap: is it this sequence's")
     assert coverage_hint(1.3e9, 1.3e9 + 30, 0, 900, FRAME_NUMBERS).endswith("must be the frame's number)")
