@@ -213,6 +213,12 @@ class ProposeConfig:
         Width of the ring around a plane whose planes surround it, pixels: 10, half the
         detector's cell, wider than the unlabelled rims of a few-centimetre object seen at an
         angle from a metre or more.
+    object_band_share : float
+        An object whose pixels lie within its plane's noise band (``widen_to_noise``'s scaled
+        band, the one ``cvat2mask`` keeps a pixel by) for at least this share is part of the plane:
+        its pixels join the plane's instead of being dropped (a strip of desk the sensor's bend
+        lifts a centimetre, a mouse pad: a polygon over both would keep them in ``cvat2mask``).
+        A majority, 0.5; above 1: never.
     min_track_frames : int
         A plane is proposed only when its track is found on at least this many processed frames
         (all of them when fewer are processed): a plane that flickers for one frame is a fragment
@@ -245,6 +251,7 @@ class ProposeConfig:
     object_height: float = 0.10
     object_inside: float = 0.5
     object_ring_px: int = 10
+    object_band_share: float = 0.5
     min_track_frames: int = 2
     min_surface_m2: float = 0.1
     min_track_share: float = 0.03
@@ -262,6 +269,7 @@ class ProposeConfig:
             ("object_height", lambda v: v >= 0, "must be >= 0"),
             ("object_inside", lambda v: 0 <= v <= 1, "must be in [0, 1]"),
             ("object_ring_px", lambda v: v >= 1, "must be an integer >= 1"),
+            ("object_band_share", lambda v: v >= 0, "must be >= 0"),
             ("min_track_frames", lambda v: v >= 1, "must be an integer >= 1"),
             ("min_surface_m2", lambda v: v >= 0, "must be >= 0"),
             ("min_track_share", lambda v: 0 <= v <= 1, "must be in [0, 1]"),

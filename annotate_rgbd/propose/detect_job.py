@@ -28,7 +28,7 @@ from annotate_rgbd.segment.filters import camera_distances, drop_reasons, statis
 from annotate_rgbd.segment.rasterize import fill_window
 from .extent import assign_in_outlines, piece_windows, plane_scales
 from .measures import label_counts, polygon_fit, surface_areas
-from .objects import neighbour_shares, objects_on_planes
+from .objects import neighbour_shares, object_hosts, shares_in_band
 from .seams import seam_groups
 
 
@@ -189,11 +189,21 @@ def propose_planes(
     boxes = label_boxes(labels, len(areas))
     windows = piece_windows(labels, settings.outline_tolerance_px, boxes=boxes)
     coverage = polygon_coverage(labels, windows)
-    objects = objects_on_planes(planes, areas, centroids, coverage, neighbour_shares(labels, settings.object_ring_px, boxes),
-                                settings.object_height, settings.object_inside, detector.min_angle_deg)
+    hosts = object_hosts(planes, areas, centroids, coverage, neighbour_shares(labels, settings.object_ring_px, boxes),
+                         settings.object_height, settings.object_inside, detector.min_angle_deg)
+    part = np.zeros(len(areas), dtype=bool)
+    if settings.widen_to_noise and (hosts >= 0).any():
+        # An object inside its plane's own band is the plane (cvat2mask keeps it): it joins the plane.
+        scales = plane_scales(labels, points, planes, noise, ransac, boxes)
+        part = (hosts >= 0) & (shares_in_band(labels, points, planes, hosts, scales, noise, boxes) >= settings.object_band_share)
+        if part.any():
+            labels = relabel(labels, join_table(hosts, part), labels.dtype)
+            boxes = label_boxes(labels, len(areas))
+            windows = piece_windows(labels, settings.outline_tolerance_px, boxes=boxes)
+    objects = (hosts >= 0) & ~part
     early = [{"area": int(areas[k]), "reason": "on_plane", "mean_distance": None, "invalid_ratio": None,
               "equation": [float(v) for v in planes[k]]} for k in np.flatnonzero(objects)]
-    kept = np.flatnonzero(~objects)
+    kept = np.flatnonzero(~objects & ~part)
     planes, windows = planes[kept], [windows[k] for k in kept]
     if settings.widen_to_noise:
         # Each plane's pixels inside its outline, within its own (scaled) noise band.
@@ -302,6 +312,31 @@ def keep_planes(proposal: FrameProposal, keep: np.ndarray, reason) -> FramePropo
         polygon_iou=proposal.polygon_iou[keep],
         budget_iou_cost=proposal.budget_iou_cost[keep],
     )
+
+
+def join_table(hosts: np.ndarray, part: np.ndarray) -> np.ndarray:
+    """The relabelling table (labels 0..K) that gives each plane ``part`` selects to its host,
+    following hosts that join their own host in turn.
+
+    Parameters
+    ----------
+    hosts : ndarray of int, shape (K,)
+        Host of each plane (0-based; -1: none).
+    part : ndarray of bool, shape (K,)
+        The planes that join their host.
+
+    Returns
+    -------
+    ndarray of intp, shape (K + 1,)
+    """
+    table = np.arange(len(hosts) + 1)
+    table[np.flatnonzero(part) + 1] = np.asarray(hosts)[part] + 1
+    for _ in range(len(hosts)):  # hosts are larger than their objects: no cycles
+        chained = table[table]
+        if (chained == table).all():
+            break
+        table = chained
+    return table
 
 
 def join_moments(moments: Moments, group: np.ndarray) -> Moments:

@@ -14,6 +14,7 @@ import cv2
 import numpy as np
 
 from annotate_rgbd.cvat.pieces import label_boxes
+from annotate_rgbd.geometry.noise import NoiseSettings
 
 
 def neighbour_shares(labels: np.ndarray, ring_px: int, boxes: list | None = None) -> np.ndarray:
@@ -65,7 +66,21 @@ def objects_on_planes(
     min_inside: float,
     angle_deg: float,
 ) -> np.ndarray:
-    """Which planes are objects on a larger plane.
+    """Which planes are objects on a larger plane: :func:`object_hosts` ``>= 0``."""
+    return object_hosts(planes, areas, centroids, coverage, neighbours, max_height, min_inside, angle_deg) >= 0
+
+
+def object_hosts(
+    planes: np.ndarray,
+    areas: np.ndarray,
+    centroids: np.ndarray,
+    coverage: np.ndarray,
+    neighbours: np.ndarray,
+    max_height: float,
+    min_inside: float,
+    angle_deg: float,
+) -> np.ndarray:
+    """The larger plane each plane is an object on, if any.
 
     Plane ``p`` is an object on plane ``q`` when ``q`` has more pixels, their normals agree within
     ``angle_deg``, ``p``'s centroid stands in front of ``q`` (on the camera's side) by more than 0
@@ -91,17 +106,64 @@ def objects_on_planes(
 
     Returns
     -------
-    ndarray of bool, shape (K,)
+    ndarray of intp, shape (K,)
+        The host of each plane (0-based; of several, the largest), -1 for a plane that is no object.
     """
     k = len(areas)
     if k < 2:
-        return np.zeros(k, dtype=bool)
+        return np.full(k, -1, dtype=np.intp)
     planes = np.asarray(planes, dtype=np.float64)
+    areas = np.asarray(areas)
     # height[p, q]: how far p's centroid stands in front of q's plane.
     height = centroids @ planes[:, :3].T + planes[:, 3][None, :]
     parallel = planes[:, :3] @ planes[:, :3].T >= np.cos(np.radians(angle_deg))
-    larger = np.asarray(areas)[None, :] > np.asarray(areas)[:, None]
-    inside = coverage.T / np.maximum(np.asarray(areas), 1)[:, None]  # [p, q]: share of p inside q's polygon
+    larger = areas[None, :] > areas[:, None]
+    inside = coverage.T / np.maximum(areas, 1)[:, None]  # [p, q]: share of p inside q's polygon
     held = (inside >= min_inside) | (np.asarray(neighbours) >= min_inside)
     on = parallel & larger & (height > 0) & (height <= max_height) & held
-    return on.any(axis=1)
+    host = np.argmax(np.where(on, areas[None, :], -1), axis=1)
+    return np.where(on.any(axis=1), host, -1).astype(np.intp)
+
+
+def shares_in_band(
+    labels: np.ndarray, points: np.ndarray, planes: np.ndarray, hosts: np.ndarray, scales: np.ndarray,
+    noise: NoiseSettings, boxes: list,
+) -> np.ndarray:
+    """The share of each object's pixels that lie within its host plane's noise band.
+
+    An object a centimetre proud of its plane by the sensor's error, or thinner than the plane's
+    band (a paper, a mouse pad, a strip of desk the sensor bends), is the plane to ``cvat2mask``:
+    a polygon drawn over both keeps such pixels as the plane's.
+
+    Parameters
+    ----------
+    labels : ndarray of int, shape (H, W)
+        Planes 1..K.
+    points : ndarray of float, shape (H, W, 3)
+        Camera-frame point of every pixel, metres.
+    planes : ndarray of float, shape (K, 4)
+        Unit normals.
+    hosts : ndarray of int, shape (K,)
+        :func:`object_hosts`.
+    scales : ndarray of float, shape (K,)
+        Each plane's noise scale (:func:`annotate_rgbd.propose.extent.plane_scales`).
+    noise : NoiseSettings
+        The band: ``clip(k * scale * sigma(z), floor, cap)``.
+    boxes : list
+        :func:`annotate_rgbd.cvat.pieces.label_boxes` of ``labels``.
+
+    Returns
+    -------
+    ndarray of float64, shape (K,)
+        0 for a plane that is no object.
+    """
+    shares = np.zeros(len(hosts))
+    for p in np.flatnonzero(np.asarray(hosts) >= 0).tolist():
+        q = int(hosts[p])
+        if boxes[p] is None:
+            continue
+        box = points[boxes[p]]
+        mine = box[labels[boxes[p]] == p + 1]
+        distance = np.abs(mine @ np.asarray(planes[q, :3], dtype=np.float32) + np.float32(planes[q, 3]))
+        shares[p] = np.mean(distance <= noise.scaled(float(scales[q])).band(mine[:, 2])) if len(mine) else 0.0
+    return shares

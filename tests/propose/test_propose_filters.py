@@ -105,6 +105,7 @@ from annotate_rgbd.geometry.camera import Camera  # noqa: E402
 from annotate_rgbd.geometry.noise import NoiseSettings  # noqa: E402
 from annotate_rgbd.config.propose import DetectorConfig, ProposeConfig  # noqa: E402
 from annotate_rgbd.propose.detect_job import propose_planes  # noqa: E402
+from annotate_rgbd.cvat.pieces import label_boxes  # noqa: E402
 from annotate_rgbd.propose.objects import objects_on_planes  # noqa: E402
 
 CAMERA = Camera(fx=525.0, fy=525.0, cx=319.5, cy=239.5, depth_scale=5000.0)
@@ -160,6 +161,60 @@ def test_objects_rule_needs_every_condition():
     tilted[1, :3] = [0.0, np.sin(np.radians(15)), -np.cos(np.radians(15))]
     assert not objects_on_planes(tilted, areas, centroids, coverage, alone, **args)[1]
     assert not objects_on_planes(planes, np.array([10000, 20000, 500]), centroids, coverage, alone, **args)[1]
+
+
+def test_an_object_inside_its_planes_band_joins_the_plane():
+    depth = wall_with_things(np.random.default_rng(3))
+    # Every object joins its plane whatever its share in the band: the picture is no longer
+    # dropped, and its pixels, 5 sigma off the wall, stay nobody's (the wall's band decides them).
+    joined = propose_planes(depth, CAMERA, DetectorConfig(), ProposeConfig(object_band_share=0.0), NoiseSettings(),
+                            FilterConfig())
+    assert not [d for d in joined.dropped if d["reason"] == "on_plane"] and len(joined.areas) == 2
+    assert np.count_nonzero(joined.labels[160:290, 160:340]) < 0.02 * 130 * 180
+    # The default (a majority in the band) keeps it an object; widen_to_noise off: no band, no joining.
+    for settings in (ProposeConfig(), ProposeConfig(object_band_share=0.0, widen_to_noise=False)):
+        found = propose_planes(depth, CAMERA, DetectorConfig(), settings, NoiseSettings(), FilterConfig())
+        assert [d["reason"] for d in found.dropped] == ["on_plane"]
+
+
+def test_object_hosts_and_their_band_shares():
+    from annotate_rgbd.geometry.noise import ConstantNoise
+    from annotate_rgbd.propose.detect_job import join_table
+    from annotate_rgbd.propose.objects import object_hosts, shares_in_band
+
+    wall = [0.0, 0.0, -1.0, 2.0]
+    planes = np.array([wall, [0.0, 0.0, -1.0, 1.99], [0.0, 0.0, -1.0, 1.99], [0.0, 0.0, -1.0, 2.01]])
+    areas = np.array([10000, 1000, 500, 20000])
+    centroids = np.array([[0.0, 0.0, 2.0], [0.0, 0.0, 1.99], [0.5, 0.0, 1.99], [0.0, 0.0, 2.01]])
+    coverage = np.array([[10000, 900, 500, 0], [0, 1000, 0, 0], [0, 0, 500, 0], [0, 900, 0, 20000]])
+    args = dict(max_height=0.1, min_inside=0.5, angle_deg=10.0)
+    # Plane 2 is on the wall and on plane 4 (1 cm behind the wall): the larger host wins; 3 is on
+    # the wall only (not inside plane 4's polygon); the wall is not inside plane 4's polygon either.
+    hosts = object_hosts(planes, areas, centroids, coverage, np.zeros((4, 4)), **args)
+    assert hosts.tolist() == [-1, 3, 0, -1]
+    assert objects_on_planes(planes, areas, centroids, coverage, np.zeros((4, 4)), **args).tolist() == [False, True, True, False]
+    # Shares: the band is 3 x 5 mm = 15 mm; object 2's pixels 1 cm and 4 cm before plane 4
+    # (z = 2.01), object 3's 1 cm and 3 cm before the wall.
+    labels = np.zeros((4, 6), np.uint8)
+    labels[0, :4] = 2
+    labels[1, :2] = 3
+    labels[2:, :] = 4
+    z = np.full((4, 6), 2.01)
+    z[0, :4] = [2.0, 2.0, 2.0, 1.97]
+    z[1, :2] = [1.99, 1.97]
+    points = np.stack([np.zeros_like(z), np.zeros_like(z), z], axis=-1)
+    noise = NoiseSettings(model=ConstantNoise(0.005), k=3.0, floor=0.0, cap=1.0)
+    boxes = label_boxes(labels, 4)
+    shares = shares_in_band(labels, points, planes, np.array([-1, 3, 0, -1]), np.ones(4), noise, boxes)
+    expected_2 = np.mean(np.abs(np.array([2.0, 2.0, 2.0, 1.97]) - 2.01) <= 0.015)
+    expected_3 = np.mean(np.abs(np.array([1.99, 1.97]) - 2.0) <= 0.015)
+    assert shares.tolist() == pytest.approx([0.0, expected_2, expected_3, 0.0])
+    assert (expected_2, expected_3) == (0.75, 0.5)
+    # 2.5 times the noise of the model on the wall (band 3.75 cm): it holds object 3's 3 cm pixel too.
+    wider = shares_in_band(labels, points, planes, np.array([-1, 3, 0, -1]), np.array([2.5, 1, 1, 1]), noise, boxes)
+    assert wider[2] == 1.0
+    # Joining follows a host that joins its own host: 2 -> 1 -> 4 puts 2 on 4.
+    assert join_table(np.array([3, 0, -1, -1]), np.array([True, True, False, False])).tolist() == [0, 4, 4, 3, 4]
 
 
 def test_neighbour_shares_count_the_labelled_ring_only():
