@@ -309,20 +309,21 @@ def load_config(source: str | Path | None = None, overrides: Mapping[str, Any] |
     if source is not None:
         origin, text = _read_source(source)
         values = read_toml(text, origin)
-        problem = partial_intrinsics(values.get("camera"), DEFAULT_CAMERA)
-        if problem is not None:
-            log.warning("%s: %s", origin, problem)
     poses = values.get("sequence", {}).get("poses") if isinstance(values.get("sequence"), Mapping) else None
     if isinstance(poses, str) and poses and isinstance(origin, Path):
         values["sequence"]["poses"] = str(origin.parent / poses)  # relative to the file
     config = _build(values, origin)
-    if not overrides:
-        return config
-    for dotted, value in overrides.items():
-        section, _, key = dotted.partition(".")
-        values.setdefault(section, {})[key] = value
-    # The file alone was valid: what fails now comes from the command line.
-    return _build(values, "command-line option")
+    if overrides:
+        for dotted, value in overrides.items():
+            section, _, key = dotted.partition(".")
+            values.setdefault(section, {})[key] = value
+        # The file alone was valid: what fails now comes from the command line.
+        config = _build(values, "command-line option")
+    # Half-written intrinsics, with the command line's values in (--set camera.fx=... completes a file).
+    problem = partial_intrinsics(values.get("camera"), DEFAULT_CAMERA)
+    if problem is not None:
+        log.warning("%s: %s", origin if source is not None else "command-line option", problem)
+    return config
 
 
 def config_from_dict(values: Mapping[str, Any], origin: str | Path | None = None) -> Config:

@@ -34,6 +34,15 @@ def test_a_config_file_without_fx_warns_once_naming_the_file(tmp_path, caplog):
     assert config.camera.fx == DEFAULT_CAMERA.fx and config.camera.fy == 516.5
     lines = [r.getMessage() for r in caplog.records]
     assert len(lines) == 1 and lines[0].startswith(f"{path}: [camera] gives fy, cx, cy but not fx")
+    # The command line completes the file: no warning; it alone half-writes the camera: one.
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="annotate_rgbd"):
+        assert load_config(path, {"camera.fx": 517.3}).camera.fx == 517.3
+        assert not caplog.records
+        load_config(None, {"camera.fx": 517.3})
+    assert [r.getMessage() for r in caplog.records] == [
+        "command-line option: [camera] gives fx but not fy, cx, cy: the default fy = 525, cx = 319.5, cy = 239.5 are used "
+        "(the ROS default of a Kinect v1 at 640x480); give all four intrinsics of your camera"]
 
 
 @pytest.mark.parametrize("fx, fy, width, expect", [
