@@ -502,6 +502,7 @@ def _check_ranges(config: Config, origin: str | Path | None) -> None:
         ("ransac.distance_threshold", config.ransac.distance_threshold >= 0, "must be >= 0 (0: the [noise] band)"),
         ("refine.grow_pixels", 0 <= config.refine.grow_pixels <= 50, "must be in [0, 50]"),
         ("refine.rim_pixels", 0 <= config.refine.rim_pixels <= 50, "must be in [0, 50]"),
+        ("refine.behind_band", 1 <= config.refine.behind_band <= 10, "must be in [1, 10]"),
         ("ransac.num_iterations", config.ransac.num_iterations >= 1, "must be >= 1"),
         ("ransac.seed", config.ransac.seed >= 0, "must be >= 0"),
         ("ransac.max_points", config.ransac.max_points == 0 or config.ransac.max_points >= 3, "must be 0 or >= 3"),

@@ -38,8 +38,10 @@ def refine_planes(
     Each plane is fitted (:func:`fit_plane`) to its valid pixels on a regular grid (every
     pixel, or every s-th row and column so that at most ``config.max_points`` remain); whether
     a pixel is an inlier is then decided for every pixel of every plane at once: its distance
-    to its own plane within the band ``noise.band(z)`` at its own depth. With a noise model (not
-    a fixed band), surfaces inside the band but off the plane are then found by the window test
+    to its own plane within the band ``noise.band(z)`` at its own depth (with a noise model, not
+    a fixed band, ``refine.behind_band`` times that behind the plane: nothing seen stands just
+    behind the surface that hides it). With a noise model, surfaces inside the band but off the
+    plane are then found by the window test
     (:func:`window_scores`): each plane is re-fitted to the windows around its dominant surface,
     and inliers whose window score lies beyond ``refine.coherence_limit`` spreads, or whose
     window holds under ``refine.min_inlier_density`` inliers, are dropped. Last, inliers within
@@ -111,6 +113,8 @@ def refine_planes(
         table[plane_id] = fit.equation
         scales[plane_id] = fit.noise_scale
     band = band_image(depth_m, noise)
+    # A fixed band (distance_threshold) is the same distance on both sides, as given.
+    behind = refine.behind_band if noise.floor < noise.cap else 1.0
     if not isinstance(band, float) and (scales != 1).any():  # widened where a plane's noise is larger
         band = np.clip(band * label_lookup(scales, on_valid), np.float32(noise.floor), np.float32(noise.cap))
     # The window test needs the noise, which a fixed band (distance_threshold) does not give.
@@ -127,7 +131,7 @@ def refine_planes(
         labels_s, depth_s, band_s = on_valid[small], depth_m[small], band[small]
         camera_s = replace(camera, fx=camera.fx / 2, fy=camera.fy / 2, cx=camera.cx / 2, cy=camera.cy / 2)
         window = refine.coherence_window // 2 + 1
-        on_plane_s, residual_s = _inlier_test(table, labels_s, depth_s, camera_s, band_s, noise.k)
+        on_plane_s, residual_s = _inlier_test(table, labels_s, depth_s, camera_s, band_s, noise.k, behind)
         for _ in range(refine.core_refits):
             score, usable = window_scores(residual_s, on_plane_s, window, refine.min_window_inliers)
             centre, _ = _score_statistics(score, usable, labels_s, n_labels)
@@ -136,16 +140,16 @@ def refine_planes(
             _refit_to(core, labels_s, depth_s, band_s, noise.k, camera_s, config.max_points, fits, table)
             if np.abs(table - before).max(initial=0.0) < SETTLED:
                 break
-            on_plane_s, residual_s = _inlier_test(table, labels_s, depth_s, camera_s, band_s, noise.k)
+            on_plane_s, residual_s = _inlier_test(table, labels_s, depth_s, camera_s, band_s, noise.k, behind)
     signed = _plane_distances(table, on_valid, depth_m, camera)
-    on_plane, residual = _band_test(signed, table, on_valid, band, noise.k)
+    on_plane, residual = _band_test(signed, table, on_valid, band, noise.k, behind)
     if coherence and refine.bend_rounds:
         # The sensor's disparity error bows a real plane by millimetres: test against the
         # plane's bent surface (:mod:`annotate_rgbd.segment.bend`); the window test follows it.
         fitted = np.flatnonzero(table[:, :3].any(axis=1))
         signed -= plane_bends(signed, on_plane, on_valid, fitted, depth_m, band, camera, refine.bend_rounds,
                               refine.bend_cell)
-        on_plane, residual = _band_test(signed, table, on_valid, band, noise.k)
+        on_plane, residual = _band_test(signed, table, on_valid, band, noise.k, behind)
     if coherence:
         score, usable = window_scores(residual, on_plane, refine.coherence_window, refine.min_window_inliers)
         centre, spread = _score_statistics(score, usable, on_valid, n_labels, step=4)
@@ -315,11 +319,13 @@ def _sorted_median(v: np.ndarray) -> float:
 
 def _inlier_test(
     table: np.ndarray, labels: np.ndarray, depth_m: np.ndarray, camera: Camera, band: np.ndarray | float, k: float,
+    behind: float = 1.0,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Pixels within their plane's band, and every pixel's signed distance to its plane in
-    noise units (``k`` times distance over band); ``table`` holds each label's plane, zeros for
-    a label without one."""
-    return _band_test(_plane_distances(table, labels, depth_m, camera), table, labels, band, k)
+    """Pixels within their plane's band (``behind`` times wider behind the plane:
+    ``refine.behind_band``), and every pixel's signed distance to its plane in noise units
+    (``k`` times distance over band); ``table`` holds each label's plane, zeros for a label
+    without one."""
+    return _band_test(_plane_distances(table, labels, depth_m, camera), table, labels, band, k, behind)
 
 
 def _plane_distances(table: np.ndarray, labels: np.ndarray, depth_m: np.ndarray, camera: Camera) -> np.ndarray:
@@ -328,12 +334,13 @@ def _plane_distances(table: np.ndarray, labels: np.ndarray, depth_m: np.ndarray,
 
 
 def _band_test(
-    signed: np.ndarray, table: np.ndarray, labels: np.ndarray, band: np.ndarray | float, k: float,
+    signed: np.ndarray, table: np.ndarray, labels: np.ndarray, band: np.ndarray | float, k: float, behind: float = 1.0,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`_inlier_test` from the pixels' signed distances (m) to their surfaces."""
+    """:func:`_inlier_test` from the pixels' signed distances (m) to their surfaces (positive on
+    the camera's side)."""
     fitted = table[:, :3].any(axis=1).astype(np.float32)  # a plane has a unit normal
     with np.errstate(invalid="ignore"):
-        on_plane = (np.abs(signed) < band) & (label_lookup(fitted, labels) > 0)
+        on_plane = (signed < band) & (signed > band * np.float32(-behind)) & (label_lookup(fitted, labels) > 0)
         residual = signed * (np.float32(k) / band)
     return on_plane, residual
 

@@ -187,3 +187,35 @@ def test_refit_plane_is_fitted_to_the_inliers_and_reports_its_residual_in_sigma_
     assert fit.rms_sigma == pytest.approx(np.sqrt(np.mean(residual**2)), rel=0.01)
     assert 0.85 < fit.rms_sigma < 1.1  # the model is the noise the points were drawn with
     assert fit.inliers_refit == fit.inliers.sum() >= fit.inliers_ransac > 0.95 * len(points)
+
+
+def test_the_band_is_wider_behind_a_plane_than_in_front_of_it():
+    from annotate_rgbd.config.masks import RefineConfig
+    from annotate_rgbd.geometry.noise import ConstantNoise
+
+    # A wall 2 m away, noise well under the model's (sigma 5 mm: a 15 mm band, 22.5 mm behind it
+    # at behind_band 1.5); a tenth of the pixels, scattered, lies 2 cm in front of it, another tenth 2 cm behind.
+    camera = Camera(fx=100.0, fy=100.0, cx=39.5, cy=29.5, depth_scale=5000.0)
+    rng = np.random.default_rng(5)
+    depth = (2.0 + rng.normal(0, 0.001, (60, 80))).astype(np.float32)
+    scatter = rng.random((60, 80))  # at random: a regular pattern could alias with the fit's grid
+    front, behind = scatter < 0.1, scatter > 0.9
+    depth[front] -= 0.02
+    depth[behind] += 0.02
+    labels = np.ones((60, 80), np.uint8)
+    noise = NoiseSettings(ConstantNoise(0.005))
+    kept = {}
+    for name, wider, settings in [("default", 1.5, noise), ("symmetric", 1.0, noise), ("fixed", 1.5, NoiseSettings.fixed(0.015))]:
+        refined, fits = refine_planes(labels, depth, np.array([1]), camera, RansacConfig(), settings,
+                                      refine=RefineConfig(rim_pixels=0, behind_band=wider))
+        assert fits[1].noise_scale == 1.0
+        kept[name] = refined > 0
+    inner = (slice(4, -4), slice(4, -4))  # away from the image's border (windows, bend cells)
+    assert kept["default"][inner][behind[inner]].mean() > 0.98
+    assert not kept["default"][front].any()
+    # A symmetric band and a fixed one (distance_threshold: the distance as given) keep neither.
+    for name in ("symmetric", "fixed"):
+        assert not kept[name][behind].any() and not kept[name][front].any(), (name, kept[name][behind].mean(), kept[name][front].mean())
+    # The plane's own pixels stay in all three.
+    plain = ~front & ~behind
+    assert all(kept[name][inner][plain[inner]].mean() > 0.98 for name in kept)
