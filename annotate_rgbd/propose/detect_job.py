@@ -196,6 +196,7 @@ def propose_planes(
         # An object inside its plane's own band is the plane (cvat2mask keeps it): it joins the plane.
         scales = plane_scales(labels, points, planes, noise, ransac, boxes)
         part = (hosts >= 0) & (shares_in_band(labels, points, planes, hosts, scales, noise, boxes) >= settings.object_band_share)
+        part &= ~ends_on_object(hosts, part)
         if part.any():
             labels = relabel(labels, join_table(hosts, part), labels.dtype)
             boxes = label_boxes(labels, len(areas))
@@ -337,6 +338,33 @@ def join_table(hosts: np.ndarray, part: np.ndarray) -> np.ndarray:
             break
         table = chained
     return table
+
+
+def ends_on_object(hosts: np.ndarray, part: np.ndarray) -> np.ndarray:
+    """The planes of ``part`` whose chain of hosts ends on a plane that is itself an object and
+    does not join (so is dropped): they are objects too, not part of a plane.
+
+    Parameters
+    ----------
+    hosts : ndarray of int, shape (K,)
+        Host of each plane (0-based; -1: none).
+    part : ndarray of bool, shape (K,)
+        The planes that would join their host.
+
+    Returns
+    -------
+    ndarray of bool, shape (K,)
+    """
+    hosts, part = np.asarray(hosts), np.asarray(part, dtype=bool).copy()
+    ends_dropped = np.zeros(len(hosts), dtype=bool)
+    while part.any():
+        end = join_table(hosts, part)[1:] - 1
+        bad = part & (hosts[end] >= 0)
+        if not bad.any():
+            break
+        ends_dropped |= bad
+        part &= ~bad
+    return ends_dropped
 
 
 def join_moments(moments: Moments, group: np.ndarray) -> Moments:

@@ -177,9 +177,29 @@ def test_an_object_inside_its_planes_band_joins_the_plane():
         assert [d["reason"] for d in found.dropped] == ["on_plane"]
 
 
+def test_a_strip_at_the_image_border_inside_the_walls_band_joins_the_wall():
+    # A wall 2 m away whose left 80 columns the sensor puts 6 sigma nearer (as Kinect v1's bend
+    # lifts TUM fr1_rpy's desk at the image's border); cvat2mask's band is 9 sigma here, so the
+    # strip lies in the wall's band, while the detector (3 sigma) finds it as a plane of its own,
+    # parallel, surrounded by the wall: an object on it. No merging of coplanar pieces.
+    rng = np.random.default_rng(3)
+    depth = np.full((480, 640), 2.0)
+    depth[:, :80] -= 6 * (0.0012 + 0.0019 * 1.6**2)
+    depth = (depth + rng.normal(0, 1, depth.shape) * (0.0012 + 0.0019 * (depth - 0.4) ** 2)).astype(np.float32)
+    wide = NoiseSettings(k=9.0)
+    joined = propose_planes(depth, CAMERA, DetectorConfig(), ProposeConfig(merge_excess=0.5), wide, FilterConfig())
+    assert not joined.dropped and len(joined.areas) == 1
+    assert np.mean(joined.labels[:, :80] == 1) > 0.99 and np.mean(joined.labels[:, 80:] == 1) > 0.99
+    # Never joining (a share above 1): the strip is an object, dropped, and its pixels nobody's.
+    apart = propose_planes(depth, CAMERA, DetectorConfig(), ProposeConfig(merge_excess=0.5, object_band_share=2.0), wide,
+                           FilterConfig())
+    assert [d["reason"] for d in apart.dropped] == ["on_plane"] and apart.dropped[0]["area"] == pytest.approx(80 * 480, rel=0.02)
+    assert not apart.labels[:, :80].any() and len(apart.areas) == 1
+
+
 def test_object_hosts_and_their_band_shares():
     from annotate_rgbd.geometry.noise import ConstantNoise
-    from annotate_rgbd.propose.detect_job import join_table
+    from annotate_rgbd.propose.detect_job import ends_on_object, join_table
     from annotate_rgbd.propose.objects import object_hosts, shares_in_band
 
     wall = [0.0, 0.0, -1.0, 2.0]
@@ -215,6 +235,11 @@ def test_object_hosts_and_their_band_shares():
     assert wider[2] == 1.0
     # Joining follows a host that joins its own host: 2 -> 1 -> 4 puts 2 on 4.
     assert join_table(np.array([3, 0, -1, -1]), np.array([True, True, False, False])).tolist() == [0, 4, 4, 3, 4]
+    # A plane whose chain of hosts ends on an object that does not join (and is dropped) is an
+    # object too: 1 -> 2 -> 3, and 3 lies on the wall 0 without joining it; 4 -> 0 joins the wall.
+    hosts, part = np.array([-1, 2, 3, 0, 0]), np.array([False, True, True, False, True])
+    assert ends_on_object(hosts, part).tolist() == [False, True, True, False, False]
+    assert not ends_on_object(hosts, part & (np.arange(5) == 4)).any()
 
 
 def test_neighbour_shares_count_the_labelled_ring_only():
