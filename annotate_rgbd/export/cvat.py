@@ -30,7 +30,7 @@ from annotate_rgbd.annotation.model import PLANE_ID, Shape
 from annotate_rgbd.config.propose import EXPORT_MAX_VERTICES, EXPORT_TOLERANCE_PX
 from annotate_rgbd.cvat.from_masks import draw_order, piece_outlines
 from annotate_rgbd.errors import InputError, OutputError
-from annotate_rgbd.io.outdir import OUTPUTS_RECORD, TOP_LEVEL_NAMES, reading
+from annotate_rgbd.io.outdir import TOP_LEVEL_NAMES, is_output_folder, reading
 from annotate_rgbd.io.writer import is_stream
 from annotate_rgbd.logs import group_problems
 from annotate_rgbd.propose.output import TrackShapes, write_polygon_tracks
@@ -149,7 +149,7 @@ def check_target(run_dir: Path, xml_path: Path) -> None:
     if inside and inside[0] in TOP_LEVEL_NAMES:
         raise OutputError(xml_path, f"is {'/'.join(inside)} of the run being exported; write the export elsewhere")
     for folder in (target.parent, target.parent.parent):  # a top-level file, or one in masks/ ...
-        if (folder / OUTPUTS_RECORD).is_file() and target.relative_to(folder).parts[0] in TOP_LEVEL_NAMES:
+        if target.relative_to(folder).parts[0] in TOP_LEVEL_NAMES and is_output_folder(folder):
             raise OutputError(xml_path, f"is {target.relative_to(folder).as_posix()} of the annotate-rgbd output "
                                         f"folder {folder}; write the export elsewhere")
 

@@ -399,6 +399,13 @@ def _is_output_name(name: object) -> bool:
     return folder in OUTPUT_FOLDERS and leaf not in ("", ".", "..") and "/" not in leaf and "\\" not in leaf
 
 
+def is_output_folder(folder: Path) -> bool:
+    """Whether ``folder`` is an annotate-rgbd output folder: it holds the outputs record, or a
+    report written by ``cvat2mask`` or ``propose`` (runs made before the record existed)."""
+    folder = Path(folder)
+    return (folder / OUTPUTS_RECORD).is_file() or _command_of_report(folder) is not None
+
+
 def _command_of_report(folder: Path) -> str | None:
     """Which command wrote the folder's ``report.json`` (runs made before the outputs record)."""
     try:

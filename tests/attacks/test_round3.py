@@ -373,6 +373,11 @@ def test_export_never_overwrites_another_output_folders_files(finished, tmp_path
     assert snapshot(other, skip=tmp_path / "none") == before
     # A file of the user's own name in that folder is theirs to write.
     assert invoke("export-cvat", finished.out, other / "round2.xml").exit_code == 0
+    # A folder of a run made before the outputs record existed: its report says what it is.
+    (other / ".annotate-rgbd-outputs.json").unlink()
+    before = snapshot(other, skip=tmp_path / "none")
+    assert invoke("export-cvat", finished.out, other / name).exit_code == 1
+    assert snapshot(other, skip=tmp_path / "none") == before
 
 
 def test_per_frame_csv_to_dev_stdout_puts_the_means_on_standard_error(finished):
