@@ -219,8 +219,10 @@ def focal_problem(fx: float, fy: float, width: int, height: int) -> str | None:
     return None
 
 
-def intrinsics_problems(fx: float, fy: float, cx: float, cy: float, width: int, height: int) -> list[str]:
+def intrinsics_problems(camera, depth_path: Path | str, width: int, height: int) -> list[str]:
     """:func:`camera_problem` and :func:`focal_problem` together: the warnings (zero to two
-    lines) for a depth camera's intrinsics on ``width x height`` depth images."""
-    found = (camera_problem(cx, cy, width, height), focal_problem(fx, fy, width, height))
-    return [problem for problem in found if problem is not None]
+    lines, each ``"<depth_path>: <problem>"``) for a depth camera's intrinsics (a
+    :class:`annotate_rgbd.geometry.camera.Camera`) on the ``width x height`` depth image at
+    ``depth_path``."""
+    found = (camera_problem(camera.cx, camera.cy, width, height), focal_problem(camera.fx, camera.fy, width, height))
+    return [f"{depth_path}: {problem}" for problem in found if problem is not None]

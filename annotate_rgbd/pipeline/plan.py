@@ -386,8 +386,7 @@ def check_first_frames(jobs: SequenceType[tuple[int, FrameJob]], config: Config)
         medians.append(median_raw_depth(depth))
         camera = config.camera
         if number == 0:
-            problems = intrinsics_problems(camera.fx, camera.fy, camera.cx, camera.cy, width, height)
-            warnings.extend(f"{job.depth_path}: {problem}" for problem in problems)
+            warnings.extend(intrinsics_problems(camera, job.depth_path, width, height))
         colour = config.colour_camera
         problem = None if colour is None else camera_problem(colour.cx, colour.cy, colour.width, colour.height)
         if number == 0 and problem is not None:

@@ -311,8 +311,7 @@ def _camera_hints(sequence, chosen: np.ndarray, config: Config) -> list[str]:
         except InputError:
             continue  # reported with its frame
         if not checked and min(depth.shape) >= config.detect.cell_px:  # a smaller frame is skipped, said so
-            problems = intrinsics_problems(camera.fx, camera.fy, camera.cx, camera.cy, *depth.shape[::-1])
-            hints.extend(f"{path}: {problem}" for problem in problems)
+            hints.extend(intrinsics_problems(camera, path, *depth.shape[::-1]))
             checked = True
         medians.append(median_raw_depth(depth))
     hint = depth_scale_hint(medians, camera.depth_scale)
