@@ -62,9 +62,8 @@ def rgb_indices(annotation: Annotation, rgb: FrameList, offset: int = 0) -> tupl
         if len(beyond) == 1:
             missing.append(f"frame {beyond[0]}: RGB index {beyond[0] + offset} is beyond the {len(rgb)} RGB frames")
         elif beyond:
-            shift = f"frame {'-' if offset < 0 else '+'} {abs(offset)}"
-            missing.append(f"{frame_ranges(beyond)}: their RGB indices ({shift}) are beyond the "
-                           f"{len(rgb)} RGB frames")
+            shift = f" (frame {'-' if offset < 0 else '+'} {abs(offset)})" if offset else ""
+            missing.append(f"{frame_ranges(beyond)}: their RGB indices{shift} are beyond the {len(rgb)} RGB frames")
     if not mapping:
         raise InputError(annotation.path, f"no annotated frame is in the sequence ({missing[0]})")
     return mapping, missing

@@ -105,8 +105,9 @@ def review_run(
     Raises
     ------
     InputError
-        No finished run in ``out_dir``, its records or RGB frames unreadable, or (for the sheet)
-        no overlays; OutputError when the folder is busy or cannot be written.
+        No finished run in ``out_dir``, its records unreadable, or (for the sheet) no overlays
+        (an unreadable RGB frame costs its overlay's colour only: drawn on grey, with a warning in
+        ``ReviewOutput.warnings``); OutputError when the folder is busy or cannot be written.
     """
     out_dir = Path(out_dir)
     report = read_report(out_dir, proposals=True)

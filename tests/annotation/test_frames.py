@@ -26,7 +26,7 @@ def test_an_export_of_another_task_gets_one_line_not_one_per_frame():
     annotation = Annotation("other.xml", "video", [], list(range(221)))
     mapping, missing = rgb_indices(annotation, _rgb(11))
     assert mapping == {i: i for i in range(11)}
-    assert missing == ["frames 11-220 (210 frames): their RGB indices (frame + 0) are beyond the 11 RGB frames"]
+    assert missing == ["frames 11-220 (210 frames): their RGB indices are beyond the 11 RGB frames"]
     mapping, missing = rgb_indices(annotation, _rgb(11), offset=-5)
     assert mapping == {i: i - 5 for i in range(5, 16)}
     assert missing == ["frames 0-4, 16-220 (210 frames): their RGB indices (frame - 5) are beyond the 11 RGB frames"]
