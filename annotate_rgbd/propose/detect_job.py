@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from annotate_rgbd.config.propose import DetectorConfig, ProposeConfig
-from annotate_rgbd.config.masks import RansacConfig
+from annotate_rgbd.config.masks import RansacConfig, RefineConfig
 from annotate_rgbd.config.settings import FilterConfig
 from annotate_rgbd.cvat.from_masks import draw_order, outline_planes, polygon_coverage
 from annotate_rgbd.cvat.pieces import label_boxes
@@ -24,6 +24,7 @@ from annotate_rgbd.geometry.camera import Camera, depth_to_metres, ray_grid
 from annotate_rgbd.geometry.noise import NoiseSettings
 from annotate_rgbd.geometry.planes import Moments, fit_planes, merge_pairs, pool_groups, residual_ms
 from annotate_rgbd.io.sequence import read_depth
+from annotate_rgbd.segment.distances import behind_factor
 from annotate_rgbd.segment.filters import camera_distances, drop_reasons, statistics_of_distances
 from annotate_rgbd.segment.rasterize import fill_window
 from .extent import assign_in_outlines, piece_windows, plane_scales
@@ -52,6 +53,8 @@ class DetectJob:
         The drop rules (``[filter]``), as ``cvat2mask`` applies them.
     ransac : RansacConfig
         Its noise-scale limits (``[ransac]``), as ``cvat2mask``'s fits use them.
+    refine : RefineConfig
+        Its ``behind_band`` (``[refine]``), as ``cvat2mask``'s inlier test uses it.
     """
 
     position: int
@@ -62,6 +65,7 @@ class DetectJob:
     noise: NoiseSettings
     filter: FilterConfig
     ransac: RansacConfig = RansacConfig()
+    refine: RefineConfig = RefineConfig()
 
 
 @dataclass(frozen=True)
@@ -131,7 +135,8 @@ def propose_frame(job: DetectJob) -> FrameProposal:
             job.depth_path, f"depth image is {raw.shape[1]} x {raw.shape[0]} pixels, smaller than the detector's {cell}-pixel cells"
         )
     depth = depth_to_metres(raw, job.camera.depth_scale)
-    return propose_planes(depth, job.camera, job.detector, job.settings, job.noise, job.filter, job.position, job.ransac)
+    return propose_planes(depth, job.camera, job.detector, job.settings, job.noise, job.filter, job.position, job.ransac,
+                          job.refine)
 
 
 def propose_planes(
@@ -143,6 +148,7 @@ def propose_planes(
     rules: FilterConfig,
     position: int = 0,
     ransac: RansacConfig | None = None,
+    refine: RefineConfig | None = None,
 ) -> FrameProposal:
     """Planes of a depth image as a labeller would draw them.
 
@@ -160,6 +166,8 @@ def propose_planes(
         Stored in the result.
     ransac : RansacConfig, optional
         Its noise-scale limits (defaults when not given).
+    refine : RefineConfig, optional
+        Its ``behind_band``: each plane's band behind it, as ``cvat2mask``'s (defaults when not given).
 
     Returns
     -------
@@ -211,7 +219,8 @@ def propose_planes(
         table = np.zeros(len(areas) + 1, dtype=labels.dtype)
         table[kept + 1] = np.arange(1, len(kept) + 1)
         scales = plane_scales(relabel(labels, table, labels.dtype), points, planes, noise, ransac, [boxes[k] for k in kept])
-        labels = assign_in_outlines(points, planes, windows, scales, noise)
+        behind = behind_factor(noise, (refine or RefineConfig()).behind_band)
+        labels = assign_in_outlines(points, planes, windows, scales, noise, behind)
         counts = label_counts(labels, len(kept))
         small = counts < min_area
         early += [{"area": int(counts[k]), "reason": "small", "mean_distance": None, "invalid_ratio": None,

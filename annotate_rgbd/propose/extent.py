@@ -75,7 +75,7 @@ def plane_scales(
 
 
 def assign_in_outlines(
-    points: np.ndarray, planes: np.ndarray, windows: list, scales: np.ndarray, noise: NoiseSettings
+    points: np.ndarray, planes: np.ndarray, windows: list, scales: np.ndarray, noise: NoiseSettings, behind: float = 1.0,
 ) -> np.ndarray:
     """Give each pixel inside a plane's outline to the nearest such plane whose band holds it.
 
@@ -91,6 +91,9 @@ def assign_in_outlines(
         Each plane's noise scale (:func:`plane_scales`).
     noise : NoiseSettings
         The band: ``clip(k * scale * sigma(z), floor, cap)``.
+    behind : float
+        The band behind a plane (away from the camera) is this many times wider, as
+        ``cvat2mask``'s (``refine.behind_band``).
 
     Returns
     -------
@@ -105,10 +108,12 @@ def assign_in_outlines(
         if window.size == 0:
             continue
         inside = points[top : top + rows, left : left + cols]
-        distance = np.abs(inside @ planes[k, :3].astype(np.float32) + np.float32(planes[k, 3]))
-        band = noise.scaled(float(scales[k])).band(inside[..., 2])
+        signed = inside @ planes[k, :3].astype(np.float32) + np.float32(planes[k, 3])  # > 0: the camera's side
+        distance = np.abs(signed)
+        band = noise.scaled(float(scales[k])).band(inside[..., 2]).astype(np.float32)
         with np.errstate(invalid="ignore"):
-            take = window & (distance <= band) & (distance < best[top : top + rows, left : left + cols])
+            take = window & (signed <= band) & (signed >= band * np.float32(-behind))
+            take &= distance < best[top : top + rows, left : left + cols]
         np.copyto(labels[top : top + rows, left : left + cols], k + 1, where=take)
         np.copyto(best[top : top + rows, left : left + cols], distance, where=take)
     return labels

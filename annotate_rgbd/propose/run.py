@@ -156,7 +156,7 @@ def _run(sequence, folder: OutputFolder, config, poses_path, helpers, progress) 
 
     jobs = [
         DetectJob(position, sequence.root / sequence.depth.files[i], config.camera, config.detect, settings, config.noise,
-                  config.filter, config.ransac)
+                  config.filter, config.ransac, config.refine)
         for position, i in enumerate(chosen.tolist())
     ]
     linker = TrackLinker(config.link, config.noise, config.camera)

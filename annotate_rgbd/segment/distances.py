@@ -47,3 +47,10 @@ def band_image(depth_m: np.ndarray, noise: NoiseSettings) -> np.ndarray | float:
     band *= np.float32(noise.k * model.b)
     band += np.float32(noise.k * model.a)
     return np.clip(band, np.float32(noise.floor), np.float32(noise.cap), out=band)
+
+
+def behind_factor(noise: NoiseSettings, behind_band: float) -> float:
+    """How many times wider the inlier band is behind a plane than in front of it:
+    ``refine.behind_band`` with a noise model, 1 with a fixed band (``distance_threshold``: the
+    same distance on both sides, as given)."""
+    return float(behind_band) if noise.floor < noise.cap else 1.0

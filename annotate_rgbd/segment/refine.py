@@ -14,7 +14,7 @@ from annotate_rgbd.config.settings import PropagateConfig, RansacConfig, RefineC
 from annotate_rgbd.geometry.noise import NoiseSettings
 from annotate_rgbd.geometry.planes import weighted_plane_fit
 from .bend import plane_bends
-from .distances import band_image, signed_distances
+from .distances import band_image, behind_factor, signed_distances
 from .ransac import PlaneFit, fit_plane, on_expected_plane
 from .rims import near_surfaces_in_front
 
@@ -113,8 +113,7 @@ def refine_planes(
         table[plane_id] = fit.equation
         scales[plane_id] = fit.noise_scale
     band = band_image(depth_m, noise)
-    # A fixed band (distance_threshold) is the same distance on both sides, as given.
-    behind = refine.behind_band if noise.floor < noise.cap else 1.0
+    behind = behind_factor(noise, refine.behind_band)
     if not isinstance(band, float) and (scales != 1).any():  # widened where a plane's noise is larger
         band = np.clip(band * label_lookup(scales, on_valid), np.float32(noise.floor), np.float32(noise.cap))
     # The window test needs the noise, which a fixed band (distance_threshold) does not give.

@@ -110,3 +110,24 @@ def test_polygon_fit_counts_the_filled_pixels_of_each_plane():
 def test_label_counts_are_the_pixels_of_each_label(n):
     labels = np.random.default_rng(n).integers(0, n + 3, size=(50, 60)).astype(np.uint16)
     assert label_counts(labels, n).tolist() == [int(np.sum(labels == k)) for k in range(1, n + 1)]
+
+
+def test_a_planes_pixels_in_its_outline_are_taken_within_a_band_wider_behind_it():
+    from annotate_rgbd.geometry.noise import ConstantNoise
+    from annotate_rgbd.propose.extent import assign_in_outlines
+
+    # A wall 2 m away facing the camera (normal towards it); band 3 x 5 mm = 15 mm. Columns hold
+    # points 1 cm in front, 2 cm in front, 1 cm behind and 2 cm behind the wall; the last column
+    # lies outside the outline.
+    z = np.array([[1.99, 1.98, 2.01, 2.02, 2.0]] * 3)
+    points = np.stack([np.zeros_like(z), np.zeros_like(z), z], axis=-1)
+    wall = np.array([[0.0, 0.0, -1.0, 2.0]])
+    window = np.ones((3, 5), dtype=bool)
+    window[:, 4] = False
+    noise = NoiseSettings(ConstantNoise(0.005))
+    labels = {behind: assign_in_outlines(points, wall, [(0, 0, window)], np.ones(1), noise, behind)[0]
+              for behind in (1.0, 1.5)}
+    assert labels[1.0].tolist() == [1, 0, 1, 0, 0]
+    assert labels[1.5].tolist() == [1, 0, 1, 1, 0]  # 2 cm behind: inside 22.5 mm; 2 cm in front: not
+    # Twice the noise (the plane's scale): the 2 cm in front is inside too (30 mm).
+    assert assign_in_outlines(points, wall, [(0, 0, window)], np.full(1, 2.0), noise, 1.5)[0].tolist() == [1, 1, 1, 1, 0]
