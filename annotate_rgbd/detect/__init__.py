@@ -110,7 +110,7 @@ def detect_planes(
     region = _renumber(region, sizes * cell_area * 2 >= min_area)
     moments = totals_moments(group_totals(cell_totals(cells), region - 1, int(region.max())))
     planes = fit_planes(moments.mean, moments.scatter)[0]
-    labels = assign_pixels(cells, region, planes, config.band_k)
+    labels = assign_pixels(cells, region, planes, config.band_k, config.band_behind)
     count, mean, centred = pixel_moments(cells, labels, planes.shape[0], claim_windows(cells, region))
     small = count < max(min_area, 3)
     if small.any() and not small.all():
@@ -118,7 +118,7 @@ def detect_planes(
         # refitted on the survivors' pixels.
         region = _renumber(region, ~small)
         planes = fit_planes(mean[~small], centred[~small])[0]
-        labels = assign_pixels(cells, region, planes, config.band_k)
+        labels = assign_pixels(cells, region, planes, config.band_k, config.band_behind)
         count, mean, centred = pixel_moments(cells, labels, planes.shape[0], claim_windows(cells, region))
     table = order_labels(labels, count, max(min_area, 3))
     kept = np.argsort(table[1:], kind="stable")[np.count_nonzero(table[1:] == 0) :]  # old index by new label

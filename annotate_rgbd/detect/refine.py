@@ -8,12 +8,13 @@ import numpy as np
 from .cells import CloudCells
 
 
-def assign_pixels(cells: CloudCells, region: np.ndarray, planes: np.ndarray, band_k: float) -> np.ndarray:
+def assign_pixels(cells: CloudCells, region: np.ndarray, planes: np.ndarray, band_k: float, behind: float = 1.0) -> np.ndarray:
     """Give each pixel near a segment to the segment whose plane it lies on.
 
     A segment may claim the valid pixels of its own cells and of the cells next to them
     (8-neighbours: boundary and non-planar cells); a pixel goes to the nearest plane, in 3-D
-    distance, among those that claim it and hold it within ``band_k * sigma(z)``.
+    distance, among those that claim it and hold it within ``band_k * sigma(z)`` in front of the
+    plane and ``behind`` times that behind it (planes' normals face the camera).
 
     Parameters
     ----------
@@ -23,6 +24,8 @@ def assign_pixels(cells: CloudCells, region: np.ndarray, planes: np.ndarray, ban
     planes : ndarray, shape (K, 4)
         Plane of each segment (unit normal).
     band_k : float
+    behind : float
+        The band behind a plane, as a multiple of the band in front (>= 1).
 
     Returns
     -------
@@ -40,7 +43,8 @@ def assign_pixels(cells: CloudCells, region: np.ndarray, planes: np.ndarray, ban
     # A pixel is taken when it lies nearer than ``best``: first the band itself (just above it,
     # so that a pixel on the band's edge is in; NaN where the depth is invalid: never taken),
     # then the nearest plane's distance so far.
-    best = _just_above(np.float32(band_k) * cells.sigma)
+    front = _just_above(np.float32(band_k) * cells.sigma)
+    best = front if behind == 1 else _just_above(np.float32(band_k * behind) * cells.sigma)
     labels = np.zeros((height, width), dtype=np.uint8 if planes.shape[0] < 256 else np.int32)
     grid = region.reshape(rows, cols)
     ring = np.ones((3, 3), dtype=np.uint8)
@@ -58,6 +62,9 @@ def assign_pixels(cells: CloudCells, region: np.ndarray, planes: np.ndarray, ban
         facing = a * cells.ray_x[c0:c1] + (b * cells.ray_y[r0:r1, None] + c)
         dist = cells.depth[r0:r1, c0:c1] * facing
         dist += d
+        if behind != 1:
+            with np.errstate(invalid="ignore"):
+                claim &= dist < front[r0:r1, c0:c1]
         np.abs(dist, out=dist)
         with np.errstate(invalid="ignore"):
             claim &= dist < best[r0:r1, c0:c1]
