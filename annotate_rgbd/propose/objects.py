@@ -5,7 +5,7 @@ books, keyboards and papers on desks, posters, frames, whiteboards and racks on 
 detector finds their tops as planes of their own, parallel to the plane they are on, inside its
 outline, within a few centimetres in front of it. A labeller annotating a room's planes does not
 draw them (the plane-instance ground truth of ScanNet-style benchmarks has them as clutter: the
-depth there is not the plane's), so they are not proposed (:func:`objects_on_planes`).
+depth there is not the plane's), so they are not proposed (:func:`object_hosts`).
 """
 
 from __future__ import annotations
@@ -54,20 +54,6 @@ def neighbour_shares(labels: np.ndarray, ring_px: int, boxes: list | None = None
         if counts.sum():
             shares[p] = counts / counts.sum()
     return shares
-
-
-def objects_on_planes(
-    planes: np.ndarray,
-    areas: np.ndarray,
-    centroids: np.ndarray,
-    coverage: np.ndarray,
-    neighbours: np.ndarray,
-    max_height: float,
-    min_inside: float,
-    angle_deg: float,
-) -> np.ndarray:
-    """Which planes are objects on a larger plane: :func:`object_hosts` ``>= 0``."""
-    return object_hosts(planes, areas, centroids, coverage, neighbours, max_height, min_inside, angle_deg) >= 0
 
 
 def object_hosts(

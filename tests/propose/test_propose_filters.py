@@ -106,7 +106,7 @@ from annotate_rgbd.geometry.noise import NoiseSettings  # noqa: E402
 from annotate_rgbd.config.propose import DetectorConfig, ProposeConfig  # noqa: E402
 from annotate_rgbd.propose.detect_job import propose_planes  # noqa: E402
 from annotate_rgbd.cvat.pieces import label_boxes  # noqa: E402
-from annotate_rgbd.propose.objects import objects_on_planes  # noqa: E402
+from annotate_rgbd.propose.objects import object_hosts  # noqa: E402
 
 CAMERA = Camera(fx=525.0, fy=525.0, cx=319.5, cy=239.5, depth_scale=5000.0)
 
@@ -144,23 +144,23 @@ def test_objects_rule_needs_every_condition():
     coverage = np.array([[10000, 900, 0], [0, 1000, 0], [0, 0, 500]])  # [p, q]: q's pixels in p's polygon
     alone = np.zeros((3, 3))  # no plane next to another
     args = dict(max_height=0.1, min_inside=0.5, angle_deg=10.0)
-    assert objects_on_planes(planes, areas, centroids, coverage, alone, **args).tolist() == [False, True, False]
+    assert (object_hosts(planes, areas, centroids, coverage, alone, **args) >= 0).tolist() == [False, True, False]
     # Too far before the wall; behind it (a recess); not inside its polygon; tilted; larger.
-    assert not objects_on_planes(planes, areas, centroids, coverage, alone, **{**args, "max_height": 0.04})[1]
+    assert not (object_hosts(planes, areas, centroids, coverage, alone, **{**args, "max_height": 0.04}) >= 0)[1]
     behind = centroids.copy()
     behind[1, 2] = 2.05
-    assert not objects_on_planes(planes, areas, behind, coverage, alone, **args)[1]
+    assert not (object_hosts(planes, areas, behind, coverage, alone, **args) >= 0)[1]
     outside = coverage.copy()
     outside[0, 1] = 400
-    assert not objects_on_planes(planes, areas, centroids, outside, alone, **args)[1]
+    assert not (object_hosts(planes, areas, centroids, outside, alone, **args) >= 0)[1]
     # Not inside the wall's polygon but surrounded by the wall (at its edge): on it.
     surrounded = alone.copy()
     surrounded[1] = [0.7, 0.0, 0.3]
-    assert objects_on_planes(planes, areas, centroids, outside, surrounded, **args)[1]
+    assert (object_hosts(planes, areas, centroids, outside, surrounded, **args) >= 0)[1]
     tilted = planes.copy()
     tilted[1, :3] = [0.0, np.sin(np.radians(15)), -np.cos(np.radians(15))]
-    assert not objects_on_planes(tilted, areas, centroids, coverage, alone, **args)[1]
-    assert not objects_on_planes(planes, np.array([10000, 20000, 500]), centroids, coverage, alone, **args)[1]
+    assert not (object_hosts(tilted, areas, centroids, coverage, alone, **args) >= 0)[1]
+    assert not (object_hosts(planes, np.array([10000, 20000, 500]), centroids, coverage, alone, **args) >= 0)[1]
 
 
 def test_an_object_inside_its_planes_band_joins_the_plane():
@@ -200,7 +200,7 @@ def test_a_strip_at_the_image_border_inside_the_walls_band_joins_the_wall():
 def test_object_hosts_and_their_band_shares():
     from annotate_rgbd.geometry.noise import ConstantNoise
     from annotate_rgbd.propose.detect_job import ends_on_object, join_table
-    from annotate_rgbd.propose.objects import object_hosts, shares_in_band
+    from annotate_rgbd.propose.objects import shares_in_band
 
     wall = [0.0, 0.0, -1.0, 2.0]
     planes = np.array([wall, [0.0, 0.0, -1.0, 1.99], [0.0, 0.0, -1.0, 1.99], [0.0, 0.0, -1.0, 2.01]])
@@ -212,7 +212,6 @@ def test_object_hosts_and_their_band_shares():
     # the wall only (not inside plane 4's polygon); the wall is not inside plane 4's polygon either.
     hosts = object_hosts(planes, areas, centroids, coverage, np.zeros((4, 4)), **args)
     assert hosts.tolist() == [-1, 3, 0, -1]
-    assert objects_on_planes(planes, areas, centroids, coverage, np.zeros((4, 4)), **args).tolist() == [False, True, True, False]
     # Shares: the band is 3 x 5 mm = 15 mm; object 2's pixels 1 cm and 4 cm before plane 4
     # (z = 2.01), object 3's 1 cm and 3 cm before the wall.
     labels = np.zeros((4, 6), np.uint8)
