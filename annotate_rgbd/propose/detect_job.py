@@ -202,7 +202,9 @@ def propose_planes(
     part = np.zeros(len(areas), dtype=bool)
     if settings.widen_to_noise and (hosts >= 0).any():
         # An object inside its plane's own band is the plane (cvat2mask keeps it): it joins the plane.
-        scales = plane_scales(labels, points, planes, noise, ransac, boxes)
+        # The hosts' noise scales only (a plane without a box gets 1, unread).
+        host_ids = set(hosts[hosts >= 0].tolist())
+        scales = plane_scales(labels, points, planes, noise, ransac, [b if k in host_ids else None for k, b in enumerate(boxes)])
         part = (hosts >= 0) & (shares_in_band(labels, points, planes, hosts, scales, noise, boxes) >= settings.object_band_share)
         part &= ~ends_on_object(hosts, part)
         if part.any():
