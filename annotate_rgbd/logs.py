@@ -62,3 +62,9 @@ def group_problems(problems: Iterable[tuple[str, str]], shown: int = 3) -> list[
             named += f" and {len(names) - shown} more"
         lines.append(f"{named}: {problem}")
     return lines
+
+
+def group_errors(errors: Iterable) -> list[str]:
+    """:func:`group_problems` of recoverable input errors (each with ``path`` and ``message``,
+    :class:`annotate_rgbd.errors.InputError`), in the order of their files."""
+    return group_problems(sorted((str(error.path), error.message) for error in errors))

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Callable, Sequence
 from annotate_rgbd.config.settings import Config
 from annotate_rgbd.errors import InputError, OutputError
 from annotate_rgbd.io.outdir import OutputFolder
-from annotate_rgbd.logs import group_problems, scene_warnings
+from annotate_rgbd.logs import group_errors, group_problems, scene_warnings
 from annotate_rgbd.pool import (
     STALL_TIMEOUT, HelperPool, JobTimeout, default_workers, prepare_helpers, reuse_freed_memory, run_jobs, start_helpers,
 )
@@ -331,6 +331,6 @@ def execute_scenes(
                 message = f"{line}; failed (no mask)"
                 scene.plan.warnings.append(message)
                 log.warning(message)
-            for line in group_problems(sorted((str(e.path), e.message) for e in scene.rgb_problems)):
+            for line in group_errors(scene.rgb_problems):
                 scene.plan.warnings.append(line)
                 log.warning(line)

@@ -32,7 +32,7 @@ from annotate_rgbd.geometry.registration import ColourCamera
 from annotate_rgbd.io.outdir import OVERLAYS, REVIEW_RECORD, OutputFolder, file_digest, read_review_record
 from annotate_rgbd.io.sequence import read_depth, read_image, read_rgb
 from annotate_rgbd.io.writer import write_bytes_atomic, write_png
-from annotate_rgbd.logs import group_problems
+from annotate_rgbd.logs import group_errors
 from annotate_rgbd.pool import run_jobs, start_helpers
 from annotate_rgbd.report.records import FrameRecord, RunRecord
 from annotate_rgbd.segment.plane_record import PlaneRecord
@@ -155,7 +155,7 @@ def write_review(
                 if progress:
                     progress(done, len(written))
         output.overlays = [task.path for task in tasks]
-        output.warnings = group_problems(sorted((str(e.path), e.message) for e in rgb_problems))
+        output.warnings = group_errors(rgb_problems)
         for line in output.warnings:
             log.warning("%s", line)
     available = [f for f in written if _overlay_path(out_dir, f).is_file()]
