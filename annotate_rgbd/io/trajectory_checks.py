@@ -125,7 +125,8 @@ def coverage_hint(a0: float, a1: float, b0: float, b1: float, clock: str, n_pose
     stops (or starts) inside them: cut short. Otherwise the trajectory is likely another sequence's.
     Frame numbers (``clock``) have no unit: only the last is said.
     """
-    if _overlap(a0, a1, b0, b1) >= 0.5:
+    covered = _overlap(a0, a1, b0, b1)
+    if covered >= 0.5:
         return None
     if clock == SECONDS:
         for scale, name in UNITS:
@@ -141,7 +142,6 @@ def coverage_hint(a0: float, a1: float, b0: float, b1: float, clock: str, n_pose
                 unit = "" if scale == 1.0 else f" with the trajectory in {name}"
                 return (f"the durations agree{unit} but the trajectory starts {b0 - a0 / scale:+.10g} s from the "
                         "frames: a clock offset, or the trajectory of another recording of the same length")
-        covered = _overlap(a0, a1, b0, b1)
         if covered > 0.0 and (a0 <= b0 or a1 >= b1):  # one end inside the frames: cut short?
             where = (f"ends {b1 - a1:.3g} s before the last depth frame" if a0 <= b0 else
                      f"starts {a0 - b0:.3g} s after the first depth frame")

@@ -384,9 +384,8 @@ def check_first_frames(jobs: SequenceType[tuple[int, FrameJob]], config: Config)
         height, width = depth.shape
         check_size(job, (height, width), config.colour_camera)
         medians.append(median_raw_depth(depth))
-        camera = config.camera
         if number == 0:
-            warnings.extend(intrinsics_problems(camera, job.depth_path, width, height))
+            warnings.extend(intrinsics_problems(config.camera, job.depth_path, width, height))
         colour = config.colour_camera
         problem = None if colour is None else camera_problem(colour.cx, colour.cy, colour.width, colour.height)
         if number == 0 and problem is not None:
