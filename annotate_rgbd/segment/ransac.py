@@ -1,13 +1,12 @@
-"""Finding one plane among a shape's 3-D points: Open3D RANSAC (or every hypothesis of a
-RANSAC scored at once, :func:`every_hypothesis`), the surface behind it, the weighted re-fit
-and the plane's own noise scale (:func:`fit_plane`)."""
+"""Finding one plane among a shape's 3-D points: RANSAC with hypotheses scored in blocks
+(:func:`ransac_plane`; through all its iterations, :func:`every_hypothesis`), the surface behind
+it, the weighted re-fit and the plane's own noise scale (:func:`fit_plane`)."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 import numpy as np
-import open3d as o3d
 
 from annotate_rgbd.config.settings import PropagateConfig, RansacConfig
 from annotate_rgbd.geometry.lift import plane_agreement
@@ -20,8 +19,11 @@ from annotate_rgbd.geometry.statistics import median
 REFITS = 2
 #: Planes tried among the points behind, largest first.
 BEHIND_CANDIDATES = 3
-#: Open3D's default confidence for stopping RANSAC early.
+#: Confidence at which RANSAC stops early (:func:`ransac_plane`; Open3D's default).
 DEFAULT_PROBABILITY = 0.99999999
+#: Hypotheses in RANSAC's first block: as many as a plane that holds 76 % of the points needs at
+#: :data:`DEFAULT_PROBABILITY` (a plane that dominates its shape, the common case, stops there).
+FIRST_BLOCK = 32
 #: The share of a plane's points that may lie behind a plane that replaces it (noise, edges).
 IN_FRONT_SLACK = 0.02
 #: Point-to-plane distances computed at once by :func:`every_hypothesis` (1 MiB of float64):
@@ -70,7 +72,7 @@ def fit_plane(
     points: np.ndarray, config: RansacConfig, noise: NoiseSettings, look_behind: bool = True,
     expected: np.ndarray | None = None, propagate: PropagateConfig = PropagateConfig(),
 ) -> PlaneFit:
-    """Find a plane among 3-D points with Open3D's RANSAC, then re-fit it to its inliers.
+    """Find a plane among 3-D points with RANSAC (:func:`ransac_plane`), then re-fit it to its inliers.
 
     RANSAC searches for the plane among at most ``config.max_points`` of the points, taken
     evenly through the input (for a plane's pixels in row-major order: a regular grid over the
@@ -78,9 +80,8 @@ def fit_plane(
     distance threshold (``config.band_share``). A 3-point RANSAC plane is noisier than the data, so the plane is then
     re-fitted by least squares to its inliers, each weighted by ``1 / sigma(z)^2``
     (:func:`annotate_rgbd.geometry.planes.refit_plane`: every point tested against the band at its own
-    depth). Open3D runs single-threaded with its generator seeded before every call: its
-    multi-threaded RANSAC gives different planes from run to run, and frames are parallelised
-    across processes instead.
+    depth). RANSAC's generator is seeded (``config.seed``) before every call: a re-run gives
+    identical planes.
 
     With ``look_behind``, a large surface behind RANSAC's plane that the plane's points lie in
     front of takes its place (:func:`_surface_behind`): the points are a labeller's drawn shape,
@@ -119,7 +120,7 @@ def fit_plane(
     threshold = config.band_share * float(noise.band(median(sample[:, 2])))
     equation, inliers = _ransac(sample, threshold, config)
     if expected is not None and inliers < config.exhaustive_below * len(sample):
-        # Open3D stops searching once its plane is likely the best given the share of points it
+        # RANSAC stops searching once its plane is likely the best given the share of points it
         # holds; with two surfaces of about half each it can stop on a plane leaning between them.
         again = every_hypothesis(sample, threshold, config.num_iterations, config.seed)
         equation, inliers = again if again[1] > inliers else (equation, inliers)
@@ -225,33 +226,32 @@ def on_expected_plane(points: np.ndarray, expected: np.ndarray, propagate: Propa
 
 
 def _ransac(sample: np.ndarray, threshold: float, config: RansacConfig) -> tuple[np.ndarray, int]:
-    """Open3D's RANSAC plane through ``sample`` (unit normal towards the camera) and its number
-    of inliers within ``threshold``; it stops once its plane is likely the best (Open3D's
-    default confidence)."""
-    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.ascontiguousarray(sample)))
-    threads = o3d.utility.get_max_threads()
-    o3d.utility.set_max_threads(1)
-    try:
-        o3d.utility.random.seed(config.seed)
-        model, inliers = cloud.segment_plane(distance_threshold=threshold, ransac_n=3,
-                                             num_iterations=config.num_iterations,
-                                             probability=DEFAULT_PROBABILITY)
-    finally:
-        o3d.utility.set_max_threads(threads)
-    equation = np.asarray(model, dtype=np.float64)
-    equation = equation / np.linalg.norm(equation[:3])
-    return (-equation if equation[3] < 0 else equation), len(inliers)
+    """RANSAC's plane through ``sample`` (unit normal towards the camera) and its number of
+    inliers within ``threshold``, stopping once the plane is likely the best
+    (:func:`ransac_plane` at :data:`DEFAULT_PROBABILITY`)."""
+    return ransac_plane(sample, threshold, config.num_iterations, config.seed)
 
 
 def every_hypothesis(points: np.ndarray, threshold: float, iterations: int, seed: int) -> tuple[np.ndarray, int]:
-    """RANSAC through all its iterations, the hypotheses scored together: the plane through
-    three of the points with the most points within ``threshold`` (the first of equals), re-fitted
-    by least squares to those points, as Open3D's ``segment_plane`` returns it.
+    """RANSAC through all its ``iterations``, never stopping early: :func:`ransac_plane` with
+    ``probability = 1`` (the same hypotheses, a superset of those an early stop scores)."""
+    return ransac_plane(points, threshold, iterations, seed, probability=1.0)
 
-    Open3D scores its hypotheses one at a time, each a pass over the points (14-16 ms for 1,000
-    hypotheses on 1,000 points); here a block of up to 100 of them is one product of arrays
-    (3-5 ms in all). Each hypothesis is three distinct points, as Open3D draws them; unlike
-    Open3D, equal counts are not told apart by the inliers' summed distance. Degenerate
+
+def ransac_plane(
+    points: np.ndarray, threshold: float, iterations: int, seed: int, probability: float = DEFAULT_PROBABILITY,
+) -> tuple[np.ndarray, int]:
+    """RANSAC's plane: the plane through three of the points with the most points within
+    ``threshold`` (the first of equals), re-fitted by least squares to those points.
+
+    The hypotheses are scored a block at a time, each block one product of arrays (Open3D's
+    ``segment_plane`` scores them one by one, a pass over the points each). After each block the
+    search stops, as Open3D's does, once enough hypotheses were tried to have drawn three inliers
+    of the best plane with the given ``probability``: ``log(1 - p) / log(1 - w^3)`` of them, ``w``
+    the best plane's share of the points (15 for a plane that holds 90 % of them, 138 for half).
+    The first block is :data:`FIRST_BLOCK` hypotheses, as many as a plane that dominates needs.
+    Each hypothesis is three distinct points; all ``iterations`` of them are drawn first, so a
+    search that stops early scored the first of the hypotheses a full search scores. Degenerate
     hypotheses (three collinear points) hold no points.
 
     Parameters
@@ -261,10 +261,11 @@ def every_hypothesis(points: np.ndarray, threshold: float, iterations: int, seed
     threshold : float
         Largest distance (m) of an inlier, exclusive (as Open3D's).
     iterations : int
-        Hypotheses tried (at least 1).
+        Most hypotheses tried (at least 1).
     seed : int
-        Seed of the hypotheses' generator (numpy's: other triples than ``segment_plane`` draws
-        with the same seed).
+        Seed of the hypotheses' generator (numpy's).
+    probability : float
+        Confidence at which the search stops early, in (0, 1]; 1: never (every hypothesis).
 
     Returns
     -------
@@ -272,36 +273,43 @@ def every_hypothesis(points: np.ndarray, threshold: float, iterations: int, seed
         Unit normal towards the camera (``d >= 0``); the best hypothesis itself when its inliers
         lie on one line, all zeros when no hypothesis holds 3 points.
     inliers : int
-        Points within ``threshold`` of the best hypothesis (as Open3D counts them).
+        Points within ``threshold`` of the best hypothesis.
     """
     points = np.asarray(points, dtype=np.float64)
-    corners = points[_distinct_triples(len(points), max(int(iterations), 1), np.random.default_rng(seed))]
-    normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
-    length = np.linalg.norm(normals, axis=1)
-    usable = length > 0
-    planes = np.zeros((len(normals), 4))
-    planes[usable, :3] = normals[usable] / length[usable, None]
-    planes[:, 3] = -np.einsum("ij,ij->i", planes[:, :3], corners[:, 0])
-    counts = np.zeros(len(planes), dtype=np.int64)
+    triples = _distinct_triples(len(points), max(int(iterations), 1), np.random.default_rng(seed))
     coords = np.ascontiguousarray(points.T)
     per_block = int(np.clip(DISTANCES_PER_BLOCK // max(len(points), 1), 1, 100))
-    for start in range(0, len(planes), per_block):
-        block = slice(start, start + per_block)
+    best_plane, best_count, done, needed = np.zeros(4), 0, 0, len(triples)
+    size = min(FIRST_BLOCK, per_block) if probability < 1 else per_block
+    while done < needed:
+        corners = points[triples[done:min(done + size, needed)]]
+        normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+        length = np.sqrt(np.einsum("ij,ij->i", normals, normals))
+        usable = length > 0
+        normals[usable] /= length[usable, None]
+        offsets = -np.einsum("ij,ij->i", normals, corners[:, 0])
         # einsum, not ``@``: no BLAS threads (geometry.planes._fit says why).
-        distance = np.einsum("ij,jn->in", planes[block, :3], coords)
-        distance += planes[block, 3, None]
+        distance = np.einsum("ij,jn->in", normals, coords)
+        distance += offsets[:, None]
         np.abs(distance, out=distance)
-        counts[block] = np.count_nonzero(distance < threshold, axis=1)
-    counts[~usable] = 0
-    best = int(np.argmax(counts))
-    if counts[best] < 3:  # no usable hypothesis (its own three points are its inliers)
+        counts = np.count_nonzero(distance < threshold, axis=1)
+        counts[~usable] = 0
+        best = int(np.argmax(counts))
+        if counts[best] > best_count:
+            best_plane, best_count = np.append(normals[best], offsets[best]), int(counts[best])
+        done += len(corners)
+        size = per_block
+        share = best_count / len(points)
+        if probability < 1 and share > 0:
+            needed = done if share >= 1 else min(needed, int(np.ceil(np.log1p(-probability) / np.log1p(-share**3))))
+    if best_count < 3:  # no usable hypothesis (its own three points are its inliers)
         return np.zeros(4), 0
-    plane = planes[best]
+    plane = best_plane
     try:
         plane = weighted_plane_fit(points[np.abs(points @ plane[:3] + plane[3]) < threshold])
     except ValueError:  # inliers on one line (three nearly collinear points, a tiny threshold)
         pass
-    return (-plane if plane[3] < 0 else plane), int(counts[best])
+    return (-plane if plane[3] < 0 else plane), best_count
 
 
 def _distinct_triples(count: int, triples: int, rng: np.random.Generator) -> np.ndarray:

@@ -1,11 +1,11 @@
-"""RANSAC through all its iterations, scored in blocks (segment.ransac.every_hypothesis), against
-a plain loop over the same hypotheses."""
+"""RANSAC scored in blocks (segment.ransac.ransac_plane; through all its iterations,
+every_hypothesis), against a plain loop over the same hypotheses and Open3D's stopping rule."""
 
 import numpy as np
 import pytest
 
 from annotate_rgbd.segment import ransac
-from annotate_rgbd.segment.ransac import _distinct_triples, every_hypothesis
+from annotate_rgbd.segment.ransac import _distinct_triples, every_hypothesis, ransac_plane
 
 
 def _two_surfaces(rng, near=400, far=600, gap=0.02, noise=0.003):
@@ -15,11 +15,11 @@ def _two_surfaces(rng, near=400, far=600, gap=0.02, noise=0.003):
     return rng.permutation(np.r_[far_points, near_points])
 
 
-def _loop_reference(sample, threshold, iterations, seed):
+def _loop_reference(sample, threshold, iterations, seed, scored=None):
     """One hypothesis at a time: its plane from the 3 points' cross product, its inliers counted
     point by point (strictly within the threshold); the first best one wins, re-fitted by SVD
-    to its inliers."""
-    corners = _distinct_triples(len(sample), iterations, np.random.default_rng(seed))
+    to its inliers. Of the ``iterations`` hypotheses drawn, the first ``scored`` (all)."""
+    corners = _distinct_triples(len(sample), iterations, np.random.default_rng(seed))[:scored]
     best, best_count = None, -1
     for a, b, c in corners:
         normal = np.cross(sample[b] - sample[a], sample[c] - sample[a])
@@ -108,3 +108,37 @@ def test_degenerate_samples_hold_no_points():
     almost = on_a_line + rng.normal(0, 1e-12, on_a_line.shape)
     equation, count = every_hypothesis(almost, 0.01, 50, seed=0)
     assert count >= 3 and np.linalg.norm(equation[:3]) == pytest.approx(1.0) and equation[3] >= 0
+
+
+def _hypotheses_needed(share, probability=ransac.DEFAULT_PROBABILITY):
+    """Open3D's stopping rule: enough triples to have drawn three of the best plane's inliers."""
+    return np.log(1 - probability) / np.log(1 - share**3)
+
+
+@pytest.mark.parametrize("plane_share", [0.95, 0.6, 0.35])
+def test_an_early_stop_scores_the_blocks_its_confidence_needs(plane_share, monkeypatch):
+    # A wall holding plane_share of 300 points, the rest scattered in front of and behind it.
+    rng = np.random.default_rng(11)
+    on_wall = int(plane_share * 300)
+    sample = rng.permutation(np.r_[
+        np.c_[rng.uniform(-1, 1, (on_wall, 2)), 2.0 + rng.normal(0, 0.002, on_wall)],
+        np.c_[rng.uniform(-1, 1, (300 - on_wall, 2)), rng.uniform(1.0, 3.0, 300 - on_wall)],
+    ])
+    monkeypatch.setattr(ransac, "DISTANCES_PER_BLOCK", 50 * len(sample))  # blocks: 32, then 50 each
+    iterations, threshold = 1000, 0.004
+    # The blocks' ends, and the loop's best plane after each: the search stops after the first
+    # block whose best plane's share says that enough hypotheses were drawn.
+    ends = [32 + 50 * i for i in range(20) if 32 + 50 * i <= iterations]
+    for end in ends:
+        expected, expected_count = _loop_reference(sample, threshold, iterations, seed=3, scored=end)
+        if end >= _hypotheses_needed(expected_count / len(sample)):
+            break
+    equation, count = ransac_plane(sample, threshold, iterations, seed=3)
+    assert count == expected_count and np.allclose(equation, expected, atol=1e-9)
+    assert end < iterations  # it did stop early
+    assert (end == 32) == (plane_share > 0.76)
+    assert equation[3] == pytest.approx(2.0, abs=0.003)  # the wall
+    # Never stopping scores every hypothesis: at least as many points, and the same plane as the loop.
+    full, full_count = ransac_plane(sample, threshold, iterations, seed=3, probability=1.0)
+    loop, loop_count = _loop_reference(sample, threshold, iterations, seed=3)
+    assert full_count == loop_count >= count and np.allclose(full, loop, atol=1e-9)
