@@ -77,8 +77,8 @@ def user_errors() -> Iterator[None]:
         )
         status = 143 if terminated else 130
         if isinstance(exc, ImportError):
-            # Interrupted while Open3D initialised (it turns the interrupt into this error): its
-            # half-made state prints a memory report when the process exits normally.
+            # Interrupted while a compiled module initialised (the interrupt surfaces as this
+            # error): its half-made state can print at a normal exit, so leave at once.
             sys.stdout.flush()
             sys.stderr.flush()
             os._exit(status)
@@ -167,7 +167,7 @@ def cvat2mask(
         from annotate_rgbd.pipeline.execute import default_workers, prepare_process
 
         workers = jobs or default_workers()
-        prepare_process(workers)  # the helpers' server imports Open3D while this process does
+        prepare_process(workers)  # the helpers' server imports OpenCV and numpy while this process does
 
         from annotate_rgbd.config.command_line import parse_part_offsets, parse_settings
         from annotate_rgbd.pipeline.scene import run_cvat2mask
@@ -252,7 +252,7 @@ def batch(
         if not scenes:
             return
         workers = jobs or manifest_jobs or default_workers()
-        prepare_process(workers)  # the helpers' server imports Open3D while this process does
+        prepare_process(workers)  # the helpers' server imports OpenCV and numpy while this process does
 
         from annotate_rgbd.pipeline.batch import run_batch, summary_lines
         from annotate_rgbd.progress import Progress

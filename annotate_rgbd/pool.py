@@ -98,8 +98,8 @@ def helper_context(preload: Sequence[str] = ()) -> multiprocessing.context.BaseC
 
     "forkserver" where the platform has it: a server process imports the ``preload`` modules
     once and every helper is forked from it, so a helper is ready in milliseconds instead of the
-    ~2 s a new interpreter needs to import Open3D ("spawn"), and it inherits nothing of this
-    process's thread pools (forking a process that has run Open3D's OpenMP code is not safe).
+    time a new interpreter needs for its imports ("spawn"), and it inherits nothing of this
+    process's thread pools (forking a process that has run threaded native code is not safe).
 
     Parameters
     ----------

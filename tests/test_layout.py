@@ -8,7 +8,8 @@
   the CVAT reader or the report (:data:`FORBIDDEN`);
 - only the command line (``cli.py``, ``__main__.py``) imports typer, and no module imports ``cli``;
 - at most :data:`MAX_TOP_MODULES` modules directly in ``annotate_rgbd/``; none longer than 600 lines;
-- only the CVAT reader and writer see XML.
+- only the CVAT reader and writer see XML;
+- every third-party import is a runtime dependency of pyproject.toml (or the optional viewer).
 """
 
 from __future__ import annotations
@@ -283,3 +284,36 @@ def test_only_the_cvat_readers_and_writer_see_xml():
             if any(n.split(".")[0] in ("lxml", "xml", "defusedxml") for n in names):
                 seeing.add(path.relative_to(PACKAGE).as_posix())
     assert seeing and seeing <= allowed, sorted(seeing - allowed)
+
+
+#: The module each runtime distribution of pyproject.toml is imported as, where the names differ.
+IMPORT_NAMES = {"opencv-python-headless": "cv2", "scikit-image": "skimage"}
+#: Optional extras the package imports where they are used (the `viewer` extra: `review --rerun`).
+OPTIONAL_IMPORTS = {"rerun"}
+
+
+def runtime_imports() -> set[str]:
+    """The top-level names of pyproject.toml's runtime dependencies, as the package imports them."""
+    import re
+    import tomllib
+
+    project = tomllib.loads((PACKAGE.parent / "pyproject.toml").read_text(encoding="utf-8"))["project"]
+    names = {re.split(r"[<>=!~;\[ ]", requirement, maxsplit=1)[0].strip() for requirement in project["dependencies"]}
+    return {IMPORT_NAMES.get(name, name.replace("-", "_")) for name in names}
+
+
+def test_every_third_party_import_is_a_declared_dependency():
+    # Open3D, for one, is only the real-data kit's (the `realdata` extra): the package must never need it.
+    import sys
+
+    declared = runtime_imports()
+    assert {"numpy", "cv2", "skimage", "typer"} <= declared and "open3d" not in declared
+    modules = set(module_names())
+    undeclared = {}
+    for name in sorted(modules):
+        for external in imported_modules(name, modules)[1]:
+            top = external.split(".")[0]
+            if top not in sys.stdlib_module_names and top not in declared | OPTIONAL_IMPORTS:
+                undeclared.setdefault(top, []).append(name)
+    assert not undeclared, "imports of undeclared dependencies: " + "; ".join(
+        f"{top} ({', '.join(names)})" for top, names in sorted(undeclared.items()))

@@ -37,8 +37,8 @@ class FilterConfig:
 
 @dataclass(frozen=True)
 class RansacConfig:
-    """RANSAC settings: Open3D's ``segment_plane`` and the exhaustive search of pose-carried
-    shapes (:func:`annotate_rgbd.segment.ransac.every_hypothesis`).
+    """RANSAC settings (:func:`annotate_rgbd.segment.ransac.ransac_plane`) and the exhaustive search
+    of pose-carried shapes (:func:`annotate_rgbd.segment.ransac.every_hypothesis`).
 
     Parameters
     ----------
@@ -49,8 +49,8 @@ class RansacConfig:
         the sensor's noise, ``[noise]`` (:class:`annotate_rgbd.geometry.noise.NoiseSettings`). A value
         > 0 replaces the noise model, whatever ``[noise]`` says.
     num_iterations : int
-        RANSAC iterations (Open3D stops earlier once the inlier set is certain; the exhaustive
-        search tries them all).
+        RANSAC iterations (it stops earlier once the inlier set is certain, as Open3D's
+        ``segment_plane`` does; the exhaustive search tries them all).
     seed : int
         Seed of Open3D's random generator, set before every fit, and of the exhaustive search's
         (numpy's), so that a re-run gives identical masks.

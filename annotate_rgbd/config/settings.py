@@ -476,7 +476,7 @@ def _coerce(key: str, default: Any, value: Any, origin: str | Path | None) -> An
     return float(value)
 
 
-#: Largest integer setting: Open3D takes its RANSAC iterations and seed as a C int.
+#: Largest integer setting: a C int (OpenCV takes its sizes as C ints; beyond, surely a typo).
 MAX_INT_SETTING = 2**31 - 1
 
 

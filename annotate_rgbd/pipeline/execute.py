@@ -20,7 +20,7 @@ from annotate_rgbd.pool import (
 from annotate_rgbd.report.records import FAILED, TIMED_OUT, UNREADABLE_DEPTH, FrameRecord, MaskRecord
 from .resume import Journal, Previous, previous_results
 
-if TYPE_CHECKING:  # the plan's modules import Open3D, which this module leaves to the helpers' server
+if TYPE_CHECKING:  # the plan's modules import OpenCV, which this module leaves to the helpers' server
     from .plan import RunPlan
 
 __all__ = ["FRAME_JOB_MODULE", "FrameCounts", "SceneResult", "SceneRun", "default_workers", "execute_scenes",
@@ -28,7 +28,7 @@ __all__ = ["FRAME_JOB_MODULE", "FrameCounts", "SceneResult", "SceneRun", "defaul
 
 log = logging.getLogger("annotate_rgbd")
 
-#: What helper processes import before their first frame job (Open3D, OpenCV: ~2 s).
+#: What helper processes import before their first frame job (OpenCV, numpy, the segmentation).
 FRAME_JOB_MODULE = "annotate_rgbd.pipeline.frame_job"
 
 
@@ -265,7 +265,7 @@ def execute_scenes(
     scene_names : bool
         Start the failed frames' warnings with the scene's name.
     """
-    # Not at the top: Open3D and OpenCV would slow the command line's start (see prepare_process).
+    # Not at the top: OpenCV would slow the command line's start (see prepare_process).
     from .frame_job import FrameTask, SizeMismatch, run_frame_job
 
     tasks: list[FrameTask] = []

@@ -1,7 +1,7 @@
 """One depth frame's job: read the depth image, segment it, write its mask (and extras).
 
 Kept apart from :mod:`annotate_rgbd.pipeline` so that worker processes import only what a frame
-needs (Open3D, OpenCV, numpy), not the CVAT reader or the planning: a worker starts faster.
+needs (OpenCV, numpy), not the CVAT reader or the planning: a worker starts faster.
 """
 
 from __future__ import annotations

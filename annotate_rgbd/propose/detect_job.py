@@ -2,7 +2,7 @@
 polygons a labeller would get, drop what a labeller would drop.
 
 Runs in helper processes (:mod:`annotate_rgbd.pool`): the job and its result are plain,
-picklable dataclasses, and this module imports no Open3D.
+picklable dataclasses.
 """
 
 from __future__ import annotations

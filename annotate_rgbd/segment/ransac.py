@@ -24,6 +24,8 @@ DEFAULT_PROBABILITY = 0.99999999
 #: Hypotheses in RANSAC's first block: as many as a plane that holds 76 % of the points needs at
 #: :data:`DEFAULT_PROBABILITY` (a plane that dominates its shape, the common case, stops there).
 FIRST_BLOCK = 32
+#: Hypotheses drawn at a time: the memory RANSAC takes stays small whatever ``num_iterations``.
+TRIPLES_DRAWN = 1000
 #: The share of a plane's points that may lie behind a plane that replaces it (noise, edges).
 IN_FRONT_SLACK = 0.02
 #: Point-to-plane distances computed at once by :func:`every_hypothesis` (1 MiB of float64):
@@ -250,8 +252,9 @@ def ransac_plane(
     of the best plane with the given ``probability``: ``log(1 - p) / log(1 - w^3)`` of them, ``w``
     the best plane's share of the points (15 for a plane that holds 90 % of them, 138 for half).
     The first block is :data:`FIRST_BLOCK` hypotheses, as many as a plane that dominates needs.
-    Each hypothesis is three distinct points; all ``iterations`` of them are drawn first, so a
-    search that stops early scored the first of the hypotheses a full search scores. Degenerate
+    Each hypothesis is three distinct points, drawn :data:`TRIPLES_DRAWN` at a time (all of them
+    at once for the default 1,000 iterations), so a search that stops early scored the first of
+    the hypotheses a full search scores. Degenerate
     hypotheses (three collinear points) hold no points.
 
     Parameters
@@ -276,13 +279,16 @@ def ransac_plane(
         Points within ``threshold`` of the best hypothesis.
     """
     points = np.asarray(points, dtype=np.float64)
-    triples = _distinct_triples(len(points), max(int(iterations), 1), np.random.default_rng(seed))
+    iterations, rng = max(int(iterations), 1), np.random.default_rng(seed)
+    drawn, drawn_from = np.zeros((0, 3), dtype=np.int64), 0  # the hypotheses drawn, from the drawn_from-th
     coords = np.ascontiguousarray(points.T)
     per_block = int(np.clip(DISTANCES_PER_BLOCK // max(len(points), 1), 1, 100))
-    best_plane, best_count, done, needed = np.zeros(4), 0, 0, len(triples)
+    best_plane, best_count, done, needed = np.zeros(4), 0, 0, iterations
     size = min(FIRST_BLOCK, per_block) if probability < 1 else per_block
     while done < needed:
-        corners = points[triples[done:min(done + size, needed)]]
+        if done == drawn_from + len(drawn):
+            drawn, drawn_from = _distinct_triples(len(points), min(TRIPLES_DRAWN, iterations - done), rng), done
+        corners = points[drawn[done - drawn_from:min(done + size, needed) - drawn_from]]
         normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
         length = np.sqrt(np.einsum("ij,ij->i", normals, normals))
         usable = length > 0

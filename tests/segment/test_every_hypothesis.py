@@ -142,3 +142,26 @@ def test_an_early_stop_scores_the_blocks_its_confidence_needs(plane_share, monke
     full, full_count = ransac_plane(sample, threshold, iterations, seed=3, probability=1.0)
     loop, loop_count = _loop_reference(sample, threshold, iterations, seed=3)
     assert full_count == loop_count >= count and np.allclose(full, loop, atol=1e-9)
+
+
+def test_hypotheses_are_drawn_a_chunk_at_a_time(monkeypatch):
+    # A huge num_iterations costs no memory up front: the first chunk is the default 1,000
+    # hypotheses, and a dominant plane stops the search inside it.
+    rng = np.random.default_rng(4)
+    sample = np.c_[rng.uniform(-1, 1, (500, 2)), 2.0 + rng.normal(0, 0.002, 500)]
+    assert np.array_equal(ransac_plane(sample, 0.004, 10**12, seed=5)[0], ransac_plane(sample, 0.004, 1000, seed=5)[0])
+    # Never stopping, chunks of 7: every hypothesis of the chunks is scored, in order.
+    sample = _two_surfaces(rng, near=60, far=90)
+    chunks = np.random.default_rng(9)
+    triples = np.concatenate([_distinct_triples(len(sample), n, chunks) for n in (7,) * 5 + (2,)])
+    best = max(range(len(triples)), key=lambda i: (_count(sample, triples[i], 0.004), -i))
+    monkeypatch.setattr(ransac, "TRIPLES_DRAWN", 7)
+    _, count = ransac_plane(sample, 0.004, 37, seed=9, probability=1.0)
+    assert count == _count(sample, triples[best], 0.004)
+
+
+def _count(sample, triple, threshold):
+    a, b, c = sample[triple]
+    normal = np.cross(b - a, c - a)
+    normal /= np.linalg.norm(normal)
+    return int(np.count_nonzero(np.abs((sample - a) @ normal) < threshold))
