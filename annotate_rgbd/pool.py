@@ -145,7 +145,10 @@ class HelperPool:
     restarted when a helper dies or hangs.
 
     The processes are started in a background thread (while the helper server is still
-    importing, starting one waits for it); ``ready`` is set once they are running. Each runs
+    importing, starting one waits for it); ``ready`` is set once they are running, and
+    ``failure`` says why they could not start (the thread itself never prints: when a signal
+    to the whole process group stops the helper server, the main process is stopping too and
+    says so in one line; otherwise :func:`run_jobs` warns and works alone). Each runs
     :func:`_start_helper` first, which imports the ``preload`` modules (already imported where
     the helper was forked from a server that preloaded them).
     """
@@ -155,6 +158,7 @@ class HelperPool:
         self.size = size
         self.preload = tuple(preload)
         self.ready = threading.Event()
+        self.failure: str | None = None
         self._executor = self._start_executor()
 
     def _start_executor(self) -> ProcessPoolExecutor:
@@ -163,6 +167,7 @@ class HelperPool:
             initargs=(self.preload,),
         )
         self.ready.clear()
+        self.failure = None
         threading.Thread(target=self._start, args=(executor,), name="annotate-rgbd-helpers", daemon=True).start()
         return executor
 
@@ -170,10 +175,10 @@ class HelperPool:
         try:
             for _ in range(self.size):  # the pool starts one process per task it is given
                 executor.submit(_no_op)
-        except (BrokenExecutor, OSError) as exc:  # e.g. out of processes
-            log.warning("helper processes could not start (%s); working in one process", exc)
-            return
         except RuntimeError:  # shut down before the helpers were up: nothing to start
+            return
+        except Exception as exc:  # e.g. out of processes, or the helper server was stopped
+            self.failure = str(exc) or type(exc).__name__
             return
         self.ready.set()
 
@@ -343,6 +348,9 @@ def _share(pending: deque, worker: Callable, helpers: HelperPool, stall_timeout:
             yield JobOutcome(index, error=JobTimeout(None, message))
 
     while pending or in_flight:
+        if helpers_alive and helpers.failure is not None:
+            log.warning("helper processes could not start (%s); working in one process", helpers.failure)
+            helpers_alive = False
         while helpers_alive and pending and len(in_flight) < queue_length and helpers.ready.is_set():
             index, job = pending.popleft()
             try:

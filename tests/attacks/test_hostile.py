@@ -715,8 +715,9 @@ def command_line_start() -> float:
 @pytest.mark.parametrize("delay", [0.3, 0.8, 1.3])
 @pytest.mark.parametrize(("signum", "status", "word"), [(signal.SIGINT, 130, "interrupted"), (signal.SIGTERM, 143, "terminated")])
 def test_interrupt_while_starting_prints_one_line(tmp_path, delay, signum, status, word, command_line_start):
-    """Ctrl-C (or SIGTERM) reaches the whole process group, the helpers' server too, while Open3D
-    is still being imported: one line, exit 130 (143), no traceback or report from any process."""
+    """Ctrl-C (or SIGTERM) reaches the whole process group, the helpers' server too, while the run
+    starts (imports, the server, the helpers being started): one line, exit 130 (143), no
+    traceback or report from any process or thread."""
     if delay < 1.5 * command_line_start:
         pytest.skip(f"a signal at {delay} s would land in Python's own start-up on this machine now "
                     f"({command_line_start:.2f} s to import the command line)")

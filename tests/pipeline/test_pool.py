@@ -154,3 +154,29 @@ def _alive(pid: int) -> bool:
             return stat.read().split(")")[-1].split()[0] != "Z"
     except FileNotFoundError:
         return False
+
+
+def test_helpers_that_cannot_start_print_nothing_and_this_process_does_everything(monkeypatch, caplog, capfd):
+    # The helper server stopped under the pool (a signal to the whole process group stops it):
+    # starting a helper fails with an error that is no OSError. The start-up thread stays quiet
+    # (no "Exception in thread" traceback); run_jobs warns once and does every job here.
+    from concurrent.futures import ProcessPoolExecutor
+
+    def server_gone(self, *args, **kwargs):
+        raise EOFError("the helper server went away")
+
+    monkeypatch.setattr(ProcessPoolExecutor, "submit", server_gone)
+    pool = start_helpers(2)
+    for _ in range(200):
+        if pool.failure is not None:
+            break
+        time.sleep(0.01)
+    assert pool.failure == "the helper server went away" and not pool.ready.is_set()
+    assert "Traceback" not in capfd.readouterr().err
+    jobs = [(value, os.getpid(), 0.0, 0.0) for value in range(5)]
+    with caplog.at_level(logging.WARNING, logger="annotate_rgbd"):
+        results = list(_pairs(run_jobs(jobs, square, pool)))
+    pool.shutdown()
+    assert [result["square"] for _, result in sorted(results)] == [0, 1, 4, 9, 16]
+    assert {result["pid"] for _, result in results} == {os.getpid()}
+    assert caplog.text.count("helper processes could not start (the helper server went away); working in one process") == 1
