@@ -137,16 +137,17 @@ def cell_medians(
     """
     hc, wc = inliers.shape[0] // cell, inliers.shape[1] // cell
     cut = (slice(0, hc * cell), slice(0, wc * cell))
-    share = inliers[cut].reshape(hc, cell, wc, cell).mean(axis=(1, 3))
-    counted = share >= MIN_CELL_SHARE
+    counts = inliers[cut].reshape(hc, cell, wc, cell).sum(axis=(1, 3), dtype=np.int32)  # inliers per cell
+    counted = counts >= MIN_CELL_SHARE * cell * cell
     if not counted.any():
         empty = np.zeros(0, dtype=np.int64)
         return empty, empty, np.zeros(0)
     values = np.where(inliers, distance, np.float32(np.nan))[cut]
     values = values.reshape(hc, cell, wc, cell).transpose(0, 2, 1, 3)[counted].reshape(-1, cell * cell)
-    # np.nanmedian row by row, from one sort (NaN sorts last): the middle of each row's values.
+    # np.nanmedian row by row, from one sort (NaN sorts last): the middle of each row's values
+    # (an inlier's distance is finite, so a row holds its cell's inlier count of them).
     values.sort(axis=1)
-    count = np.count_nonzero(~np.isnan(values), axis=1)
+    count = counts[counted]
     low = np.take_along_axis(values, ((count - 1) // 2)[:, None], axis=1)[:, 0]
     high = np.take_along_axis(values, (count // 2)[:, None], axis=1)[:, 0]
     medians = (low.astype(np.float64) + high) / 2
