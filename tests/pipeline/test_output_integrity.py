@@ -311,6 +311,7 @@ class _HangingPool:
     """A stand-in for HelperPool whose helpers take jobs and never finish them."""
 
     size = 1
+    failure = None
 
     def __init__(self):
         self.ready = threading.Event()
