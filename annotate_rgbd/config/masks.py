@@ -49,11 +49,12 @@ class RansacConfig:
         the sensor's noise, ``[noise]`` (:class:`annotate_rgbd.geometry.noise.NoiseSettings`). A value
         > 0 replaces the noise model, whatever ``[noise]`` says.
     num_iterations : int
-        RANSAC iterations (it stops earlier once the inlier set is certain, as Open3D's
-        ``segment_plane`` does; the exhaustive search tries them all).
+        RANSAC iterations (it stops earlier once the inlier set is certain, by Open3D's
+        ``segment_plane`` rule; the exhaustive search tries them all), at most 1,000,000
+        (``config.settings.MAX_RANSAC_ITERATIONS``).
     seed : int
-        Seed of Open3D's random generator, set before every fit, and of the exhaustive search's
-        (numpy's), so that a re-run gives identical masks.
+        Seed of RANSAC's random generator (numpy's), set before every fit, so that a re-run gives
+        identical masks (with the same numpy version).
     max_points : int
         RANSAC looks for the plane among at most this many of a plane's points, spread evenly
         over it (a regular pixel grid); every pixel is then tested against that plane. On the
@@ -70,7 +71,7 @@ class RansacConfig:
         For a shape carried by camera poses, RANSAC runs again through all its iterations
         (every hypothesis scored, :func:`annotate_rgbd.segment.ransac.every_hypothesis`) when
         its plane holds under this share of the points (a wall half covered by a whiteboard:
-        Open3D stops early on a plane leaning between two surfaces of about half each). This
+        RANSAC stops early on a plane leaning between two surfaces of about half each). This
         project's choice, between those halves and a plane that clearly dominates.
     min_noise_scale, max_noise_scale : float
         Real sensors are noisier than their published axial noise (depth distortion on TUM fr1,

@@ -93,6 +93,9 @@ def keyframe_planes(
         band = config.inlier_band()
         points = backproject(cols, rows, depth_m[rows, cols], config.camera)
         fit = fit_plane(points, config.ransac, band)
+        if not fit.inliers.any():
+            planes[key] = "no plane among the shape's depth (its points lie on one line)"
+            continue
         on_plane = points[fit.inliers]
         excluded = []
         if settings.exclude:

@@ -17,6 +17,9 @@ TOO_FAR = "too_far"
 TOO_FEW_POINTS = "too_few_points"
 #: A plane carried by camera poses whose depth there is another surface (segment.refine).
 NOT_WHERE_EXPECTED = "not_where_expected"
+#: A plane whose valid depth lies on one line in space (a strip of depth one pixel row high): no
+#: plane runs through it (segment.refine).
+NO_PLANE = "no_plane"
 
 
 @dataclass(frozen=True)

@@ -14,7 +14,7 @@ import numpy as np
 from annotate_rgbd.annotation.model import Shape
 from annotate_rgbd.geometry.camera import depth_to_metres
 from annotate_rgbd.config.settings import Config
-from .filters import NOT_WHERE_EXPECTED, drop_reasons, label_histogram, plane_statistics
+from .filters import NO_PLANE, NOT_WHERE_EXPECTED, drop_reasons, label_histogram, plane_statistics
 from .grow import grow_connected, grow_planes
 from annotate_rgbd.geometry.registration import sample_labels
 from .rasterize import carried_shapes, draw_on_depth_grid
@@ -93,9 +93,10 @@ def segment_frame(
         drawn, depth_m, stats.plane_ids[kept], config.camera, config.ransac, band, stats.valid_pixels[kept],
         config.refine.rim_pixels, propagated, expected, config.refine, config.propagate,
     )
-    # A carried plane that is not where the poses put it (refine_planes gave it no fit).
-    reasons = [NOT_WHERE_EXPECTED if r is None and plane_id not in fits else r
-               for plane_id, r in zip(stats.plane_ids.tolist(), reasons)]
+    # refine_planes gave no fit to a carried plane that is not where the poses put it, and to a
+    # drawn plane whose depth lies on one line.
+    reasons = [(NOT_WHERE_EXPECTED if plane_id in propagated else NO_PLANE) if r is None and plane_id not in fits
+               else r for plane_id, r in zip(stats.plane_ids.tolist(), reasons)]
     inlier_count = label_histogram(refined, int(drawn.max(initial=0)) + 1)
     equations = {plane_id: fit.equation for plane_id, fit in fits.items()}
     if colour_grid is not None:  # what the keyframes excluded, drawn on the colour grid

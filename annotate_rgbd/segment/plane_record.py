@@ -57,7 +57,9 @@ class PlaneRecord:
         With camera poses: whether the plane's shape was carried here by the poses from
         keyframes on other frames (False: drawn on this frame's keyframe). None without poses.
     reason : str, optional
-        Dropped planes: why (``invalid_depth``, ``too_few_points``, ``too_far``); None: kept.
+        Dropped planes: why (``invalid_depth``, ``too_few_points``, ``too_far``; ``no_plane``: its
+        valid depth lies on one line; ``not_where_expected``: a plane carried by camera poses
+        whose depth there is another surface); None: kept.
     invalid_ratio : float, optional
         Dropped planes: the share of the shape's pixels without valid depth.
     """

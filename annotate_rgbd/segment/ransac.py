@@ -28,8 +28,8 @@ FIRST_BLOCK = 32
 TRIPLES_DRAWN = 1000
 #: The share of a plane's points that may lie behind a plane that replaces it (noise, edges).
 IN_FRONT_SLACK = 0.02
-#: Point-to-plane distances computed at once by :func:`every_hypothesis` (1 MiB of float64):
-#: a block of hypotheses is this many distances over the number of points, at most 100.
+#: Point-to-plane distances computed at once by :func:`ransac_plane` (1 MiB of float64): a block
+#: of hypotheses is this many distances over the number of points, at most 100.
 DISTANCES_PER_BLOCK = 2**17
 
 
@@ -112,6 +112,8 @@ def fit_plane(
     Returns
     -------
     PlaneFit
+        Without a plane (NaN equation, no inliers) when no three of the points span one (all
+        on one line).
     """
     points = np.ascontiguousarray(points, dtype=np.float64)
     sample = points
@@ -121,6 +123,8 @@ def fit_plane(
             sample = points[: max(config.max_points, 3)]
     threshold = config.band_share * float(noise.band(median(sample[:, 2])))
     equation, inliers = _ransac(sample, threshold, config)
+    if inliers == 0:  # the points lie on one line: no plane to find (nor behind it, nor to re-fit)
+        return PlaneFit(np.full(4, np.nan), np.zeros(len(points), dtype=bool))
     if expected is not None and inliers < config.exhaustive_below * len(sample):
         # RANSAC stops searching once its plane is likely the best given the share of points it
         # holds; with two surfaces of about half each it can stop on a plane leaning between them.
@@ -245,6 +249,8 @@ def ransac_plane(
 ) -> tuple[np.ndarray, int]:
     """RANSAC's plane: the plane through three of the points with the most points within
     ``threshold`` (the first of equals), re-fitted by least squares to those points.
+    Equal counts are not told apart by the inliers' distances, as Open3D's ``segment_plane``
+    does (its smaller root mean square wins): the first hypothesis drawn keeps its place.
 
     The hypotheses are scored a block at a time, each block one product of arrays (Open3D's
     ``segment_plane`` scores them one by one, a pass over the points each). After each block the
@@ -274,10 +280,13 @@ def ransac_plane(
     -------
     equation : ndarray of float64, shape (4,)
         Unit normal towards the camera (``d >= 0``); the best hypothesis itself when its inliers
-        lie on one line, all zeros when no hypothesis holds 3 points.
+        lie on one line; all NaN when no hypothesis holds 3 points (the points lie on one line):
+        no point is within any distance of it.
     inliers : int
         Points within ``threshold`` of the best hypothesis.
     """
+    if not 0 < probability <= 1:
+        raise ValueError(f"RANSAC's probability must be in (0, 1], not {probability}")
     points = np.asarray(points, dtype=np.float64)
     iterations, rng = max(int(iterations), 1), np.random.default_rng(seed)
     drawn, drawn_from = np.zeros((0, 3), dtype=np.int64), 0  # the hypotheses drawn, from the drawn_from-th
@@ -309,7 +318,7 @@ def ransac_plane(
         if probability < 1 and share > 0:
             needed = done if share >= 1 else min(needed, int(np.ceil(np.log1p(-probability) / np.log1p(-share**3))))
     if best_count < 3:  # no usable hypothesis (its own three points are its inliers)
-        return np.zeros(4), 0
+        return np.full(4, np.nan), 0
     plane = best_plane
     try:
         plane = weighted_plane_fit(points[np.abs(points @ plane[:3] + plane[3]) < threshold])

@@ -109,6 +109,8 @@ def refine_planes(
             fit = _fit_near(points, where, config, noise, refine, propagate)
             if fit is None:
                 continue  # the plane is not where the poses put it: nothing of it is kept
+        if not fit.inliers.any():
+            continue  # its points lie on one line: no plane, nothing of it is kept
         fits[plane_id] = fit
         table[plane_id] = fit.equation
         scales[plane_id] = fit.noise_scale

@@ -210,6 +210,8 @@ def test_a_list_entry_field_of_another_type_is_a_programming_error():
     ("[camera]\ncx = inf\n", "'camera.cx' must be a finite number, got inf"),
     ("[filter]\nmax_mean_distance = nan\n", "'filter.max_mean_distance' must be a finite number"),
     ("[ransac]\nnum_iterations = 2147483648\n", "'ransac.num_iterations' must be at most 2147483647"),
+    ("[ransac]\nnum_iterations = 1000001\n", "'ransac.num_iterations' must be in [1, 1000000]"),
+    ("[ransac]\nnum_iterations = 0\n", "'ransac.num_iterations' must be in [1, 1000000]"),
     ("[ransac]\nseed = 2147483648\n", "'ransac.seed' must be at most 2147483647"),
 ])
 def test_numbers_must_be_finite_and_fit_their_use(tmp_path, text, message):

@@ -149,7 +149,7 @@ def test_only_planes_carried_by_poses_grow_past_their_shapes():
 
 
 def test_a_carried_shape_whose_ransac_plane_holds_few_points_gets_an_exhaustive_search(monkeypatch):
-    # Open3D stops early once its plane likely is the best given the share it holds; with two
+    # RANSAC stops early once its plane likely is the best given the share it holds; with two
     # surfaces of about half each that can be a plane leaning between them. Stand-in RANSAC: the
     # early stop returns a leaning plane, the exhaustive search the wall's own.
     from annotate_rgbd.segment import ransac
@@ -176,7 +176,7 @@ def test_a_carried_shape_whose_ransac_plane_holds_few_points_gets_an_exhaustive_
     fit = fit_plane(points, RansacConfig(max_points=0), KINECT, look_behind=False, expected=expected)
     assert calls[:2] == [False, True]
     assert abs(fit.equation[3] - 2.0) < 0.001 and abs(fit.equation[2]) > 0.9999
-    # Drawn shapes (no expected plane) keep Open3D's own stopping rule: the recess it stopped on.
+    # Drawn shapes (no expected plane) keep RANSAC's early stop: the recess it stopped on.
     calls.clear()
     fit = fit_plane(points, RansacConfig(max_points=0), KINECT)
     assert True not in calls and abs(fit.equation[3] - 2.10) < 0.001

@@ -38,12 +38,13 @@ def _loop_reference(sample, threshold, iterations, seed, scored=None):
     return (-plane if plane[3] < 0 else plane), best_count
 
 
-@pytest.mark.parametrize("iterations", [1, 99, 237])
+@pytest.mark.parametrize("iterations", [1, 100, 101, 237])
 def test_the_plane_and_its_count_are_the_plain_loop_s(iterations, monkeypatch):
     rng = np.random.default_rng(iterations)
     sample = _two_surfaces(rng, near=120, far=180)
     threshold = 0.004
-    # Blocks of 100 hypotheses: 1, 99 and 237 end inside the first, at its end and in a third.
+    # Blocks of 100 hypotheses: 1, 100, 101 and 237 end inside the first, at its end, one into
+    # the second and inside a third.
     monkeypatch.setattr(ransac, "DISTANCES_PER_BLOCK", 100 * len(sample))
     equation, count = every_hypothesis(sample, threshold, iterations, seed=7)
     expected, expected_count = _loop_reference(sample, threshold, iterations, seed=7)
@@ -101,7 +102,7 @@ def test_triples_are_three_distinct_points_drawn_evenly():
 def test_degenerate_samples_hold_no_points():
     on_a_line = np.c_[np.linspace(0, 1, 20), np.zeros(20), np.full(20, 2.0)]
     equation, count = every_hypothesis(on_a_line, 0.01, 50, seed=0)
-    assert count == 0 and np.array_equal(equation, np.zeros(4))
+    assert count == 0 and np.isnan(equation).all()  # no point lies within any distance of it
     # Nearly collinear (1e-12 m off the line): a hypothesis holds points, but its inliers admit no
     # least-squares plane; the hypothesis itself comes back, normal towards the camera.
     rng = np.random.default_rng(2)
@@ -128,15 +129,20 @@ def test_an_early_stop_scores_the_blocks_its_confidence_needs(plane_share, monke
     iterations, threshold = 1000, 0.004
     # The blocks' ends, and the loop's best plane after each: the search stops after the first
     # block whose best plane's share says that enough hypotheses were drawn.
-    ends = [32 + 50 * i for i in range(20) if 32 + 50 * i <= iterations]
+    first = ransac.FIRST_BLOCK
+    ends = [first + 50 * i for i in range(20) if first + 50 * i <= iterations]
     for end in ends:
         expected, expected_count = _loop_reference(sample, threshold, iterations, seed=3, scored=end)
         if end >= _hypotheses_needed(expected_count / len(sample)):
             break
+    else:
+        pytest.fail("no block's end is enough for the loop's best plane: the scene does not test an early stop")
     equation, count = ransac_plane(sample, threshold, iterations, seed=3)
     assert count == expected_count and np.allclose(equation, expected, atol=1e-9)
     assert end < iterations  # it did stop early
-    assert (end == 32) == (plane_share > 0.76)
+    # The first block is as many hypotheses as a plane holding 76 % of the points needs.
+    assert _hypotheses_needed(0.76) <= first < _hypotheses_needed(0.75)
+    assert (end == first) == (plane_share > 0.76)
     assert equation[3] == pytest.approx(2.0, abs=0.003)  # the wall
     # Never stopping scores every hypothesis: at least as many points, and the same plane as the loop.
     full, full_count = ransac_plane(sample, threshold, iterations, seed=3, probability=1.0)
@@ -156,8 +162,17 @@ def test_hypotheses_are_drawn_a_chunk_at_a_time(monkeypatch):
     triples = np.concatenate([_distinct_triples(len(sample), n, chunks) for n in (7,) * 5 + (2,)])
     best = max(range(len(triples)), key=lambda i: (_count(sample, triples[i], 0.004), -i))
     monkeypatch.setattr(ransac, "TRIPLES_DRAWN", 7)
-    _, count = ransac_plane(sample, 0.004, 37, seed=9, probability=1.0)
+    plane, count = ransac_plane(sample, 0.004, 37, seed=9, probability=1.0)
     assert count == _count(sample, triples[best], 0.004)
+    # The plane is that hypothesis's, re-fitted to its inliers.
+    a, b, c = sample[triples[best]]
+    normal = np.cross(b - a, c - a)
+    normal /= np.linalg.norm(normal)
+    inliers = sample[np.abs((sample - a) @ normal) < 0.004]
+    centre = inliers.mean(axis=0)
+    refitted = np.linalg.svd(inliers - centre)[2][2]
+    expected = np.append(refitted, -refitted @ centre)
+    assert np.allclose(plane, -expected if expected[3] < 0 else expected, atol=1e-9)
 
 
 def _count(sample, triple, threshold):
@@ -165,3 +180,23 @@ def _count(sample, triple, threshold):
     normal = np.cross(b - a, c - a)
     normal /= np.linalg.norm(normal)
     return int(np.count_nonzero(np.abs((sample - a) @ normal) < threshold))
+
+
+@pytest.mark.parametrize("probability", [0.0, -0.5, 1.5, float("nan")])
+def test_a_probability_outside_0_to_1_is_refused(probability):
+    sample = np.c_[np.random.default_rng(0).uniform(-1, 1, (50, 2)), np.full(50, 2.0)]
+    with pytest.raises(ValueError, match="probability must be in"):
+        ransac_plane(sample, 0.004, 100, seed=0, probability=probability)
+
+
+def test_fit_plane_on_points_of_one_line_finds_no_plane():
+    # A shape one pixel row high on a wall: its points lie on one line in space, which no plane
+    # (nor any other RANSAC plane) holds. The fit has no inliers and no equation, rather than
+    # every point on a plane of zeros.
+    from annotate_rgbd.config.masks import RansacConfig
+    from annotate_rgbd.geometry.noise import NoiseSettings
+
+    on_a_line = np.c_[np.linspace(-0.5, 0.5, 200), np.full(200, 0.1), np.full(200, 2.0)]
+    fit = ransac.fit_plane(on_a_line, RansacConfig(), NoiseSettings())
+    assert not fit.inliers.any() and len(fit.inliers) == 200
+    assert np.isnan(fit.equation).all() and fit.inliers_refit == 0

@@ -219,3 +219,29 @@ def test_the_band_is_wider_behind_a_plane_than_in_front_of_it():
     # The plane's own pixels stay in all three.
     plain = ~front & ~behind
     assert all(kept[name][inner][plain[inner]].mean() > 0.98 for name in kept)
+
+
+def test_a_plane_whose_depth_lies_on_one_line_is_dropped_not_kept_without_an_equation():
+    # A strip of wall with depth on one pixel row only (the rows above and below read 0): its
+    # points lie on one line in space, which no plane holds. It is dropped as no_plane, with no
+    # NaN plane in the report and no warning; a second plane on the frame is unaffected.
+    import warnings
+
+    from annotate_rgbd.annotation.model import Shape
+    from annotate_rgbd.config.settings import load_config
+    from annotate_rgbd.segment.filters import NO_PLANE
+    from annotate_rgbd.segment.frame import segment_frame
+
+    config = load_config(None, {"camera.fx": 150.0, "camera.fy": 150.0, "camera.cx": 79.5, "camera.cy": 59.5,
+                                "filter.max_invalid_ratio": 0.95})
+    raw = np.zeros((120, 160), np.uint16)
+    raw[60] = 10000  # 2 m, one row
+    raw[80:] = 10000  # a floor-like block below, a plane of its own
+    strip = Shape("polygon", np.array([[10.0, 55.0], [150.0, 55.0], [150.0, 65.0], [10.0, 65.0]]))
+    block = Shape("polygon", np.array([[10.0, 85.0], [150.0, 85.0], [150.0, 115.0], [10.0, 115.0]]))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        result = segment_frame(raw, [(1, strip), (2, block)], config)
+    assert [(r.plane, r.reason, r.equation) for r in result.dropped] == [(1, NO_PLANE, None)]
+    assert [r.plane for r in result.kept] == [2] and not (result.labels == 1).any()
+    assert (result.labels == 2).sum() > 0.9 * (result.drawn == 2).sum()
