@@ -159,28 +159,38 @@ class HelperPool:
         self.preload = tuple(preload)
         self.ready = threading.Event()
         self.failure: str | None = None
-        self._executor = self._start_executor()
+        #: Whether :func:`run_jobs` said that the helpers could not start (it says so once).
+        self.failure_reported = False
+        self._start_executor()
 
-    def _start_executor(self) -> ProcessPoolExecutor:
-        executor = ProcessPoolExecutor(
+    def _start_executor(self) -> None:
+        self.ready.clear()
+        self.failure = None
+        self._executor = ProcessPoolExecutor(
             max_workers=self.size, mp_context=helper_context(self.preload), initializer=_start_helper,
             initargs=(self.preload,),
         )
-        self.ready.clear()
-        self.failure = None
-        threading.Thread(target=self._start, args=(executor,), name="annotate-rgbd-helpers", daemon=True).start()
-        return executor
+        threading.Thread(target=self._start, args=(self._executor,), name="annotate-rgbd-helpers", daemon=True).start()
 
     def _start(self, executor: ProcessPoolExecutor) -> None:
+        """Start ``executor``'s processes; ``ready`` or ``failure`` tell how it went, unless the
+        pool was restarted meanwhile (``executor`` is no longer its own)."""
         try:
             for _ in range(self.size):  # the pool starts one process per task it is given
                 executor.submit(_no_op)
+        except BrokenExecutor as exc:  # a process died as it started (before RuntimeError: a subclass)
+            failure = str(exc) or type(exc).__name__
         except RuntimeError:  # shut down before the helpers were up: nothing to start
             return
         except Exception as exc:  # e.g. out of processes, or the helper server was stopped
-            self.failure = str(exc) or type(exc).__name__
+            failure = str(exc) or type(exc).__name__
+        else:
+            if executor is self._executor:
+                self.ready.set()
             return
-        self.ready.set()
+        executor.shutdown(wait=False, cancel_futures=True)  # whatever did start is not used
+        if executor is self._executor:
+            self.failure = failure
 
     @property
     def processes(self) -> dict[int, multiprocessing.process.BaseProcess]:
@@ -198,7 +208,7 @@ class HelperPool:
         # Not cancel_futures: the pool's own thread fails the lost jobs' futures as it finds the
         # helpers dead, and one it finds cancelled makes that thread raise (Python 3.11).
         self._executor.shutdown(wait=False)
-        self._executor = self._start_executor()
+        self._start_executor()
 
     def shutdown(self, wait: bool = True, cancel_futures: bool = False) -> None:
         """Stop the helpers once their current jobs are done (see ``Executor.shutdown``)."""
@@ -349,7 +359,9 @@ def _share(pending: deque, worker: Callable, helpers: HelperPool, stall_timeout:
 
     while pending or in_flight:
         if helpers_alive and helpers.failure is not None:
-            log.warning("helper processes could not start (%s); working in one process", helpers.failure)
+            if not helpers.failure_reported:  # once per pool, not once per batch of jobs
+                log.warning("helper processes could not start (%s); working in one process", helpers.failure)
+                helpers.failure_reported = True
             helpers_alive = False
         while helpers_alive and pending and len(in_flight) < queue_length and helpers.ready.is_set():
             index, job = pending.popleft()

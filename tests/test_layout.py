@@ -295,7 +295,11 @@ OPTIONAL_IMPORTS = {"rerun"}
 def runtime_imports() -> set[str]:
     """The top-level names of pyproject.toml's runtime dependencies, as the package imports them."""
     import re
-    import tomllib
+
+    try:
+        import tomllib
+    except ModuleNotFoundError:  # Python 3.10: the tomli backport (a runtime dependency there)
+        import tomli as tomllib
 
     project = tomllib.loads((PACKAGE.parent / "pyproject.toml").read_text(encoding="utf-8"))["project"]
     names = {re.split(r"[<>=!~;\[ ]", requirement, maxsplit=1)[0].strip() for requirement in project["dependencies"]}

@@ -8,7 +8,9 @@ import signal
 import subprocess
 import sys
 import textwrap
+import threading
 import time
+from concurrent.futures.process import BrokenProcessPool
 
 import cv2
 import pytest
@@ -156,27 +158,64 @@ def _alive(pid: int) -> bool:
         return False
 
 
-def test_helpers_that_cannot_start_print_nothing_and_this_process_does_everything(monkeypatch, caplog, capfd):
-    # The helper server stopped under the pool (a signal to the whole process group stops it):
-    # starting a helper fails with an error that is no OSError. The start-up thread stays quiet
-    # (no "Exception in thread" traceback); run_jobs warns once and does every job here.
+@pytest.mark.parametrize("error", [
+    EOFError("the helper server went away"),  # a signal to the process group stopped the server
+    OSError("out of processes"),
+    BrokenProcessPool("a helper died as it started"),  # a RuntimeError, not a shut-down pool
+])
+def test_helpers_that_cannot_start_print_nothing_and_this_process_does_everything(monkeypatch, caplog, capfd, error):
+    # Starting a helper fails. The start-up thread stays quiet (no "Exception in thread"
+    # traceback) and records why; run_jobs warns once per pool, however many batches of jobs it
+    # is given, and does every job here.
     from concurrent.futures import ProcessPoolExecutor
 
-    def server_gone(self, *args, **kwargs):
-        raise EOFError("the helper server went away")
+    def cannot_start(self, *args, **kwargs):
+        raise error
 
-    monkeypatch.setattr(ProcessPoolExecutor, "submit", server_gone)
+    monkeypatch.setattr(ProcessPoolExecutor, "submit", cannot_start)
     pool = start_helpers(2)
     for _ in range(200):
         if pool.failure is not None:
             break
         time.sleep(0.01)
-    assert pool.failure == "the helper server went away" and not pool.ready.is_set()
+    assert pool.failure == str(error) and not pool.ready.is_set()
     assert "Traceback" not in capfd.readouterr().err
     jobs = [(value, os.getpid(), 0.0, 0.0) for value in range(5)]
     with caplog.at_level(logging.WARNING, logger="annotate_rgbd"):
         results = list(_pairs(run_jobs(jobs, square, pool)))
+        again = list(_pairs(run_jobs(jobs, square, pool)))
     pool.shutdown()
-    assert [result["square"] for _, result in sorted(results)] == [0, 1, 4, 9, 16]
-    assert {result["pid"] for _, result in results} == {os.getpid()}
-    assert caplog.text.count("helper processes could not start (the helper server went away); working in one process") == 1
+    for done in (results, again):
+        assert [result["square"] for _, result in sorted(done)] == [0, 1, 4, 9, 16]
+        assert {result["pid"] for _, result in done} == {os.getpid()}
+    assert caplog.text.count(f"helper processes could not start ({error}); working in one process") == 1
+    assert caplog.text.count("could not start") == 1
+
+
+def test_a_start_that_fails_after_a_restart_is_not_blamed_on_the_new_helpers(monkeypatch):
+    # The thread that starts the first helpers is slow to fail; the pool was restarted meanwhile
+    # and its new helpers are up. The old thread's failure must not mark the new pool broken.
+    from concurrent.futures import ProcessPoolExecutor
+
+    gate, original = threading.Event(), ProcessPoolExecutor.submit
+    first = []
+
+    def slow_then_failing(self, *args, **kwargs):
+        if not first or first[0] is self:
+            first[:1] = [self]
+            gate.wait(10)
+            raise EOFError("the old helper server went away")
+        return original(self, *args, **kwargs)
+
+    monkeypatch.setattr(ProcessPoolExecutor, "submit", slow_then_failing)
+    pool = start_helpers(2)  # one helper
+    try:
+        pool.restart()
+        assert pool.ready.wait(60)  # the new helpers started
+        gate.set()
+        time.sleep(0.3)  # the old thread fails now
+        assert pool.failure is None and pool.ready.is_set()
+        assert pool.submit(square, (3, os.getpid(), 0.0, 0.0)).result(60)["square"] == 9
+    finally:
+        gate.set()
+        pool.shutdown()
