@@ -22,7 +22,7 @@ from annotate_rgbd.config.settings import Config
 from annotate_rgbd.errors import InputError
 from annotate_rgbd.segment.rasterize import draw_on_depth_grid
 from annotate_rgbd.segment.ransac import fit_plane
-from annotate_rgbd.segment.refine import grid_pixels
+from annotate_rgbd.segment.refine import grid_pixels, spans_a_plane
 from annotate_rgbd.io.sequence import read_depth
 from annotate_rgbd.pool import HelperPool, run_jobs
 from .evidence import excluded_regions, region_outlines
@@ -92,9 +92,9 @@ def keyframe_planes(
         rows, cols = grid_pixels(on_valid, key, valid, config.ransac.max_points)
         band = config.inlier_band()
         points = backproject(cols, rows, depth_m[rows, cols], config.camera)
-        fit = fit_plane(points, config.ransac, band)
-        if not fit.inliers.any():
-            planes[key] = "no plane among the shape's depth (its points lie on one line)"
+        fit = fit_plane(points, config.ransac, band) if spans_a_plane(rows, cols) else None
+        if fit is None or not fit.inliers.any():
+            planes[key] = "no plane in the shape's depth (on one pixel row or column, or on one line in space)"
             continue
         on_plane = points[fit.inliers]
         excluded = []

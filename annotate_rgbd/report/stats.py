@@ -154,6 +154,8 @@ DROP_HINTS = {
                "are the [camera] focal lengths in pixels of these images?",
     "invalid_depth": "is the depth registered to the RGB images, and are the polygons drawn on them?",
     "too_few_points": "are the shapes tiny, or the depth images of another size than the annotated ones?",
+    "no_plane": "is the depth mostly missing under the shapes, but for single rows or columns of pixels?",
+    "not_where_expected": "do the camera poses belong to this sequence, and is propagate.time_offset right?",
 }
 
 
@@ -176,4 +178,4 @@ def drop_hint(summary: RunSummary, depth_scale: float) -> str | None:
     hint = DROP_HINTS.get(reason, "")
     if reason == "too_far":
         hint = hint.replace("camera.depth_scale right", f"camera.depth_scale = {depth_scale:g} right")
-    return f"{count} of {total} planes were dropped as {reason}: {hint}"
+    return f"{count} of {total} planes were dropped as {reason}" + (f": {hint}" if hint else "")

@@ -17,8 +17,8 @@ TOO_FAR = "too_far"
 TOO_FEW_POINTS = "too_few_points"
 #: A plane carried by camera poses whose depth there is another surface (segment.refine).
 NOT_WHERE_EXPECTED = "not_where_expected"
-#: A plane whose valid depth lies on one line in space (a strip of depth one pixel row high): no
-#: plane runs through it (segment.refine).
+#: A plane whose valid depth spans no plane: on one pixel row or column (a strip of depth one
+#: row high, the rest of the shape without depth), or on one line in space (segment.refine).
 NO_PLANE = "no_plane"
 
 

@@ -14,7 +14,7 @@ import numpy as np
 from annotate_rgbd.annotation.model import Shape
 from annotate_rgbd.geometry.camera import depth_to_metres
 from annotate_rgbd.config.settings import Config
-from .filters import NO_PLANE, NOT_WHERE_EXPECTED, drop_reasons, label_histogram, plane_statistics
+from .filters import drop_reasons, label_histogram, plane_statistics
 from .grow import grow_connected, grow_planes
 from annotate_rgbd.geometry.registration import sample_labels
 from .rasterize import carried_shapes, draw_on_depth_grid
@@ -89,14 +89,12 @@ def segment_frame(
     reasons = drop_reasons(stats, config.filter)
     kept = np.array([r is None for r in reasons], dtype=bool)
     band = config.inlier_band()
+    unfit: dict[int, str] = {}  # why refine_planes found no plane (no_plane, not_where_expected)
     refined, fits = refine_planes(
         drawn, depth_m, stats.plane_ids[kept], config.camera, config.ransac, band, stats.valid_pixels[kept],
-        config.refine.rim_pixels, propagated, expected, config.refine, config.propagate,
+        config.refine.rim_pixels, propagated, expected, config.refine, config.propagate, unfit,
     )
-    # refine_planes gave no fit to a carried plane that is not where the poses put it, and to a
-    # drawn plane whose depth lies on one line.
-    reasons = [(NOT_WHERE_EXPECTED if plane_id in propagated else NO_PLANE) if r is None and plane_id not in fits
-               else r for plane_id, r in zip(stats.plane_ids.tolist(), reasons)]
+    reasons = [unfit.get(plane_id, r) for plane_id, r in zip(stats.plane_ids.tolist(), reasons)]
     inlier_count = label_histogram(refined, int(drawn.max(initial=0)) + 1)
     equations = {plane_id: fit.equation for plane_id, fit in fits.items()}
     if colour_grid is not None:  # what the keyframes excluded, drawn on the colour grid

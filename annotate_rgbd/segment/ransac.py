@@ -41,7 +41,8 @@ class PlaneFit:
     ----------
     equation : ndarray of float64, shape (4,)
         ``(a, b, c, d)`` with ``a x + b y + c z + d = 0`` in the camera frame (metres), unit
-        normal, oriented towards the camera (``d > 0``).
+        normal, oriented towards the camera (``d > 0``); all NaN when the points span no plane
+        (all on one line), and then no point is an inlier.
     inliers : ndarray of bool, shape (N,)
         For each input point, whether it lies within the inlier band of the plane at its depth.
     band : float

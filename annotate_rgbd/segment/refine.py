@@ -15,6 +15,7 @@ from annotate_rgbd.geometry.noise import NoiseSettings
 from annotate_rgbd.geometry.planes import weighted_plane_fit
 from .bend import plane_bends
 from .distances import band_image, behind_factor, signed_distances
+from .filters import NO_PLANE, NOT_WHERE_EXPECTED
 from .ransac import PlaneFit, fit_plane, on_expected_plane
 from .rims import near_surfaces_in_front
 
@@ -32,6 +33,7 @@ def refine_planes(
     expected: Mapping[int, np.ndarray] | None = None,
     refine: RefineConfig = RefineConfig(),
     propagate: PropagateConfig = PropagateConfig(),
+    unfit: dict[int, str] | None = None,
 ) -> tuple[np.ndarray, dict[int, PlaneFit]]:
     """Keep, for each plane, only its pixels with valid depth that lie on its fitted plane.
 
@@ -79,14 +81,19 @@ def refine_planes(
         shape landed on something else, its outline carried past the plane's end) is fitted again
         to the points near the expected plane; when those are too few or another surface too, the
         plane has no fit and keeps no pixel.
+    unfit : dict, optional
+        Filled with the reason of each plane of ``plane_ids`` that has no fit (so keeps no pixel):
+        ``no_plane`` when its valid pixels span no plane (:func:`spans_a_plane`, or all of their
+        points on one line in space), ``not_where_expected`` for a carried plane that is not
+        where the poses put it.
 
     Returns
     -------
     refined : ndarray, shape (H, W), of the type of ``labels``
         Plane ids on inlier pixels, 0 everywhere else (off-plane and invalid-depth pixels too).
     fits : dict of int to PlaneFit
-        The fit of each refined plane id (its ``inliers`` are those of the grid points); a
-        carried plane that is not where the poses put it has none.
+        The fit of each refined plane id (its ``inliers`` are those of the grid points); the
+        planes of ``unfit`` have none.
     """
     valid = np.isfinite(depth_m)
     on_valid = labels * valid  # plane ids where the depth is valid
@@ -97,20 +104,24 @@ def refine_planes(
     table = np.zeros((n_labels, 4), dtype=np.float32)  # (a, b, c, d) per label; 0 = no plane
     scales = np.ones(n_labels, dtype=np.float32)  # each plane's noise scale
     fits = {}
+    unfit = {} if unfit is None else unfit
     for plane_id, count in zip(plane_ids.tolist(), np.asarray(valid_pixels).tolist()):
         rows, cols = grid_pixels(on_valid, plane_id, count, config.max_points)
-        if rows.size < 3:
+        if not spans_a_plane(rows, cols):
+            unfit[plane_id] = NO_PLANE
             continue
         points = backproject(cols, rows, depth_m[rows, cols], camera)
         where = (expected or {}).get(plane_id) if plane_id in propagated else None
         fit = fit_plane(points, config, noise, look_behind=plane_id not in propagated, expected=where,
                         propagate=propagate)
+        if not fit.inliers.any():
+            unfit[plane_id] = NO_PLANE  # its points lie on one line in space: nothing of it is kept
+            continue
         if where is not None and not on_expected_plane(points[fit.inliers], where, propagate):
             fit = _fit_near(points, where, config, noise, refine, propagate)
             if fit is None:
-                continue  # the plane is not where the poses put it: nothing of it is kept
-        if not fit.inliers.any():
-            continue  # its points lie on one line: no plane, nothing of it is kept
+                unfit[plane_id] = NOT_WHERE_EXPECTED  # nothing of it is kept
+                continue
         fits[plane_id] = fit
         table[plane_id] = fit.equation
         scales[plane_id] = fit.noise_scale
@@ -349,7 +360,7 @@ def _band_test(
 def grid_pixels(labels: np.ndarray, plane_id: int, count: int, max_points: int) -> tuple[np.ndarray, np.ndarray]:
     """A plane's pixels on a regular grid: every s-th row and column, so that at most about
     ``max_points`` of its ``count`` pixels remain (all of them when ``max_points`` is 0 or the
-    grid would leave fewer than 3).
+    grid would leave pixels that span no plane, :func:`spans_a_plane`).
 
     Returns
     -------
@@ -358,9 +369,20 @@ def grid_pixels(labels: np.ndarray, plane_id: int, count: int, max_points: int) 
     """
     step = max(1, int(np.ceil(np.sqrt(count / max_points)))) if max_points else 1
     rows, cols = np.nonzero(labels[::step, ::step] == plane_id)
-    if rows.size < 3 and step > 1:
+    if step > 1 and not spans_a_plane(rows, cols):  # a thin plane the grid cut to a line
         return np.nonzero(labels == plane_id)
     return rows * step, cols * step
+
+
+def spans_a_plane(rows: np.ndarray, cols: np.ndarray) -> bool:
+    """Whether a plane's pixels can tell its plane: at least 3 of them, on more than one row and
+    more than one column.
+
+    The points of pixels on one image row (or column) lie in one plane through the camera
+    centre, whatever surface they are on: a fit to them finds that plane, with a sensor's noise
+    as with exact depth.
+    """
+    return rows.size >= 3 and rows.min() != rows.max() and cols.min() != cols.max()
 
 
 def label_lookup(table: np.ndarray, labels: np.ndarray) -> np.ndarray:

@@ -124,3 +124,22 @@ def test_a_wrong_depth_scale_is_named_when_most_planes_are_dropped_as_too_far(tm
                                       "--config", str(SAMPLE_DATA / "camera.toml"), "--out", str(tmp_path / "ok"),
                                       "--jobs", "1"])
     assert "were dropped as" not in normal.output and "1 frame skipped, 29 of 146 planes drawn on frames dropped" in normal.output
+
+
+def test_every_drop_reason_has_a_hint_and_an_unknown_one_no_dangling_colon():
+    from annotate_rgbd.report.records import RunSummary
+    from annotate_rgbd.report.stats import DROP_HINTS, drop_hint
+    from annotate_rgbd.segment import filters
+
+    reasons = {value for name, value in vars(filters).items() if name.isupper() and isinstance(value, str)}
+    assert reasons == {"invalid_depth", "too_far", "too_few_points", "not_where_expected", "no_plane"}
+    assert reasons == set(DROP_HINTS)
+
+    def summary(reason):
+        return RunSummary(depth_frames=3, masks_written=3, frames_skipped={}, frames_failed=0, planes_kept=1,
+                          planes_dropped=5, distinct_planes=2, dropped_by_reason={reason: 5}, mean_inlier_ratio=0.9)
+
+    for reason in reasons - {"too_far"}:
+        assert drop_hint(summary(reason), 5000.0) == f"5 of 6 planes were dropped as {reason}: {DROP_HINTS[reason]}"
+    assert "5 of 6 planes were dropped as too_far: is camera.depth_scale = 5000 right" in drop_hint(summary("too_far"), 5000.0)
+    assert drop_hint(summary("something_new"), 5000.0) == "5 of 6 planes were dropped as something_new"

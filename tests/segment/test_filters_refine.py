@@ -221,27 +221,44 @@ def test_the_band_is_wider_behind_a_plane_than_in_front_of_it():
     assert all(kept[name][inner][plain[inner]].mean() > 0.98 for name in kept)
 
 
-def test_a_plane_whose_depth_lies_on_one_line_is_dropped_not_kept_without_an_equation():
-    # A strip of wall with depth on one pixel row only (the rows above and below read 0): its
-    # points lie on one line in space, which no plane holds. It is dropped as no_plane, with no
-    # NaN plane in the report and no warning; a second plane on the frame is unaffected.
+def test_a_plane_whose_depth_is_on_one_pixel_row_or_one_line_is_dropped_as_no_plane():
+    # A strip of wall with depth on one pixel row only (the rows above and below read 0): the
+    # points of one pixel row lie in one plane through the camera centre, with a sensor's noise
+    # (here +-1 raw unit) as without, which a fit would take for the wall. Such a plane is
+    # dropped as no_plane, drawn or carried, with no NaN plane in the report and no warning; a
+    # second plane on the frame is unaffected. A carried plane whose depth is another surface
+    # than the one the poses expect is not_where_expected.
     import warnings
 
     from annotate_rgbd.annotation.model import Shape
     from annotate_rgbd.config.settings import load_config
-    from annotate_rgbd.segment.filters import NO_PLANE
+    from annotate_rgbd.segment.filters import NO_PLANE, NOT_WHERE_EXPECTED
     from annotate_rgbd.segment.frame import segment_frame
 
     config = load_config(None, {"camera.fx": 150.0, "camera.fy": 150.0, "camera.cx": 79.5, "camera.cy": 59.5,
                                 "filter.max_invalid_ratio": 0.95})
+    rng = np.random.default_rng(0)
     raw = np.zeros((120, 160), np.uint16)
-    raw[60] = 10000  # 2 m, one row
-    raw[80:] = 10000  # a floor-like block below, a plane of its own
+    raw[60] = 10000 + rng.integers(-1, 2, 160)  # 2 m, one row
+    raw[80:] = 10000  # a wall below, a plane of its own
     strip = Shape("polygon", np.array([[10.0, 55.0], [150.0, 55.0], [150.0, 65.0], [10.0, 65.0]]))
     block = Shape("polygon", np.array([[10.0, 85.0], [150.0, 85.0], [150.0, 115.0], [10.0, 115.0]]))
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")
-        result = segment_frame(raw, [(1, strip), (2, block)], config)
-    assert [(r.plane, r.reason, r.equation) for r in result.dropped] == [(1, NO_PLANE, None)]
-    assert [r.plane for r in result.kept] == [2] and not (result.labels == 1).any()
-    assert (result.labels == 2).sum() > 0.9 * (result.drawn == 2).sum()
+    wall = np.array([0.0, 0.0, -1.0, 2.0])
+    for propagated, expected in [((), None), ({1}, None), ({1}, {1: wall})]:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            result = segment_frame(raw, [(1, strip), (2, block)], config, propagated=propagated, expected=expected)
+        assert [(r.plane, r.reason, r.equation) for r in result.dropped] == [(1, NO_PLANE, None)]
+        assert [r.plane for r in result.kept] == [2] and not (result.labels == 1).any()
+        assert (result.labels == 2).sum() > 0.9 * (result.drawn == 2).sum()
+    # Without the noise, the row's points lie on one line in space: RANSAC finds no plane either.
+    flat = raw.copy()
+    flat[60] = 10000
+    from annotate_rgbd.segment.refine import spans_a_plane
+
+    rows, cols = np.nonzero(flat[:80] > 0)
+    assert not spans_a_plane(rows, cols) and not spans_a_plane(cols, rows)
+    assert spans_a_plane(np.array([0, 0, 1]), np.array([0, 1, 0]))
+    # The block carried there while the poses expect a wall 30 cm nearer: another surface.
+    result = segment_frame(raw, [(2, block)], config, propagated={2}, expected={2: np.array([0.0, 0.0, -1.0, 1.7])})
+    assert [(r.plane, r.reason) for r in result.dropped] == [(2, NOT_WHERE_EXPECTED)] and not result.labels.any()
