@@ -18,7 +18,7 @@ import signal
 import threading
 import time
 from collections import deque
-from concurrent.futures import FIRST_COMPLETED, BrokenExecutor, Future, ProcessPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, BrokenExecutor, CancelledError, Future, ProcessPoolExecutor, wait
 from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any, Callable, Iterator, Sequence
@@ -145,7 +145,8 @@ class HelperPool:
     restarted when a helper dies or hangs.
 
     The processes are started in a background thread (while the helper server is still
-    importing, starting one waits for it); ``ready`` is set once they are running, and
+    importing, starting one waits for it); ``ready`` is set once each has run a first task
+    (its ``preload`` imports done), and
     ``failure`` says why they could not start (the thread itself never prints: when a signal
     to the whole process group stops the helper server, the main process is stopping too and
     says so in one line; otherwise :func:`run_jobs` warns and works alone). Each runs
@@ -161,36 +162,44 @@ class HelperPool:
         self.failure: str | None = None
         #: Whether :func:`run_jobs` said that the helpers could not start (it says so once).
         self.failure_reported = False
+        self._state = threading.Lock()  # the executor, ready and failure change together
         self._start_executor()
 
     def _start_executor(self) -> None:
-        self.ready.clear()
-        self.failure = None
-        self._executor = ProcessPoolExecutor(
+        executor = ProcessPoolExecutor(
             max_workers=self.size, mp_context=helper_context(self.preload), initializer=_start_helper,
             initargs=(self.preload,),
         )
-        threading.Thread(target=self._start, args=(self._executor,), name="annotate-rgbd-helpers", daemon=True).start()
+        with self._state:
+            self._executor = executor
+            self.ready.clear()
+            self.failure = None
+        threading.Thread(target=self._start, args=(executor,), name="annotate-rgbd-helpers", daemon=True).start()
 
     def _start(self, executor: ProcessPoolExecutor) -> None:
-        """Start ``executor``'s processes; ``ready`` or ``failure`` tell how it went, unless the
-        pool was restarted meanwhile (``executor`` is no longer its own)."""
+        """Start ``executor``'s processes and wait until each has run a first (empty) task;
+        ``ready`` or ``failure`` then tell how it went, unless the pool was restarted meanwhile
+        (``executor`` is no longer its own)."""
+        failure = None
         try:
-            for _ in range(self.size):  # the pool starts one process per task it is given
-                executor.submit(_no_op)
-        except BrokenExecutor as exc:  # a process died as it started (before RuntimeError: a subclass)
+            # The pool starts one process per task it is given; a process that cannot start
+            # (its imports fail, it is killed) fails the tasks: BrokenProcessPool.
+            for task in [executor.submit(_no_op) for _ in range(self.size)]:
+                task.result()
+        except BrokenExecutor as exc:  # before RuntimeError: a subclass
             failure = str(exc) or type(exc).__name__
-        except RuntimeError:  # shut down before the helpers were up: nothing to start
+        except (RuntimeError, CancelledError):  # shut down before the helpers were up: nothing to start
             return
         except Exception as exc:  # e.g. out of processes, or the helper server was stopped
             failure = str(exc) or type(exc).__name__
-        else:
-            if executor is self._executor:
+        with self._state:
+            if executor is not self._executor:
+                return  # restarted meanwhile: the new executor has a thread of its own
+            if failure is None:
                 self.ready.set()
-            return
-        executor.shutdown(wait=False, cancel_futures=True)  # whatever did start is not used
-        if executor is self._executor:
+                return
             self.failure = failure
+        executor.shutdown(wait=False, cancel_futures=True)  # whatever did start is not used
 
     @property
     def processes(self) -> dict[int, multiprocessing.process.BaseProcess]:

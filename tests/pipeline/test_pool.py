@@ -174,11 +174,9 @@ def test_helpers_that_cannot_start_print_nothing_and_this_process_does_everythin
 
     monkeypatch.setattr(ProcessPoolExecutor, "submit", cannot_start)
     pool = start_helpers(2)
-    for _ in range(200):
-        if pool.failure is not None:
-            break
-        time.sleep(0.01)
+    _join_start_up_threads()
     assert pool.failure == str(error) and not pool.ready.is_set()
+    assert pool._executor._shutdown_thread  # the executor that could not start is shut down
     assert "Traceback" not in capfd.readouterr().err
     jobs = [(value, os.getpid(), 0.0, 0.0) for value in range(5)]
     with caplog.at_level(logging.WARNING, logger="annotate_rgbd"):
@@ -192,28 +190,56 @@ def test_helpers_that_cannot_start_print_nothing_and_this_process_does_everythin
     assert caplog.text.count("could not start") == 1
 
 
+def _join_start_up_threads(timeout=60.0):
+    """Wait for the threads that start helper processes to finish (however loaded the machine)."""
+    for thread in threading.enumerate():
+        if thread.name == "annotate-rgbd-helpers":
+            thread.join(timeout)
+
+
+def test_a_helper_whose_imports_fail_is_a_start_up_failure(caplog):
+    # The helper process starts, but its first step (importing the jobs' modules) fails: the
+    # pool is not ready, says why, and run_jobs does every job here after one warning (not "a
+    # helper process stopped", nor a restart).
+    pool = start_helpers(2, preload=("annotate_rgbd_no_such_module",))
+    try:
+        _join_start_up_threads()
+        assert pool.failure is not None and not pool.ready.is_set()
+        jobs = [(value, os.getpid(), 0.0, 0.0) for value in range(3)]
+        with caplog.at_level(logging.WARNING, logger="annotate_rgbd"):
+            results = list(_pairs(run_jobs(jobs, square, pool)))
+    finally:
+        pool.shutdown()
+    assert sorted(result["square"] for _, result in results) == [0, 1, 4]
+    assert caplog.text.count("helper processes could not start") == 1 and "restarted" not in caplog.text
+
+
 def test_a_start_that_fails_after_a_restart_is_not_blamed_on_the_new_helpers(monkeypatch):
     # The thread that starts the first helpers is slow to fail; the pool was restarted meanwhile
     # and its new helpers are up. The old thread's failure must not mark the new pool broken.
     from concurrent.futures import ProcessPoolExecutor
 
-    gate, original = threading.Event(), ProcessPoolExecutor.submit
-    first = []
+    gate, original, old = threading.Event(), ProcessPoolExecutor.submit, []
 
     def slow_then_failing(self, *args, **kwargs):
-        if not first or first[0] is self:
-            first[:1] = [self]
-            gate.wait(10)
+        if not old or self is old[0]:  # the first executor's start-up
+            old[:1] = [self]
+            gate.wait(60)
             raise EOFError("the old helper server went away")
         return original(self, *args, **kwargs)
 
     monkeypatch.setattr(ProcessPoolExecutor, "submit", slow_then_failing)
     pool = start_helpers(2)  # one helper
     try:
+        for _ in range(6000):  # until the first start-up thread waits at the gate
+            if old:
+                break
+            time.sleep(0.01)
+        assert old and old[0] is pool._executor
         pool.restart()
         assert pool.ready.wait(60)  # the new helpers started
         gate.set()
-        time.sleep(0.3)  # the old thread fails now
+        _join_start_up_threads()  # the old thread failed, after the restart
         assert pool.failure is None and pool.ready.is_set()
         assert pool.submit(square, (3, os.getpid(), 0.0, 0.0)).result(60)["square"] == 9
     finally:
