@@ -58,8 +58,9 @@ class PlaneRecord:
         keyframes on other frames (False: drawn on this frame's keyframe). None without poses.
     reason : str, optional
         Dropped planes: why (``invalid_depth``, ``too_few_points``, ``too_far``; ``no_plane``: its
-        valid depth is on one pixel row or column, or on one line in space; ``not_where_expected``: a plane carried by camera poses
-        whose depth there is another surface); None: kept.
+        valid depth is on one pixel row or column, or on one line in space;
+        ``not_where_expected``: a plane carried by camera poses whose depth there is another
+        surface); None: kept.
     invalid_ratio : float, optional
         Dropped planes: the share of the shape's pixels without valid depth.
     """

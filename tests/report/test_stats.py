@@ -141,5 +141,6 @@ def test_every_drop_reason_has_a_hint_and_an_unknown_one_no_dangling_colon():
 
     for reason in reasons - {"too_far"}:
         assert drop_hint(summary(reason), 5000.0) == f"5 of 6 planes were dropped as {reason}: {DROP_HINTS[reason]}"
-    assert "5 of 6 planes were dropped as too_far: is camera.depth_scale = 5000 right" in drop_hint(summary("too_far"), 5000.0)
+    too_far = drop_hint(summary("too_far"), 5000.0)
+    assert too_far.startswith("5 of 6 planes were dropped as too_far: is camera.depth_scale = 5000 right")
     assert drop_hint(summary("something_new"), 5000.0) == "5 of 6 planes were dropped as something_new"
