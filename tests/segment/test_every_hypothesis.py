@@ -190,7 +190,7 @@ def test_a_probability_outside_0_to_1_is_refused(probability):
 
 
 def test_fit_plane_on_points_of_one_line_finds_no_plane():
-    # A shape one pixel row high on a wall: its points lie on one line in space, which no plane
+    # Exact depth on one pixel row of a wall facing the camera: the points lie on one line in space, which no plane
     # (nor any other RANSAC plane) holds. The fit has no inliers and no equation, rather than
     # every point on a plane of zeros.
     from annotate_rgbd.config.masks import RansacConfig
