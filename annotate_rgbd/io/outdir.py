@@ -33,11 +33,14 @@ import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterable
+from typing import TYPE_CHECKING, Iterable
 
 from annotate_rgbd.errors import OutputError
 from annotate_rgbd.io.bounded import read_stream_bounded
 from .files import open_regular
+
+if TYPE_CHECKING:
+    from annotate_rgbd.io.layouts.model import Sequence
 
 log = logging.getLogger("annotate_rgbd")
 
@@ -462,3 +465,33 @@ class reading:
         if self._fd is not None:
             os.close(self._fd)
             self._fd = None
+
+
+def check_outside_sequence(out_dir: str | Path, sequence: "Sequence") -> None:
+    """Refuse an output folder that is the sequence folder or lies in one of its image folders.
+
+    A run writes files of its own beside its masks (``contact_sheet.png``, ``report.json``): in
+    a ``depth/`` or ``rgb/`` folder that a layout reads by listing it, the next run would take
+    them for frames (or stop on them); in the sequence folder they mix with the inputs. A new
+    folder inside the sequence folder (``seq/out``) is fine.
+
+    Parameters
+    ----------
+    out_dir : str or Path
+    sequence : Sequence
+        :func:`annotate_rgbd.io.sequence.read_sequence`'s.
+
+    Raises
+    ------
+    OutputError
+        Naming the output folder and the input folder it would write into.
+    """
+    out = Path(out_dir).resolve()
+    if out == sequence.root.resolve():
+        raise OutputError(out_dir, "the output folder is the sequence folder: name a new folder (e.g. inside it, "
+                                   f"{Path(out_dir) / 'out'})")
+    for folder in sequence.image_folders():
+        if out == folder or folder in out.parents:
+            where = "is" if out == folder else "is inside"
+            raise OutputError(out_dir, f"the output folder {where} the sequence's image folder {folder}, whose "
+                                       "files are read as frames: name a folder outside it")

@@ -26,7 +26,7 @@ from annotate_rgbd.errors import InputError
 from .frame_job import OVERLAY_DIR, FrameJob, check_size
 from annotate_rgbd.geometry.depth_range import depth_scale_hint, median_raw_depth
 from annotate_rgbd.geometry.lift import plane_to_camera
-from annotate_rgbd.io.outdir import ID_MASKS, RAW_MASKS
+from annotate_rgbd.io.outdir import ID_MASKS, RAW_MASKS, check_outside_sequence
 from annotate_rgbd.report.palette import plane_colours
 from .part_overlap import part_pair_iou
 from .propagation import Propagation, plan_propagation, propagation_warnings
@@ -161,6 +161,7 @@ def plan_run(
     if not annotation_paths:
         raise InputError(None, "no CVAT export given")
     sequence = read_sequence(sequence_dir)
+    check_outside_sequence(out_dir, sequence)
     labels = config.annotation.labels or None
     annotations = [read_cvat(path, labels=labels) for path in annotation_paths]
     if labels and not any(a.tracks for a in annotations):

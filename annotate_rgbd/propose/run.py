@@ -20,7 +20,9 @@ from annotate_rgbd.geometry.lift import plane_to_world
 from annotate_rgbd.pool import default_workers, run_jobs, start_helpers
 from annotate_rgbd.io.poses import load_trajectory, missing_poses_text, poses_at
 from annotate_rgbd.io.sequence import associate, intrinsics_problems, read_depth, read_sequence
-from annotate_rgbd.io.outdir import MASKS, OutputFolder, read_bounded, remove_review_files, remove_stale_files
+from annotate_rgbd.io.outdir import (
+    MASKS, OutputFolder, check_outside_sequence, read_bounded, remove_review_files, remove_stale_files,
+)
 from annotate_rgbd.io.writer import write_json
 from annotate_rgbd.logs import group_problems
 from annotate_rgbd.report.run_folder import write_drawn_shapes
@@ -107,6 +109,7 @@ def run_propose(
     """
     sequence = read_sequence(sequence_dir, need_rgb=False)
     out_dir = Path(out_dir)
+    check_outside_sequence(out_dir, sequence)
     workers = workers or default_workers()
     with OutputFolder(out_dir, "propose") as folder:
         helpers = start_helpers(workers, [DETECT_JOB_MODULE])

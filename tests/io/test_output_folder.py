@@ -155,3 +155,26 @@ def test_a_killed_run_leaves_nothing_stale(tmp_path):
     assert _masks(out) == _masks(tmp_path / "clean")
     assert not (out / "masks_raw").exists() and not (out / "masks_id").exists()
     assert sorted(os.listdir(out)) == sorted(os.listdir(tmp_path / "clean"))
+
+
+@pytest.mark.parametrize("command", ["cvat2mask", "propose"])
+def test_an_output_folder_in_the_sequence_s_image_folders_or_the_sequence_itself_is_refused(tmp_path, command):
+    # A run's own files (contact_sheet.png, report.json) in depth/ would be read as frames by the
+    # next run of a layout that lists the folder; in the sequence folder they mix with the inputs.
+    # Refused before anything is written; a new folder inside the sequence folder is fine.
+    sequence = tmp_path / "seq"
+    shutil.copytree(SEQUENCE, sequence)
+    before = sorted(p.relative_to(tmp_path).as_posix() for p in tmp_path.rglob("*"))
+    runner = CliRunner()
+    inputs = [str(sequence)] + ([str(ANNOTATIONS)] if command == "cvat2mask" else [])
+    options = ["--config", str(SAMPLE_DATA / "camera.toml"), "--jobs", "1", "--set", "ransac.num_iterations=200"]
+    for out, message in [(sequence, "is the sequence folder"), (sequence / "depth", "is the sequence's image folder"),
+                         (sequence / "rgb" / "new" / "deeper", "is inside the sequence's image folder")]:
+        result = runner.invoke(app, [command, *inputs, "--out", str(out), *options])
+        assert result.exit_code == 1 and message in result.output and "Traceback" not in result.output
+        assert result.output.count("\n") == 1 and result.output.startswith(f"error: {out}:")
+        assert sorted(p.relative_to(tmp_path).as_posix() for p in tmp_path.rglob("*")) == before
+    result = runner.invoke(app, [command, *inputs, "--out", str(sequence / "out"), *options, "--every", "5"]
+                           if command == "propose" else [command, *inputs, "--out", str(sequence / "out"), *options])
+    assert result.exit_code == 0, result.output
+    assert (sequence / "out" / "masks").is_dir()

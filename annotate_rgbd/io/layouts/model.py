@@ -7,6 +7,7 @@ fields below (``clock``, ``camera``, ``colour_camera``, ``poses``).
 
 from __future__ import annotations
 
+import posixpath
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -157,3 +158,9 @@ class Sequence:
     colour_camera: ColourCamera | None = None
     poses: Path | None = None
     notes: tuple[str, ...] = ()
+
+    def image_folders(self) -> list[Path]:
+        """The folders that hold the sequence's images (depth and colour), resolved, sorted."""
+        streams = [self.depth] + ([self.rgb] if self.rgb is not None else [])
+        parents = {posixpath.dirname(name) for stream in streams for name in stream.files}
+        return sorted({(self.root / parent).resolve() for parent in parents})
