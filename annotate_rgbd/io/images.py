@@ -26,6 +26,9 @@ from annotate_rgbd.io.limits import MAX_IMAGE_PIXELS  # noqa: E402
 #: Largest image file read, in bytes: an uncompressed 16-bit RGBA image of MAX_IMAGE_PIXELS.
 MAX_IMAGE_BYTES = 8 * MAX_IMAGE_PIXELS
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+#: A PNG ends with its IEND chunk (12 bytes), looked for in this many last bytes first (a few
+#: writers append bytes after it, which decoders ignore), then in the whole file.
+PNG_END_SEARCH = 64
 #: A 16-bit depth value read as "no depth": the largest one. 7-Scenes marks invalid depth with it;
 #: as a measurement it would be 65.5 m in millimetres, 13.1 m at TUM's 1/5000 m, beyond every
 #: RGB-D sensor, so no dataset loses a real reading by it.
@@ -113,7 +116,9 @@ def decode_image(data: np.ndarray, path: Path, flags: int) -> np.ndarray:
     """Decode an image file's bytes with OpenCV's ``imread`` ``flags``.
 
     A PNG's size is read from its header first (:func:`png_size`): one larger than
-    ``MAX_IMAGE_PIXELS`` is refused before anything is allocated.
+    ``MAX_IMAGE_PIXELS`` is refused before anything is allocated; a PNG without its closing
+    ``IEND`` chunk (a file cut short by a copy or a full disk) is refused without decoding, where
+    libpng would print a line of its own.
 
     Raises
     ------
@@ -127,6 +132,9 @@ def decode_image(data: np.ndarray, path: Path, flags: int) -> np.ndarray:
                 path, f"the PNG header says {width}x{height} pixels ({width * height / 1e6:.0f} Mpixel); images over "
                 f"{MAX_IMAGE_PIXELS / 1e6:.0f} Mpixel are refused (a corrupt file or a decompression bomb)",
             )
+        if data[-PNG_END_SEARCH:].tobytes().rfind(b"IEND") < 0 and data.tobytes().rfind(b"IEND") < 0:
+            raise InputError(path, "not a readable image (truncated PNG: its closing IEND chunk is missing, "
+                                   "the file was cut short)")
     try:
         image = cv2.imdecode(data, flags) if data.size else None
     except cv2.error:  # e.g. beyond OpenCV's own size limit in a format whose header is not read here

@@ -483,7 +483,7 @@ def break_depth(scene: Scene, how: str) -> Path:
     ("how", "problem"),
     [
         ("missing", "file not found"),
-        ("corrupt", "not a readable image (corrupt or unsupported format)"),
+        ("corrupt", "not a readable image (truncated PNG: its closing IEND chunk is missing, the file was cut short)"),
         ("8-bit", "depth image is 8-bit; expected 16-bit depth (TUM / ICL-NUIM PNG)"),
         ("3-channel", "depth image has 3 channels; expected a single-channel depth map"),
         ("folder", "cannot read (Is a directory)"),

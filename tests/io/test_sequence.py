@@ -104,3 +104,20 @@ def test_depth_reading_errors(tmp_path):
     cv2.imwrite(str(tmp_path / "colour.png"), np.zeros((4, 4, 3), np.uint8))
     with pytest.raises(InputError, match="3 channels"):
         read_depth(tmp_path / "colour.png")
+
+
+def test_a_truncated_png_is_one_error_and_libpng_prints_nothing(tmp_path, capfd):
+    # A depth PNG cut short (a copy interrupted, a full disk): refused naming the file, without
+    # handing it to the decoder, whose libpng would print "libpng error: ..." on stderr.
+    depth = (np.arange(48 * 64, dtype=np.uint16).reshape(48, 64) * 7)
+    ok, encoded = cv2.imencode(".png", depth)
+    whole = encoded.tobytes()
+    assert whole[-8:-4] == b"IEND"
+    for cut in (len(whole) // 2, len(whole) - 12):
+        (tmp_path / "cut.png").write_bytes(whole[:cut])
+        with pytest.raises(InputError, match=r"cut.png: not a readable image \(truncated PNG"):
+            read_depth(tmp_path / "cut.png")
+    assert capfd.readouterr().err == ""
+    # Bytes after IEND (some writers add them) are no truncation.
+    (tmp_path / "tail.png").write_bytes(whole + b"\0" * 100)
+    assert np.array_equal(read_depth(tmp_path / "tail.png"), depth)
