@@ -194,16 +194,17 @@ def cvat2mask(
         from annotate_rgbd.report.stats import drop_hint
 
         counts = summarize(report.frames)
+        planes = len({track.plane for track in report.tracks})
         summary = (
-            f"{report.written} masks in {out / 'masks'} ({report.counts.made} made, "
-            f"{report.counts.reused} unchanged), {len({track.plane for track in report.tracks})} planes, {counts.skipped} "
+            f"{report.written} mask{'s' if report.written != 1 else ''} in {out / 'masks'} ({report.counts.made} made, "
+            f"{report.counts.reused} unchanged), {planes} plane{'s' if planes != 1 else ''}, {counts.skipped} "
             f"frame{'s' if counts.skipped != 1 else ''} skipped, "
             f"{counts.planes_dropped} of {counts.planes_kept + counts.planes_dropped} planes drawn on frames dropped "
-            "(no depth or too far)"
+            "(no depth, too far, no plane there)"
         )
         hint = drop_hint(counts, report.config.camera.depth_scale)
-        if hint:
-            logging.getLogger("annotate_rgbd").warning(hint)
+        if hint:  # advice on the run as a whole, not one of the report's warnings
+            typer.echo(f"hint: {hint}", err=True)
         failures = report.failures()
         if counts.frames_failed:
             summary += f", {counts.frames_failed} frame{'s' if counts.frames_failed > 1 else ''} failed"

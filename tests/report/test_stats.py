@@ -119,6 +119,8 @@ def test_a_wrong_depth_scale_is_named_when_most_planes_are_dropped_as_too_far(tm
                                       "--set", "camera.depth_scale=500", "--jobs", "1"])
     assert result.exit_code == 0, result.output
     assert ("planes were dropped as too_far: is camera.depth_scale = 500 right for this sensor?" in result.output)
+    # Advice on the run, not one of the report's warnings that the summary counts.
+    assert "\nhint: 136 of 146 planes were dropped as too_far" in result.output and "warning: 136 of" not in result.output
     assert "1 frame skipped, 146 of 146 planes drawn on frames dropped" in result.output
     normal = CliRunner().invoke(app, ["cvat2mask", str(SAMPLE_DATA / "sequence"), str(SAMPLE_DATA / "annotations.xml"),
                                       "--config", str(SAMPLE_DATA / "camera.toml"), "--out", str(tmp_path / "ok"),
