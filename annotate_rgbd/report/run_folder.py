@@ -80,7 +80,8 @@ def read_report(out_dir: str | Path, proposals: bool = False) -> RunRecord:
     try:
         data = read_bounded(path, MAX_REPORT_BYTES)
     except FileNotFoundError:
-        raise InputError(path, "no report: not the output folder of a finished cvat2mask run") from None
+        runs = "cvat2mask or propose run" if proposals else "cvat2mask run"
+        raise InputError(path, f"no report: not the output folder of a finished {runs}") from None
     except OSError as exc:
         raise InputError(path, f"cannot read the report: {exc.strerror or exc}") from None
     report = load_json(data, path)  # strict: no NaN, no lone surrogate

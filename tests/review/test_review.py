@@ -71,8 +71,13 @@ def test_overlay_is_tinted_with_the_mask_colours(finished_run):
 
 
 def test_review_needs_a_finished_run(tmp_path):
-    with pytest.raises(InputError, match="no report"):
+    # review draws cvat2mask runs and propose folders: the message names both; stats only the first.
+    with pytest.raises(InputError, match="no report: not the output folder of a finished cvat2mask or propose run"):
         review_run(tmp_path)
+    from annotate_rgbd.report.run_folder import read_report
+
+    with pytest.raises(InputError, match="no report: not the output folder of a finished cvat2mask run$"):
+        read_report(tmp_path)
 
 
 def test_review_reads_the_run_not_its_inputs(tmp_path, monkeypatch):
