@@ -120,6 +120,11 @@ def run_propose(
                 helpers.shutdown()
 
 
+#: The trajectory file of the TUM RGB-D layout (motion capture), which ``propose`` does not read
+#: unless given as ``--poses`` (its clock may be offset from the camera's).
+TUM_TRAJECTORY = "groundtruth.txt"
+
+
 def _run(sequence, folder: OutputFolder, config, poses_path, helpers, progress) -> ProposeResult:
     out_dir = folder.path
     result = ProposeResult()
@@ -147,6 +152,10 @@ def _run(sequence, folder: OutputFolder, config, poses_path, helpers, progress) 
                  sequence.layout, poses_path)
     if poses_path is not None:
         frame_poses = _frame_poses(poses_path, sequence, depth_times[chosen], config, result.warnings)
+    elif (sequence.root / TUM_TRAJECTORY).is_file():
+        log.info("%s: a camera trajectory beside the frames; give it as --poses to link each plane across frames "
+                 "by its place in the room (without, by image overlap: tracks can join different planes when the "
+                 "camera moves far between processed frames)", sequence.root / TUM_TRAJECTORY)
     # Two depth frames may share their nearest RGB frame; its CVAT keyframe takes the nearer one.
     key_of_rgb: dict[int, int] = {}
     for position, i in enumerate(chosen.tolist()):

@@ -4,6 +4,7 @@ back by cvat2mask and by datumaro; the export-cvat round trip on the sample run.
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import cv2
@@ -364,3 +365,19 @@ def test_propose_command(tmp_path):
     written = [f for f in report["frames"] if f["status"] == "written"]
     assert written and all(p["area"] >= 0.02 * 320 * 240 for f in written for p in f["planes"])  # the sample is 320x240
     assert 'label="surface"' in (out / "proposals.xml").read_text()
+    # The sample has no trajectory: no word about one.
+    assert "trajectory beside the frames" not in outcome.output
+
+
+def test_propose_without_poses_names_the_trajectory_beside_the_frames(tmp_path):
+    # A TUM folder holds its motion-capture trajectory (groundtruth.txt), which propose does not
+    # read unless given as --poses: it says so once, naming the file, and runs on without it.
+    sequence = tmp_path / "sequence"
+    shutil.copytree(SAMPLE_DATA / "sequence", sequence)
+    (sequence / "groundtruth.txt").write_text("# timestamp tx ty tz qx qy qz qw\n")
+    outcome = CliRunner().invoke(app, ["propose", str(sequence), "--out", str(tmp_path / "out"), "--config",
+                                       str(SAMPLE_DATA / "camera.toml"), "--every", "6", "--jobs", "1"])
+    assert outcome.exit_code == 0, outcome.output
+    assert outcome.output.count(f"info: {sequence / 'groundtruth.txt'}: a camera trajectory beside the frames; "
+                                "give it as --poses") == 1
+    assert json.loads((tmp_path / "out" / "report.json").read_text())["inputs"]["poses"] is None
