@@ -34,6 +34,9 @@ class Progress:
         self.interval = interval
         self.clock = clock
         self.start = clock()
+        #: (time, frames done) at the first frame done: the rate is measured from there, past
+        #: the run's start-up and planning (reading exports, fitting keyframes).
+        self.first: tuple[float, int] | None = None
         self.last_line = -float("inf")
         self.interactive = hasattr(self.stream, "isatty") and self.stream.isatty()
         self.drawn = False  # an unfinished in-place line is on the terminal
@@ -44,20 +47,26 @@ class Progress:
         def update(done: int, total: int) -> None:
             self.totals[scene] = total
             self.done[scene] = done
+            if self.first is None and done > 0:
+                self.first = (self.clock(), sum(self.done.values()))
             self._show(scene, final=done >= total)
 
         return update
 
     def line(self, scene: str) -> str:
-        """The status text: the scene's progress and, for several scenes, the overall one."""
-        elapsed = max(self.clock() - self.start, 1e-9)
+        """The status text: the scene's progress and, for several scenes, the overall one; the
+        rate and ETA from the frames done since the first one (none yet: ``--``)."""
         done, total = sum(self.done.values()), sum(self.totals.values())
-        rate = done / elapsed
-        eta = (total - done) / rate if rate > 0 else float("nan")
         text = f"{scene}: {self.done[scene]}/{self.totals[scene]} frames"
         if len(self.totals) > 1:
             text += f" | all scenes: {done}/{total}"
-        text += f" | {rate:.1f} frames/s | ETA {_duration(eta)}"
+        since, done_then = self.first if self.first is not None else (self.clock(), done)
+        elapsed = self.clock() - since
+        if done > done_then and elapsed > 0:
+            rate = (done - done_then) / elapsed
+            text += f" | {rate:.1f} frames/s | ETA {_duration((total - done) / rate)}"
+        else:
+            text += f" | -- frames/s | ETA {_duration(float('nan')) if done < total else _duration(0)}"
         return text
 
     def finish(self) -> None:

@@ -30,3 +30,19 @@ def test_a_log_gets_a_line_per_interval_and_one_per_finished_scene():
     empty = io.StringIO()
     Progress({"none": 0}, stream=empty).callback("none")(0, 0)  # a scene with nothing to do still ends its line
     assert empty.getvalue().startswith("none: 0/0 frames")
+
+
+def test_the_rate_and_eta_count_from_the_first_frame_not_the_start_up():
+    # 20 s of start-up and planning, then a frame every 0.5 s: the rate is 2 frames/s, not the
+    # 0.05 the whole time since the start gives after the first frame (an ETA 40x too long).
+    stream, now = io.StringIO(), [0.0]
+    progress = Progress({"a": 0}, stream=stream, interval=0.0, clock=lambda: now[0])
+    update = progress.callback("a")
+    update(0, 101)
+    now[0] = 20.0
+    update(1, 101)
+    now[0] = 25.0
+    update(11, 101)
+    lines = stream.getvalue().splitlines()
+    assert lines[0] == "a: 1/101 frames | -- frames/s | ETA --:--"
+    assert lines[1] == "a: 11/101 frames | 2.0 frames/s | ETA 00:45"
