@@ -33,7 +33,6 @@ class Progress:
         self.stream = stream if stream is not None else sys.stderr
         self.interval = interval
         self.clock = clock
-        self.start = clock()
         #: (time, frames done) at the first frame done: the rate is measured from there, past
         #: the run's start-up and planning (reading exports, fitting keyframes).
         self.first: tuple[float, int] | None = None
@@ -60,14 +59,11 @@ class Progress:
         text = f"{scene}: {self.done[scene]}/{self.totals[scene]} frames"
         if len(self.totals) > 1:
             text += f" | all scenes: {done}/{total}"
-        since, done_then = self.first if self.first is not None else (self.clock(), done)
-        elapsed = self.clock() - since
-        if done > done_then and elapsed > 0:
-            rate = (done - done_then) / elapsed
-            text += f" | {rate:.1f} frames/s | ETA {_duration((total - done) / rate)}"
-        else:
-            text += f" | -- frames/s | ETA {_duration(float('nan')) if done < total else _duration(0)}"
-        return text
+        rate = float("nan")
+        if self.first is not None and done > self.first[1]:
+            rate = (done - self.first[1]) / max(self.clock() - self.first[0], 1e-9)
+        eta = 0.0 if done >= total else (total - done) / rate  # NaN without a rate: "--:--"
+        return text + (f" | {rate:.1f}" if rate == rate else " | --") + f" frames/s | ETA {_duration(eta)}"
 
     def finish(self) -> None:
         """End the in-place line on a terminal (if one was drawn: e.g. ``review --no-overlays``
