@@ -23,6 +23,7 @@ from annotate_rgbd.io.sequence import associate, intrinsics_problems, read_depth
 from annotate_rgbd.io.outdir import (
     MASKS, OutputFolder, check_outside_sequence, read_bounded, remove_review_files, remove_stale_files,
 )
+from annotate_rgbd.io.layouts.tum import TRAJECTORY as TUM_TRAJECTORY
 from annotate_rgbd.io.writer import write_json
 from annotate_rgbd.logs import group_problems
 from annotate_rgbd.report.run_folder import write_drawn_shapes
@@ -120,11 +121,6 @@ def run_propose(
                 helpers.shutdown()
 
 
-#: The trajectory file of the TUM RGB-D layout (motion capture), which ``propose`` does not read
-#: unless given as ``--poses`` (its clock may be offset from the camera's).
-TUM_TRAJECTORY = "groundtruth.txt"
-
-
 def _run(sequence, folder: OutputFolder, config, poses_path, helpers, progress) -> ProposeResult:
     out_dir = folder.path
     result = ProposeResult()
@@ -152,7 +148,7 @@ def _run(sequence, folder: OutputFolder, config, poses_path, helpers, progress) 
                  sequence.layout, poses_path)
     if poses_path is not None:
         frame_poses = _frame_poses(poses_path, sequence, depth_times[chosen], config, result.warnings)
-    elif (sequence.root / TUM_TRAJECTORY).is_file():
+    elif (sequence.root / TUM_TRAJECTORY).is_file():  # the layout's own trajectory, not read unasked
         log.info("%s: a camera trajectory beside the frames; give it as --poses to link each plane across frames "
                  "by its place in the room (without, by image overlap: tracks can join different planes when the "
                  "camera moves far between processed frames)", sequence.root / TUM_TRAJECTORY)

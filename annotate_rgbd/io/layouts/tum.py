@@ -24,6 +24,10 @@ from .lists import (
 )
 from .model import FrameList, Sequence
 
+#: The motion-capture trajectory a TUM RGB-D sequence folder holds (its clock may be offset from
+#: the camera's, so it is read only when given as ``--poses``).
+TRAJECTORY = "groundtruth.txt"
+
 
 def is_tum_lists(root: Path) -> bool:
     # exists(), not is_file(): a FIFO or a folder named rgb.txt is refused by name, not skipped.
