@@ -132,7 +132,7 @@ def decode_image(data: np.ndarray, path: Path, flags: int) -> np.ndarray:
                 path, f"the PNG header says {width}x{height} pixels ({width * height / 1e6:.0f} Mpixel); images over "
                 f"{MAX_IMAGE_PIXELS / 1e6:.0f} Mpixel are refused (a corrupt file or a decompression bomb)",
             )
-        if data[-PNG_END_SEARCH:].tobytes().rfind(b"IEND") < 0 and data.tobytes().rfind(b"IEND") < 0:
+        if b"IEND" not in data[-PNG_END_SEARCH:].tobytes() and b"IEND" not in data.tobytes():
             raise InputError(path, "not a readable image (truncated PNG: its closing IEND chunk is missing, "
                                    "the file was cut short)")
     try:

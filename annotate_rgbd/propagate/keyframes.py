@@ -93,7 +93,7 @@ def keyframe_planes(
         band = config.inlier_band()
         points = backproject(cols, rows, depth_m[rows, cols], config.camera)
         fit = fit_plane(points, config.ransac, band) if spans_a_plane(rows, cols) else None
-        if fit is None or not fit.inliers.any():
+        if fit is None or not fit.inliers.any():  # one pixel row or column, or one line in space
             planes[key] = "no plane in the shape's depth (on one pixel row or column, or on one line in space)"
             continue
         on_plane = points[fit.inliers]
