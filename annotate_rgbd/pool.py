@@ -163,6 +163,8 @@ class HelperPool:
         #: Whether :func:`run_jobs` said that the helpers could not start (it says so once).
         self.failure_reported = False
         self._state = threading.Lock()  # the executor, ready and failure change together
+        #: Manager threads of executors shut down without waiting, joined by ``shutdown(wait=True)``.
+        self._stopping: list[threading.Thread] = []
         self._start_executor()
 
     def _start_executor(self) -> None:
@@ -199,7 +201,7 @@ class HelperPool:
                 self.ready.set()
                 return
             self.failure = failure
-        executor.shutdown(wait=False, cancel_futures=True)  # whatever did start is not used
+        self._stop(executor, wait=False, cancel_futures=True)  # whatever did start is not used
 
     @property
     def processes(self) -> dict[int, multiprocessing.process.BaseProcess]:
@@ -216,12 +218,32 @@ class HelperPool:
             process.kill()
         # Not cancel_futures: the pool's own thread fails the lost jobs' futures as it finds the
         # helpers dead, and one it finds cancelled makes that thread raise (Python 3.11).
-        self._executor.shutdown(wait=False)
+        self._stop(self._executor, wait=False)
         self._start_executor()
 
     def shutdown(self, wait: bool = True, cancel_futures: bool = False) -> None:
-        """Stop the helpers once their current jobs are done (see ``Executor.shutdown``)."""
-        self._executor.shutdown(wait=wait, cancel_futures=cancel_futures)
+        """Stop the helpers once their current jobs are done (see ``Executor.shutdown``).
+
+        With ``wait``, it also waits for the pool threads of every earlier shutdown that did not
+        wait (a restart, a failed start, ``run_jobs`` stopping on an error or interrupt), which
+        ``ProcessPoolExecutor`` forgets after its first shutdown call. A pool thread still
+        closing its pipes when Python exits races with Python's own exit handler (Python 3.11):
+        "Bad file descriptor" tracebacks and "leaked semaphore" warnings after a Ctrl-C.
+        """
+        self._stop(self._executor, wait=wait, cancel_futures=cancel_futures)
+        if wait:
+            with self._state:
+                threads, self._stopping = self._stopping, []
+            for thread in threads:
+                thread.join()
+
+    def _stop(self, executor: ProcessPoolExecutor, wait: bool, cancel_futures: bool = False) -> None:
+        """``executor.shutdown``, keeping its pool thread for a later ``shutdown(wait=True)``."""
+        thread = getattr(executor, "_executor_manager_thread", None)  # set to None by shutdown
+        executor.shutdown(wait=wait, cancel_futures=cancel_futures)
+        if thread is not None and not wait:
+            with self._state:
+                self._stopping.append(thread)
 
     def __enter__(self) -> HelperPool:
         return self

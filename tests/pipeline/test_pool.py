@@ -245,3 +245,24 @@ def test_a_start_that_fails_after_a_restart_is_not_blamed_on_the_new_helpers(mon
     finally:
         gate.set()
         pool.shutdown()
+
+
+def test_a_waiting_shutdown_waits_for_the_pool_threads_earlier_shutdowns_left_running():
+    # run_jobs stops the helpers without waiting on an error or an interrupt, and the caller's
+    # `with` or `finally` shuts the pool down again, waiting. ProcessPoolExecutor forgets its
+    # pool thread at the first call, so without the pool's own record the second call returned
+    # at once and the thread was still closing its pipes when Python exited (Python 3.11:
+    # "Bad file descriptor" from its exit handler, "leaked semaphore" warnings).
+    pool = start_helpers(3)  # two helpers
+    assert pool.ready.wait(timeout=120)
+    first = pool._executor._executor_manager_thread
+    pool.restart()  # the first executor is shut down without waiting
+    assert pool.ready.wait(timeout=120)
+    second = pool._executor._executor_manager_thread
+    assert first is not None and second is not None and first is not second
+    slow = pool.submit(square, (2, os.getpid(), 0.0, 1.0))  # keeps a helper, and the pool thread, busy
+    pool.shutdown(wait=False, cancel_futures=True)
+    assert second.is_alive()
+    pool.shutdown()
+    assert not first.is_alive() and not second.is_alive()
+    assert slow.result(0)["square"] == 4
