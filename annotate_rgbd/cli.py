@@ -184,10 +184,14 @@ def cvat2mask(
         overrides.update({k: v for k, v in named.items() if v is not None})
         offsets = parse_part_offsets(part)
         progress = Progress({sequence_dir.name: 0})
+        from annotate_rgbd.logs import collect_warnings
+
+        with collect_warnings() as loading:  # printed now, and kept in the report
+            run_config = _load_config(sequence_dir, config, overrides)
         report = run_cvat2mask(
-            sequence_dir, annotations, out, _load_config(sequence_dir, config, overrides), offsets=offsets,
+            sequence_dir, annotations, out, run_config, offsets=offsets,
             workers=workers, force=force, raw_masks=raw_masks, overlays=overlays, instance_ids=instance_ids,
-            progress=progress.callback(sequence_dir.name), job_timeout=job_timeout, poses=poses,
+            progress=progress.callback(sequence_dir.name), job_timeout=job_timeout, poses=poses, warnings=loading,
         )
         progress.finish()
         from annotate_rgbd.report.records import summarize
@@ -462,8 +466,12 @@ def propose(
         named = {"propose.every": every, "propose.label": label, "detect.min_area_fraction": min_area}
         overrides.update({k: v for k, v in named.items() if v is not None})
         progress = Progress({sequence_dir.name: 0})
-        result = run_propose(sequence_dir, out, _load_config(sequence_dir, config, overrides), poses=poses,
-                             workers=workers, progress=progress.callback(sequence_dir.name))
+        from annotate_rgbd.logs import collect_warnings
+
+        with collect_warnings() as loading:  # printed now, and kept in the report
+            run_config = _load_config(sequence_dir, config, overrides)
+        result = run_propose(sequence_dir, out, run_config, poses=poses, workers=workers,
+                             progress=progress.callback(sequence_dir.name), warnings=loading)
         progress.finish()
         typer.echo(f"{result.tracks} plane tracks on {result.frames} frames: {out / 'proposals.xml'}, "
                    f"{out / 'masks'}, {out / 'report.json'}")

@@ -24,7 +24,8 @@ def scene_warnings(name: str | None) -> Iterator[None]:
         return
 
     def prefix(record: logging.LogRecord) -> bool:
-        record.msg, record.args = f"{name}: {record.getMessage()}", ()
+        record.unprefixed = record.getMessage()  # for collect_warnings: a scene's report names no scene
+        record.msg, record.args = f"{name}: {record.unprefixed}", ()
         return True
 
     logger = logging.getLogger(LOGGER)
@@ -33,6 +34,32 @@ def scene_warnings(name: str | None) -> Iterator[None]:
         yield
     finally:
         logger.removeFilter(prefix)
+
+
+@contextmanager
+def collect_warnings() -> Iterator[list[str]]:
+    """The warnings the package logs inside the block, as they are logged (and still printed):
+    for a run's report, of steps that happen before the run has one (loading the configuration).
+
+    Yields
+    ------
+    list of str
+        Filled as warnings are logged; without the scene name :func:`scene_warnings` puts in
+        front of them.
+    """
+    found: list[str] = []
+
+    class Collector(logging.Handler):
+        def emit(self, record: logging.LogRecord) -> None:
+            found.append(getattr(record, "unprefixed", None) or record.getMessage())
+
+    handler = Collector(logging.WARNING)
+    logger = logging.getLogger(LOGGER)
+    logger.addHandler(handler)
+    try:
+        yield found
+    finally:
+        logger.removeHandler(handler)
 
 
 def group_problems(problems: Iterable[tuple[str, str]], shown: int = 3) -> list[str]:

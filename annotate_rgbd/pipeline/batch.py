@@ -12,7 +12,7 @@ from typing import Callable
 from annotate_rgbd.config.layout import load_run_config
 from annotate_rgbd.config.settings import Config
 from annotate_rgbd.errors import InputError
-from annotate_rgbd.logs import scene_warnings
+from annotate_rgbd.logs import collect_warnings, scene_warnings
 from annotate_rgbd.report.records import summarize
 from .execute import STALL_TIMEOUT, SceneResult, SceneRun, execute_scenes, start_frame_helpers
 from .manifest import SceneSpec
@@ -65,10 +65,12 @@ def run_batch(
         for position, spec in enumerate(scenes):
             try:
                 with named(spec.name):
-                    config = (spec.config if isinstance(spec.config, Config)
-                              else load_run_config(spec.sequence, spec.config, spec.overrides))
+                    with collect_warnings() as loading:
+                        config = (spec.config if isinstance(spec.config, Config)
+                                  else load_run_config(spec.sequence, spec.config, spec.overrides))
                     plan = plan_run(spec.sequence, spec.annotations, spec.out, config, spec.offsets, spec.raw_masks,
                                     spec.overlays, poses=spec.poses, instance_ids=spec.instance_ids, helpers=helpers)
+                    plan.warnings[:0] = [*spec.warnings, *loading]  # printed already; the report keeps them too
             except InputError as exc:
                 outcomes[position] = SceneResult(spec.name, spec.out, str(exc), exc)
                 continue

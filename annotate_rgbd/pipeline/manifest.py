@@ -56,6 +56,8 @@ class SceneSpec:
     overlays: bool = False
     instance_ids: bool = False
     poses: Path | None = None
+    #: Warnings of what came before the run (loading a ``Config`` given here), for its report.
+    warnings: tuple[str, ...] = ()
 
 
 def read_manifest(path: str | Path) -> tuple[list[SceneSpec], int | None]:

@@ -35,6 +35,7 @@ def run_cvat2mask(
     job_timeout: float = STALL_TIMEOUT,
     poses: str | Path | None = None,
     instance_ids: bool = False,
+    warnings: SequenceType[str] = (),
 ) -> SceneResult:
     """Run the whole job: ``masks/``, ``planes.csv``, ``tracks.csv`` and ``report.json`` in ``out_dir``.
 
@@ -74,6 +75,9 @@ def run_cvat2mask(
     instance_ids : bool
         Also write ``masks_id/``: single-channel masks whose pixel values are the plane ids of
         ``planes.csv`` (8-bit for up to 255 planes, else 16-bit; 0 = no plane).
+    warnings : sequence of str
+        Warnings of what came before the run (e.g. loading ``config``:
+        :func:`annotate_rgbd.logs.collect_warnings`), for the report's ``warnings``.
 
     Returns
     -------
@@ -88,7 +92,7 @@ def run_cvat2mask(
     """
     spec = SceneSpec(Path(sequence_dir).name, Path(sequence_dir), tuple(Path(p) for p in annotation_paths),
                      Path(out_dir), config, dict(offsets or {}), {}, raw_masks, overlays, instance_ids,
-                     None if poses is None else Path(poses))
+                     None if poses is None else Path(poses), tuple(warnings))
     (outcome,) = run_batch([spec], workers, force, (lambda _name: progress) if progress else None, job_timeout,
                            scene_names=False)
     if outcome.exception is not None:

@@ -7,7 +7,7 @@ import json
 import logging
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Sequence
 
 import numpy as np
 
@@ -76,6 +76,7 @@ def run_propose(
     poses: str | Path | None = None,
     workers: int | None = None,
     progress: Callable[[int, int], None] | None = None,
+    warnings: Sequence[str] = (),
 ) -> ProposeResult:
     """Propose planes on a sequence's depth frames and write ``proposals.xml``, ``masks/``,
     ``report.json`` and the record of every mask's polygons (which ``review`` draws) into ``out_dir``.
@@ -96,6 +97,9 @@ def run_propose(
         Processes in all (default: every core).
     progress : callable, optional
         ``progress(done, total)`` after each frame.
+    warnings : sequence of str
+        Warnings of what came before the run (e.g. loading ``config``:
+        :func:`annotate_rgbd.logs.collect_warnings`), for the report's ``warnings``.
 
     Returns
     -------
@@ -115,15 +119,15 @@ def run_propose(
     with OutputFolder(out_dir, "propose") as folder:
         helpers = start_helpers(workers, [DETECT_JOB_MODULE])
         try:
-            return _run(sequence, folder, config, poses, helpers, progress)
+            return _run(sequence, folder, config, poses, helpers, progress, warnings)
         finally:
             if helpers is not None:
                 helpers.shutdown()
 
 
-def _run(sequence, folder: OutputFolder, config, poses_path, helpers, progress) -> ProposeResult:
+def _run(sequence, folder: OutputFolder, config, poses_path, helpers, progress, warnings=()) -> ProposeResult:
     out_dir = folder.path
-    result = ProposeResult()
+    result = ProposeResult(warnings=list(warnings))
     settings = config.propose
     depth_times = sequence.depth.timestamps
     if sequence.rgb is None:  # depth only: the depth frames are the frames
@@ -134,7 +138,8 @@ def _run(sequence, folder: OutputFolder, config, poses_path, helpers, progress) 
     chosen = np.arange(0, len(depth_times), settings.every)
     for i in chosen[~matched[chosen]]:
         result.skipped.append(f"{sequence.depth.files[i]}: no RGB frame within {config.sequence.max_time_diff} s")
-        log.warning("%s: no RGB frame within %g s; skipped", sequence.depth.files[i], config.sequence.max_time_diff)
+        log.warning("%s: no RGB frame within %g s; skipped", sequence.root / sequence.depth.files[i],
+                    config.sequence.max_time_diff)
     chosen = chosen[matched[chosen]]
     if len(chosen) == 0:
         raise InputError(sequence.root, "no depth frame has an RGB frame within max_time_diff: nothing to propose")
