@@ -14,7 +14,7 @@ import numpy as np
 from annotate_rgbd.annotation.model import Shape
 from annotate_rgbd.geometry.camera import depth_to_metres
 from annotate_rgbd.config.settings import Config
-from .filters import drop_reasons, label_histogram, plane_statistics
+from .filters import NOT_WHERE_EXPECTED, TOO_FEW_POINTS, drop_reasons, label_histogram, plane_statistics
 from .grow import grow_connected, grow_planes
 from annotate_rgbd.geometry.registration import sample_labels
 from .rasterize import carried_shapes, draw_on_depth_grid
@@ -109,6 +109,11 @@ def segment_frame(
         labels, beyond = grow_connected(labels, drawn, claimed, depth_m, growing, config.camera, band, config.refine,
                                         excluded)
         grown = {plane_id: count + beyond.get(plane_id, 0) for plane_id, count in grown.items()}
+    for i, plane_id in enumerate(stats.plane_ids.tolist()):
+        # A fit whose pixels the refinement's tests all took away (e.g. 12 inliers of 474 points
+        # on a carried plane) leaves the plane nothing in the mask: it is not kept on this frame.
+        if reasons[i] is None and inlier_count[plane_id] + grown.get(plane_id, 0) == 0:
+            reasons[i] = NOT_WHERE_EXPECTED if plane_id in propagated else TOO_FEW_POINTS
     result = FrameResult(labels=labels, drawn=drawn, colour_grid=colour_grid)
     for i, plane_id in enumerate(stats.plane_ids.tolist()):
         measured = dict(

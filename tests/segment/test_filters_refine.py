@@ -262,3 +262,33 @@ def test_a_plane_whose_depth_is_on_one_pixel_row_or_one_line_is_dropped_as_no_pl
     # The block carried there while the poses expect a wall 30 cm nearer: another surface.
     result = segment_frame(raw, [(2, block)], config, propagated={2}, expected={2: np.array([0.0, 0.0, -1.0, 1.7])})
     assert [(r.plane, r.reason) for r in result.dropped] == [(2, NOT_WHERE_EXPECTED)] and not result.labels.any()
+
+
+@pytest.mark.parametrize("propagated", [False, True])
+def test_a_plane_refinement_leaves_no_pixel_is_dropped_not_kept(monkeypatch, propagated):
+    # The fit exists, but the refinement's pixel tests take every pixel away (seen on TUM
+    # fr1_rpy: a carried plane with 12 inliers among 474 fit points ended with none): the plane
+    # is not in the mask, so it is not counted as kept, with no inliers, in the report and stats.
+    from annotate_rgbd.annotation.model import Shape
+    from annotate_rgbd.config.settings import load_config
+    from annotate_rgbd.segment import frame
+    from annotate_rgbd.segment.filters import NOT_WHERE_EXPECTED
+
+    config = load_config(None, {"camera.fx": 150.0, "camera.fy": 150.0, "camera.cx": 79.5, "camera.cy": 59.5})
+    raw = np.zeros((120, 160), np.uint16)  # a wall 2 m away under the two shapes only: nothing to grow into
+    raw[10:110, 10:70] = raw[10:110, 90:150] = 10000
+    left = Shape("polygon", np.array([[10.0, 10.0], [70.0, 10.0], [70.0, 110.0], [10.0, 110.0]]))
+    right = Shape("polygon", np.array([[90.0, 10.0], [150.0, 10.0], [150.0, 110.0], [90.0, 110.0]]))
+    original = frame.refine_planes
+
+    def emptied(drawn, *args, **kwargs):
+        refined, fits = original(drawn, *args, **kwargs)
+        assert 1 in fits  # plane 1 has its fit ...
+        return np.where(refined == 1, 0, refined), fits  # ... and no pixel left
+
+    monkeypatch.setattr(frame, "refine_planes", emptied)
+    result = frame.segment_frame(raw, [(1, left), (2, right)], config, propagated={1} if propagated else ())
+    reason = NOT_WHERE_EXPECTED if propagated else TOO_FEW_POINTS
+    assert [(r.plane, r.reason) for r in result.dropped] == [(1, reason)]
+    assert [r.plane for r in result.kept] == [2] and result.kept[0].inliers > 0
+    assert not (result.labels == 1).any()
