@@ -10,6 +10,7 @@ another one) at each depth frame's timestamp, as ``cvat2mask`` reads them.
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -18,11 +19,13 @@ import numpy as np
 
 from annotate_rgbd.errors import InputError
 from annotate_rgbd.geometry.lift import plane_to_world
-from annotate_rgbd.io.poses import DEFAULT_MAX_POSE_GAP, poses_at, read_trajectory
+from annotate_rgbd.io.poses import DEFAULT_MAX_POSE_GAP, missing_poses_text, poses_at, read_trajectory
 from annotate_rgbd.io.sequence import read_image
 from annotate_rgbd.report.records import RunRecord
 from annotate_rgbd.report.run_folder import colour_table, mask_plane_ids, read_report
 from annotate_rgbd.segment.plane_record import PlaneRecord
+
+log = logging.getLogger("annotate_rgbd")
 
 
 @dataclass(frozen=True)
@@ -116,7 +119,8 @@ def read_run(run_dir: str | Path, poses: str | Path | None = None) -> ExportRun:
     Raises
     ------
     InputError
-        No report, a bad trajectory, or the run's trajectory is gone.
+        No report, a bad trajectory, the run's trajectory is gone, or no written frame has a pose
+        in the trajectory (a warning when some have none).
     """
     run_dir = Path(run_dir)
     report = read_report(run_dir)
@@ -127,7 +131,16 @@ def read_run(run_dir: str | Path, poses: str | Path | None = None) -> ExportRun:
         if poses is None and not Path(trajectory).exists():  # a file, or a folder of pose files (ScanNet, 7-Scenes)
             raise InputError(run_dir / "report.json", f"the run's trajectory {trajectory} is gone: give it with --poses")
         gap = report.config.get("sequence", {}).get("max_pose_gap", DEFAULT_MAX_POSE_GAP)
-        frame_poses = poses_at(read_trajectory(trajectory), np.array([f.depth_timestamp for f in written]), gap)
+        poses_of = read_trajectory(trajectory)
+        times = np.array([f.depth_timestamp for f in written], dtype=np.float64)
+        frame_poses = poses_at(poses_of, times, gap)
+        missing = int(np.count_nonzero(~frame_poses.ok))
+        if missing:
+            ranges = missing_poses_text(poses_of, times, frame_poses.reasons, poses_of.clock)
+            if missing == len(written):  # the export would hold no world-frame plane at all
+                raise InputError(trajectory, f"no written frame has a pose{': ' + ranges if ranges else ''}")
+            log.warning("%s: %d of %d written frames have no pose: their planes have no world coordinates%s",
+                        trajectory, missing, len(written), f" ({ranges})" if ranges else "")
     frames = []
     for i, f in enumerate(written):
         pose = None

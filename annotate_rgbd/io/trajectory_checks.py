@@ -147,9 +147,17 @@ def coverage_hint(a0: float, a1: float, b0: float, b1: float, clock: str, n_pose
                      f"starts {a0 - b0:.3g} s after the first depth frame")
             return (f"the trajectory {where} and covers {covered:.0%} of the frames' time: was it recorded or cut "
                     "short? (frames outside it get no pose)")
+        if covered == 0.0:
+            return f"the ranges do not overlap ({_apart(a0, a1, b0, b1)}): is it this sequence's trajectory?"
         return "the ranges hardly overlap: is it this sequence's trajectory?"
     return ("the ranges hardly overlap: is it this sequence's trajectory? (its frames are numbers, and poses are "
             "matched to them by frame number: a TUM line's timestamp must be the frame's number)")
+
+
+def _apart(a0: float, a1: float, b0: float, b1: float) -> str:
+    """How far a trajectory ``[a0, a1]`` lies from frames ``[b0, b1]`` it does not overlap."""
+    gap, where = (a0 - b1, "starts {} s after the last") if a0 > b1 else (b0 - a1, "ends {} s before the first")
+    return f"the trajectory {where.format(f'{gap:.3g}' if gap < 100 else f'{gap:.0f}')} depth frame"
 
 
 def spacing_text(spacing: float) -> str:

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import csv
 import json
+import logging
 from pathlib import Path
 
 import cv2
@@ -158,6 +159,27 @@ def test_frame_planes_without_poses(run, tmp_path):
     # A trajectory given to the export puts them in the world frame.
     result = export_run(run / "flat", "planercnn", tmp_path / "p", poses=run / "sequence" / "groundtruth.txt")
     assert result.posed == 6
+
+
+def test_a_trajectory_given_to_the_export_must_cover_the_frames(run, tmp_path, caplog):
+    # Another recording's trajectory (every timestamp 5000 s later): no frame has a pose, which
+    # would leave every plane without world coordinates. One line naming the file, nothing written.
+    lines = (run / "sequence" / "groundtruth.txt").read_text().splitlines()
+    rows = [line.split() for line in lines if line and not line.startswith("#")]
+    later = tmp_path / "later.txt"
+    later.write_text("".join(f"{float(r[0]) + 5000:.6f} {' '.join(r[1:])}\n" for r in rows))
+    with pytest.raises(InputError, match=r"later.txt: no written frame has a pose: the trajectory spans .* a clock offset"):
+        export_run(run / "flat", "planes", tmp_path / "none", poses=later)
+    assert not (tmp_path / "none").exists()
+    # One that stops halfway: the frames after it are said, and exported without world planes.
+    times = sorted(frame["depth_timestamp"] for frame in written_frames(run / "flat"))
+    cut = tmp_path / "cut.txt"
+    cut.write_text("".join(" ".join(r) + "\n" for r in rows if float(r[0]) <= (times[2] + times[3]) / 2))
+    with caplog.at_level(logging.WARNING, logger="annotate_rgbd"):
+        result = export_run(run / "flat", "planes", tmp_path / "half", poses=cut)
+    assert result.posed == 3
+    assert [r.getMessage().split(" (")[0] for r in caplog.records] == [
+        f"{cut}: 3 of 6 written frames have no pose: their planes have no world coordinates"]
 
 
 def test_evops_labels_score_like_the_masks(run, tmp_path):

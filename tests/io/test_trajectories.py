@@ -403,7 +403,10 @@ def test_kitti_rows_on_a_timestamped_sequence_are_its_depth_frames_in_order(rend
     (1305031225.933, 1305031233.393, "the trajectory ends 0.773 s before the last depth frame and covers 40% of"),
     (1305031233.9, 1305031240.0, "the trajectory starts 1.03 s after the first depth frame and covers 21% of"),
     (1305031233.0, 1305031233.5, "the ranges hardly overlap"),  # inside the frames: neither end covered
-    (1305031100.0, 1305031110.0, "the ranges hardly overlap"),  # no overlap, another length
+    (1305031100.0, 1305031110.0, "the ranges do not overlap (the trajectory ends 123 s before the first depth frame): "
+                                 "is it this sequence's trajectory?"),  # no overlap, another length
+    (1305036225.9, 1305036253.6, "the ranges do not overlap (the trajectory starts 4992 s after the last depth "
+                                 "frame)"),  # a user's file, 5000 s off
 ])
 def test_a_trajectory_cut_short_is_said_to_be(a0, a1, expect):
     b0, b1 = 1305031232.869, 1305031234.166
