@@ -74,7 +74,7 @@ def proposals_record(report: Any) -> RunRecord:
         try:
             frames.append(_frame(mapping(entry, "frame entry")))
         except RecordError as exc:
-            raise RecordError(f"frames[{index}]: {exc}") from None
+            raise type(exc)(f"frames[{index}]: {exc}") from None
     config = mapping(report.get("config", {}), "config")
     return RunRecord(
         version=str(report.get("version", "")),
@@ -91,11 +91,15 @@ def proposals_record(report: Any) -> RunRecord:
     )
 
 
+class DepthOnlyRun(RecordError):
+    """A ``propose`` run of a depth-only sequence: no RGB frame to draw the review on."""
+
+
 def _frame(entry: dict) -> FrameRecord:
     status = text(entry, "status")
     rgb = entry.get("rgb")
     if rgb is None:
-        raise RecordError("no RGB frame (a depth-only sequence): review draws on the RGB frames")
+        raise DepthOnlyRun("no RGB frame (a depth-only sequence): review draws on the RGB frames")
     frame = FrameRecord(
         depth=text(entry, "depth"), depth_timestamp=number(entry, "depth_timestamp"), rgb=text(entry, "rgb"),
         rgb_index=int_field(entry, "rgb_index"), time_offset=number(entry, "time_offset"),

@@ -26,7 +26,7 @@ from annotate_rgbd.annotation.model import AREA_KINDS, Shape
 from annotate_rgbd.errors import InputError
 from annotate_rgbd.io.files import open_regular
 from annotate_rgbd.io.outdir import JOURNAL, REPORT, SHAPES_RECORD, read_bounded
-from annotate_rgbd.report.proposals import is_proposals, proposals_record
+from annotate_rgbd.report.proposals import DepthOnlyRun, is_proposals, proposals_record
 from annotate_rgbd.report.records import RecordError, RunRecord
 from annotate_rgbd.report.validation import check_run, load_json
 
@@ -91,6 +91,9 @@ def read_report(out_dir: str | Path, proposals: bool = False) -> RunRecord:
         try:
             record = proposals_record(report)
             check_run(record)
+        except DepthOnlyRun:
+            raise InputError(path, "a propose run of a depth-only sequence: review draws on the RGB frames, and it has "
+                             "none; look at its masks/ (or proposals.xml in CVAT)") from None
         except RecordError as exc:
             raise InputError(path, f"not a propose report as annotate-rgbd writes it (edited or damaged?): {exc}") from None
         return record

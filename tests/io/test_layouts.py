@@ -268,3 +268,9 @@ def test_propose_reads_a_depth_only_folder(scannet, tmp_path):
     refused = CliRunner().invoke(app, ["cvat2mask", str(folder), str(scannet["keyframes"]), "--out", str(tmp_path / "x"),
                                        "-c", str(config)])
     assert refused.exit_code == 1 and "no colour images" in refused.output.strip().splitlines()[-1]
+    # review draws on the RGB frames: it says why it cannot, not that the report looks damaged.
+    review = CliRunner().invoke(app, ["review", str(tmp_path / "out")])
+    assert review.exit_code == 1
+    assert review.output.strip().splitlines()[-1] == (
+        f"error: {tmp_path / 'out' / 'report.json'}: a propose run of a depth-only sequence: review draws on the RGB "
+        "frames, and it has none; look at its masks/ (or proposals.xml in CVAT)")
