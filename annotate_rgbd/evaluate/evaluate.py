@@ -211,15 +211,18 @@ def score_frame(pair: FramePair, *, full: float, part: float, measure: str = "io
     """Read one frame pair and compute its statistics (an absent PRED file is an empty prediction)."""
     gt = read_label_map(pair.gt)
     pred = np.zeros_like(gt) if pair.pred is None else read_label_map(pair.pred)
+    if gt.ndim != pred.ndim and gt.size == pred.size:  # a flat .npy array (EVOPS): row-major, the other's shape
+        gt, pred = (gt, pred.reshape(gt.shape)) if gt.ndim == 2 else (gt.reshape(pred.shape), pred)
     unlikely = tuple(str(path) for path, labels in ((pair.gt, gt), (pair.pred, pred)) if looks_like_a_photograph(labels))
     if pred.shape != gt.shape:
-        raise InputError(
-            pair.pred,
-            f"frame is {pred.shape[1]}x{pred.shape[0]} "
-            f"but ground truth {pair.gt.name} is {gt.shape[1]}x{gt.shape[0]}",
-        )
+        raise InputError(pair.pred, f"frame is {_size(pred)} but ground truth {pair.gt.name} is {_size(gt)}")
     statistics = frame_statistics(gt, pred, full=full, part=part, measure=measure)
     return FrameScore(pair.name, statistics, missing=pair.pred is None, unlikely_masks=unlikely)
+
+
+def _size(labels: np.ndarray) -> str:
+    """A label image's size as the messages say it: ``640x480``, or ``307200 labels`` when flat."""
+    return f"{labels.shape[1]}x{labels.shape[0]}" if labels.ndim == 2 else f"{labels.size} labels"
 
 
 def format_table(result: EvaluationResult) -> str:

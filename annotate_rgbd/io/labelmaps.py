@@ -5,7 +5,7 @@ Supported formats, chosen by file suffix (0 is always "no plane"):
 - ``.png`` with three or four channels: a colour mask as ``cvat2mask`` writes it, black = 0 and one
   plane per distinct colour (an alpha channel is ignored).
 - ``.png`` with one channel, 8 or 16 bit: the pixel value is the plane label.
-- ``.npy``: a 2-D integer (or boolean) label array.
+- ``.npy``: a 2-D integer (or boolean) label array, or a flat one, row-major (EVOPS's layout, ``export --format evops``).
 - ``.csv``: CAPE's label output, one line per image row, comma-separated integer labels, usually
   with a trailing comma on every line.
 
@@ -44,13 +44,15 @@ def read_label_map(path: str | Path) -> np.ndarray:
 
     Returns
     -------
-    ndarray of int, shape (height, width)
-        Plane label per pixel, 0 where there is no plane.
+    ndarray of int, shape (height, width), or (height * width,) for a flat ``.npy`` array
+        Plane label per pixel, 0 where there is no plane. A flat array is EVOPS's layout (the
+        pixels row after row): :func:`annotate_rgbd.evaluate.evaluate.score_frame` takes it in
+        the other file's shape.
 
     Raises
     ------
     InputError
-        When the file is missing, unreadable, or not a 2-D integer label image.
+        When the file is missing, unreadable, or not a 2-D (or flat) integer label image.
     """
     path = Path(path)
     suffix = path.suffix.lower()
@@ -157,8 +159,8 @@ def _read_npy(path: Path) -> np.ndarray:
             read_header = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
             shape, _, dtype = read_header(handle)
             data_bytes = os.fstat(handle.fileno()).st_size - handle.tell()
-            if len(shape) != 2:
-                raise InputError(path, f"label array must be 2-D, not of shape {shape}")
+            if len(shape) not in (1, 2):  # 1-D: EVOPS's flat, row-major labels (export --format evops)
+                raise InputError(path, f"label array must be 2-D (or flat, row-major), not of shape {shape}")
             if dtype != bool and dtype.kind not in "ui":
                 raise InputError(path, f"label array must hold integers, not {dtype}")
             pixels = math.prod(shape)

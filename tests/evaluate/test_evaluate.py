@@ -171,6 +171,26 @@ def test_single_files_are_paired_whatever_their_names(tmp_path):
     assert len(result.frames) == 1 and result.means["panoptic"] == 1.0
 
 
+def test_flat_npy_labels_of_the_evops_export_are_read_row_major(tmp_path):
+    # export --format evops writes each frame's labels flat, row after row (what the evops
+    # package scores): evaluate takes them in the ground truth's shape, scoring as the 2-D mask.
+    labels = _planes(seed=3)
+    prediction = np.where(labels == 2, 1, labels)  # two planes merged: a score below 1
+    cv2.imwrite(str(tmp_path / "gt.png"), COLOURS[labels])
+    np.save(tmp_path / "flat.npy", prediction.ravel().astype(np.int32))
+    np.save(tmp_path / "square.npy", prediction)
+    flat = evaluate_paths(tmp_path / "gt.png", tmp_path / "flat.npy").frames[0].statistics
+    assert flat == evaluate_paths(tmp_path / "gt.png", tmp_path / "square.npy").frames[0].statistics
+    assert flat == frame_statistics(labels, prediction) and flat.usr > 0
+    # A transposed frame read row-major is another frame: the scores say so.
+    np.save(tmp_path / "transposed.npy", prediction.T.ravel())
+    assert evaluate_paths(tmp_path / "gt.png", tmp_path / "transposed.npy").means["mean"] < flat.mean
+    np.save(tmp_path / "short.npy", prediction.ravel()[:-1])
+    with pytest.raises(InputError, match=rf"frame is {labels.size - 1} labels but ground truth gt.png is "
+                                         rf"{labels.shape[1]}x{labels.shape[0]}"):
+        evaluate_paths(tmp_path / "gt.png", tmp_path / "short.npy")
+
+
 def test_input_errors(tmp_path, sequence):
     gt_dir, pred_dir, frames, _ = sequence
     np.save(pred_dir / "0003.5.npy", np.zeros((5, 5), int))
