@@ -365,10 +365,14 @@ def review(
 ) -> None:
     """Write review overlays, the offline review page and a contact sheet for a finished run."""
     with user_errors():
+        if not (overlays or page or sheet or rerun is not None):
+            raise InputError(None, "nothing to do: --no-overlays, --no-page and --no-sheet leave no output "
+                                   "(add --rerun FILE.rrd for a recording only)")
         if rerun is not None:
-            from annotate_rgbd.review.rerun_recording import import_rerun
+            from annotate_rgbd.review.rerun_recording import check_recording, import_rerun
 
             import_rerun()  # without the SDK: one line saying how to install it, before any work
+            check_recording(rerun, rerun_step, rerun_every)  # a bad path too, not after the overlays
         from annotate_rgbd.pipeline.execute import default_workers, prepare_process
 
         workers = (jobs or default_workers()) if overlays else 1  # only overlays take helpers

@@ -202,6 +202,31 @@ def run_poses(report: RunRecord) -> FramePoses | None:
     return poses_at(loaded.trajectory, times + offset, gap)
 
 
+def check_recording(path: str | Path, step: int = 1, every: int = 1) -> None:
+    """What :func:`write_recording` checks before any work, for a caller to check before its
+    own (``review --rerun`` writes the overlays first).
+
+    Raises
+    ------
+    InputError
+        A point step or frame step below 1.
+    OutputError
+        ``path`` does not end in ``.rrd``, is a folder, or its folder does not exist or cannot
+        be written.
+    """
+    path = Path(path)
+    if step < 1 or every < 1:
+        raise InputError(None, f"the point step and the frame step must be at least 1, not {step} and {every}")
+    if path.suffix.lower() != ".rrd":
+        raise OutputError(path, "a Rerun recording's name ends in .rrd (the viewer opens .rrd files)")
+    if path.is_dir():
+        raise OutputError(path, "is a folder: give the recording's file name (FILE.rrd)")
+    if not path.parent.is_dir():
+        raise OutputError(path, "cannot write the recording: its folder does not exist")
+    if not os.access(path.parent, os.W_OK | os.X_OK):
+        raise OutputError(path, "cannot write the recording: its folder is not writable")
+
+
 def write_recording(
     out_dir: str | Path,
     path: str | Path,
@@ -237,14 +262,7 @@ def write_recording(
     """
     rr = import_rerun()
     out_dir, path = Path(out_dir), Path(path)
-    if step < 1 or every < 1:
-        raise InputError(None, f"the point step and the frame step must be at least 1, not {step} and {every}")
-    if path.suffix.lower() != ".rrd":
-        raise OutputError(path, "a Rerun recording's name ends in .rrd (the viewer opens .rrd files)")
-    if path.is_dir():
-        raise OutputError(path, "is a folder: give the recording's file name (FILE.rrd)")
-    if not path.parent.is_dir():
-        raise OutputError(path, "cannot write the recording: its folder does not exist")
+    check_recording(path, step, every)
     with reading(out_dir):
         report = read_report(out_dir)
         picked = [k for k, f in enumerate(report.frames) if f.written][::every]

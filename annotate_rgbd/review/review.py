@@ -129,6 +129,10 @@ def write_review(
     out_dir = folder.path
     output = ReviewOutput()
     written = [f for f in report.frames if f.written]
+    if sheet and written and not overlays and not any(_overlay_path(out_dir, f).is_file() for f in written):
+        # Before the page is written: a refusal leaves nothing half done.
+        raise InputError(out_dir / OVERLAYS, "no overlays for the contact sheet: run review with overlays "
+                                             "(or --no-sheet)")
     if overlays and written:
         shapes = read_drawn_shapes(out_dir, {f.mask for f in written}, report.command)
         keys, values = colour_table(report)

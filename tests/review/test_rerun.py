@@ -280,6 +280,16 @@ def test_bad_recording_names(rerun_sdk, sample_run, tmp_path):
     assert not list(tmp_path.iterdir())
 
 
+def test_cli_review_refuses_a_recording_path_before_drawing_the_overlays(rerun_sdk, sample_run, tmp_path):
+    run = tmp_path / "run"
+    shutil.copytree(sample_run[0], run)
+    before = sorted(p.relative_to(run) for p in run.rglob("*"))
+    result = CliRunner().invoke(app, ["review", str(run), "--rerun", str(tmp_path / "missing" / "v.rrd")])
+    assert result.exit_code == 1
+    assert result.output.strip() == f"error: {tmp_path / 'missing' / 'v.rrd'}: cannot write the recording: its folder does not exist"
+    assert sorted(p.relative_to(run) for p in run.rglob("*")) == before  # no overlay, page or sheet
+
+
 def test_cli_review_rerun(rerun_sdk, sample_run, tmp_path):
     run = tmp_path / "run"
     shutil.copytree(sample_run[0], run)

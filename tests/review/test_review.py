@@ -203,9 +203,20 @@ def test_review_of_a_run_without_masks_writes_only_the_page(tmp_path):
 
 def test_contact_sheet_needs_overlays(finished_run, tmp_path):
     out = tmp_path / "out"
-    shutil.copytree(finished_run, out, ignore=shutil.ignore_patterns("overlays"))
+    shutil.copytree(finished_run, out, ignore=shutil.ignore_patterns("overlays", "review.html", "contact_sheet.png"))
     with pytest.raises(InputError, match="no overlays"):
         review_run(out, overlays=False, page=False)
+    # Refused before anything is written: not the page first and then an error.
+    with pytest.raises(InputError, match="no overlays"):
+        review_run(out, overlays=False)
+    assert not (out / "review.html").exists() and not (out / "contact_sheet.png").exists()
+
+
+def test_cli_review_that_would_write_nothing_says_so(finished_run):
+    result = CliRunner().invoke(app, ["review", str(finished_run), "--no-overlays", "--no-page", "--no-sheet"])
+    assert result.exit_code == 1
+    assert result.output.strip() == ("error: nothing to do: --no-overlays, --no-page and --no-sheet leave no output "
+                                     "(add --rerun FILE.rrd for a recording only)")
 
 
 def test_page_without_overlays_refers_to_none(finished_run, tmp_path):
