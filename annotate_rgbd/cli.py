@@ -267,6 +267,9 @@ def batch(
         progress.finish()
         for line in summary_lines(outcomes):
             typer.echo(line)
+        for outcome in outcomes:  # also where errors go: a log of standard error alone has them
+            if outcome.error is not None:
+                typer.echo(f"error: {outcome.name}: {outcome.error}", err=True)
         if any(o.error is not None or o.failed_frames for o in outcomes):
             raise typer.Exit(1)
 
@@ -276,14 +279,16 @@ def _merge_batch(scenes: list, as_json: bool) -> None:
     from annotate_rgbd.report.run_folder import read_report
     from annotate_rgbd.report.stats import format_stats, format_stats_json, merge_stats, run_stats
 
-    found, missing = [], []
+    found, missing, names = [], [], []
     for scene in scenes:
         try:
             found.append(run_stats(read_report(scene.out)))
         except InputError as exc:
             missing.append(f"{scene.name}: {exc}")
+            names.append(scene.name)
     merged = merge_stats(found)
-    typer.echo(format_stats_json(merged) if as_json else format_stats(merged))
+    # The JSON names the scenes left out: a script reading it alone can tell the summary is partial.
+    typer.echo(format_stats_json({**merged, "scenes_without_a_run": names}) if as_json else format_stats(merged))
     for line in missing:
         typer.echo(f"error: {line}", err=True)
     if missing:

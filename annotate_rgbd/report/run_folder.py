@@ -124,7 +124,7 @@ def check_finished(out_dir: Path) -> None:
     if journal.is_file() or journal.is_symlink():
         raise InputError(journal, "a cvat2mask run in this folder did not finish (interrupted, stopped by an error,"
                                   " or still running): its masks may not match report.json; run the same"
-                                  " cvat2mask command again to finish it")
+                                  " cvat2mask (or batch) command again to finish it")
 
 
 def colour_table(report: RunRecord) -> tuple[np.ndarray, np.ndarray]:

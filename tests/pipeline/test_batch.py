@@ -120,7 +120,9 @@ out = "out/broken"
     manifest = write_manifest(tmp_path, SAMPLE_DATA / "annotations.xml", extra)
     result = CliRunner().invoke(app, ["batch", str(manifest), "--jobs", "1"])
     assert result.exit_code == 1
-    assert f"broken: FAILED: {tmp_path / 'missing.xml'}: file not found" in result.output
+    assert f"broken: FAILED: {tmp_path / 'missing.xml'}: file not found" in result.stdout
+    # Standard error has it too, in the form of every error: a log of standard error alone shows it.
+    assert f"error: broken: {tmp_path / 'missing.xml'}: file not found" in result.stderr.splitlines()
     assert (tmp_path / "out" / "room" / "report.json").is_file()
     assert (tmp_path / "out" / "room_tight" / "report.json").is_file()
     assert not (tmp_path / "out" / "broken").exists()

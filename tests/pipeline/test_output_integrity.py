@@ -157,7 +157,7 @@ def test_readers_refuse_a_folder_whose_rerun_was_interrupted(clean_run, tmp_path
     assert result.exit_code == 1, result.output
     lines = result.output.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith(f"error: {out / JOURNAL}: "), lines
-    assert "did not finish" in lines[0] and "run the same cvat2mask command again" in lines[0]
+    assert "did not finish" in lines[0] and "run the same cvat2mask (or batch) command again" in lines[0]
     assert not (out / "again.xml").exists() and not (tmp_path / "export").exists()
     # Finishing the run makes the folder readable again.
     run_cvat2mask(SEQUENCE, [ANNOTATIONS], out, load_config(CAMERA, {"ransac.distance_threshold": 0.005}))

@@ -108,7 +108,7 @@ def test_shards_as_processes_make_the_unsharded_files(tmp_path):
     assert merged.exit_code == 0, merged.output
     summary = json.loads(merged.output)
     reports = [json.loads(expected[f"{name}/report.json"]) for name in SETTINGS]
-    assert summary["scenes"] == len(SETTINGS)
+    assert summary["scenes"] == len(SETTINGS) and summary["scenes_without_a_run"] == []
     assert summary["observations"] == sum(r["summary"]["masks_written"] for r in reports)
     assert summary["total_planes"] == sum(r["summary"]["planes_kept"] for r in reports)
     assert summary["planes_dropped"] == sum(r["summary"]["planes_dropped"] for r in reports)
@@ -120,6 +120,10 @@ def test_merge_names_scenes_without_a_run(tmp_path):
     result = CliRunner().invoke(app, ["batch", str(manifest), "--merge"])
     assert result.exit_code == 1
     assert "room_tight: " in result.output and "no report" in result.output
+    as_json = CliRunner().invoke(app, ["batch", str(manifest), "--merge", "--json"])
+    assert as_json.exit_code == 1
+    summary = json.loads(as_json.stdout)
+    assert summary["scenes"] == 0 and summary["scenes_without_a_run"] == list(SETTINGS)
 
 
 def test_merge_stats_sums_and_weights():
