@@ -16,13 +16,13 @@ from typing import Any, Mapping
 
 from annotate_rgbd.io.images import png_size, read_bytes
 from annotate_rgbd.io.sequence import read_sequence
-from .settings import Config, load_config
+from .settings import COMMAND_LINE, Config, load_config
 
 log = logging.getLogger("annotate_rgbd")
 
 
 def load_run_config(sequence_dir: str | Path, source: str | Path | None,
-                    overrides: Mapping[str, Any] | None = None) -> Config:
+                    overrides: Mapping[str, Any] | None = None, overrides_from: str = COMMAND_LINE) -> Config:
     """The run's configuration: ``source`` (else the defaults, then the layout's cameras) with
     the overrides.
 
@@ -35,6 +35,8 @@ def load_run_config(sequence_dir: str | Path, source: str | Path | None,
         the layout's cameras are not used.
     overrides : mapping of str to value, optional
         ``"section.key" -> value``, applied last.
+    overrides_from : str
+        Where the overrides come from, for the messages about them (a manifest scene's ``set``).
 
     Returns
     -------
@@ -59,7 +61,7 @@ def load_run_config(sequence_dir: str | Path, source: str | Path | None,
             log.info("colour camera: %s (%s layout): %s; shapes are drawn on it", colour.source, sequence.layout,
                      colour.describe())
             overrides = {**colour.overrides(), **overrides}
-    return load_config(source, overrides)
+    return load_config(source, overrides, overrides_from)
 
 
 def _depth_size(sequence) -> tuple[int, int]:

@@ -284,7 +284,12 @@ def config_to_dict(config: Config, leave_out: Iterable[str] = ()) -> dict[str, A
     return values
 
 
-def load_config(source: str | Path | None = None, overrides: Mapping[str, Any] | None = None) -> Config:
+#: Where overrides come from, as messages name it, unless the caller says (a batch manifest's ``set``).
+COMMAND_LINE = "command-line option"
+
+
+def load_config(source: str | Path | None = None, overrides: Mapping[str, Any] | None = None,
+                overrides_from: str = COMMAND_LINE) -> Config:
     """Build the run configuration.
 
     Parameters
@@ -293,6 +298,8 @@ def load_config(source: str | Path | None = None, overrides: Mapping[str, Any] |
         A TOML file, or the name of a preset in ``configs/``. ``None``: defaults only.
     overrides : mapping of str to value, optional
         ``"section.key" -> value`` pairs (from command-line options) applied after the file.
+    overrides_from : str
+        Where the overrides come from, for the messages about them.
 
     Returns
     -------
@@ -318,11 +325,11 @@ def load_config(source: str | Path | None = None, overrides: Mapping[str, Any] |
             section, _, key = dotted.partition(".")
             values.setdefault(section, {})[key] = value
         # The file alone was valid: what fails now comes from the command line.
-        config = _build(values, "command-line option")
+        config = _build(values, overrides_from)
     # Half-written intrinsics, with the command line's values in (--set camera.fx=... completes a file).
     problem = partial_intrinsics(values.get("camera"), DEFAULT_CAMERA)
     if problem is not None:
-        log.warning("%s: %s", origin if source is not None else "command-line option", problem)
+        log.warning("%s: %s", origin if source is not None else overrides_from, problem)
     return config
 
 

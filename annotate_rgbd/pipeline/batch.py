@@ -67,7 +67,7 @@ def run_batch(
                 with named(spec.name):
                     with collect_warnings() as loading:
                         config = (spec.config if isinstance(spec.config, Config)
-                                  else load_run_config(spec.sequence, spec.config, spec.overrides))
+                                  else load_run_config(spec.sequence, spec.config, spec.overrides, spec.overrides_from))
                     plan = plan_run(spec.sequence, spec.annotations, spec.out, config, spec.offsets, spec.raw_masks,
                                     spec.overlays, poses=spec.poses, instance_ids=spec.instance_ids, helpers=helpers)
                     plan.warnings[:0] = [*spec.warnings, *loading]  # printed already; the report keeps them too

@@ -28,7 +28,7 @@ from pathlib import Path
 from typing import Any
 
 from annotate_rgbd.config.command_line import parse_part_offsets, parse_settings
-from annotate_rgbd.config.settings import Config
+from annotate_rgbd.config.settings import COMMAND_LINE, Config
 from annotate_rgbd.config.toml_input import read_toml
 from annotate_rgbd.errors import InputError
 from annotate_rgbd.io.bounded import read_input
@@ -58,6 +58,8 @@ class SceneSpec:
     poses: Path | None = None
     #: Warnings of what came before the run (loading a ``Config`` given here), for its report.
     warnings: tuple[str, ...] = ()
+    #: Where ``overrides`` come from, for the messages about them.
+    overrides_from: str = COMMAND_LINE
 
 
 def read_manifest(path: str | Path) -> tuple[list[SceneSpec], int | None]:
@@ -143,6 +145,7 @@ def read_manifest(path: str | Path) -> tuple[list[SceneSpec], int | None]:
             overlays=table.get("overlays", False),
             instance_ids=table.get("instance_ids", False),
             poses=base / table["poses"] if table.get("poses") else None,
+            overrides_from=f"{path}: {where}: set",
         ))
     outs = [s.out.resolve() for s in scenes]
     for out in set(outs):

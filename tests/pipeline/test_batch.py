@@ -184,3 +184,20 @@ def test_bad_manifests_are_one_line_errors(tmp_path, text, message):
     with pytest.raises(InputError, match=message) as error:
         read_manifest(manifest)
     assert str(manifest) in str(error.value)
+
+
+def test_a_bad_set_value_of_a_scene_names_the_manifest_not_the_command_line(tmp_path):
+    extra = f"""
+[[scene]]
+name = "typo"
+sequence = "{SAMPLE_DATA / 'sequence'}"
+annotations = ["{SAMPLE_DATA / 'annotations.xml'}"]
+config = "{SAMPLE_DATA / 'camera.toml'}"
+set = ["ransac.distance_treshold=0.01"]
+out = "out/typo"
+"""
+    manifest = write_manifest(tmp_path, SAMPLE_DATA / "annotations.xml", extra)
+    result = CliRunner().invoke(app, ["batch", str(manifest), "--jobs", "1"])
+    assert result.exit_code == 1
+    assert f"error: typo: {manifest}: [[scene]] 3: set: unknown key 'ransac.distance_treshold'" in result.stderr
+    assert "command-line option" not in result.output
