@@ -528,6 +528,8 @@ def export_command(
 
     with user_errors():
         result = export_run(run_dir, fmt, out, poses)
-        for name in result.removed:
-            typer.echo(f"removed {name} (an earlier export's)")
+        if result.removed:
+            count = len(result.removed)
+            typer.echo(f"removed {count} file{'s' if count != 1 else ''} of an earlier export ({result.removed[0]}"
+                       f"{', ...' if count > 1 else ''})")
         typer.echo(f"{fmt}: {result.frames} frames ({result.posed} with a pose), {len(result.files)} files in {out}")

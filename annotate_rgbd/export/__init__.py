@@ -155,6 +155,8 @@ def _inside(name: str) -> bool:
 
 
 def _remove(out: Path, stale: set[str]) -> list[str]:
+    """Remove an earlier export's files this one did not write again, then the folders of theirs
+    that are left empty (``labels/`` of an evops export replaced by a planes export)."""
     removed = []
     for name in sorted(stale):
         path = out / name
@@ -162,4 +164,9 @@ def _remove(out: Path, stale: set[str]) -> list[str]:
             continue
         path.unlink()
         removed.append(name)
+    folders = {parent for name in removed for parent in Path(name).parents if parent != Path(".")}
+    for folder in sorted(folders, key=lambda f: -len(f.parts)):  # the deepest first
+        path = out / folder
+        if path.is_dir() and not path.is_symlink() and not any(path.iterdir()):
+            path.rmdir()
     return removed

@@ -208,9 +208,12 @@ class Cleanup:
 
     def removals(self) -> list[str]:
         """One line per folder files were removed from, in the user's words."""
-        what = {MASKS: "masks of frames that no longer get one", RAW_MASKS: "raw masks no longer asked for",
-                OVERLAYS: "overlays no longer asked for", ID_MASKS: "instance-id masks no longer asked for"}
-        return [f"removed {count} {what[folder]} ({folder}/)" for folder, count in self.removed.items() if count]
+        what = {MASKS: ("mask of a frame that no longer gets one", "masks of frames that no longer get one"),
+                RAW_MASKS: ("raw mask no longer asked for", "raw masks no longer asked for"),
+                OVERLAYS: ("overlay no longer asked for", "overlays no longer asked for"),
+                ID_MASKS: ("instance-id mask no longer asked for", "instance-id masks no longer asked for")}
+        return [f"removed {count} {what[folder][count != 1]} ({folder}/)" for folder, count in self.removed.items()
+                if count]
 
     def warnings(self) -> list[str]:
         """A warning naming the files left alone, if any."""

@@ -251,4 +251,10 @@ def test_export_folder_contract(run, tmp_path):
     (out / "export.json").write_text(json.dumps(record))
     result = export_run(run / "run", "planes", out)  # another format into the same folder: the old files go
     assert "labels/old_frame.npy" in result.removed
-    assert not list((out / "labels").glob("*.npy")) and len(list((out / "frames").iterdir())) == 6
+    assert not (out / "labels").exists()  # emptied: removed too
+    assert len(list((out / "frames").iterdir())) == 6
+    said = CliRunner().invoke(app, ["export", str(run / "run"), "--format", "evops", str(out)])
+    assert said.exit_code == 0, said.output
+    assert said.output.splitlines()[0] == "removed 6 files of an earlier export (frames/" + sorted(
+        p.name for p in (run / "run" / "masks").iterdir())[0].replace(".png", ".json") + ", ...)"
+    assert not (out / "frames").exists() and len(list((out / "labels").iterdir())) == 6

@@ -386,3 +386,10 @@ def test_review_and_stats_on_a_malformed_report_give_one_line(tmp_path, content,
     assert result.exit_code == 1
     lines = result.output.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith(f"error: {tmp_path / 'report.json'}: ") and problem in lines[0]
+
+
+def test_removals_are_said_in_the_singular_for_one_file():
+    from annotate_rgbd.io.outdir import MASKS, OVERLAYS, Cleanup
+
+    assert Cleanup({MASKS: 1, OVERLAYS: 2}).removals() == [
+        "removed 1 mask of a frame that no longer gets one (masks/)", "removed 2 overlays no longer asked for (overlays/)"]
