@@ -482,7 +482,8 @@ def propose(
         result = run_propose(sequence_dir, out, run_config, poses=poses, workers=workers,
                              progress=progress.callback(sequence_dir.name), warnings=loading)
         progress.finish()
-        typer.echo(f"{result.tracks} plane tracks on {result.frames} frames: {out / 'proposals.xml'}, "
+        typer.echo(f"{result.tracks} plane track{'s' if result.tracks != 1 else ''} on {result.frames} "
+                   f"frame{'s' if result.frames != 1 else ''}: {out / 'proposals.xml'}, "
                    f"{out / 'masks'}, {out / 'report.json'}")
         if result.failed:
             count = len(result.failed)
@@ -511,7 +512,7 @@ def export_cvat_command(
         polygons = {k: v for k, v in (("tolerance_px", tolerance), ("max_vertices", max_vertices)) if v is not None}
         count = export_cvat(run_dir, xml, **polygons)
         # Into standard output the XML goes alone: the summary to standard error.
-        typer.echo(f"{count} plane tracks: {xml}", err=names_stdout(xml))
+        typer.echo(f"{count} plane track{'s' if count != 1 else ''}: {xml}", err=names_stdout(xml))
 
 
 @app.command("export")

@@ -13,7 +13,7 @@ from annotate_rgbd.config.settings import Config
 from annotate_rgbd.cvat import write_cvat_video
 from annotate_rgbd.geometry.registration import clip_to_image, polygon_on_colour_image
 from annotate_rgbd.report.palette import colour_hex, colourize, plane_colours
-from annotate_rgbd.io.writer import open_output, write_png
+from annotate_rgbd.io.writer import is_stream, open_output, write_png
 
 
 @dataclass
@@ -71,7 +71,8 @@ def write_polygon_tracks(
         The file cannot be written (:func:`annotate_rgbd.io.writer.open_output`).
     """
     annotation = Annotation(
-        path=str(path.stem), format="video",
+        # The CVAT task's name: the file's, none for a stream (then the writer's default name).
+        path="" if is_stream(path) else str(path.stem), format="video",
         tracks=[Track(t.track, t.label, dict(sorted(t.shapes.items())), attributes=dict(t.attributes)) for t in tracks],
         frames=list(range(n_frames)),
     )

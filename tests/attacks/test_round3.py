@@ -287,7 +287,8 @@ def test_export_to_dash_writes_standard_output_and_the_summary_to_standard_error
     result = invoke("export-cvat", finished.out, "-")
     assert result.exit_code == 0, result.stderr
     assert result.stdout.startswith("<?xml") and "<track " in result.stdout
-    assert "plane tracks" not in result.stdout and result.stderr.splitlines()[-1] == "1 plane tracks: -"
+    assert "plane track" not in result.stdout and result.stderr.splitlines()[-1] == "1 plane track: -"
+    assert "<name>annotate-rgbd</name>" in result.stdout and "<name>-</name>" not in result.stdout  # the task's name
     assert not (finished.root / "-").exists()
 
 
@@ -295,7 +296,7 @@ def test_export_to_dev_stdout_writes_the_pipe(finished):
     result = run_limited(["export-cvat", finished.out, "/dev/stdout"])
     assert result.returncode == 0, result.stderr.decode()
     assert result.stdout.startswith(b"<?xml") and result.stdout.rstrip().endswith(b"</annotations>")
-    assert result.stderr.decode().splitlines()[-1] == "1 plane tracks: /dev/stdout"
+    assert result.stderr.decode().splitlines()[-1] == "1 plane track: /dev/stdout"
     assert os.path.islink("/dev/stdout")
 
 
