@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import logging
+from collections import Counter
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Callable, Sequence
@@ -60,6 +61,10 @@ class ProposeResult:
         Problems with the whole sequence (a depth scale that does not fit), one line each.
     failed : list of str
         Frames whose job failed, with the error.
+    proposed : int
+        Planes proposed, over all frames.
+    dropped : dict of str to int
+        Planes detected and not proposed, by reason (``report.json``'s per-frame ``dropped``).
     """
 
     frames: int = 0
@@ -67,6 +72,8 @@ class ProposeResult:
     skipped: list[str] = field(default_factory=list)
     failed: list[str] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
+    proposed: int = 0
+    dropped: dict[str, int] = field(default_factory=dict)
 
 
 def run_propose(
@@ -275,6 +282,8 @@ def _run(sequence, folder: OutputFolder, config, poses_path, helpers, progress, 
     if not sampled:
         (out_dir / PROPOSALS_NAME).unlink(missing_ok=True)  # an earlier run's: it shows none of these frames
     write_drawn_shapes(out_dir, drawn)  # what review draws
+    result.proposed = sum(len(f.get("planes", ())) for f in frames)
+    result.dropped = dict(Counter(d["reason"] for f in frames for d in f.get("dropped", ())))
     write_json(out_dir / REPORT_NAME, {
         "tool": "annotate-rgbd propose", "version": __version__,
         "inputs": {"sequence": str(sequence.root), "poses": None if poses_path is None else str(poses_path),
@@ -285,8 +294,7 @@ def _run(sequence, folder: OutputFolder, config, poses_path, helpers, progress, 
         "config": config_to_dict(config, leave_out=("evaluate",)),
         "summary": {"frames_processed": result.frames, "frames_skipped": len(result.skipped),
                     "frames_failed": len(result.failed), "tracks": result.tracks,
-                    "planes_proposed": sum(len(f.get("planes", ())) for f in frames),
-                    "planes_dropped": sum(len(f.get("dropped", ())) for f in frames),
+                    "planes_proposed": result.proposed, "planes_dropped": sum(result.dropped.values()),
                     "polygons": polygon_summary(frames, settings.max_vertices)},
         "tracks": [{"track": t.track, "colour": track_colour(t.track), "label": t.label,
                     "cvat_frames": len(t.shapes), **{k: v for k, v in t.attributes.items() if k != PLANE_ID}}

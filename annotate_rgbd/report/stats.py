@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 from collections import Counter
+from collections.abc import Mapping
 
 from .records import RunRecord, RunSummary, summarize
 
@@ -151,7 +152,8 @@ def format_stats_json(stats: dict) -> str:
 #: The likely cause when most planes of a run are dropped for one reason.
 DROP_HINTS = {
     "too_far": "is camera.depth_scale right for this sensor? (TUM, ICL-NUIM: 5000 per metre; RealSense: 1000); "
-               "are the [camera] focal lengths in pixels of these images?",
+               "are the [camera] focal lengths in pixels of these images? If so, the planes are far: "
+               "--set filter.max_mean_distance=METRES keeps them (EVOPS drops planes beyond 3.5 m)",
     "invalid_depth": "is the depth registered to the RGB images, and are the polygons drawn on them?",
     "too_few_points": "are the shapes tiny, or the depth images of another size than the annotated ones?",
     "no_plane": "is the depth mostly missing under the shapes, but for single rows or columns of pixels?",
@@ -169,13 +171,20 @@ def drop_hint(summary: RunSummary, depth_scale: float) -> str | None:
     depth_scale : float
         The configuration's, quoted in the hint about distances.
     """
-    total = summary.planes_kept + summary.planes_dropped
-    if not total or not summary.dropped_by_reason:
+    return dropped_hint(summary.dropped_by_reason, summary.planes_kept + summary.planes_dropped, depth_scale)
+
+
+def dropped_hint(by_reason: Mapping[str, int], total: int, depth_scale: float, what: str = "planes",
+                 known_only: bool = False) -> str | None:
+    """:func:`drop_hint` from the counts: ``by_reason`` of ``total`` records of ``what`` (e.g.
+    ``propose``'s "detected planes"); with ``known_only``, only for a reason with a likely
+    cause in :data:`DROP_HINTS` (``propose`` drops small and flickering detections by design)."""
+    if not total or not by_reason:
         return None
-    reason, count = max(summary.dropped_by_reason.items(), key=lambda item: item[1])
-    if count * 2 <= total:
+    reason, count = max(by_reason.items(), key=lambda item: item[1])
+    if count * 2 <= total or (known_only and reason not in DROP_HINTS):
         return None
     hint = DROP_HINTS.get(reason, "")
     if reason == "too_far":
         hint = hint.replace("camera.depth_scale right", f"camera.depth_scale = {depth_scale:g} right")
-    return f"{count} of {total} planes were dropped as {reason}" + (f": {hint}" if hint else "")
+    return f"{count} of {total} {what} were dropped as {reason}" + (f": {hint}" if hint else "")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from collections import Counter
 
 from typer.testing import CliRunner
 
@@ -146,3 +147,28 @@ def test_every_drop_reason_has_a_hint_and_an_unknown_one_no_dangling_colon():
     too_far = drop_hint(summary("too_far"), 5000.0)
     assert too_far.startswith("5 of 6 planes were dropped as too_far: is camera.depth_scale = 5000 right")
     assert drop_hint(summary("something_new"), 5000.0) == "5 of 6 planes were dropped as something_new"
+
+
+def test_propose_says_what_it_did_not_propose_and_why_and_names_a_wrong_depth_scale(tmp_path):
+    # Propose drops small and flickering detections by design: their counts are said, without a
+    # hint. A wrong depth scale makes most detections too far: then the hint names it.
+    from conftest import SAMPLE_DATA
+
+    def propose(out, *extra):
+        result = CliRunner().invoke(app, ["propose", str(SAMPLE_DATA / "sequence"), "--config",
+                                          str(SAMPLE_DATA / "camera.toml"), "--out", str(out), "--jobs", "1", *extra])
+        assert result.exit_code == 0, result.output
+        report = json.loads((out / "report.json").read_text())
+        reasons = Counter(d["reason"] for f in report["frames"] for d in f["dropped"])
+        summary = [line for line in result.stdout.splitlines() if "plane track" in line][0]
+        counted = ", ".join(f"{n} {r}" for r, n in sorted(reasons.items(), key=lambda r: (-r[1], r[0])))
+        assert summary.endswith(f"; {report['summary']['planes_proposed']} planes proposed on frames, "
+                                f"{sum(reasons.values())} not ({counted})")
+        return result, reasons
+
+    normal, reasons = propose(tmp_path / "ok", "--every", "3")
+    assert "hint:" not in normal.output and sum(reasons.values()) > 0
+    wrong, reasons = propose(tmp_path / "far", "--every", "3", "--set", "camera.depth_scale=500")
+    assert reasons["too_far"] > 0
+    assert wrong.stderr.splitlines()[-1].startswith(f"hint: {reasons['too_far']} of ") and (
+        " detected planes were dropped as too_far: is camera.depth_scale = 500 right" in wrong.stderr)
