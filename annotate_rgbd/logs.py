@@ -49,17 +49,20 @@ def collect_warnings() -> Iterator[list[str]]:
     """
     found: list[str] = []
 
-    class Collector(logging.Handler):
-        def emit(self, record: logging.LogRecord) -> None:
+    def collect(record: logging.LogRecord) -> bool:
+        # A filter that lets every record through, not a handler: with a handler of its own the
+        # package logger would no longer print through Python's last resort (a library caller
+        # that set up no logging would see nothing).
+        if record.levelno >= logging.WARNING:
             found.append(getattr(record, "unprefixed", None) or record.getMessage())
+        return True
 
-    handler = Collector(logging.WARNING)
     logger = logging.getLogger(LOGGER)
-    logger.addHandler(handler)
+    logger.addFilter(collect)
     try:
         yield found
     finally:
-        logger.removeHandler(handler)
+        logger.removeFilter(collect)
 
 
 def group_problems(problems: Iterable[tuple[str, str]], shown: int = 3) -> list[str]:

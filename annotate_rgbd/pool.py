@@ -37,6 +37,10 @@ STALL_TIMEOUT = 60.0
 #: Times the helpers are restarted in one call of :func:`run_jobs` before this process does
 #: the remaining jobs alone.
 MAX_RESTARTS = 3
+#: Seconds a waiting shutdown waits for the manager thread of a pool stopped earlier, once its
+#: helpers are killed (it then ends within milliseconds; the bound only keeps a stuck thread
+#: from holding up the exit).
+STOP_TIMEOUT = 10.0
 
 
 def default_workers() -> int:
@@ -163,8 +167,9 @@ class HelperPool:
         #: Whether :func:`run_jobs` said that the helpers could not start (it says so once).
         self.failure_reported = False
         self._state = threading.Lock()  # the executor, ready and failure change together
-        #: Manager threads of executors shut down without waiting, joined by ``shutdown(wait=True)``.
-        self._stopping: list[threading.Thread] = []
+        #: Executors shut down without waiting (their jobs' results are not used): their manager
+        #: thread and helper processes, for ``shutdown(wait=True)`` to end.
+        self._stopped: list[tuple[threading.Thread, list]] = []
         self._start_executor()
 
     def _start_executor(self) -> None:
@@ -224,26 +229,33 @@ class HelperPool:
     def shutdown(self, wait: bool = True, cancel_futures: bool = False) -> None:
         """Stop the helpers once their current jobs are done (see ``Executor.shutdown``).
 
-        With ``wait``, it also waits for the pool threads of every earlier shutdown that did not
-        wait (a restart, a failed start, ``run_jobs`` stopping on an error or interrupt), which
-        ``ProcessPoolExecutor`` forgets after its first shutdown call. A pool thread still
-        closing its pipes when Python exits races with Python's own exit handler (Python 3.11):
-        "Bad file descriptor" tracebacks and "leaked semaphore" warnings after a Ctrl-C.
+        With ``wait``, it also ends what every earlier shutdown that did not wait left running
+        (a restart, a failed start, ``run_jobs`` stopping on an error or interrupt): their
+        helpers, whose results nothing uses, are killed (one may hang, and helpers ignore
+        Ctrl-C), and their manager threads, which ``ProcessPoolExecutor`` forgets after its
+        first shutdown call, are waited for. A manager thread still closing its pipes when
+        Python exits races with Python's own exit handler (Python 3.11): "Bad file descriptor"
+        tracebacks and "leaked semaphore" warnings after a Ctrl-C.
         """
         self._stop(self._executor, wait=wait, cancel_futures=cancel_futures)
         if wait:
             with self._state:
-                threads, self._stopping = self._stopping, []
-            for thread in threads:
-                thread.join()
+                stopped, self._stopped = self._stopped, []
+            for thread, processes in stopped:
+                for process in processes:
+                    if process.is_alive():
+                        process.kill()
+                thread.join(timeout=STOP_TIMEOUT)  # bounded: a thread that does not end is left to Python
 
     def _stop(self, executor: ProcessPoolExecutor, wait: bool, cancel_futures: bool = False) -> None:
-        """``executor.shutdown``, keeping its pool thread for a later ``shutdown(wait=True)``."""
-        thread = getattr(executor, "_executor_manager_thread", None)  # set to None by shutdown
+        """``executor.shutdown``, keeping what a shutdown without waiting leaves running (its
+        manager thread and helper processes) for a later ``shutdown(wait=True)``."""
+        thread = getattr(executor, "_executor_manager_thread", None)  # both set to None by shutdown
+        processes = list((getattr(executor, "_processes", None) or {}).values())
         executor.shutdown(wait=wait, cancel_futures=cancel_futures)
         if thread is not None and not wait:
             with self._state:
-                self._stopping.append(thread)
+                self._stopped.append((thread, processes))
 
     def __enter__(self) -> HelperPool:
         return self

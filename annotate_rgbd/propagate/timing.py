@@ -134,6 +134,9 @@ def pair_residuals(samples: list[KeyframeSample], first: np.ndarray, second: np.
     second_in_first, second_in_first_offset = seen_from(first, second)
     first_in_second, first_in_second_offset = seen_from(second, first)
     residuals = np.full((sets, len(first)), np.nan)
+    finite = [bool(np.isfinite(s.points).all()) for s in samples]
+    planes_finite = (np.isfinite(second_in_first).all(axis=2) & np.isfinite(second_in_first_offset)
+                     & np.isfinite(first_in_second).all(axis=2) & np.isfinite(first_in_second_offset))  # (O, P)
     for j, (a, b) in enumerate(zip(first.tolist(), second.tolist())):
         points_a, points_b = samples[a].points, samples[b].points
         count = len(points_a) + len(points_b)
@@ -149,6 +152,9 @@ def pair_residuals(samples: list[KeyframeSample], first: np.ndarray, second: np.
         np.einsum("oi,ni->on", first_in_second[:, j], points_b, out=there)
         there += first_in_second_offset[:, j, None]
         np.abs(distances, out=distances)
+        # np.median's NaN for a row holding one; finite points and planes (as always but in a
+        # broken input) give none, and the look for it is skipped.
+        unknown = None if finite[a] and finite[b] and planes_finite[:, j].all() else np.isnan(distances).any(axis=1)
         half = count // 2
         if count % 2:
             distances.partition(half, axis=1)
@@ -156,6 +162,8 @@ def pair_residuals(samples: list[KeyframeSample], first: np.ndarray, second: np.
         else:
             distances.partition([half - 1, half], axis=1)
             residuals[:, j] = np.mean(distances[:, half - 1 : half + 1], axis=1)
+        if unknown is not None:
+            residuals[unknown, j] = np.nan
     return residuals
 
 

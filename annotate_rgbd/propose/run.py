@@ -58,7 +58,8 @@ class ProposeResult:
     skipped : list of str
         Depth frames not processed, with why.
     warnings : list of str
-        Problems with the whole sequence (a depth scale that does not fit), one line each.
+        Problems with the whole sequence (a depth scale that does not fit, the warnings of loading
+        the configuration given to :func:`run_propose`), one line each.
     failed : list of str
         Frames whose job failed, with the error.
     proposed : int

@@ -130,6 +130,38 @@ def test_pair_residuals_are_each_pair_s_median_point_to_plane_distance():
                 assert np.isnan(got[o, j])
 
 
+def test_pair_residuals_are_np_median_to_the_last_bit():
+    # The medians come from an in-place partition: the very values np.median gives, for odd and
+    # even counts, tied distances (points repeated, coordinates rounded) and a NaN point.
+    rng = np.random.default_rng(3)
+    samples = []
+    for index in range(6):
+        plane = np.array([0.0, 0.0, 1.0, -2.0])
+        points = np.round(rng.normal(size=(int(rng.integers(1, 12)), 3)), 1)
+        points = np.concatenate([points, points[: index % 3]])  # ties
+        if index == 5:
+            points[0, 2] = np.nan
+        samples.append(KeyframeSample(0, float(index), points, plane))
+    first, second = keyframe_pairs(samples, 12)
+    sets = 4
+    rotations = Rotation.random(sets * len(samples), random_state=5).as_matrix().reshape(sets, len(samples), 3, 3)
+    translations = np.round(rng.normal(size=(sets, len(samples), 3)), 1)
+    got = pair_residuals(samples, first, second, rotations, translations)
+    planes = np.array([s.plane for s in samples])
+    normals = np.einsum("okij,kj->oki", rotations, planes[:, :3])
+    for o in range(sets):
+        for j, (a, b) in enumerate(zip(first, second)):
+            def to(k, n):  # plane n seen from keyframe k's camera, as pair_residuals forms it
+                normal = np.einsum("ji,j->i", rotations[o, k], normals[o, n])
+                return normal, planes[n, 3] + np.einsum("i,i->", normals[o, n], translations[o, k] - translations[o, n])
+            (n_ab, d_ab), (n_ba, d_ba) = to(a, b), to(b, a)
+            distances = np.concatenate([np.abs(np.einsum("i,ni->n", n_ab, samples[a].points) + d_ab),
+                                        np.abs(np.einsum("i,ni->n", n_ba, samples[b].points) + d_ba)])
+            expected = np.median(distances)
+            assert (np.isnan(got[o, j]) and np.isnan(expected)) or got[o, j] == expected, (o, j)
+    assert np.isnan(got[:, (first == 5) | (second == 5)]).all()
+
+
 def _wall_scene():
     """A 320x240 view of a wall 2 m away, a picture frame 3 cm proud of it on the right, a box
     0.5 m in front of it at the bottom; the labeller's outline covers the wall's left part and

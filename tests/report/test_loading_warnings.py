@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import json
 import logging
+import subprocess
+import sys
 
 from typer.testing import CliRunner
 
@@ -81,3 +83,13 @@ def test_collect_warnings_takes_warnings_only_and_leaves_them_printed(caplog):
         log.warning("after the block")
     assert found == ["f.png: a problem"]
     assert [r.getMessage() for r in caplog.records] == ["scene: a note", "scene: f.png: a problem", "after the block"]
+
+
+def test_collected_warnings_are_still_printed_where_no_logging_is_set_up():
+    # A library caller that configured no logging sees the package's warnings through Python's
+    # last resort; collecting them must not take that away.
+    code = ("import logging\nfrom annotate_rgbd.logs import collect_warnings\n"
+            "with collect_warnings() as found:\n    logging.getLogger('annotate_rgbd').warning('a problem')\n"
+            "print(found)")
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert result.stdout.strip() == "['a problem']" and result.stderr.strip() == "a problem"
