@@ -107,7 +107,9 @@ def read_manifest(path: str | Path) -> tuple[list[SceneSpec], int | None]:
             raise InputError(path, f"{where}: must be a table")
         extra = set(table) - SCENE_KEYS
         if extra:
-            raise InputError(path, f"{where}: unknown key '{sorted(extra)[0]}' (known: {', '.join(sorted(SCENE_KEYS))})")
+            keys = ", ".join(f"'{key}'" for key in sorted(extra))  # all of them: one round trip
+            raise InputError(path, f"{where}: unknown key{'s' if len(extra) > 1 else ''} {keys} "
+                                   f"(known: {', '.join(sorted(SCENE_KEYS))})")
         for key in ("sequence", "annotations", "out"):
             if key not in table:
                 raise InputError(path, f"{where}: '{key}' is missing")

@@ -170,6 +170,8 @@ def test_a_failed_frame_fails_the_batch_and_is_listed(tmp_path):
         ("", "no scenes"),
         ("[[scene]]\nsequence = 'a'\nout = 'o'\n", "'annotations' is missing"),
         ("[[scene]]\nsequence = 'a'\nannotations = ['x.xml']\nout = 'o'\ncolour = 1\n", "unknown key 'colour'"),
+        ("[[scene]]\nsequence = 'a'\nannotations = ['x.xml']\nout = 'o'\npose = 'g'\noverlay = true\n",
+         "unknown keys 'overlay', 'pose' \\(known: "),
         ("jobs = 0\n[[scene]]\nsequence = 'a'\nannotations = ['x.xml']\nout = 'o'\n", "'jobs' must be a positive integer"),
         ("[[scene]]\nsequence = 'a'\nannotations = 'x.xml'\nout = 'o'\n[[scene]]\nsequence = 'b'\nannotations = 'y.xml'\nout = 'o'\n",
          "two scenes write to"),
