@@ -482,17 +482,9 @@ def propose(
         result = run_propose(sequence_dir, out, run_config, poses=poses, workers=workers,
                              progress=progress.callback(sequence_dir.name), warnings=loading)
         progress.finish()
-        not_proposed = sum(result.dropped.values())
-        reasons = ", ".join(f"{n} {reason}" for reason, n in sorted(result.dropped.items(), key=lambda r: (-r[1], r[0])))
-        typer.echo(f"{result.tracks} plane track{'s' if result.tracks != 1 else ''} on {result.frames} "
-                   f"frame{'s' if result.frames != 1 else ''}: {out / 'proposals.xml'}, "
-                   f"{out / 'masks'}, {out / 'report.json'}; {result.proposed} plane{'s' if result.proposed != 1 else ''} "
-                   f"proposed on frames, {not_proposed} not" + (f" ({reasons})" if reasons else ""))
-        from annotate_rgbd.report.stats import dropped_hint
-
-        hint = dropped_hint(result.dropped, result.proposed + sum(result.dropped.values()),
-                            run_config.camera.depth_scale, "detected planes", known_only=True)
-        if hint:  # advice on the run as a whole (small and flickering detections are dropped by design)
+        typer.echo(result.summary(out))
+        hint = result.drop_hint(run_config.camera.depth_scale)
+        if hint:  # advice on the run as a whole
             typer.echo(f"hint: {hint}", err=True)
         if result.failed:
             count = len(result.failed)

@@ -28,6 +28,7 @@ from annotate_rgbd.io.layouts.tum import TRAJECTORY as TUM_TRAJECTORY
 from annotate_rgbd.io.writer import write_json
 from annotate_rgbd.logs import group_problems
 from annotate_rgbd.report.run_folder import write_drawn_shapes
+from annotate_rgbd.report.stats import dropped_hint
 from .detect_job import DetectJob, FrameProposal, FrameTooSmall, keep_planes, propose_frame
 from .link import TrackLinker
 from .persist import PersistenceFilter
@@ -75,6 +76,22 @@ class ProposeResult:
     warnings: list[str] = field(default_factory=list)
     proposed: int = 0
     dropped: dict[str, int] = field(default_factory=dict)
+
+    def summary(self, out_dir: Path) -> str:
+        """The command's summary line: tracks, frames, files, and the planes not proposed by reason."""
+        def count(n: int, what: str) -> str:
+            return f"{n} {what}{'s' if n != 1 else ''}"
+
+        reasons = ", ".join(f"{n} {reason}" for reason, n in sorted(self.dropped.items(), key=lambda r: (-r[1], r[0])))
+        return (f"{count(self.tracks, 'plane track')} on {count(self.frames, 'frame')}: {out_dir / PROPOSALS_NAME}, "
+                f"{out_dir / MASKS_DIR}, {out_dir / REPORT_NAME}; {count(self.proposed, 'plane')} proposed on frames, "
+                f"{sum(self.dropped.values())} not" + (f" ({reasons})" if reasons else ""))
+
+    def drop_hint(self, depth_scale: float) -> str | None:
+        """:func:`annotate_rgbd.report.stats.dropped_hint` of the detected planes, for a reason
+        with a likely cause only (small and flickering detections are dropped by design)."""
+        return dropped_hint(self.dropped, self.proposed + sum(self.dropped.values()), depth_scale, "detected planes",
+                            known_only=True)
 
 
 def run_propose(
