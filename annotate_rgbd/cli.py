@@ -296,12 +296,26 @@ def _merge_batch(scenes: list, as_json: bool) -> None:
 
 
 @app.command()
-def presets() -> None:
-    """List the scene presets that --config accepts, with their cameras."""
-    from annotate_rgbd.config.settings import preset_summaries
+def presets(
+    name: Optional[str] = typer.Argument(
+        None, metavar="[NAME]", help="Print this preset's TOML file (to start your own from: > my_camera.toml)."
+    ),
+) -> None:
+    """List the scene presets that --config accepts, with their cameras, noise models and drop rules."""
+    from annotate_rgbd.config.settings import load_config, preset_summaries, preset_text
 
-    for name, what, camera in preset_summaries():
-        typer.echo(f"{name}: {what}\n    camera: {camera}")
+    with user_errors():
+        if name is not None:
+            typer.echo(preset_text(name), nl=False)
+            return
+        lines = []
+        for preset, what, camera in preset_summaries():
+            config = load_config(preset)
+            rules = config.filter
+            lines += [f"{preset}: {what}", f"    camera: {camera}",
+                      f"    noise: {config.noise.to_mapping()['model']}; planes dropped above "
+                      f"{rules.max_invalid_ratio:g} invalid depth or beyond {rules.max_mean_distance:g} m on average"]
+        typer.echo("\n".join(lines))  # one write: a reader that stops early (| head) meets no broken pipe
 
 
 @app.command()

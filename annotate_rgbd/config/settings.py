@@ -250,6 +250,20 @@ def preset_summaries() -> list[tuple[str, str, str]]:
     return summaries
 
 
+def preset_text(name: str) -> str:
+    """A preset's TOML file as shipped, to start a configuration of one's own from.
+
+    Raises
+    ------
+    InputError
+        No preset of that name (the message lists them).
+    """
+    names = preset_names()
+    if name not in names:
+        raise InputError(None, f"no preset {name!r} (presets: {', '.join(names)})")
+    return (resources.files("annotate_rgbd.configs") / f"{name}.toml").read_text(encoding="utf-8")
+
+
 #: Sections that hold a list of tables (``[[parts]]``) rather than one table.
 LIST_SECTIONS = {"parts": PartConfig, "matches": MatchConfig}
 #: Largest configuration file read (a thousand [[matches]] take some 100 KiB).

@@ -1,6 +1,7 @@
 from __future__ import annotations  # annotations stay text, as in annotate_rgbd/config.py
 
 from dataclasses import dataclass
+from importlib import resources
 from typing import Optional
 
 import numpy as np
@@ -271,3 +272,21 @@ def test_presets_are_listed_with_their_camera_and_its_source():
     assert "depth_scale 1000" in summaries["realsense_d435"][1]
     output = CliRunner().invoke(app, ["presets"]).output
     assert all(f"{name}: " in output for name in summaries) and output.count("camera: ") == len(summaries)
+    # Each with its noise model and drop rules, as its file sets them.
+    assert "realsense_d435: " in output and (
+        "    noise: realsense_d435; planes dropped above 0.8 invalid depth or beyond 3.5 m on average" in output)
+    assert output.count("    noise: ") == len(summaries)
+
+
+def test_a_preset_is_printed_to_start_a_configuration_from():
+    from typer.testing import CliRunner
+
+    from annotate_rgbd.cli import app
+    from annotate_rgbd.config.settings import load_config
+
+    result = CliRunner().invoke(app, ["presets", "fr1_desk"])
+    assert result.exit_code == 0
+    assert result.stdout == (resources.files("annotate_rgbd.configs") / "fr1_desk.toml").read_text(encoding="utf-8")
+    assert load_config(None, {}) != load_config("fr1_desk")
+    unknown = CliRunner().invoke(app, ["presets", "fr9"])
+    assert unknown.exit_code == 1 and unknown.output.startswith("error: no preset 'fr9' (presets: fr1_desk, ")
