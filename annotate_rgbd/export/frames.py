@@ -19,7 +19,7 @@ import numpy as np
 
 from annotate_rgbd.errors import InputError
 from annotate_rgbd.geometry.lift import plane_to_world
-from annotate_rgbd.io.poses import DEFAULT_MAX_POSE_GAP, missing_poses_text, poses_at, read_trajectory
+from annotate_rgbd.io.poses import DEFAULT_MAX_POSE_GAP, poses_of_frames, read_trajectory
 from annotate_rgbd.io.sequence import read_image
 from annotate_rgbd.report.records import RunRecord
 from annotate_rgbd.report.run_folder import colour_table, mask_plane_ids, read_report
@@ -133,12 +133,10 @@ def read_run(run_dir: str | Path, poses: str | Path | None = None) -> ExportRun:
         gap = report.config.get("sequence", {}).get("max_pose_gap", DEFAULT_MAX_POSE_GAP)
         poses_of = read_trajectory(trajectory)
         times = np.array([f.depth_timestamp for f in written], dtype=np.float64)
-        frame_poses = poses_at(poses_of, times, gap)
+        # Refused when no frame gets a pose: the export would hold no world-frame plane at all.
+        frame_poses, ranges = poses_of_frames(poses_of, trajectory, times, gap, poses_of.clock, "written frame")
         missing = int(np.count_nonzero(~frame_poses.ok))
         if missing:
-            ranges = missing_poses_text(poses_of, times, frame_poses.reasons, poses_of.clock)
-            if missing == len(written):  # the export would hold no world-frame plane at all
-                raise InputError(trajectory, f"no written frame has a pose{': ' + ranges if ranges else ''}")
             log.warning("%s: %d of %d written frames have no pose: their planes have no world coordinates%s",
                         trajectory, missing, len(written), f" ({ranges})" if ranges else "")
     frames = []

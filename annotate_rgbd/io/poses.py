@@ -60,7 +60,7 @@ POSE_GAP = "pose_gap"
 __all__ = [
     "DEFAULT_MAX_POSE_GAP", "FRAME_NUMBERS", "MAX_BYTES", "MAX_LINES", "OUTSIDE_TRAJECTORY", "POSE_GAP", "SECONDS",
     "UNIT_TOLERANCE", "FramePoses", "LoadedTrajectory", "Trajectory", "load_trajectory", "matrix_quaternions",
-    "missing_poses_text", "poses_at", "quaternion_matrices", "read_trajectory", "slerp",
+    "missing_poses_text", "poses_at", "poses_of_frames", "quaternion_matrices", "read_trajectory", "slerp",
 ]
 
 
@@ -213,6 +213,44 @@ def load_trajectory(path: str | Path, frame_times: np.ndarray, clock: str) -> Lo
                              trajectory.clock)
     warnings = [f"{path}: {problem}"] if problem else []
     return LoadedTrajectory(trajectory, warnings, notes)
+
+
+def poses_of_frames(
+    trajectory: Trajectory, path: str | Path, times: np.ndarray, max_gap: float, clock: str, frames: str,
+) -> tuple[FramePoses, str]:
+    """:func:`poses_at` for frames a command needs poses for, refusing a trajectory that gives
+    none of them one.
+
+    Parameters
+    ----------
+    trajectory : Trajectory
+    path : str or Path
+        Where it was read from, for the message.
+    times : ndarray, shape (M,)
+        The frames' timestamps.
+    max_gap : float
+        As in :func:`poses_at`.
+    clock : str
+        What the timestamps count.
+    frames : str
+        What the frames are, for the message ("processed depth frame", "written frame").
+
+    Returns
+    -------
+    poses : FramePoses
+    ranges : str
+        :func:`missing_poses_text` for the frames without a pose (``""`` when all have one).
+
+    Raises
+    ------
+    InputError
+        Frames given and none has a pose: the two time ranges and the likely unit or offset said.
+    """
+    found = poses_at(trajectory, times, max_gap)
+    ranges = "" if found.ok.all() else missing_poses_text(trajectory, times, found.reasons, clock)
+    if len(times) and not found.ok.any():
+        raise InputError(path, f"no {frames} has a pose{': ' + ranges if ranges else ''}")
+    return found, ranges
 
 
 def missing_poses_text(trajectory: Trajectory, times: np.ndarray, reasons: np.ndarray, clock: str) -> str:

@@ -19,7 +19,7 @@ from annotate_rgbd.errors import InputError
 from annotate_rgbd.geometry.depth_range import depth_scale_hint, median_raw_depth
 from annotate_rgbd.geometry.lift import plane_to_world
 from annotate_rgbd.pool import default_workers, run_jobs, start_helpers
-from annotate_rgbd.io.poses import load_trajectory, missing_poses_text, poses_at
+from annotate_rgbd.io.poses import load_trajectory, poses_of_frames
 from annotate_rgbd.io.sequence import associate, intrinsics_problems, read_depth, read_sequence
 from annotate_rgbd.io.outdir import (
     MASKS, OutputFolder, check_outside_sequence, read_bounded, remove_review_files, remove_stale_files,
@@ -374,10 +374,8 @@ def _frame_poses(path, sequence, times: np.ndarray, config: Config, warnings: li
     for line in loaded.warnings:
         warnings.append(line)
         log.warning("%s", line)
-    frame_poses = poses_at(loaded.trajectory, times, config.sequence.max_pose_gap)
-    ranges = missing_poses_text(loaded.trajectory, times, frame_poses.reasons, sequence.clock)
-    if not frame_poses.ok.any():
-        raise InputError(path, f"no processed depth frame has a pose{': ' + ranges if ranges else ''}")
+    frame_poses, ranges = poses_of_frames(loaded.trajectory, path, times, config.sequence.max_pose_gap, sequence.clock,
+                                          "processed depth frame")
     missing = int(np.count_nonzero(~frame_poses.ok))
     if missing:
         line = (f"{path}: {missing} of {len(times)} processed depth frames have no pose; they are linked "
