@@ -15,6 +15,7 @@ import typer
 
 from annotate_rgbd import __version__
 from annotate_rgbd.errors import InputError
+from annotate_rgbd.logs import counted
 from annotate_rgbd.pool import STALL_TIMEOUT
 
 app = typer.Typer(
@@ -200,9 +201,8 @@ def cvat2mask(
         counts = summarize(report.frames)
         planes = len({track.plane for track in report.tracks})
         summary = (
-            f"{report.written} mask{'s' if report.written != 1 else ''} in {out / 'masks'} ({report.counts.made} made, "
-            f"{report.counts.reused} unchanged), {planes} plane{'s' if planes != 1 else ''}, {counts.skipped} "
-            f"frame{'s' if counts.skipped != 1 else ''} skipped, "
+            f"{counted(report.written, 'mask')} in {out / 'masks'} ({report.counts.made} made, "
+            f"{report.counts.reused} unchanged), {counted(planes, 'plane')}, {counted(counts.skipped, 'frame')} skipped, "
             f"{counts.planes_dropped} of {counts.planes_kept + counts.planes_dropped} planes drawn on frames dropped "
             "(no depth, too far, no plane there)"
         )
@@ -211,10 +211,9 @@ def cvat2mask(
             typer.echo(f"hint: {hint}", err=True)
         failures = report.failures()
         if counts.frames_failed:
-            summary += f", {counts.frames_failed} frame{'s' if counts.frames_failed > 1 else ''} failed"
+            summary += f", {counted(counts.frames_failed, 'frame')} failed"
         if report.warnings:
-            count = len(report.warnings)
-            summary += f", {count} warning{'s' if count > 1 else ''} (see {out / 'report.json'})"
+            summary += f", {counted(len(report.warnings), 'warning')} (see {out / 'report.json'})"
         typer.echo(summary)
         for line in failures:
             typer.echo(f"  failed: {line}")
@@ -249,7 +248,7 @@ def batch(
 
             k, n = parse_shard(shard)
             scenes = select_shard(scenes, k, n)
-            typer.echo(f"shard {k}/{n}: {len(scenes)} scene{'s' if len(scenes) != 1 else ''}"
+            typer.echo(f"shard {k}/{n}: {counted(len(scenes), 'scene')}"
                        + (f" ({', '.join(s.name for s in scenes)})" if scenes else ""))
         if merge:
             _merge_batch(scenes, as_json)
@@ -501,8 +500,7 @@ def propose(
         if hint:  # advice on the run as a whole
             typer.echo(f"hint: {hint}", err=True)
         if result.failed:
-            count = len(result.failed)
-            typer.echo(f"  {count} frame{'s' if count > 1 else ''} failed (see the warnings above)")
+            typer.echo(f"  {counted(len(result.failed), 'frame')} failed (see the warnings above)")
             raise typer.Exit(1)
 
 
@@ -527,7 +525,7 @@ def export_cvat_command(
         polygons = {k: v for k, v in (("tolerance_px", tolerance), ("max_vertices", max_vertices)) if v is not None}
         count = export_cvat(run_dir, xml, **polygons)
         # Into standard output the XML goes alone: the summary to standard error.
-        typer.echo(f"{count} plane track{'s' if count != 1 else ''}: {xml}", err=names_stdout(xml))
+        typer.echo(f"{counted(count, 'plane track')}: {xml}", err=names_stdout(xml))
 
 
 @app.command("export")
@@ -545,7 +543,6 @@ def export_command(
     with user_errors():
         result = export_run(run_dir, fmt, out, poses)
         if result.removed:
-            count = len(result.removed)
-            typer.echo(f"removed {count} file{'s' if count != 1 else ''} of an earlier export ({result.removed[0]}"
-                       f"{', ...' if count > 1 else ''})")
+            typer.echo(f"removed {counted(len(result.removed), 'file')} of an earlier export ({result.removed[0]}"
+                       f"{', ...' if len(result.removed) > 1 else ''})")
         typer.echo(f"{fmt}: {result.frames} frames ({result.posed} with a pose), {len(result.files)} files in {out}")

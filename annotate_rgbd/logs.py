@@ -65,6 +65,11 @@ def collect_warnings() -> Iterator[list[str]]:
         logger.removeFilter(collect)
 
 
+def counted(count: int, noun: str) -> str:
+    """``count`` and ``noun``, plural unless it is one: ``1 mask``, ``0 masks``, ``2 plane tracks``."""
+    return f"{count} {noun}{'' if count == 1 else 's'}"
+
+
 def group_problems(problems: Iterable[tuple[str, str]], shown: int = 3) -> list[str]:
     """One line per distinct problem, naming the files that have it: a problem every frame
     shares is said once, not once per frame.

@@ -26,7 +26,7 @@ from annotate_rgbd.io.outdir import (
 )
 from annotate_rgbd.io.layouts.tum import TRAJECTORY as TUM_TRAJECTORY
 from annotate_rgbd.io.writer import write_json
-from annotate_rgbd.logs import group_problems
+from annotate_rgbd.logs import counted, group_problems
 from annotate_rgbd.report.run_folder import write_drawn_shapes
 from annotate_rgbd.report.stats import dropped_hint
 from .detect_job import DetectJob, FrameProposal, FrameTooSmall, keep_planes, propose_frame
@@ -79,12 +79,9 @@ class ProposeResult:
 
     def summary(self, out_dir: Path) -> str:
         """The command's summary line: tracks, frames, files, and the planes not proposed by reason."""
-        def count(n: int, what: str) -> str:
-            return f"{n} {what}{'s' if n != 1 else ''}"
-
         reasons = ", ".join(f"{n} {reason}" for reason, n in sorted(self.dropped.items(), key=lambda r: (-r[1], r[0])))
-        return (f"{count(self.tracks, 'plane track')} on {count(self.frames, 'frame')}: {out_dir / PROPOSALS_NAME}, "
-                f"{out_dir / MASKS_DIR}, {out_dir / REPORT_NAME}; {count(self.proposed, 'plane')} proposed on frames, "
+        return (f"{counted(self.tracks, 'plane track')} on {counted(self.frames, 'frame')}: {out_dir / PROPOSALS_NAME}, "
+                f"{out_dir / MASKS_DIR}, {out_dir / REPORT_NAME}; {counted(self.proposed, 'plane')} proposed on frames, "
                 f"{sum(self.dropped.values())} not" + (f" ({reasons})" if reasons else ""))
 
     def drop_hint(self, depth_scale: float) -> str | None:
@@ -274,7 +271,7 @@ def _run(sequence, folder: OutputFolder, config, poses_path, helpers, progress, 
         emit(decided)
     if result.frames == 0:
         lines = group_problems((file, problem) for file, problem, _ in problems)
-        more = f" (and {len(lines) - 1} other problem{'s' if len(lines) > 2 else ''})" if len(lines) > 1 else ""
+        more = f" (and {counted(len(lines) - 1, 'other problem')})" if len(lines) > 1 else ""
         raise InputError(None, f"no depth frame can be used: {lines[0]}{more}")
     for line in group_problems((file, f"{problem}; {outcome}") for file, problem, outcome in problems):
         log.warning("%s", line)

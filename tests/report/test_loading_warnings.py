@@ -93,3 +93,9 @@ def test_collected_warnings_are_still_printed_where_no_logging_is_set_up():
             "print(found)")
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert result.stdout.strip() == "['a problem']" and result.stderr.strip() == "a problem"
+
+
+def test_counted_is_plural_unless_one():
+    from annotate_rgbd.logs import counted
+
+    assert [counted(n, "plane track") for n in (0, 1, 2)] == ["0 plane tracks", "1 plane track", "2 plane tracks"]
