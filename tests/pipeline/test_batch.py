@@ -109,16 +109,16 @@ def test_changed_polygon_redoes_one_frame_and_force_redoes_all(tmp_path, uninter
     assert "room_tight: 19 masks (19 made, 0 unchanged)" in forced.output
 
 
-def test_a_broken_scene_fails_alone(tmp_path):
-    extra = f"""
-[[scene]]
-name = "broken"
-sequence = "{SAMPLE_DATA / 'sequence'}"
-annotations = ["missing.xml"]
-out = "out/broken"
-"""
+def batch_with_a_third_scene(tmp_path: Path, name: str, lines: str):
+    """The manifest of the two sample scenes and a third one, ``name``, of the sample sequence with
+    these manifest ``lines``, and the result of ``batch`` on it with one worker."""
+    extra = f'\n[[scene]]\nname = "{name}"\nsequence = "{SAMPLE_DATA / "sequence"}"\n{lines}\nout = "out/{name}"\n'
     manifest = write_manifest(tmp_path, SAMPLE_DATA / "annotations.xml", extra)
-    result = CliRunner().invoke(app, ["batch", str(manifest), "--jobs", "1"])
+    return manifest, CliRunner().invoke(app, ["batch", str(manifest), "--jobs", "1"])
+
+
+def test_a_broken_scene_fails_alone(tmp_path):
+    _, result = batch_with_a_third_scene(tmp_path, "broken", 'annotations = ["missing.xml"]')
     assert result.exit_code == 1
     assert f"broken: FAILED: {tmp_path / 'missing.xml'}: file not found" in result.stdout
     # Standard error has it too, in the form of every error: a log of standard error alone shows it.
@@ -189,17 +189,9 @@ def test_bad_manifests_are_one_line_errors(tmp_path, text, message):
 
 
 def test_a_bad_set_value_of_a_scene_names_the_manifest_not_the_command_line(tmp_path):
-    extra = f"""
-[[scene]]
-name = "typo"
-sequence = "{SAMPLE_DATA / 'sequence'}"
-annotations = ["{SAMPLE_DATA / 'annotations.xml'}"]
+    manifest, result = batch_with_a_third_scene(tmp_path, "typo", f"""annotations = ["{SAMPLE_DATA / 'annotations.xml'}"]
 config = "{SAMPLE_DATA / 'camera.toml'}"
-set = ["ransac.distance_treshold=0.01"]
-out = "out/typo"
-"""
-    manifest = write_manifest(tmp_path, SAMPLE_DATA / "annotations.xml", extra)
-    result = CliRunner().invoke(app, ["batch", str(manifest), "--jobs", "1"])
+set = ["ransac.distance_treshold=0.01"]""")
     assert result.exit_code == 1
     assert f"error: typo: {manifest}: [[scene]] 3: set: unknown key 'ransac.distance_treshold'" in result.stderr
     assert "command-line option" not in result.output
