@@ -109,13 +109,12 @@ def segment_frame(
         labels, beyond = grow_connected(labels, drawn, claimed, depth_m, growing, config.camera, band, config.refine,
                                         excluded)
         grown = {plane_id: count + beyond.get(plane_id, 0) for plane_id, count in grown.items()}
+    result = FrameResult(labels=labels, drawn=drawn, colour_grid=colour_grid)
     for i, plane_id in enumerate(stats.plane_ids.tolist()):
         # A fit whose pixels the refinement's tests all took away (e.g. 12 inliers of 474 points
         # on a carried plane) leaves the plane nothing in the mask: it is not kept on this frame.
         if reasons[i] is None and inlier_count[plane_id] + grown.get(plane_id, 0) == 0:
             reasons[i] = NOT_WHERE_EXPECTED if plane_id in propagated else TOO_FEW_POINTS
-    result = FrameResult(labels=labels, drawn=drawn, colour_grid=colour_grid)
-    for i, plane_id in enumerate(stats.plane_ids.tolist()):
         measured = dict(
             plane=plane_id,
             pixels=int(stats.pixels[i]),
