@@ -13,13 +13,15 @@ ground truth in the layouts plane-segmentation codebases read (:func:`export_run
 Every export also writes ``export.json``: the format, the run, the trajectory, the conventions
 (frames, sign of the offset, units) and the files written. An export folder holds one export: a
 folder with files no export wrote is refused, and a re-export removes the files of the earlier
-export that it does not write again.
+export that it does not write again. An export that fails into a new or empty folder leaves it as
+it was; one that fails over an earlier export leaves ``export.json`` marked incomplete.
 """
 
 from __future__ import annotations
 
 import json
 import os
+import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -30,13 +32,15 @@ from annotate_rgbd.io.writer import prepare_output, write_json
 from .coco import write_coco
 from .evops import write_evops
 from .frames import ExportRun, read_run
-from .planercnn import write_planercnn
+from .planercnn import check_planercnn, write_planercnn
 from .planes import EQUATION_CONVENTION, write_frame_planes
 
 FORMATS = {"planercnn": write_planercnn, "planes": write_frame_planes, "evops": write_evops, "coco": write_coco}
 #: Folders the formats write into, inside the export folder.
 SUBFOLDERS = ("segmentation", "frames", "labels")
 RECORD = "export.json"
+#: What a format checks of the run before the export folder is touched.
+CHECKS = {"planercnn": check_planercnn}
 #: What each format's files mean, stated in ``export.json``.
 DESCRIPTIONS = {
     "planercnn": "planes.npy: N x 3 float64, row k = plane k + 1 of planes.csv, normal * offset with normal . X = "
@@ -110,13 +114,21 @@ def _export(run: ExportRun, fmt: str, out: Path) -> ExportResult:
     if out.resolve() == run.run_dir.resolve():
         raise OutputError(out, "is the run's folder: export into a folder of its own")
     previous = _previous_files(out)
+    if fmt in CHECKS:
+        CHECKS[fmt](run)
+    created, empty = not out.exists(), not out.is_dir() or not any(out.iterdir())
     prepare_output(out)
     for name in SUBFOLDERS + (RECORD,):
         check_not_link(out / name)
     record = {"tool": {"name": "annotate-rgbd", "version": __version__}, "format": fmt, "complete": False,
               "files": sorted(previous)}
-    write_json(out / RECORD, record)  # an interrupted export's folder is still recognised as one
-    files = FORMATS[fmt](run, out)
+    try:
+        write_json(out / RECORD, record)  # an interrupted export's folder is still recognised as one
+        files = FORMATS[fmt](run, out)
+    except BaseException:
+        if empty:  # everything in the folder is this export's
+            _clear(out, remove_folder=created)
+        raise
     names = {str(path.relative_to(out)) for path in files}
     removed = _remove(out, previous - names)
     record.update(
@@ -146,6 +158,21 @@ def _previous_files(out: Path) -> set[str]:
     except (OSError, ValueError, KeyError, TypeError, AttributeError):
         raise OutputError(out, f"holds files that no export wrote (no {RECORD}): export into an empty folder") from None
     return {f for f in files if _inside(f)}
+
+
+def _clear(out: Path, remove_folder: bool) -> None:
+    """Remove what a failed export wrote into a folder that was empty (and the folder when the
+    export created it)."""
+    for path in out.iterdir():
+        if path.is_dir() and not path.is_symlink():
+            shutil.rmtree(path, ignore_errors=True)
+        else:
+            path.unlink(missing_ok=True)
+    if remove_folder:
+        try:
+            out.rmdir()
+        except OSError:
+            pass
 
 
 def _inside(name: str) -> bool:

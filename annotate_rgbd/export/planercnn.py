@@ -55,6 +55,23 @@ def encode_segmentation(ids: np.ndarray) -> np.ndarray:
     return np.stack([(value >> 16) & 0xFF, (value >> 8) & 0xFF, value & 0xFF], axis=-1).astype(np.uint8)
 
 
+def check_planercnn(run: ExportRun) -> None:
+    """Whether the run fits the layout, before anything is written.
+
+    Raises
+    ------
+    InputError
+        No frame has a pose (the layout's planes are in the world frame), or more planes than
+        the segmentation's 24 bits hold.
+    """
+    if not any(frame.pose is not None for frame in run.frames):
+        raise InputError(run.run_dir / "report.json", "the PlaneRCNN layout holds world-frame planes, and no written "
+                         "frame has a camera pose: give the camera trajectory with --poses")
+    if run.report.n_planes > MAX_PLANES:
+        raise InputError(run.run_dir / "report.json", f"{run.report.n_planes} planes: PlaneRCNN's segmentation holds "
+                         f"at most {MAX_PLANES}")
+
+
 def write_planercnn(run: ExportRun, out: Path) -> list[Path]:
     """Write ``planes.npy`` and ``segmentation/<frame>.png``.
 
@@ -75,12 +92,7 @@ def write_planercnn(run: ExportRun, out: Path) -> list[Path]:
         No frame has a pose (the layout's planes are in the world frame), or more planes than
         the segmentation's 24 bits hold.
     """
-    if not any(frame.pose is not None for frame in run.frames):
-        raise InputError(run.run_dir / "report.json", "the PlaneRCNN layout holds world-frame planes, and no written "
-                         "frame has a camera pose: give the camera trajectory with --poses")
-    if run.report.n_planes > MAX_PLANES:
-        raise InputError(run.run_dir / "report.json", f"{run.report.n_planes} planes: PlaneRCNN's segmentation holds "
-                         f"at most {MAX_PLANES}")
+    check_planercnn(run)
     planes = np.zeros((run.report.n_planes, 3), dtype=np.float64)
     world = scene_planes(run)
     for plane, equation in world.items():

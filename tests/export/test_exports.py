@@ -156,6 +156,7 @@ def test_frame_planes_without_poses(run, tmp_path):
     assert "d > 0" in entry["convention"]
     with pytest.raises(InputError, match="give the camera trajectory with --poses"):
         export_run(run / "flat", "planercnn", tmp_path / "p")
+    assert not (tmp_path / "p").exists()  # refused before the folder is made
     # A trajectory given to the export puts them in the world frame.
     result = export_run(run / "flat", "planercnn", tmp_path / "p", poses=run / "sequence" / "groundtruth.txt")
     assert result.posed == 6
@@ -258,3 +259,33 @@ def test_export_folder_contract(run, tmp_path):
     assert said.output.splitlines()[0] == "removed 6 files of an earlier export (frames/" + sorted(
         p.name for p in (run / "run" / "masks").iterdir())[0].replace(".png", ".json") + ", ...)"
     assert not (out / "frames").exists() and len(list((out / "labels").iterdir())) == 6
+
+
+def test_a_failed_export_leaves_the_folder_as_it_was(run, tmp_path, monkeypatch):
+    # Refused before anything is written: an earlier export in the folder stays whole and complete.
+    earlier = tmp_path / "earlier"
+    export_run(run / "flat", "evops", earlier)
+    before = {p: p.read_bytes() for p in earlier.rglob("*") if p.is_file()}
+    with pytest.raises(InputError, match="give the camera trajectory"):
+        export_run(run / "flat", "planercnn", earlier)
+    assert {p: p.read_bytes() for p in earlier.rglob("*") if p.is_file()} == before
+    # A failure half-way (the disk fills at the third frame) into a new folder and into an empty
+    # one: nothing of the export is left, and the empty folder stays.
+    import annotate_rgbd.export.evops as evops
+    real_write, calls = evops.write_bytes_atomic, []
+
+    def fills_up(path, data):
+        calls.append(path)
+        if len(calls) == 3:
+            raise OSError(28, "No space left on device")
+        real_write(path, data)
+
+    monkeypatch.setattr(evops, "write_bytes_atomic", fills_up)
+    for out, existed in ((tmp_path / "new", False), (tmp_path / "empty", True)):
+        if existed:
+            out.mkdir()
+        calls.clear()
+        with pytest.raises(OSError, match="No space left"):
+            export_run(run / "run", "evops", out)
+        assert len(calls) == 3
+        assert out.exists() == existed and (not existed or not any(out.iterdir()))
