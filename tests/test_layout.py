@@ -6,7 +6,7 @@
   ``importlib.import_module("annotate_rgbd.x")`` (written out or held in a module constant);
 - the stages are layers: the geometry and the per-frame stage never import the run machinery,
   the CVAT reader or the report (:data:`FORBIDDEN`);
-- only the command line (``cli.py``, ``__main__.py``) imports typer, and no module imports ``cli``;
+- only the command line (``cli/``, ``__main__.py``) imports typer, and no other module imports ``cli``;
 - at most :data:`MAX_TOP_MODULES` modules directly in ``annotate_rgbd/``; none longer than 600 lines;
 - only the CVAT reader and writer see XML;
 - every third-party import is a runtime dependency of pyproject.toml (or the optional viewer).
@@ -255,9 +255,10 @@ def test_command_line_is_the_top_layer():
     modules = set(module_names())
     for name in sorted(modules):
         internal, external = imported_modules(name, modules)
-        if name not in COMMAND_LINE:
-            assert "typer" not in external, f"{name} imports typer: only cli.py parses options"
-            assert "cli" not in internal, f"{name} imports cli: cli calls the library, never the reverse"
+        if name.split(".")[0] not in COMMAND_LINE:
+            assert "typer" not in external, f"{name} imports typer: only cli/ parses options"
+            assert not any(m.split(".")[0] == "cli" for m in internal), \
+                f"{name} imports cli: cli calls the library, never the reverse"
 
 
 def test_few_modules_at_the_top():
@@ -292,18 +293,30 @@ IMPORT_NAMES = {"opencv-python-headless": "cv2", "scikit-image": "skimage"}
 OPTIONAL_IMPORTS = {"rerun"}
 
 
-def runtime_imports() -> set[str]:
-    """The top-level names of pyproject.toml's runtime dependencies, as the package imports them."""
-    import re
-
+def pyproject() -> dict:
     try:
         import tomllib
     except ModuleNotFoundError:  # Python 3.10: the tomli backport (a runtime dependency there)
         import tomli as tomllib
 
-    project = tomllib.loads((PACKAGE.parent / "pyproject.toml").read_text(encoding="utf-8"))["project"]
+    return tomllib.loads((PACKAGE.parent / "pyproject.toml").read_text(encoding="utf-8"))
+
+
+def runtime_imports() -> set[str]:
+    """The top-level names of pyproject.toml's runtime dependencies, as the package imports them."""
+    import re
+
+    project = pyproject()["project"]
     names = {re.split(r"[<>=!~;\[ ]", requirement, maxsplit=1)[0].strip() for requirement in project["dependencies"]}
     return {IMPORT_NAMES.get(name, name.replace("-", "_")) for name in names}
+
+
+def test_every_package_folder_is_installed():
+    # pyproject.toml lists the packages a wheel (a non-editable install) holds: a folder missing
+    # there imports in the editable checkout and fails in every installed copy.
+    listed = set(pyproject()["tool"]["setuptools"]["packages"])
+    folders = {".".join((PACKAGE_NAME, *path.parent.relative_to(PACKAGE).parts)) for path in PACKAGE.rglob("__init__.py")}
+    assert folders - listed == set(), f"package folders missing from pyproject.toml's packages: {sorted(folders - listed)}"
 
 
 def test_every_third_party_import_is_a_declared_dependency():

@@ -27,7 +27,7 @@ from typing import Sequence
 
 import numpy as np
 
-from annotate_rgbd.config.settings import MatchConfig
+from annotate_rgbd.config.annotation import MatchConfig
 from annotate_rgbd.errors import InputError
 from annotate_rgbd.io.limits import MAX_PLANES
 from .model import PLANE_ID, Track

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from annotate_rgbd.annotation.model import Annotation
-from annotate_rgbd.config.settings import MatchConfig
+from annotate_rgbd.config.annotation import MatchConfig
 from annotate_rgbd.errors import InputError
 from annotate_rgbd.annotation.parts import frame_owners, place_parts
 from annotate_rgbd.io.sequence import FrameList

@@ -2,18 +2,13 @@
 
 from __future__ import annotations
 
-import logging
-import os
-import signal
-import sys
-import threading
-from contextlib import contextmanager
 from pathlib import Path
-from typing import Iterator, List, Optional
+from typing import List, Optional
 
 import typer
 
 from annotate_rgbd import __version__
+from .console import output_folder, user_errors
 from annotate_rgbd.errors import InputError
 from annotate_rgbd.logs import counted
 from annotate_rgbd.pool import STALL_TIMEOUT
@@ -28,74 +23,6 @@ app = typer.Typer(
     # '<list[Path]>'. Every parameter that takes a value names it with a metavar below.
     rich_markup_mode=None,
 )
-
-
-class _LowerCaseLevel(logging.Formatter):
-    """``warning: ...``, ``info: ...``: the level in lower case, like the ``error:`` lines."""
-
-    def format(self, record: logging.LogRecord) -> str:
-        return f"{record.levelname.lower()}: {record.getMessage()}"
-
-
-@contextmanager
-def user_errors() -> Iterator[None]:
-    """Turn input and file-system problems into one ``error:`` line and exit status 1.
-
-    An interrupt (Ctrl-C, SIGINT) exits with status 130 and SIGTERM with 143, after the
-    ``finally`` clauses have removed temporary files: finished outputs stay, a re-run goes on.
-    """
-    handler = logging.StreamHandler(sys.stderr)
-    handler.setFormatter(_LowerCaseLevel())
-    logger = logging.getLogger("annotate_rgbd")
-    logger.addHandler(handler)
-    logger.setLevel(logging.INFO)
-    received: list[int] = []
-
-    def interrupt(signum, frame):
-        # SIGTERM unwinds like Ctrl-C, so that no temporary file is left behind.
-        received.append(signum)
-        raise KeyboardInterrupt("SIGTERM") if signum == signal.SIGTERM else KeyboardInterrupt
-
-    in_main_thread = threading.current_thread() is threading.main_thread()
-    previous = {s: signal.signal(s, interrupt) for s in (signal.SIGINT, signal.SIGTERM)} if in_main_thread else {}
-    try:
-        yield
-    except InputError as exc:
-        typer.echo(f"error: {exc}", err=True)
-        raise typer.Exit(1) from None
-    except OSError as exc:  # a file system problem outside the writers (e.g. the journal)
-        where = f"{exc.filename}: " if exc.filename else ""
-        typer.echo(f"error: {where}{exc.strerror or exc}", err=True)
-        raise typer.Exit(1) from None
-    except (KeyboardInterrupt, ImportError) as exc:
-        if isinstance(exc, ImportError) and not received:
-            raise
-        terminated = received[-1] == signal.SIGTERM if received else exc.args == ("SIGTERM",)
-        typer.echo(
-            f"error: {'terminated' if terminated else 'interrupted'}; finished files are complete, "
-            "nothing partial was left; run the same command again to continue",
-            err=True,
-        )
-        status = 143 if terminated else 130
-        if isinstance(exc, ImportError):
-            # Interrupted while a compiled module initialised (the interrupt surfaces as this
-            # error): its half-made state can print at a normal exit, so leave at once.
-            sys.stdout.flush()
-            sys.stderr.flush()
-            os._exit(status)
-        raise typer.Exit(status) from None
-    finally:
-        for signum, handler_before in previous.items():
-            signal.signal(signum, signal.SIG_DFL if handler_before is None else handler_before)
-        logger.removeHandler(handler)
-
-
-def output_folder(out: str) -> Path:
-    """``--out`` as a path; an empty one is refused (``Path("")`` is the working directory,
-    which the user did not name)."""
-    if not out.strip():
-        raise InputError(None, "--out is empty: name the output folder")
-    return Path(out)
 
 
 def _load_config(sequence_dir: Path, config: Optional[str], overrides: dict):
