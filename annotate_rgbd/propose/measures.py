@@ -108,6 +108,8 @@ def surface_areas(windows: list, planes: np.ndarray, camera: Camera) -> np.ndarr
         # |n . r| on the window's rows and columns, then at its pixels in raster order.
         across = a * (np.arange(left, left + window.shape[1]) - camera.cx) / camera.fx
         down = b * (np.arange(top, top + window.shape[0]) - camera.cy) / camera.fy
-        facing = np.abs(across[None, :] + down[:, None] + c)[window]
-        areas[k] = d * d / abs(camera.fx * camera.fy) * np.sum(np.maximum(facing, 0.1) ** -3.0)
+        inverse = np.reciprocal(np.maximum(np.abs(across[None, :] + down[:, None] + c)[window], 0.1))
+        cubes = inverse * inverse
+        cubes *= inverse  # not ** -3.0: a general power is several times slower
+        areas[k] = d * d / abs(camera.fx * camera.fy) * np.sum(cubes)
     return areas
