@@ -5,7 +5,8 @@ books, keyboards and papers on desks, posters, frames, whiteboards and racks on 
 detector finds their tops as planes of their own, parallel to the plane they are on, inside its
 outline, within a few centimetres in front of it. A labeller annotating a room's planes does not
 draw them (the plane-instance ground truth of ScanNet-style benchmarks has them as clutter: the
-depth there is not the plane's), so they are not proposed (:func:`object_hosts`).
+depth there is not the plane's), so they are not proposed (:func:`object_hosts`); one inside
+the plane's own noise band is the plane itself and joins it (:func:`join_table`).
 """
 
 from __future__ import annotations
@@ -153,3 +154,55 @@ def shares_in_band(
         distance = np.abs(mine @ np.asarray(planes[q, :3], dtype=np.float32) + np.float32(planes[q, 3]))
         shares[p] = np.mean(distance <= noise.scaled(float(scales[q])).band(mine[:, 2])) if len(mine) else 0.0
     return shares
+
+
+def join_table(hosts: np.ndarray, part: np.ndarray) -> np.ndarray:
+    """The relabelling table (labels 0..K) that gives each plane ``part`` selects to its host,
+    following hosts that join their own host in turn.
+
+    Parameters
+    ----------
+    hosts : ndarray of int, shape (K,)
+        Host of each plane (0-based; -1: none).
+    part : ndarray of bool, shape (K,)
+        The planes that join their host.
+
+    Returns
+    -------
+    ndarray of intp, shape (K + 1,)
+    """
+    table = np.arange(len(hosts) + 1)
+    table[np.flatnonzero(part) + 1] = np.asarray(hosts)[part] + 1
+    for _ in range(len(hosts)):  # hosts are larger than their objects: no cycles
+        chained = table[table]
+        if (chained == table).all():
+            break
+        table = chained
+    return table
+
+
+def ends_on_object(hosts: np.ndarray, part: np.ndarray) -> np.ndarray:
+    """The planes of ``part`` whose chain of hosts ends on a plane that is itself an object and
+    does not join (so is dropped): they are objects too, not part of a plane.
+
+    Parameters
+    ----------
+    hosts : ndarray of int, shape (K,)
+        Host of each plane (0-based; -1: none).
+    part : ndarray of bool, shape (K,)
+        The planes that would join their host.
+
+    Returns
+    -------
+    ndarray of bool, shape (K,)
+    """
+    hosts, part = np.asarray(hosts), np.asarray(part, dtype=bool).copy()
+    ends_dropped = np.zeros(len(hosts), dtype=bool)
+    while part.any():
+        end = join_table(hosts, part)[1:] - 1
+        bad = part & (hosts[end] >= 0)
+        if not bad.any():
+            break
+        ends_dropped |= bad
+        part &= ~bad
+    return ends_dropped

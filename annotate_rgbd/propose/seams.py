@@ -4,7 +4,7 @@ A real depth sensor does not see a large flat surface as flat: Kinect-style sens
 a wall by a centimetre or more over a few metres (a systematic, spatially smooth error beyond the
 random noise). The detector, whose bands follow the random noise, then cuts one desk into a near
 and a far plane a few degrees apart, and fitting one plane to both leaves residuals far above the
-noise, so the merge of coplanar pieces (:func:`annotate_rgbd.propose.detect_job.merge_groups`)
+noise, so the merge of coplanar pieces (:func:`annotate_rgbd.propose.merge.merge_groups`)
 keeps them apart. Where two such pieces meet, though, the surface is continuous: the points
 along the seam lie on both planes within the noise band, while at a step (a book on the desk, a
 whiteboard on a wall) they lie off the other plane by the step, and at a crease (a wall corner,

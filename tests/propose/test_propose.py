@@ -15,7 +15,8 @@ from annotate_rgbd.cvat.from_masks import draw_order, piece_outlines
 from annotate_rgbd.geometry.noise import NoiseSettings
 from annotate_rgbd.geometry.planes import Moments
 from annotate_rgbd.propose import FrameProposal, link_proposals
-from annotate_rgbd.propose.detect_job import merge_groups, paint
+from annotate_rgbd.propose.detect_job import paint
+from annotate_rgbd.propose.merge import merge_groups
 from annotate_rgbd.propose.link import shifted_iou
 from annotate_rgbd.segment.rasterize import rasterize_frame, shape_mask
 

@@ -199,7 +199,7 @@ def test_a_strip_at_the_image_border_inside_the_walls_band_joins_the_wall():
 
 def test_object_hosts_and_their_band_shares():
     from annotate_rgbd.geometry.noise import ConstantNoise
-    from annotate_rgbd.propose.detect_job import ends_on_object, join_table
+    from annotate_rgbd.propose.objects import ends_on_object, join_table
     from annotate_rgbd.propose.objects import shares_in_band
 
     wall = [0.0, 0.0, -1.0, 2.0]
