@@ -46,7 +46,7 @@ def parse_settings(settings: Iterable[str]) -> dict[str, Any]:
 
 def parse_part_offsets(parts: Iterable[str]) -> dict[str, int]:
     """Read ``--part FILE:OFFSET`` texts (also a manifest's ``parts`` list), the command-line
-    form of a ``[[parts]]`` entry (:class:`~annotate_rgbd.config.settings.PartConfig`).
+    form of a ``[[parts]]`` entry (:class:`~annotate_rgbd.config.annotation.PartConfig`).
 
     Parameters
     ----------

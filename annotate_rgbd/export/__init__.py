@@ -13,8 +13,11 @@ ground truth in the layouts plane-segmentation codebases read (:func:`export_run
 Every export also writes ``export.json``: the format, the run, the trajectory, the conventions
 (frames, sign of the offset, units) and the files written. An export folder holds one export: a
 folder with files no export wrote is refused, and a re-export removes the files of the earlier
-export that it does not write again. An export that fails into a new or empty folder leaves it as
-it was; one that fails over an earlier export leaves ``export.json`` marked incomplete.
+export that it does not write again. The files are written into a staging folder inside it and
+moved in at the end: an export that fails into a new or empty folder leaves it as it was (and
+removes the folders it made); one that fails over an earlier export before its first file is
+moved in leaves the earlier export whole, after that ``export.json`` is marked incomplete and names
+the files of both, which the next export into the folder replaces.
 """
 
 from __future__ import annotations
@@ -27,8 +30,8 @@ from pathlib import Path
 
 from annotate_rgbd import __version__
 from annotate_rgbd.errors import InputError, OutputError
-from annotate_rgbd.io.outdir import check_not_link, read_bounded, reading
-from annotate_rgbd.io.writer import prepare_output, write_json
+from annotate_rgbd.io.outdir import OutputLock, check_not_link, read_bounded, reading
+from annotate_rgbd.io.writer import prepare_output, write_bytes_atomic, write_json
 from .coco import write_coco
 from .evops import write_evops
 from .frames import ExportRun, read_run
@@ -39,6 +42,9 @@ FORMATS = {"planercnn": write_planercnn, "planes": write_frame_planes, "evops": 
 #: Folders the formats write into, inside the export folder.
 SUBFOLDERS = ("segmentation", "frames", "labels")
 RECORD = "export.json"
+#: Where the format writes before its files are moved into the export folder: a failed export
+#: removes this folder, never a file it did not write.
+STAGING = ".export-in-progress"
 #: What a format checks of the run before the export folder is touched.
 CHECKS = {"planercnn": check_planercnn}
 #: What each format's files mean, stated in ``export.json``.
@@ -113,31 +119,65 @@ def export_run(run_dir: str | Path, fmt: str, out: str | Path, poses: str | Path
 def _export(run: ExportRun, fmt: str, out: Path) -> ExportResult:
     if out.resolve() == run.run_dir.resolve():
         raise OutputError(out, "is the run's folder: export into a folder of its own")
-    previous = _previous_files(out)
+    _previous_files(out)  # a folder of other files is refused before anything is made
     if fmt in CHECKS:
         CHECKS[fmt](run)
-    created, empty = not out.exists(), not out.is_dir() or not any(out.iterdir())
+    made = [folder for folder in (out, *out.parents) if not folder.exists()]  # deepest first
     prepare_output(out)
-    for name in SUBFOLDERS + (RECORD,):
+    with OutputLock(out, owner_file=False):  # one export at a time; what it found stays so
+        return _write(run, fmt, out, _previous_files(out), made, not any(out.iterdir()))
+
+
+def _write(run: ExportRun, fmt: str, out: Path, previous: set[str], made: list[Path], fresh: bool) -> ExportResult:
+    for name in SUBFOLDERS + (RECORD, STAGING):
         check_not_link(out / name)
+    earlier = None if fresh else (out / RECORD).read_bytes()
     record = {"tool": {"name": "annotate-rgbd", "version": __version__}, "format": fmt, "complete": False,
               "files": sorted(previous)}
+    staging, placed = out / STAGING, []
     try:
         write_json(out / RECORD, record)  # an interrupted export's folder is still recognised as one
-        files = FORMATS[fmt](run, out)
+        shutil.rmtree(staging, ignore_errors=True)  # left by an export that was killed
+        staging.mkdir()
+        names = sorted(str(path.relative_to(staging)) for path in FORMATS[fmt](run, staging))
+        # From the first file moved in, the folder may hold files of both exports: the record
+        # names them all, so that the next export removes what this one leaves.
+        write_json(out / RECORD, {**record, "files": sorted(previous | set(names))})
+        for name in names:
+            (out / name).parent.mkdir(exist_ok=True)
+            os.replace(staging / name, out / name)
+            placed.append(name)
+        shutil.rmtree(staging)
+        removed = _remove(out, previous - set(names))
+        record.update(
+            complete=True, run=str(run.run_dir.resolve()), trajectory=run.trajectory,
+            conventions={"files": DESCRIPTIONS[fmt], "plane_equation": EQUATION_CONVENTION},
+            frames=len(run.frames), frames_with_pose=sum(f.pose is not None for f in run.frames), files=names,
+        )
+        write_json(out / RECORD, record)
     except BaseException:
-        if empty:  # everything in the folder is this export's
-            _clear(out, remove_folder=created)
+        shutil.rmtree(staging, ignore_errors=True)
+        if fresh:
+            _undo(out, placed, made)
+        elif not placed and earlier is not None:
+            write_bytes_atomic(out / RECORD, earlier)  # the earlier export is whole: its record stays
         raise
-    names = {str(path.relative_to(out)) for path in files}
-    removed = _remove(out, previous - names)
-    record.update(
-        complete=True, run=str(run.run_dir.resolve()), trajectory=run.trajectory,
-        conventions={"files": DESCRIPTIONS[fmt], "plane_equation": EQUATION_CONVENTION},
-        frames=len(run.frames), frames_with_pose=sum(f.pose is not None for f in run.frames), files=sorted(names),
-    )
-    write_json(out / RECORD, record)
+    files = [out / name for name in names]
     return ExportResult(files + [out / RECORD], len(run.frames), record["frames_with_pose"], removed)
+
+
+def _undo(out: Path, placed: list[str], made: list[Path]) -> None:
+    """Remove what a failed export wrote into a folder that was new or empty: its record, the
+    files it moved in and the folders they emptied, and the folders it made (``out`` and the
+    parents), when nothing else is in them."""
+    for name in [RECORD, *placed]:
+        (out / name).unlink(missing_ok=True)
+    folders = {out / parent for name in placed for parent in Path(name).parents if parent != Path(".")}
+    for folder in [*sorted(folders, key=lambda f: -len(f.parts)), *made]:
+        try:
+            folder.rmdir()  # only when empty
+        except OSError:
+            pass
 
 
 def _previous_files(out: Path) -> set[str]:
@@ -158,21 +198,6 @@ def _previous_files(out: Path) -> set[str]:
     except (OSError, ValueError, KeyError, TypeError, AttributeError):
         raise OutputError(out, f"holds files that no export wrote (no {RECORD}): export into an empty folder") from None
     return {f for f in files if _inside(f)}
-
-
-def _clear(out: Path, remove_folder: bool) -> None:
-    """Remove what a failed export wrote into a folder that was empty (and the folder when the
-    export created it)."""
-    for path in out.iterdir():
-        if path.is_dir() and not path.is_symlink():
-            shutil.rmtree(path, ignore_errors=True)
-        else:
-            path.unlink(missing_ok=True)
-    if remove_folder:
-        try:
-            out.rmdir()
-        except OSError:
-            pass
 
 
 def _inside(name: str) -> bool:

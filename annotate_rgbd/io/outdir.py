@@ -112,10 +112,14 @@ class OutputLock:
     ----------
     folder : Path
         An existing output folder.
+    owner_file : bool
+        Also write the process id into the folder (:data:`OWNER`), for the message of a second
+        run; an export folder, which holds only what an export wrote, goes without.
     """
 
-    def __init__(self, folder: Path):
+    def __init__(self, folder: Path, owner_file: bool = True):
         self.folder = Path(folder)
+        self.owner_file = owner_file
         self._fd: int | None = None
 
     def acquire(self) -> None:
@@ -137,6 +141,8 @@ class OutputLock:
                 "wait for it to end or choose another --out",
             ) from None
         self._fd = fd
+        if not self.owner_file:
+            return
         try:
             check_not_link(self.folder / OWNER)
             (self.folder / OWNER).write_text(f"{os.getpid()}\n", encoding="ascii")
@@ -148,7 +154,7 @@ class OutputLock:
         if self._fd is None:
             return
         try:
-            if _owner(self.folder) == str(os.getpid()):
+            if self.owner_file and _owner(self.folder) == str(os.getpid()):
                 (self.folder / OWNER).unlink(missing_ok=True)
         except OSError:
             pass

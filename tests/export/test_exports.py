@@ -261,18 +261,21 @@ def test_export_folder_contract(run, tmp_path):
     assert not (out / "frames").exists() and len(list((out / "labels").iterdir())) == 6
 
 
-def test_a_failed_export_leaves_the_folder_as_it_was(run, tmp_path, monkeypatch):
-    # Refused before anything is written: an earlier export in the folder stays whole and complete.
+def files_of(folder: Path) -> dict:
+    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def test_a_refused_or_failed_export_leaves_an_earlier_one_whole(run, tmp_path, monkeypatch):
     earlier = tmp_path / "earlier"
     export_run(run / "flat", "evops", earlier)
-    before = {p: p.read_bytes() for p in earlier.rglob("*") if p.is_file()}
+    before = files_of(earlier)
+    # Refused before anything is written (no pose for the world-frame layout).
     with pytest.raises(InputError, match="give the camera trajectory"):
         export_run(run / "flat", "planercnn", earlier)
-    assert {p: p.read_bytes() for p in earlier.rglob("*") if p.is_file()} == before
-    # A failure half-way (the disk fills at the third frame) into a new folder and into an empty
-    # one: nothing of the export is left, and the empty folder stays.
-    import annotate_rgbd.export.evops as evops
-    real_write, calls = evops.write_bytes_atomic, []
+    assert files_of(earlier) == before
+    # Failed while writing (the disk fills at the third frame): nothing was moved in yet.
+    import annotate_rgbd.export.planes as planes
+    real_write, calls = planes.write_json, []
 
     def fills_up(path, data):
         calls.append(path)
@@ -280,12 +283,94 @@ def test_a_failed_export_leaves_the_folder_as_it_was(run, tmp_path, monkeypatch)
             raise OSError(28, "No space left on device")
         real_write(path, data)
 
+    monkeypatch.setattr(planes, "write_json", fills_up)
+    with pytest.raises(OSError, match="No space left"):
+        export_run(run / "flat", "planes", earlier)
+    assert len(calls) == 3 and files_of(earlier) == before
+
+
+def test_an_export_that_fails_while_moving_in_names_every_file_it_left(run, tmp_path, monkeypatch):
+    # Over an earlier export of another format, the move of the third file fails: the folder holds
+    # files of both, its record says incomplete and names them all, and the next export (a third
+    # format) removes every one of them.
+    import annotate_rgbd.export as export
+    out = tmp_path / "out"
+    export_run(run / "flat", "evops", out)
+    real_replace, calls = export.os.replace, []
+
+    def fails_third(source, target):  # os.replace: the atomic writes' renames too, passed on
+        if export.STAGING not in str(source) or export.STAGING in str(target):
+            return real_replace(source, target)
+        calls.append(target)
+        if len(calls) == 3:
+            raise OSError(5, "Input/output error")
+        real_replace(source, target)
+
+    monkeypatch.setattr(export.os, "replace", fails_third)
+    with pytest.raises(OSError, match="Input/output error"):
+        export_run(run / "flat", "planes", out)
+    monkeypatch.undo()
+    record = json.loads((out / "export.json").read_text())
+    left = sorted(str(p.relative_to(out)) for p in out.rglob("*") if p.is_file() and p.name != "export.json")
+    assert not record["complete"] and len([n for n in left if n.startswith("frames/")]) == 2
+    assert set(left) <= set(record["files"]) and not (out / export.STAGING).exists()
+    export_run(run / "flat", "coco", out)
+    assert sorted(files_of(out)) == ["annotations.json", "export.json"]
+
+
+def test_a_failed_export_removes_only_what_it_wrote(run, tmp_path, monkeypatch):
+    # Into a new folder (with new parents) and into an empty one: the disk fills at the third
+    # frame, a file lands in the folder meanwhile (a user's, a sync tool's). Only the export's
+    # own files and the folders it made go: the user's file stays, with its folder.
+    import annotate_rgbd.export.evops as evops
+    real_write, calls = evops.write_bytes_atomic, []
+
+    def fills_up(path, data):
+        calls.append(path)
+        if len(calls) == 3:
+            if dropped is not None:
+                dropped.write_text("mine")
+            raise OSError(28, "No space left on device")
+        real_write(path, data)
+
     monkeypatch.setattr(evops, "write_bytes_atomic", fills_up)
-    for out, existed in ((tmp_path / "new", False), (tmp_path / "empty", True)):
-        if existed:
+    for out, dropped in ((tmp_path / "a" / "b" / "new", None), (tmp_path / "empty", None),
+                         (tmp_path / "busy", tmp_path / "busy" / "notes.txt")):
+        if out.name != "new":
             out.mkdir()
         calls.clear()
         with pytest.raises(OSError, match="No space left"):
             export_run(run / "run", "evops", out)
         assert len(calls) == 3
-        assert out.exists() == existed and (not existed or not any(out.iterdir()))
+        if out.name == "new":
+            assert not (tmp_path / "a").exists()  # the parents it made go too
+        else:
+            assert files_of(out) == ({} if dropped is None else {"notes.txt": b"mine"})
+            assert [p.name for p in out.iterdir()] == ([] if dropped is None else ["notes.txt"])
+    # A failure after the last file is in place (the final record cannot be written) also
+    # leaves a new folder as it was.
+    monkeypatch.undo()
+    import annotate_rgbd.export as export
+    real_json = export.write_json
+
+    def record_fails(path, data):
+        if data.get("complete"):
+            raise OSError(28, "No space left on device")
+        real_json(path, data)
+
+    monkeypatch.setattr(export, "write_json", record_fails)
+    with pytest.raises(OSError, match="No space left"):
+        export_run(run / "run", "evops", tmp_path / "late")
+    assert not (tmp_path / "late").exists()
+
+
+def test_one_export_at_a_time_into_a_folder(run, tmp_path):
+    from annotate_rgbd.io.outdir import OutputLock
+
+    out = tmp_path / "shared"
+    export_run(run / "flat", "evops", out)
+    before = files_of(out)
+    with OutputLock(out, owner_file=False):  # another export is writing there
+        with pytest.raises(OutputError, match="is writing to this folder"):
+            export_run(run / "flat", "planes", out)
+    assert files_of(out) == before

@@ -74,7 +74,7 @@ def test_surface_areas_sum_every_pixel_of_each_outline():
     rows, cols = np.nonzero(window)
     a, b, c, d = planes[0]
     facing = np.abs(a * (cols + left - CAMERA.cx) / CAMERA.fx + b * (rows + top - CAMERA.cy) / CAMERA.fy + c)
-    assert areas[0] == d * d / (CAMERA.fx * CAMERA.fy) * np.sum(np.maximum(facing, 0.1) ** -3.0)
+    assert areas[0] == pytest.approx(d * d / (CAMERA.fx * CAMERA.fy) * np.sum(np.maximum(facing, 0.1) ** -3.0), rel=1e-12)
     assert areas[1] == pytest.approx(600 * 4.0 / (CAMERA.fx * CAMERA.fy), rel=1e-3)  # near the centre: r nearly (0, 0, 1)
     assert areas[2] == 0
 
