@@ -178,9 +178,19 @@ def _read_image(element: etree._Element, context: ReadContext) -> RawImage:
         if keyframe is None:
             continue
         group = int_attr(child, "group_id", path, default=0)
-        identity = ("group", group, label) if group else ("label", label)
+        plane = _plane_id_of(child)
+        identity = ("plane", plane) if plane else ("group", group, label) if group else ("label", label)
         image.shapes.append((identity, label, keyframe))
     return image
+
+
+def _plane_id_of(element: etree._Element) -> str | None:
+    """A shape's :data:`~annotate_rgbd.annotation.model.PLANE_ID` attribute text (CVAT writes a
+    track's attributes into each of its shapes, also in an images export), None without one."""
+    for child in element:
+        if child.tag == "attribute" and child.get("name") == PLANE_ID:
+            return (child.text or "").strip() or None
+    return None
 
 
 def _read_shape(

@@ -5,7 +5,9 @@ frame (interpolated ones with ``keyframe="0"``); an API export holds keyframes o
 frames between them are filled as CVAT does (:mod:`annotate_rgbd.cvat.interpolate`). A shape with
 ``outside="1"`` hides the track until its next keyframe; the last visible shape persists to
 ``stop_frame``. Only task frames are filled. Masks are repeated, not interpolated. Images
-exports group the shapes of all images into tracks by identity (group id, else label).
+exports group the shapes of all images into tracks by identity: the ``plane_id`` attribute (which
+CVAT keeps on every shape of a track, also when it exports images), else the group id, else the
+label.
 """
 
 from __future__ import annotations
@@ -15,7 +17,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from annotate_rgbd.annotation.model import Annotation, Shape, Track
+from annotate_rgbd.annotation.model import PLANE_ID, Annotation, Shape, Track
 from annotate_rgbd.errors import InputError
 from annotate_rgbd.cvat.interpolate import (
     interpolate_angle,
@@ -229,6 +231,8 @@ def assemble_images(images: list[RawImage], meta: Meta, context: ReadContext) ->
             key = (identity, occurrences[identity])
             occurrences[identity] += 1
             track = tracks.setdefault(key, Track(len(tracks), label))
+            if identity[0] == "plane":
+                track.attributes.setdefault(PLANE_ID, identity[1])
             track.shapes[image.frame] = _to_shape(keyframe)
         repeated += any(count > 1 for count in occurrences.values())
     if repeated:

@@ -77,9 +77,10 @@ def write_cvat_video(
 def write_cvat_images(annotation: Annotation, path: str | Path, *, width: int, height: int) -> None:
     """Write a "CVAT for images 1.1" task export, one ``<image>`` per frame.
 
-    Each track's shapes carry ``group_id = position of the track + 1``, the identity
-    :func:`read_cvat` uses, so reading the file back gives the same tracks (numbered in order
-    of first appearance).
+    Each track's shapes carry ``group_id = position of the track + 1`` and the track's
+    attributes, as CVAT exports a track's shapes: the identity :func:`read_cvat` uses (the
+    ``plane_id`` attribute, else the group id), so reading the file back gives the same tracks
+    (numbered in order of first appearance).
 
     Parameters
     ----------
@@ -111,7 +112,9 @@ def write_cvat_images(annotation: Annotation, path: str | Path, *, width: int, h
                     attributes.update(_geometry_attributes(shape))
                     attributes["z_order"] = str(shape.z_order)
                     attributes["group_id"] = str(group)
-                    etree.SubElement(image, _xml_kind(shape), attributes)
+                    element = etree.SubElement(image, _xml_kind(shape), attributes)
+                    for name, value in track.attributes.items():  # as CVAT exports a track's shapes
+                        etree.SubElement(element, "attribute", name=name).text = value
             xml.write(image, pretty_print=True)
 
 

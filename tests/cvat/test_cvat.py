@@ -396,6 +396,28 @@ def test_images_identity_is_group_then_label(tmp_path):
     assert annotation.notes == []
 
 
+def plane_polygon(label, plane_id, points=TRIANGLE) -> str:
+    """A shape of an images export made from a video task: the track's plane_id on the shape."""
+    return (f'<polygon label="{label}" source="manual" occluded="0" points="{points}">'
+            f'<attribute name="plane_id">{plane_id}</attribute></polygon>')
+
+
+def test_images_identity_is_the_plane_id_first(tmp_path):
+    # CVAT's images export of a video task keeps each track's plane_id on its shapes and no
+    # group: two planes of one label, in another order on each image, stay two tracks, and keep
+    # their ids (a shape without one groups by label as before).
+    body = (
+        image(0, plane_polygon("plane", 6), plane_polygon("plane", 2), image_polygon("plane"))
+        + image(1, plane_polygon("plane", 2), plane_polygon("plane", 6, points="20,20;30,20;25,28"))
+        + image(2, image_polygon("plane"), plane_polygon("plane", 6))
+    )
+    annotation = read_cvat(export(tmp_path, body, meta=task_meta(stop=2, size=None)))
+    summary = [(t.attributes.get("plane_id"), sorted(t.shapes)) for t in annotation.tracks]
+    assert summary == [("6", [0, 1, 2]), ("2", [0, 1]), (None, [0, 2])]
+    assert annotation.tracks[0].shapes[1].points.tolist() == [[20, 20], [30, 20], [25, 28]]
+    assert annotation.notes == []
+
+
 def test_images_two_shapes_of_one_identity_stay_apart(tmp_path):
     body = image(0, image_polygon("wall"), image_polygon("wall", points="20,20;30,20;25,28"))
     body += image(1, image_polygon("wall"))
