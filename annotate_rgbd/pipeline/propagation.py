@@ -20,7 +20,7 @@ import numpy as np
 
 from annotate_rgbd.config.settings import Config
 from annotate_rgbd.annotation.parts import Part
-from annotate_rgbd.io.poses import FramePoses, Trajectory, load_trajectory, missing_poses_text, poses_at
+from annotate_rgbd.io.poses import FramePoses, Trajectory, load_trajectory, missing_poses_text, poses_at, poses_of_frames
 from annotate_rgbd.propagate.keyframes import fit_keyframes, time_samples
 from annotate_rgbd.propagate.lift import TrackLift, lift_tracks
 from annotate_rgbd.propagate.timing import TimeOffset, estimate_time_offset
@@ -93,6 +93,10 @@ def plan_propagation(
         log.info(note)
     trajectory = loaded.trajectory
     gap = config.sequence.max_pose_gap
+    # One that gives no depth frame a pose is another recording's (or in another time unit):
+    # refused, with the two time ranges, as propose and export refuse it.
+    poses_of_frames(trajectory, path, np.asarray(sequence.depth.timestamps, dtype=np.float64)
+                    + config.propagate.time_offset, gap, sequence.clock, "depth frame")
     plane_of = {(t.part, t.track): t.plane for t in tracks}
     wanted = [
         (p.name, p.annotation.tracks, [plane_of[(p.name, t.track_id)] for t in p.annotation.tracks], p.rgb_of_frame)

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from annotate_rgbd.errors import InputError
 from annotate_rgbd.geometry.camera import Camera
 from annotate_rgbd.cli import app
 from annotate_rgbd.config.settings import PropagateConfig, load_config
@@ -136,6 +137,18 @@ def test_frames_without_a_pose_keep_the_2d_shapes(rendered, tmp_path):
     late = [f for f in report["frames"] if f["pose"] != "ok" and f["status"] == "written"]
     assert late and all(not p["propagated"] for f in late for p in f["kept"])
     assert any("depth frames have no pose; their shapes are interpolated in 2-D" in w for w in run.warnings)
+
+
+def test_a_trajectory_that_gives_no_frame_a_pose_is_refused(rendered, tmp_path):
+    # Another recording's (every timestamp 1000 s later): one line with the two time ranges,
+    # before any work, and no output folder (propose and export refuse it the same way).
+    rows = [line.split() for line in rendered["poses"].read_text().splitlines() if line and not line.startswith("#")]
+    later = tmp_path / "later.txt"
+    later.write_text("".join(f"{float(r[0]) + 1000:.6f} {' '.join(r[1:])}\n" for r in rows))
+    with pytest.raises(InputError, match=r"later.txt: no depth frame has a pose: the trajectory spans .* a clock offset"):
+        run_cvat2mask(rendered["sequence"], [rendered["keyframes"]], tmp_path / "out", load_config(rendered["config"]),
+                      poses=later)
+    assert not (tmp_path / "out").exists()
 
 
 def test_a_keyframe_drawn_over_another_surface_is_listed_and_lifted_onto_the_agreed_plane(rendered, tmp_path):
