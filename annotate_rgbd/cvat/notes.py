@@ -12,6 +12,11 @@ from pathlib import Path
 from .format import IGNORED_KINDS
 
 
+#: How the line of skipped shapes begins (:meth:`Notes.lines`): a shape the labeller drew that
+#: makes no mask is a warning of the run, not a note.
+SKIPPED = "skipped "
+
+
 class Notes:
     """Notes in order of first occurrence; skipped shapes are counted per reason."""
 
@@ -37,7 +42,7 @@ class Notes:
                 lines.append(f"{text}: {count} (first at {where})")
             else:
                 noun = "shape" if count == 1 else "shapes"
-                lines.append(f"skipped {count} {noun}: {text} (first at {where})")
+                lines.append(f"{SKIPPED}{count} {noun}: {text} (first at {where})")
         return lines
 
 

@@ -22,6 +22,7 @@ import numpy as np
 from annotate_rgbd.annotation.model import Annotation
 from annotate_rgbd.config.settings import Config
 from annotate_rgbd.cvat import read_cvat
+from annotate_rgbd.cvat.notes import SKIPPED
 from annotate_rgbd.errors import InputError
 from .frame_job import OVERLAY_DIR, FrameJob, check_size
 from annotate_rgbd.geometry.depth_range import depth_scale_hint, median_raw_depth
@@ -171,8 +172,9 @@ def plan_run(
             f"no shape has the label{'s' if len(labels) > 1 else ''} {', '.join(map(repr, labels))} "
             f"(--label / [annotation] labels): nothing to mask; the exports' labels: {', '.join(known) or 'none'}",
         )
-    notes = [f"{Path(a.path).name}: {note}" for a in annotations for note in a.notes]
+    notes = [f"{Path(a.path).name}: {note}" for a in annotations for note in a.notes if not note.startswith(SKIPPED)]
     warnings: list[str] = []
+    _warn(warnings, [f"{Path(a.path)}: {note}" for a in annotations for note in a.notes if note.startswith(SKIPPED)])
 
     all_offsets = {p.file: p.offset for p in config.parts}
     all_offsets.update(offsets or {})
