@@ -126,6 +126,8 @@ def place_parts(
         if missing and len(annotations) > 1 and source != "image names":
             raise InputError(annotation.path, f"part does not fit in the sequence: {missing[0]} (check its offset)")
         warnings.extend(f"{annotation.path}: {line}; skipped" for line in missing)
+        if source == "single export" and mapping:
+            warnings.extend(_partial_cover(annotation, name, mapping, len(rgb.timestamps)))
         parts.append(Part(name, annotation, mapping, offset, source))
     parts.sort(key=lambda p: (p.first, p.last))
     for earlier, later in zip(parts, parts[1:]):
@@ -152,6 +154,16 @@ def frame_owners(parts: Sequence[Part]) -> dict[int, int]:
             if owner == index:
                 owners[rgb] = index
     return owners
+
+
+def _partial_cover(annotation: Annotation, name: str, mapping: Mapping[int, int], total: int) -> list[str]:
+    """A warning when one export placed at frame 0 spans only part of the RGB frames: the rest get
+    no mask, and an export of another (shorter) sequence, or a job of a longer one, looks so."""
+    first, last = min(mapping.values()), max(mapping.values())
+    if last - first + 1 >= total:
+        return []
+    return [f"{annotation.path}: its frames are RGB frames {first}-{last} of the sequence's {total}: the others get "
+            f"no mask (an export of another sequence? a part of this one: give its offset, --part {name}:OFFSET)"]
 
 
 def _offset(annotation: Annotation, name: str, explicit: Mapping[str, int], several: bool) -> tuple[int, str]:

@@ -113,8 +113,13 @@ def test_parts_are_placed_by_file_name_explicit_offset_and_ordered():
 
 
 def test_a_single_export_needs_no_offset():
-    parts, _ = place_parts([video("annotations.xml", 10)], RGB, {})
-    assert parts[0].first == 0 and parts[0].offset_source == "single export"
+    parts, warnings = place_parts([video("annotations.xml", 100, step=3)], RGB, {})
+    assert parts[0].first == 0 and parts[0].offset_source == "single export" and warnings == []
+    # One that spans a tenth of the frames (another, shorter sequence's, or a job): said.
+    parts, warnings = place_parts([video("annotations.xml", 10)], RGB, {})
+    assert parts[0].first == 0 and warnings == [
+        "/x/annotations.xml: its frames are RGB frames 0-9 of the sequence's 100: the others get no mask (an export "
+        "of another sequence? a part of this one: give its offset, --part annotations.xml:OFFSET)"]
 
 
 @pytest.mark.parametrize(

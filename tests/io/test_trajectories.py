@@ -338,11 +338,11 @@ def run(rendered, command: str, out: Path, poses: Path):
 def test_nanosecond_timestamps_are_diagnosed_by_cvat2mask_and_propose(rendered, tmp_path):
     poses = write_samples(tmp_path / "ns.txt", rendered["samples"], time=lambda t: t * 1e9)
     result = run(rendered, "cvat2mask", tmp_path / "out", poses)
-    assert result.exit_code == 0, result.output
-    line = next(line for line in result.output.splitlines() if "have no pose" in line)
-    assert line == (f"warning: {poses}: 12 depth frames have no pose; their shapes are interpolated in 2-D (the "
-                    "trajectory spans 1.7e+18 to 1.700000000376e+18 s (24 poses), the depth frames 1700000000.009 to "
-                    "1700000000.376 s: the trajectory's timestamps look like nanoseconds: divide them by 1e+09)")
+    assert result.exit_code == 1 and not (tmp_path / "out").exists()
+    assert result.output.strip().splitlines()[-1] == (
+        f"error: {poses}: no depth frame has a pose: the trajectory spans 1.7e+18 to 1.700000000376e+18 s (24 poses), "
+        "the depth frames 1700000000.009 to 1700000000.376 s: the trajectory's timestamps look like nanoseconds: "
+        "divide them by 1e+09")
     result = run(rendered, "propose", tmp_path / "proposals", poses)
     assert result.exit_code == 1
     assert result.output.strip().splitlines()[-1].startswith(f"error: {poses}: no processed depth frame has a pose: "
