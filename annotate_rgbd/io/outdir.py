@@ -207,10 +207,13 @@ class Cleanup:
         Files removed per output folder.
     foreign : list of str
         Files it left alone because annotate-rgbd did not write them (relative paths).
+    review : list of str
+        The earlier review page and contact sheet removed (:func:`remove_review_files`).
     """
 
     removed: dict[str, int] = field(default_factory=dict)
     foreign: list[str] = field(default_factory=list)
+    review: list[str] = field(default_factory=list)
 
     def removals(self) -> list[str]:
         """One line per folder files were removed from, in the user's words."""
@@ -218,8 +221,12 @@ class Cleanup:
                 RAW_MASKS: ("raw mask no longer asked for", "raw masks no longer asked for"),
                 OVERLAYS: ("overlay no longer asked for", "overlays no longer asked for"),
                 ID_MASKS: ("instance-id mask no longer asked for", "instance-id masks no longer asked for")}
-        return [f"removed {count} {what[folder][count != 1]} ({folder}/)" for folder, count in self.removed.items()
-                if count]
+        lines = [f"removed {count} {what[folder][count != 1]} ({folder}/)" for folder, count in self.removed.items()
+                 if count]
+        if self.review:
+            lines.append(f"removed {' and '.join(self.review)} of an earlier review (they showed the earlier output; "
+                         "run review again)")
+        return lines
 
     def warnings(self) -> list[str]:
         """A warning naming the files left alone, if any."""
@@ -282,21 +289,21 @@ def read_review_record(folder: Path) -> dict[str, str]:
     return {k: v for k, v in record.items() if isinstance(k, str) and isinstance(v, str)}
 
 
-def remove_review_files(folder: Path) -> list[str]:
+def remove_review_files(folder: Path, cleanup: Cleanup) -> None:
     """Remove the review page and contact sheet of an earlier run (they show its masks), if
-    ``review`` wrote them and they are unchanged since; returns the names left alone."""
+    ``review`` wrote them and they are unchanged since; ``cleanup`` gets the names removed
+    (``review``) and those left alone (``foreign``)."""
     recorded = read_review_record(folder)
-    foreign = []
     for name in ("review.html", "contact_sheet.png"):
         path = folder / name
         if not path.exists() or os.path.islink(path):
             continue
         if recorded.get(name) is not None and recorded[name] == file_digest(path):
             path.unlink(missing_ok=True)
+            cleanup.review.append(name)
         else:
-            foreign.append(name)
+            cleanup.foreign.append(name)
     (folder / REVIEW_RECORD).unlink(missing_ok=True)
-    return foreign
 
 
 @dataclass

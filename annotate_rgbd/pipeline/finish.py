@@ -43,7 +43,7 @@ def remove_stale_outputs(scene: SceneRun) -> set[str]:
     keep = {path for f in scene.frames if f.written for path, _ in f.result.outputs}
     keep |= {f.mask for f in scene.frames if f.written}  # records of earlier versions list no outputs
     cleanup = remove_stale_files(scene.out_dir, scene.previous.files, keep)
-    cleanup.foreign += remove_review_files(scene.out_dir)
+    remove_review_files(scene.out_dir, cleanup)
     for line in cleanup.removals():
         log.info(line)
     for line in cleanup.warnings():

@@ -289,7 +289,7 @@ def _run(sequence, folder: OutputFolder, config, poses_path, helpers, progress, 
     result.tracks = len(ordered)
     written = {f["mask"] for f in frames if f["status"] == "written"}
     cleanup = remove_stale_files(out_dir, ours | folder.expected, written)
-    cleanup.foreign += remove_review_files(out_dir)  # an earlier review shows the earlier proposals
+    remove_review_files(out_dir, cleanup)  # an earlier review shows the earlier proposals
     for line in cleanup.removals():
         log.info(line)
     for line in cleanup.warnings():

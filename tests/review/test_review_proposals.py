@@ -4,6 +4,7 @@ records, before they go to CVAT."""
 from __future__ import annotations
 
 import json
+import logging
 import shutil
 from pathlib import Path
 
@@ -116,15 +117,19 @@ def test_review_of_proposals_without_their_polygons_says_what_to_do(proposals, t
         review_run(out, page=False, sheet=False)
 
 
-def test_a_new_propose_run_removes_the_earlier_review(proposals, tmp_path):
+def test_a_new_propose_run_removes_the_earlier_review(proposals, tmp_path, caplog):
     out = tmp_path / "out"
     shutil.copytree(proposals, out)
     review_run(out, workers=1)
     assert (out / "review.html").exists() and any((out / "overlays").iterdir())
     config = load_config(SAMPLE_DATA / "camera.toml", {"propose.every": 4})
-    run_propose(SAMPLE_DATA / "sequence", out, config, workers=1)
+    with caplog.at_level(logging.INFO, logger="annotate_rgbd"):
+        run_propose(SAMPLE_DATA / "sequence", out, config, workers=1)
     assert not (out / "review.html").exists() and not (out / "contact_sheet.png").exists()
     assert not (out / "overlays").exists()
+    # Said, with the overlays: the user who looks for the page knows where it went.
+    assert ("removed review.html and contact_sheet.png of an earlier review (they showed the earlier output; "
+            "run review again)") in [r.getMessage() for r in caplog.records]
 
 
 def test_other_commands_still_refuse_a_propose_folder(proposals, tmp_path):
