@@ -129,10 +129,6 @@ def write_review(
     out_dir = folder.path
     output = ReviewOutput()
     written = [f for f in report.frames if f.written]
-    if sheet and written and not overlays and not any(_overlay_path(out_dir, f).is_file() for f in written):
-        # Before the page is written: a refusal leaves nothing half done.
-        raise InputError(out_dir / OVERLAYS, "no overlays for the contact sheet: run review with overlays "
-                                             "(or --no-sheet)")
     if overlays and written:
         shapes = read_drawn_shapes(out_dir, {f.mask for f in written}, report.command)
         keys, values = colour_table(report)
@@ -163,14 +159,15 @@ def write_review(
         for line in output.warnings:
             log.warning("%s", line)
     available = [f for f in written if _overlay_path(out_dir, f).is_file()]
+    if sheet and written and not available:  # before the page is written: a refusal leaves nothing half done
+        raise InputError(out_dir / OVERLAYS, "no overlays for the contact sheet: run review with overlays "
+                                             "(or --no-sheet)")
     if page:
         output.page = out_dir / PAGE_NAME
         relative = {f.mask: f"{OVERLAYS}/{_overlay_path(out_dir, f).name}" for f in available}
         html = render_review_page(report, relative, title=out_dir.resolve().name)
         write_bytes_atomic(output.page, html.encode("utf-8"))
     if sheet and written:
-        if not available:
-            raise InputError(out_dir / OVERLAYS, "no overlays for the contact sheet: run review with overlays")
         picks = np.unique(np.linspace(0, len(available) - 1, min(len(available), SHEET_FRAMES)).round().astype(int))
         frames = [available[i] for i in picks]
         images = (read_rgb(_overlay_path(out_dir, f)) for f in frames)  # one full image in memory at a time
