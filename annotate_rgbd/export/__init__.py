@@ -170,10 +170,8 @@ def _undo(out: Path, placed: list[str], made: list[Path]) -> None:
     """Remove what a failed export wrote into a folder that was new or empty: its record, the
     files it moved in and the folders they emptied, and the folders it made (``out`` and the
     parents), when nothing else is in them."""
-    for name in [RECORD, *placed]:
-        (out / name).unlink(missing_ok=True)
-    folders = {out / parent for name in placed for parent in Path(name).parents if parent != Path(".")}
-    for folder in [*sorted(folders, key=lambda f: -len(f.parts)), *made]:
+    _remove(out, {RECORD, *placed})
+    for folder in made:  # the deepest first
         try:
             folder.rmdir()  # only when empty
         except OSError:

@@ -131,10 +131,10 @@ def read_run(run_dir: str | Path, poses: str | Path | None = None) -> ExportRun:
         if poses is None and not Path(trajectory).exists():  # a file, or a folder of pose files (ScanNet, 7-Scenes)
             raise InputError(run_dir / "report.json", f"the run's trajectory {trajectory} is gone: give it with --poses")
         gap = report.config.get("sequence", {}).get("max_pose_gap", DEFAULT_MAX_POSE_GAP)
-        poses_of = read_trajectory(trajectory)
+        samples = read_trajectory(trajectory)
         times = np.array([f.depth_timestamp for f in written], dtype=np.float64)
         # Refused when no frame gets a pose: the export would hold no world-frame plane at all.
-        frame_poses, ranges = poses_of_frames(poses_of, trajectory, times, gap, poses_of.clock, "written frame")
+        frame_poses, ranges = poses_of_frames(samples, trajectory, times, gap, samples.clock, "written frame")
         missing = int(np.count_nonzero(~frame_poses.ok))
         if missing:
             log.warning("%s: %d of %d written frames have no pose: their planes have no world coordinates%s",
