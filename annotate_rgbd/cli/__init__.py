@@ -259,6 +259,9 @@ def evaluate(
     set_: List[str] = typer.Option([], "--set", metavar="SECTION.KEY=VALUE", help="Override any configuration key: SECTION.KEY=VALUE."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object instead of a table."),
     per_frame: Optional[Path] = typer.Option(None, "--per-frame", metavar="CSV", help="Also write each frame's statistics to this CSV."),
+    skip_missing: bool = typer.Option(
+        False, "--skip-missing", help="Score only the GT frames PRED has a mask for (e.g. a propose --every N run); "
+        "without it, a GT frame without one scores as an empty prediction."),
     # The old name of --partial, kept working for scripts; cvat2mask's --part is FILE:OFFSET.
     part: Optional[float] = typer.Option(None, "--part", hidden=True),
 ) -> None:
@@ -278,7 +281,7 @@ def evaluate(
         # The options win over the configuration; evaluate_paths checks them (naming --full, --partial).
         full = thresholds.full if full is None else full
         partial = thresholds.partial if partial is None else partial
-        result = evaluate_paths(gt, pred, full=full, part=partial)
+        result = evaluate_paths(gt, pred, full=full, part=partial, skip_missing=skip_missing)
         if per_frame is not None:
             write_per_frame_csv(result, per_frame)
         from annotate_rgbd.io.writer import names_stdout

@@ -3,9 +3,11 @@
 Ground truth (GT) and prediction (PRED) are two folders of per-frame label files, or two single files.
 Frames are matched by file name without its suffix, so ``1305031102.175304.png`` in GT pairs with
 ``1305031102.175304.png``, ``.npy`` or ``.csv`` in PRED. A GT frame without a PRED file counts as an
-empty prediction (every plane missed) and is listed in ``frames_missing``; PRED files without a GT
-frame are ignored and listed in ``predictions_unmatched``. The sequence score of each statistic is
-its mean over the GT frames.
+empty prediction (every plane missed) and is listed in ``frames_missing``, or, with
+``skip_missing`` (``--skip-missing``: a run that masked only some frames, as ``propose --every N``),
+is left out of the score and listed in ``frames_skipped``; PRED files without a GT frame are ignored
+and listed in ``predictions_unmatched``. The sequence score of each statistic is its mean over the
+GT frames scored.
 """
 
 from __future__ import annotations
@@ -58,12 +60,15 @@ class EvaluationResult:
         The IoU thresholds used.
     predictions_unmatched : tuple of str
         Names of PRED files that have no GT frame (not scored).
+    frames_skipped : tuple of str
+        Names of the GT frames PRED has no file for, left out of the score (``skip_missing``).
     """
 
     frames: tuple[FrameScore, ...]
     full: float
     part: float
     predictions_unmatched: tuple[str, ...] = ()
+    frames_skipped: tuple[str, ...] = ()
 
     @property
     def means(self) -> dict[str, float]:
@@ -77,8 +82,10 @@ class EvaluationResult:
         return [f.name for f in self.frames if f.missing]
 
     def to_dict(self) -> dict:
-        """The means plus ``frames`` (the frame count) and ``frames_missing`` (their names)."""
-        return {**self.means, "frames": len(self.frames), "frames_missing": self.frames_missing}
+        """The means plus ``frames`` (the frames scored), ``frames_missing`` and ``frames_skipped``
+        (their names)."""
+        return {**self.means, "frames": len(self.frames), "frames_missing": self.frames_missing,
+                "frames_skipped": list(self.frames_skipped)}
 
 
 def evaluate_paths(
@@ -87,6 +94,7 @@ def evaluate_paths(
     full: float = EvaluateConfig.full,
     part: float = EvaluateConfig.partial,
     measure: str = "iou",
+    skip_missing: bool = False,
 ) -> EvaluationResult:
     """Score a prediction against the ground truth, frame by frame.
 
@@ -98,6 +106,10 @@ def evaluate_paths(
         IoU thresholds for a full match and a partial overlap, in ``(0, 1]``.
     measure : {"iou", "dice"}, optional
         What ``mean`` and ``panoptic`` average over the matched planes.
+    skip_missing : bool, optional
+        Leave the GT frames PRED has no file for out of the score (they are listed in
+        ``frames_skipped``) instead of scoring them as empty predictions. Without it, a warning
+        is logged when PRED misses more than half of the GT frames.
 
     Returns
     -------
@@ -114,7 +126,15 @@ def evaluate_paths(
         if not 0.0 < value <= 1.0:
             raise InputError(None, f"--{name} must be in (0, 1], not {value}")
     pairs, unmatched = match_frames(gt, pred)
-    frames = tuple(score_frame(pair, full=full, part=part, measure=measure) for pair in pairs)
+    absent = [pair.name for pair in pairs if pair.pred is None]
+    frames = tuple(score_frame(pair, full=full, part=part, measure=measure) for pair in pairs
+                   if pair.pred is not None or not skip_missing)
+    if not skip_missing and 2 * len(absent) > len(pairs):  # after the scores: an unreadable file is the error
+        log.warning(
+            "%s: no mask for %d of the %d ground-truth frames; they score as empty (every plane missed). "
+            "To score only the frames it has (a `propose --every N` run masks every Nth frame), add --skip-missing",
+            pred, len(absent), len(pairs),
+        )
     unlikely = [path for frame in frames for path in frame.unlikely_masks]
     if unlikely:
         log.warning(
@@ -122,7 +142,8 @@ def evaluate_paths(
             "depth image rather than a mask?%s",
             unlikely[0], f" (and {len(unlikely) - 1} more label files)" if len(unlikely) > 1 else "",
         )
-    return EvaluationResult(frames=frames, full=full, part=part, predictions_unmatched=tuple(unmatched))
+    return EvaluationResult(frames=frames, full=full, part=part, predictions_unmatched=tuple(unmatched),
+                            frames_skipped=tuple(absent) if skip_missing else ())
 
 
 def label_folder(path: Path) -> Path:
@@ -231,10 +252,11 @@ def format_table(result: EvaluationResult) -> str:
     lines = [f"{'metric':<{width}}  mean", f"{'-' * width}  ------"]
     lines += [f"{name:<{width}}  {value:.4f}" for name, value in result.means.items()]
     lines.append(f"frames: {len(result.frames)} (full IoU >= {result.full}, partial IoU >= {result.part})")
-    missing = result.frames_missing
-    if missing:
-        shown = ", ".join(missing[:10]) + (", ..." if len(missing) > 10 else "")
-        lines.append(f"missing in PRED (scored as empty): {len(missing)}: {shown}")
+    for names, what in ((result.frames_missing, "missing in PRED (scored as empty)"),
+                        (result.frames_skipped, "missing in PRED (not scored: --skip-missing)")):
+        if names:
+            shown = ", ".join(names[:10]) + (", ..." if len(names) > 10 else "")
+            lines.append(f"{what}: {len(names)}: {shown}")
     if result.predictions_unmatched:
         lines.append(f"PRED files without a GT frame (ignored): {len(result.predictions_unmatched)}")
     return "\n".join(lines)

@@ -152,7 +152,23 @@ def test_evaluate_paths_scores_each_frame_and_averages(sequence):
     assert expected[0].fScore == 1.0 and expected[1].usr > 0 and expected[2].missed == 1.0
     for name in METRIC_NAMES:
         assert result.means[name] == pytest.approx(np.mean([getattr(s, name) for s in expected]))
-    assert set(result.to_dict()) == {*METRIC_NAMES, "frames", "frames_missing"}
+    assert set(result.to_dict()) == {*METRIC_NAMES, "frames", "frames_missing", "frames_skipped"}
+
+
+def test_skip_missing_scores_only_the_frames_pred_has(sequence, caplog):
+    gt_dir, pred_dir, frames, predictions = sequence
+    result = evaluate_paths(gt_dir, pred_dir, skip_missing=True)
+    assert [f.name for f in result.frames] == ["0001.5", "0002.5"]
+    assert result.frames_missing == [] and result.frames_skipped == ("0003.5",)
+    expected = [frame_statistics(frames[name], predictions[name]) for name in ("0001.5", "0002.5")]
+    for name in METRIC_NAMES:
+        assert result.means[name] == pytest.approx(np.mean([getattr(s, name) for s in expected]))
+    assert result.to_dict()["frames"] == 2 and result.to_dict()["frames_skipped"] == ["0003.5"]
+    # One missing frame of three: no warning; two of three: a warning naming --skip-missing.
+    assert "--skip-missing" not in caplog.text
+    (pred_dir / "0002.5.csv").unlink()
+    evaluate_paths(gt_dir, pred_dir)
+    assert "no mask for 2 of the 3 ground-truth frames" in caplog.text and "--skip-missing" in caplog.text
 
 
 def test_thresholds_change_the_result(sequence):
@@ -261,6 +277,9 @@ def test_cli_table(sequence):
     for name in METRIC_NAMES:
         assert name in result.output
     assert "frames: 3" in result.output and "0003.5" in result.output
+    skipped = CliRunner().invoke(app, ["evaluate", str(gt_dir), str(pred_dir), "--skip-missing"])
+    assert skipped.exit_code == 0, skipped.output
+    assert "frames: 2" in skipped.output and "missing in PRED (not scored: --skip-missing): 1: 0003.5" in skipped.output
 
 
 def test_cli_json_and_per_frame_csv(sequence, tmp_path):
@@ -272,8 +291,8 @@ def test_cli_json_and_per_frame_csv(sequence, tmp_path):
     payload = json.loads(result.stdout)
     expected = evaluate_paths(gt_dir, pred_dir, full=0.8, part=0.3)
     assert payload == expected.to_dict()
-    assert list(payload) == [*METRIC_NAMES, "frames", "frames_missing"]
-    assert payload["frames"] == 3 and payload["frames_missing"] == ["0003.5"]
+    assert list(payload) == [*METRIC_NAMES, "frames", "frames_missing", "frames_skipped"]
+    assert payload["frames"] == 3 and payload["frames_missing"] == ["0003.5"] and payload["frames_skipped"] == []
     with per_frame.open() as stream:
         rows = list(csv.DictReader(stream))
     assert [row["frame"] for row in rows] == ["0001.5", "0002.5", "0003.5"]
