@@ -256,7 +256,8 @@ def poses_of_frames(
 def missing_poses_text(trajectory: Trajectory, times: np.ndarray, reasons: np.ndarray, clock: str) -> str:
     """Why frames have no pose, in a phrase: the two time ranges and the likely unit or offset
     when some lie outside the trajectory; the samples' spacing (and the likely unit) when most
-    fall between samples too far apart; else ``""``.
+    fall between samples too far apart; when a few do (tracking lost for a moment), their
+    timestamps; else ``""``.
 
     Parameters
     ----------
@@ -272,6 +273,12 @@ def missing_poses_text(trajectory: Trajectory, times: np.ndarray, reasons: np.nd
         return coverage_text(trajectory.timestamps, np.asarray(times), clock)
     if clock == SECONDS and len(trajectory) > 1 and 2 * np.count_nonzero(reasons == POSE_GAP) > len(reasons):
         return spacing_text(float(np.median(np.diff(trajectory.timestamps))))
+    in_gaps = np.asarray(times)[reasons == POSE_GAP]
+    if in_gaps.size:
+        named = ", ".join(f"{value:.6f}" if clock == SECONDS else f"{value:.0f}" for value in in_gaps[:3])
+        more = f" and {in_gaps.size - 3} more" if in_gaps.size > 3 else ""
+        unit = " s" if clock == SECONDS else ""
+        return f"the trajectory has no sample close to {'them' if in_gaps.size > 1 else 'it'} (a gap in tracking): {named}{unit}{more}"
     return ""
 
 

@@ -375,7 +375,8 @@ def _frame_poses(path, sequence, times: np.ndarray, config: Config, warnings: li
                                           "processed depth frame")
     missing = int(np.count_nonzero(~frame_poses.ok))
     if missing:
-        line = (f"{path}: {missing} of {len(times)} processed depth frames have no pose; they are linked "
+        verb, pronoun = ("has", "it is") if missing == 1 else ("have", "they are")
+        line = (f"{path}: {missing} of {len(times)} processed depth frames {verb} no pose; {pronoun} linked "
                 f"without poses (camera-frame planes, image overlap){' (' + ranges + ')' if ranges else ''}")
         warnings.append(line)
         log.warning("%s", line)

@@ -21,7 +21,7 @@ from annotate_rgbd.errors import InputError
 from annotate_rgbd.geometry.camera import Camera
 from annotate_rgbd.io import trajectory_text
 from annotate_rgbd.io.poses import (
-    FRAME_NUMBERS, SECONDS, Trajectory, load_trajectory, missing_poses_text, poses_at, quaternion_matrices,
+    FRAME_NUMBERS, POSE_GAP, SECONDS, Trajectory, load_trajectory, missing_poses_text, poses_at, quaternion_matrices,
     read_trajectory,
 )
 from annotate_rgbd.io.sequence import read_sequence
@@ -306,6 +306,22 @@ def test_frames_between_samples_too_far_apart_get_the_spacing_and_its_unit(spaci
     assert missing_poses_text(trajectory, times, reasons, SECONDS).endswith(words)
     on_samples = trajectory.timestamps[1:3]
     assert missing_poses_text(trajectory, on_samples, poses_at(trajectory, on_samples).reasons, SECONDS) == ""
+
+
+def test_a_few_frames_in_a_gap_of_the_trajectory_are_named():
+    # Samples every 0.01 s but for a 0.5 s gap (tracking lost): the frames in it are named.
+    stamps = np.concatenate([np.arange(0, 1, 0.01), np.arange(1.5, 3, 0.01)])
+    trajectory = Trajectory(stamps, np.zeros((len(stamps), 3)), np.tile([0.0, 0, 0, 1], (len(stamps), 1)))
+    times = np.arange(0.005, 3, 0.1)
+    reasons = poses_at(trajectory, times).reasons
+    gaps = times[reasons == POSE_GAP]
+    assert len(gaps) == 5
+    assert missing_poses_text(trajectory, times, reasons, SECONDS) == (
+        "the trajectory has no sample close to them (a gap in tracking): "
+        f"{gaps[0]:.6f}, {gaps[1]:.6f}, {gaps[2]:.6f} s and 2 more")
+    one = np.append(times[reasons != POSE_GAP], gaps[0])
+    assert missing_poses_text(trajectory, one, poses_at(trajectory, one).reasons, SECONDS) == (
+        f"the trajectory has no sample close to it (a gap in tracking): {gaps[0]:.6f} s")
 
 
 @pytest.fixture(scope="module")
