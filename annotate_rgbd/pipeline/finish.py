@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import logging
 
-from annotate_rgbd.io.outdir import REPORT, remove_review_files, remove_stale_files
+from annotate_rgbd.io.cleanup import remove_review_files, remove_stale_files
+from annotate_rgbd.io.outdir import REPORT
 from annotate_rgbd.io.writer import write_json
 from annotate_rgbd.report.run_folder import write_drawn_shapes
 from .execute import SceneRun

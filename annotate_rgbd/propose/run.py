@@ -21,9 +21,8 @@ from annotate_rgbd.geometry.lift import plane_to_world
 from annotate_rgbd.pool import default_workers, run_jobs, start_helpers
 from annotate_rgbd.io.poses import load_trajectory, poses_of_frames
 from annotate_rgbd.io.sequence import associate, intrinsics_problems, read_depth, read_sequence
-from annotate_rgbd.io.outdir import (
-    MASKS, OutputFolder, check_outside_sequence, read_bounded, remove_review_files, remove_stale_files,
-)
+from annotate_rgbd.io.cleanup import remove_review_files, remove_stale_files
+from annotate_rgbd.io.outdir import MASKS, OutputFolder, check_outside_sequence, read_bounded
 from annotate_rgbd.io.layouts.tum import TRAJECTORY as TUM_TRAJECTORY
 from annotate_rgbd.io.writer import write_json
 from annotate_rgbd.logs import counted, group_problems

@@ -29,7 +29,8 @@ from annotate_rgbd.config.settings import config_from_dict
 from annotate_rgbd.errors import InputError
 from annotate_rgbd.geometry.camera import Camera, depth_to_metres
 from annotate_rgbd.geometry.registration import ColourCamera
-from annotate_rgbd.io.outdir import OVERLAYS, REVIEW_RECORD, OutputFolder, file_digest, read_review_record
+from annotate_rgbd.io.cleanup import read_review_record
+from annotate_rgbd.io.outdir import OVERLAYS, REVIEW_RECORD, OutputFolder, file_digest
 from annotate_rgbd.io.sequence import read_depth, read_image, read_rgb
 from annotate_rgbd.io.writer import write_bytes_atomic, write_png
 from annotate_rgbd.logs import group_errors

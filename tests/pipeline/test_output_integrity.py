@@ -389,7 +389,8 @@ def test_review_and_stats_on_a_malformed_report_give_one_line(tmp_path, content,
 
 
 def test_removals_are_said_in_the_singular_for_one_file():
-    from annotate_rgbd.io.outdir import MASKS, OVERLAYS, Cleanup
+    from annotate_rgbd.io.cleanup import Cleanup
+    from annotate_rgbd.io.outdir import MASKS, OVERLAYS
 
     assert Cleanup({MASKS: 1, OVERLAYS: 2}).removals() == [
         "removed 1 mask of a frame that no longer gets one (masks/)", "removed 2 overlays no longer asked for (overlays/)"]
