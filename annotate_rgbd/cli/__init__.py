@@ -259,6 +259,9 @@ def evaluate(
     set_: List[str] = typer.Option([], "--set", metavar="SECTION.KEY=VALUE", help="Override any configuration key: SECTION.KEY=VALUE."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object instead of a table."),
     per_frame: Optional[Path] = typer.Option(None, "--per-frame", metavar="CSV", help="Also write each frame's statistics to this CSV."),
+    ignore: Optional[int] = typer.Option(
+        None, "--ignore", metavar="LABEL", help="GT label value of don't-care pixels, left out of GT and PRED "
+        "(e.g. 65535); default: [evaluate] ignore (-1: none). GT must be label files, not colour masks."),
     skip_missing: bool = typer.Option(
         False, "--skip-missing", help="Score only the GT frames PRED has a mask for (e.g. a propose --every N run); "
         "without it, a GT frame without one scores as an empty prediction."),
@@ -281,7 +284,8 @@ def evaluate(
         # The options win over the configuration; evaluate_paths checks them (naming --full, --partial).
         full = thresholds.full if full is None else full
         partial = thresholds.partial if partial is None else partial
-        result = evaluate_paths(gt, pred, full=full, part=partial, skip_missing=skip_missing)
+        result = evaluate_paths(gt, pred, full=full, part=partial, skip_missing=skip_missing,
+                                ignore=thresholds.ignore if ignore is None else ignore)
         if per_frame is not None:
             write_per_frame_csv(result, per_frame)
         from annotate_rgbd.io.writer import names_stdout

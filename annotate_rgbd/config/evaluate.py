@@ -21,13 +21,21 @@ class EvaluateConfig:
     partial : float
         IoU at which they overlap partially (for usr, osr, noise, missed; ``--partial``). 0.2:
         ``evops.metrics.constants.IOU_THRESHOLD_PART`` of ``evops`` 1.0.0.
+    ignore : int
+        Label value of the ground truth's "don't care" pixels (``--ignore``): they are left out of
+        both the ground truth and the prediction before scoring. -1: none (every label a plane,
+        as in EVOPS's own ground truth). Ground truth made by ray-casting a fused mesh marks
+        plane borders and ambiguous depth so: 65535 in the real-data kit of issue 26 (and 255
+        in many 8-bit segmentation sets).
     """
 
     full: float = 0.75
     partial: float = 0.2
+    ignore: int = -1
 
     def __post_init__(self):
         check_section("evaluate", self, [
             ("full", lambda v: 0 < v <= 1, "must be in (0, 1]"),
             ("partial", lambda v: 0 < v <= 1, "must be in (0, 1]"),
+            ("ignore", lambda v: v >= -1, "must be a label value >= 0, or -1 for none"),
         ])

@@ -46,6 +46,11 @@ class FrameScore:
     missing: bool
     #: Its label files that look like photographs (:func:`looks_like_a_photograph`).
     unlikely_masks: tuple[str, ...] = ()
+    #: Without ``ignore``: the share of GT pixels holding its type's largest value (255, 65535), a
+    #: common "don't care" mark, that label and the GT file; None when there is none.
+    dont_care_share: float | None = None
+    dont_care_label: int = -1
+    gt_path: str = ""
 
 
 @dataclass(frozen=True)
@@ -95,6 +100,7 @@ def evaluate_paths(
     part: float = EvaluateConfig.partial,
     measure: str = "iou",
     skip_missing: bool = False,
+    ignore: int = EvaluateConfig.ignore,
 ) -> EvaluationResult:
     """Score a prediction against the ground truth, frame by frame.
 
@@ -110,6 +116,11 @@ def evaluate_paths(
         Leave the GT frames PRED has no file for out of the score (they are listed in
         ``frames_skipped``) instead of scoring them as empty predictions. Without it, a warning
         is logged when PRED misses more than half of the GT frames.
+    ignore : int, optional
+        GT label value of "don't care" pixels, left out of both GT and PRED (-1: none). GT must
+        then be label files, not colour masks. Without it, a warning is logged when GT holds
+        its type's largest value (255, 65535), a common "don't care" mark, that would be scored
+        as a plane.
 
     Returns
     -------
@@ -127,8 +138,18 @@ def evaluate_paths(
             raise InputError(None, f"--{name} must be in (0, 1], not {value}")
     pairs, unmatched = match_frames(gt, pred)
     absent = [pair.name for pair in pairs if pair.pred is None]
-    frames = tuple(score_frame(pair, full=full, part=part, measure=measure) for pair in pairs
+    if ignore < -1:
+        raise InputError(None, f"--ignore must be a label value >= 0 (or -1: none), not {ignore}")
+    frames = tuple(score_frame(pair, full=full, part=part, measure=measure, ignore=ignore) for pair in pairs
                    if pair.pred is not None or not skip_missing)
+    marked = [frame for frame in frames if frame.dont_care_share is not None]
+    if marked:
+        share = float(np.mean([frame.dont_care_share for frame in marked]))
+        log.warning(
+            "%s: label %d (its type's largest value, a common \"don't care\" mark) covers %.0f %% of the pixels of "
+            "%d ground-truth frames and is scored as a plane; if it marks pixels to leave out, add --ignore %d",
+            marked[0].gt_path, marked[0].dont_care_label, 100 * share, len(marked), marked[0].dont_care_label,
+        )
     if not skip_missing and 2 * len(absent) > len(pairs):  # after the scores: an unreadable file is the error
         log.warning(
             "%s: no mask for %d of the %d ground-truth frames; they score as empty (every plane missed). "
@@ -222,23 +243,40 @@ def looks_like_a_photograph(labels: np.ndarray) -> bool:
         less than :data:`SPECK_SHARE` of the image, or when it holds more than
         :data:`MAX_LABELS_PER_FRAME` distinct labels (a depth image).
     """
-    _, inverse, counts = np.unique(labels.ravel(), return_inverse=True, return_counts=True)
+    values = labels.ravel()
+    if values.size and values.dtype.kind in "iub" and 0 <= values.min() and values.max() < 1 << 20:
+        counts = np.bincount(values)  # label maps of ids: a count per id, no sort
+        counts = counts[counts > 0]
+    else:
+        counts = np.unique(values, return_counts=True)[1]
     if len(counts) > MAX_LABELS_PER_FRAME + 1:  # + 1: unsegmented
         return True
-    return bool((counts[inverse] < SPECK_SHARE * labels.size).mean() > MAX_SPECK_PIXELS)
+    # The share of pixels whose label covers less than SPECK_SHARE of the image.
+    return bool(counts[counts < SPECK_SHARE * labels.size].sum() / max(labels.size, 1) > MAX_SPECK_PIXELS)
 
 
-def score_frame(pair: FramePair, *, full: float, part: float, measure: str = "iou") -> FrameScore:
-    """Read one frame pair and compute its statistics (an absent PRED file is an empty prediction)."""
-    gt = read_label_map(pair.gt)
+def score_frame(pair: FramePair, *, full: float, part: float, measure: str = "iou", ignore: int = -1) -> FrameScore:
+    """Read one frame pair and compute its statistics (an absent PRED file is an empty prediction);
+    GT pixels labelled ``ignore`` (>= 0) are left out of both."""
+    gt = read_label_map(pair.gt, f"--ignore {ignore}" if ignore >= 0 else None)
     pred = np.zeros_like(gt) if pair.pred is None else read_label_map(pair.pred)
     if gt.ndim != pred.ndim and gt.size == pred.size:  # a flat .npy array (EVOPS): row-major, the other's shape
         gt, pred = (gt, pred.reshape(gt.shape)) if gt.ndim == 2 else (gt.reshape(pred.shape), pred)
-    unlikely = tuple(str(path) for path, labels in ((pair.gt, gt), (pair.pred, pred)) if looks_like_a_photograph(labels))
     if pred.shape != gt.shape:
         raise InputError(pair.pred, f"frame is {_size(pred)} but ground truth {pair.gt.name} is {_size(gt)}")
+    share, label = None, -1
+    if ignore >= 0:
+        dont_care = gt == ignore
+        if dont_care.any():  # no plane in either: neither a hit nor a miss
+            gt, pred = np.where(dont_care, 0, gt), np.where(dont_care, 0, pred)
+    elif gt.dtype in (np.uint8, np.uint16):
+        label = int(np.iinfo(gt.dtype).max)
+        count = int(np.count_nonzero(gt == label))
+        share = count / gt.size if count else None
+    unlikely = tuple(str(path) for path, labels in ((pair.gt, gt), (pair.pred, pred)) if looks_like_a_photograph(labels))
     statistics = frame_statistics(gt, pred, full=full, part=part, measure=measure)
-    return FrameScore(pair.name, statistics, missing=pair.pred is None, unlikely_masks=unlikely)
+    return FrameScore(pair.name, statistics, missing=pair.pred is None, unlikely_masks=unlikely,
+                      dont_care_share=share, dont_care_label=label, gt_path=str(pair.gt))
 
 
 def _size(labels: np.ndarray) -> str:

@@ -64,6 +64,24 @@ def test_colours_differing_in_one_channel_are_different_planes():
     np.testing.assert_array_equal(colours_to_labels(image), [[1, 2, 0]])
 
 
+@pytest.mark.parametrize("black", [True, False])
+def test_colours_are_numbered_by_their_packed_value(black):
+    # Independently: every pixel's colour packed to 24 bits, numbered by np.unique (1-based
+    # without black); blocks of colour with single odd pixels, as masks with specks are.
+    rng = np.random.default_rng(4)
+    palette = rng.integers(1, 256, size=(7, 3)).astype(np.uint8)
+    if black:
+        palette[0] = 0
+    image = palette[np.repeat(np.repeat(rng.integers(0, 7, size=(6, 8)), 5, axis=0), 7, axis=1)]
+    image[rng.integers(0, 30, 40), rng.integers(0, 56, 40)] = palette[rng.integers(0, 7, 40)]
+    packed = (image[..., 0].astype(np.int64) << 16) | (image[..., 1].astype(np.int64) << 8) | image[..., 2]
+    expected = np.unique(packed, return_inverse=True)[1].reshape(packed.shape) + (packed.min() != 0)
+    got = colours_to_labels(image)
+    assert got.dtype == np.int32
+    np.testing.assert_array_equal(got, expected)
+    assert colours_to_labels(np.zeros((0, 5, 3), np.uint8)).shape == (0, 5)
+
+
 @pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
 def test_single_channel_png_keeps_label_values(tmp_path, dtype):
     labels = (_planes() * (1000 if dtype == np.uint16 else 10)).astype(dtype)
@@ -369,3 +387,63 @@ def test_a_runs_output_folder_stands_for_its_masks(tmp_path):
     (tmp_path / "run" / "report.json").write_text("{}")
     assert label_folder(tmp_path / "run") == tmp_path / "run" / "masks"
     assert label_folder(tmp_path / "other") == tmp_path / "other"
+
+
+# --- don't-care pixels of the ground truth --------------------------------------------------------
+
+
+def _dont_care_frame(tmp_path):
+    """GT: 16-bit labels 1..4 with a 2-px band of 65535 on the borders of planes 1 and 2. PRED:
+    the GT planes, but plane 1 also takes the band, and plane 3 the band's first column too."""
+    gt_dir, pred_dir = tmp_path / "gt", tmp_path / "pred"
+    gt_dir.mkdir()
+    pred_dir.mkdir()
+    planes = _planes(shape=(24, 32))
+    gt = planes.astype(np.uint16)
+    band = (np.indices(gt.shape)[1] // 2 == 3) | (np.indices(gt.shape)[1] // 2 == 4)  # columns 6..9
+    gt[band & (planes > 0)] = 65535
+    cv2.imwrite(str(gt_dir / "f.png"), gt)
+    pred = planes.copy()
+    pred[band & (planes > 0)] = 1
+    np.save(pred_dir / "f.npy", pred)
+    return gt_dir, pred_dir, gt, pred
+
+
+def test_ignore_leaves_dont_care_pixels_out_of_both(tmp_path, caplog):
+    gt_dir, pred_dir, gt, pred = _dont_care_frame(tmp_path)
+    dont_care = gt == 65535
+    with caplog.at_level("WARNING", logger="annotate_rgbd"):
+        ignored = evaluate_paths(gt_dir, pred_dir, ignore=65535)
+    assert caplog.text == ""
+    # Independently: both label maps with the band set to "no plane".
+    expected = frame_statistics(np.where(dont_care, 0, gt).astype(np.int64), np.where(dont_care, 0, pred))
+    assert ignored.frames[0].statistics == expected
+    assert expected.fScore == 1.0  # off the band, PRED is GT
+    # Without it the band is a plane of its own, and a warning says what it may be.
+    scored = evaluate_paths(gt_dir, pred_dir)
+    assert scored.frames[0].statistics == frame_statistics(gt.astype(np.int64), pred)
+    assert scored.means["fScore"] < 1.0
+    share = 100 * dont_care.mean()
+    assert (f"{gt_dir / 'f.png'}: label 65535 (its type's largest value, a common \"don't care\" mark) covers "
+            f"{share:.0f} % of the pixels of 1 ground-truth frames and is scored as a plane; if it marks pixels to "
+            "leave out, add --ignore 65535") in caplog.text
+    # A label value that is not there changes nothing; from the command line and the configuration.
+    assert evaluate_paths(gt_dir, pred_dir, ignore=7).to_dict() == scored.to_dict()
+    for args in (["--ignore", "65535"], ["--set", "evaluate.ignore=65535"]):
+        result = CliRunner().invoke(app, ["evaluate", str(gt_dir), str(pred_dir), "--json", *args])
+        assert result.exit_code == 0, result.output
+        assert json.loads(result.stdout) == ignored.to_dict()
+
+
+def test_ignore_refuses_colour_ground_truth(tmp_path):
+    gt_dir, pred_dir = tmp_path / "gt", tmp_path / "pred"
+    gt_dir.mkdir()
+    pred_dir.mkdir()
+    cv2.imwrite(str(gt_dir / "f.png"), COLOURS[_planes()])
+    np.save(pred_dir / "f.npy", _planes())
+    result = CliRunner().invoke(app, ["evaluate", str(gt_dir), str(pred_dir), "--ignore", "65535"])
+    assert result.exit_code == 1
+    assert result.stderr == (f"error: {gt_dir / 'f.png'}: a colour mask, whose colours have no label values: "
+                             "--ignore 65535 needs label files (single-channel PNG, .npy or .csv)\n")
+    bad = CliRunner().invoke(app, ["evaluate", str(gt_dir), str(pred_dir), "--set", "evaluate.ignore=-2"])
+    assert bad.exit_code == 1 and "'evaluate.ignore' must be a label value >= 0, or -1 for none" in bad.stderr
