@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import base64
 import json
+import shlex
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterable, Sequence
@@ -87,7 +88,12 @@ def read_report(out_dir: str | Path, proposals: bool = False) -> RunRecord:
     report = load_json(data, path)  # strict: no NaN, no lone surrogate
     if is_proposals(report):
         if not proposals:
-            raise InputError(path, "this is the output of `propose`, not of a cvat2mask run")
+            inputs = report.get("inputs") if isinstance(report.get("inputs"), dict) else {}
+            sequence = inputs.get("sequence") if isinstance(inputs.get("sequence"), str) else "SEQUENCE"
+            raise InputError(path, "this is the output of `propose`, not of a cvat2mask run: its planes become masks "
+                                   f"with `annotate-rgbd cvat2mask {shlex.quote(sequence)} "
+                                   f"{shlex.quote(str(Path(out_dir) / 'proposals.xml'))} --out DIR` (after correcting "
+                                   "them in CVAT, or as they are); then use DIR")
         try:
             record = proposals_record(report)
             check_run(record)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import logging
+import shlex
 import shutil
 from pathlib import Path
 
@@ -133,5 +134,13 @@ def test_a_new_propose_run_removes_the_earlier_review(proposals, tmp_path, caplo
 
 
 def test_other_commands_still_refuse_a_propose_folder(proposals, tmp_path):
-    outcome = CliRunner().invoke(app, ["export-cvat", str(proposals), str(tmp_path / "x.xml")])
-    assert outcome.exit_code != 0 and "output of `propose`" in outcome.output
+    # Each says how a propose folder becomes a run they take: cvat2mask on its proposals.xml.
+    sequence = shlex.quote(str(SAMPLE_DATA / "sequence"))
+    for command in (["export-cvat", str(proposals), str(tmp_path / "x.xml")], ["stats", str(proposals)],
+                    ["export", str(proposals), str(tmp_path / "e"), "--format", "evops"]):
+        outcome = CliRunner().invoke(app, command)
+        assert outcome.exit_code == 1 and outcome.stderr == (
+            f"error: {proposals / 'report.json'}: this is the output of `propose`, not of a cvat2mask run: its planes "
+            f"become masks with `annotate-rgbd cvat2mask {sequence} {shlex.quote(str(proposals / 'proposals.xml'))} "
+            "--out DIR` (after correcting them in CVAT, or as they are); then use DIR\n"), command
+    assert not (tmp_path / "e").exists()
