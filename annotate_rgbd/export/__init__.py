@@ -23,6 +23,7 @@ the files of both, which the next export into the folder replaces.
 from __future__ import annotations
 
 import json
+import logging
 import os
 import shutil
 from dataclasses import dataclass
@@ -38,7 +39,11 @@ from .frames import ExportRun, read_run
 from .planercnn import check_planercnn, write_planercnn
 from .planes import EQUATION_CONVENTION, write_frame_planes
 
+log = logging.getLogger("annotate_rgbd")
+
 FORMATS = {"planercnn": write_planercnn, "planes": write_frame_planes, "evops": write_evops, "coco": write_coco}
+#: The formats that hold world-frame planes, so read the camera poses (the others never look at them).
+WORLD_FORMATS = ("planercnn", "planes")
 #: Folders the formats write into, inside the export folder.
 SUBFOLDERS = ("segmentation", "frames", "labels")
 RECORD = "export.json"
@@ -96,7 +101,8 @@ def export_run(run_dir: str | Path, fmt: str, out: str | Path, poses: str | Path
     out : str or Path
         The export folder (created; empty, or the folder of an earlier export).
     poses : str or Path, optional
-        A camera trajectory (TUM format) for world-frame planes; default: the run's.
+        A camera trajectory (TUM format) for world-frame planes (:data:`WORLD_FORMATS`; the other
+        formats do not read it); default: the run's.
 
     Returns
     -------
@@ -112,8 +118,11 @@ def export_run(run_dir: str | Path, fmt: str, out: str | Path, poses: str | Path
     """
     if fmt not in FORMATS:
         raise InputError(None, f"unknown export format {fmt!r} (formats: {', '.join(FORMATS)})")
+    if poses is not None and fmt not in WORLD_FORMATS:
+        log.warning("%s: not used: the %s export holds no world-frame plane (only %s do)", poses, fmt,
+                    " and ".join(WORLD_FORMATS))
     with reading(Path(run_dir)):  # never a run half-way through
-        return _export(read_run(run_dir, poses), fmt, Path(out))
+        return _export(read_run(run_dir, poses, world=fmt in WORLD_FORMATS), fmt, Path(out))
 
 
 def _export(run: ExportRun, fmt: str, out: Path) -> ExportResult:

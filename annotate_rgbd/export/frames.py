@@ -101,7 +101,7 @@ class ExportRun:
         return mask_plane_ids(read_image(frame.mask, cv2.IMREAD_COLOR), *colour_table(self.report), frame.mask)
 
 
-def read_run(run_dir: str | Path, poses: str | Path | None = None) -> ExportRun:
+def read_run(run_dir: str | Path, poses: str | Path | None = None, world: bool = True) -> ExportRun:
     """Read a finished run for an export.
 
     Parameters
@@ -111,6 +111,9 @@ def read_run(run_dir: str | Path, poses: str | Path | None = None) -> ExportRun:
     poses : str or Path, optional
         A camera trajectory (TUM format, camera to world); default: the one the run used
         (``report.json``: ``propagation.poses``), if any.
+    world : bool
+        Whether the export holds world-frame planes; without, no trajectory is read and no frame
+        has a pose.
 
     Returns
     -------
@@ -127,7 +130,7 @@ def read_run(run_dir: str | Path, poses: str | Path | None = None) -> ExportRun:
     trajectory = str(poses) if poses is not None else (report.propagation or {}).get("poses")
     written = [f for f in report.frames if f.written and f.mask]
     frame_poses = None
-    if trajectory:
+    if trajectory and world:
         if poses is None and not Path(trajectory).exists():  # a file, or a folder of pose files (ScanNet, 7-Scenes)
             raise InputError(run_dir / "report.json", f"the run's trajectory {trajectory} is gone: give it with --poses")
         gap = report.config.get("sequence", {}).get("max_pose_gap", DEFAULT_MAX_POSE_GAP)
@@ -145,4 +148,4 @@ def read_run(run_dir: str | Path, poses: str | Path | None = None) -> ExportRun:
         if frame_poses is not None and frame_poses.ok[i]:
             pose = (frame_poses.rotations[i], frame_poses.translations[i])
         frames.append(ExportFrame(Path(f.depth).stem, f.depth, f.rgb, f.depth_timestamp, run_dir / f.mask, f.kept, pose))
-    return ExportRun(run_dir, report, frames, trajectory or None)
+    return ExportRun(run_dir, report, frames, (trajectory or None) if world else None)

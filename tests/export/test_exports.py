@@ -181,6 +181,16 @@ def test_a_trajectory_given_to_the_export_must_cover_the_frames(run, tmp_path, c
     assert result.posed == 3
     assert [r.getMessage().split(" (")[0] for r in caplog.records] == [
         f"{cut}: 3 of 6 written frames have no pose: their planes have no world coordinates"]
+    # Formats without world-frame planes never read the trajectory: no warning, and one that
+    # is given says it is not used.
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="annotate_rgbd"):
+        for fmt in ("evops", "coco"):
+            assert export_run(run / "flat", fmt, tmp_path / f"{fmt}_cut", poses=cut).posed == 0
+            assert export_run(run / "flat", fmt, tmp_path / f"{fmt}_later", poses=later).posed == 0
+    assert [r.getMessage() for r in caplog.records] == [
+        f"{path}: not used: the {fmt} export holds no world-frame plane (only planercnn and planes do)"
+        for fmt in ("evops", "coco") for path in (cut, later)]
 
 
 def test_evops_labels_score_like_the_masks(run, tmp_path):
