@@ -295,8 +295,10 @@ def format_table(result: EvaluationResult) -> str:
         if names:
             shown = ", ".join(names[:10]) + (", ..." if len(names) > 10 else "")
             lines.append(f"{what}: {len(names)}: {shown}")
-    if result.predictions_unmatched:
-        lines.append(f"PRED files without a GT frame (ignored): {len(result.predictions_unmatched)}")
+    unmatched = result.predictions_unmatched
+    if unmatched:
+        shown = ", ".join(unmatched[:10]) + (", ..." if len(unmatched) > 10 else "")
+        lines.append(f"PRED files without a GT frame (ignored): {len(unmatched)}: {shown}")
     return "\n".join(lines)
 
 

@@ -295,6 +295,7 @@ def test_cli_table(sequence):
     for name in METRIC_NAMES:
         assert name in result.output
     assert "frames: 3" in result.output and "0003.5" in result.output
+    assert "PRED files without a GT frame (ignored): 1: 9999.npy" in result.output
     skipped = CliRunner().invoke(app, ["evaluate", str(gt_dir), str(pred_dir), "--skip-missing"])
     assert skipped.exit_code == 0, skipped.output
     assert "frames: 2" in skipped.output and "missing in PRED (not scored: --skip-missing): 1: 0003.5" in skipped.output
