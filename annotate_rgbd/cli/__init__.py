@@ -127,9 +127,13 @@ def cvat2mask(
 
         counts = summarize(report.frames)
         planes = len({track.plane for track in report.tracks})
+        # The planes of the annotation, and how many of them are in a mask when not all are (an
+        # export of a longer sequence, planes dropped on every frame).
+        in_masks = len({plane.plane for frame in report.frames for plane in frame.kept})
+        shown = counted(planes, "plane") + (f" ({in_masks} in the masks)" if in_masks < planes else "")
         summary = (
             f"{counted(report.written, 'mask')} in {out / 'masks'} ({report.counts.made} made, "
-            f"{report.counts.reused} unchanged), {counted(planes, 'plane')}, {counted(counts.skipped, 'frame')} skipped, "
+            f"{report.counts.reused} unchanged), {shown}, {counted(counts.skipped, 'frame')} skipped, "
             f"{counts.planes_dropped} of {counts.planes_kept + counts.planes_dropped} planes drawn on frames dropped "
             "(no depth, too far, no plane there)"
         )
