@@ -2,8 +2,9 @@
 default and the reason for it.
 
 ``propose`` also reads ``[camera]``, ``[sequence]`` (RGB association), ``[filter]`` (the drop rules,
-as ``cvat2mask`` applies them) and ``[noise]`` (the sensor's ``sigma(z)``, which the detector's
-bands and tests are multiples of). Each section checks itself when it is made: a bad value is a
+as ``cvat2mask`` applies them), ``[noise]`` (the sensor's ``sigma(z)``, which the detector's
+bands and tests are multiples of) and, with poses, ``propagate.time_offset`` (the trajectory's
+clock offset, added to every frame's timestamp as ``cvat2mask`` adds it). Each section checks itself when it is made: a bad value is a
 ``ValueError`` of one line naming ``section.key`` (:func:`annotate_rgbd.config.rules.check_section`).
 """
 

@@ -173,7 +173,9 @@ def _run(sequence, folder: OutputFolder, config, poses_path, helpers, progress, 
         log.info("poses: the %s layout's per-frame camera-to-world poses (%s); give --poses for another trajectory",
                  sequence.layout, poses_path)
     if poses_path is not None:
-        frame_poses = _frame_poses(poses_path, sequence, depth_times[chosen], config, result.warnings)
+        # The trajectory's clock offset, when known, as cvat2mask reads it (propose does not estimate it).
+        times = depth_times[chosen] + config.propagate.time_offset
+        frame_poses = _frame_poses(poses_path, sequence, times, config, result.warnings)
     elif (sequence.root / TUM_TRAJECTORY).is_file():  # the layout's own trajectory, not read unasked
         log.info("%s: a camera trajectory beside the frames; give it as --poses to link each plane across frames "
                  "by its place in the room (without, by image overlap: tracks can join different planes when the "

@@ -18,6 +18,7 @@ from annotate_rgbd.annotation.model import Shape
 from annotate_rgbd.geometry.camera import Camera
 from annotate_rgbd.cli import app
 from annotate_rgbd.config.settings import Config, load_config
+from annotate_rgbd.errors import InputError
 from annotate_rgbd.io.labelmaps import read_label_map
 from annotate_rgbd.evaluate.metrics import frame_statistics
 from annotate_rgbd.pipeline.scene import run_cvat2mask
@@ -117,6 +118,22 @@ def test_proposals_with_poses_reach_the_targets(room):
     assert result["mean_iou"] >= 0.85, result
     assert result["precision"] >= 0.85 and result["recall"] >= 0.85, result
     assert result["colour"] >= 0.95, result
+
+
+def test_the_trajectorys_time_offset_is_applied(room, tmp_path):
+    # The trajectory on a clock 100 s ahead of the camera's: with propagate.time_offset = 100 the
+    # proposals are those of the trajectory on the camera's clock; without, no frame has a pose.
+    sequence, root = room
+    lines = (sequence / "groundtruth.txt").read_text().splitlines()
+    ahead = tmp_path / "ahead.txt"
+    ahead.write_text("\n".join(line if line.startswith("#") else f"{float(line.split()[0]) + 100:.6f} "
+                               + " ".join(line.split()[1:]) for line in lines) + "\n")
+    run_propose(sequence, tmp_path / "shifted", load_config(None, {"propagate.time_offset": 100.0}), poses=ahead,
+                workers=1)
+    for mask in sorted((root / "posed" / "masks").iterdir()):
+        assert (tmp_path / "shifted" / "masks" / mask.name).read_bytes() == mask.read_bytes(), mask.name
+    with pytest.raises(InputError, match="no processed depth frame has a pose"):
+        run_propose(sequence, tmp_path / "unshifted", Config(), poses=ahead, workers=1)
 
 
 def test_proposals_without_poses(room):
