@@ -270,9 +270,10 @@ def score_frame(pair: FramePair, *, full: float, part: float, measure: str = "io
         if dont_care.any():  # no plane in either: neither a hit nor a miss
             gt, pred = np.where(dont_care, 0, gt), np.where(dont_care, 0, pred)
     elif gt.dtype in (np.uint8, np.uint16):
+        # Beside other planes (a 0/255 mask of one plane is no "don't care" mark).
         label = int(np.iinfo(gt.dtype).max)
         count = int(np.count_nonzero(gt == label))
-        share = count / gt.size if count else None
+        share = count / gt.size if count and np.any((gt > 0) & (gt < label)) else None
     unlikely = tuple(str(path) for path, labels in ((pair.gt, gt), (pair.pred, pred)) if looks_like_a_photograph(labels))
     statistics = frame_statistics(gt, pred, full=full, part=part, measure=measure)
     return FrameScore(pair.name, statistics, missing=pair.pred is None, unlikely_masks=unlikely,

@@ -428,6 +428,13 @@ def test_ignore_leaves_dont_care_pixels_out_of_both(tmp_path, caplog):
     assert (f"{gt_dir / 'f.png'}: label 65535 (its type's largest value, a common \"don't care\" mark) covers "
             f"{share:.0f} % of the pixels of 1 ground-truth frames and is scored as a plane; if it marks pixels to "
             "leave out, add --ignore 65535") in caplog.text
+    # A mask of one plane as 0 / 255 is no "don't care" mark: no warning.
+    caplog.clear()
+    cv2.imwrite(str(gt_dir / "f.png"), np.where(pred > 0, 255, 0).astype(np.uint8))
+    with caplog.at_level("WARNING", logger="annotate_rgbd"):
+        evaluate_paths(gt_dir, pred_dir)
+    assert caplog.text == ""
+    cv2.imwrite(str(gt_dir / "f.png"), gt)
     # A label value that is not there changes nothing; from the command line and the configuration.
     assert evaluate_paths(gt_dir, pred_dir, ignore=7).to_dict() == scored.to_dict()
     for args in (["--ignore", "65535"], ["--set", "evaluate.ignore=65535"]):
