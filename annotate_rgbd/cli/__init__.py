@@ -123,19 +123,20 @@ def cvat2mask(
         )
         progress.finish()
         from annotate_rgbd.report.records import summarize
-        from annotate_rgbd.report.stats import drop_hint
+        from annotate_rgbd.report.stats import drop_hint, dropped_words
 
         counts = summarize(report.frames)
         planes = len({track.plane for track in report.tracks})
         # The planes of the annotation, and how many of them are in a mask when not all are (an
         # export of a longer sequence, planes dropped on every frame).
-        in_masks = len({plane.plane for frame in report.frames for plane in frame.kept})
-        shown = counted(planes, "plane") + (f" ({in_masks} in the masks)" if in_masks < planes else "")
+        shown = counted(planes, "plane") + (f" ({counts.distinct_planes} in the masks)"
+                                            if counts.distinct_planes < planes else "")
+        reasons = dropped_words(counts.dropped_by_reason)
         summary = (
             f"{counted(report.written, 'mask')} in {out / 'masks'} ({report.counts.made} made, "
             f"{report.counts.reused} unchanged), {shown}, {counted(counts.skipped, 'frame')} skipped, "
-            f"{counts.planes_dropped} of {counts.planes_kept + counts.planes_dropped} planes drawn on frames dropped "
-            "(no depth, too far, no plane there)"
+            f"{counts.planes_dropped} of {counts.planes_kept + counts.planes_dropped} planes drawn on frames dropped"
+            + (f" ({reasons})" if reasons else "")
         )
         hint = drop_hint(counts, report.config.camera.depth_scale)
         if hint:  # advice on the run as a whole, not one of the report's warnings

@@ -161,6 +161,22 @@ DROP_HINTS = {
 }
 
 
+#: Each drop reason in the words of a run's summary line.
+DROP_WORDS = {
+    "invalid_depth": "no depth",
+    "too_far": "too far",
+    "too_few_points": "too few points",
+    "no_plane": "no plane there",
+    "not_where_expected": "not where the poses put it",
+}
+
+
+def dropped_words(by_reason: Mapping[str, int]) -> str:
+    """The drop reasons of a run in words, most frequent first: ``"too far 19, no depth 10"``."""
+    ranked = sorted(by_reason.items(), key=lambda item: (-item[1], item[0]))
+    return ", ".join(f"{DROP_WORDS.get(reason, reason)} {count}" for reason, count in ranked if count)
+
+
 def drop_hint(summary: RunSummary, depth_scale: float) -> str | None:
     """A warning when more than half of a run's plane records were dropped for one reason,
     with the likely cause; None otherwise.

@@ -7,6 +7,7 @@ import json
 import logging
 import re
 import shutil
+from collections import Counter
 from pathlib import Path
 
 import cv2
@@ -291,3 +292,7 @@ def test_the_summary_counts_the_planes_not_the_highest_plane_id(tmp_path):
     in_masks = {plane["plane"] for frame in report["frames"] for plane in frame.get("kept", [])}
     assert len(in_masks) == 8
     assert "10 planes (8 in the masks)," in result.output
+    # The drop reasons, as the report counts them, in words.
+    reasons = Counter(plane["reason"] for frame in report["frames"] for plane in frame.get("dropped", []))
+    assert reasons == {"too_far": 19, "invalid_depth": 10}
+    assert "29 of 146 planes drawn on frames dropped (too far 19, no depth 10)," in result.output
