@@ -162,6 +162,10 @@ def _partial_cover(annotation: Annotation, name: str, mapping: Mapping[int, int]
     first, last = min(mapping.values()), max(mapping.values())
     if last - first + 1 >= total:
         return []
+    if annotation.frames and annotation.frames[0] > 0:
+        # Its frame numbers start where its task starts in the video (start_frame): already placed.
+        return [f"{annotation.path}: its frames are RGB frames {first}-{last} of the sequence's {total} (its task "
+                f"starts at frame {annotation.frames[0]}): the others get no mask"]
     return [f"{annotation.path}: its frames are RGB frames {first}-{last} of the sequence's {total}: the others get "
             f"no mask (an export of another sequence? a part of this one: give its offset, --part {name}:OFFSET)"]
 

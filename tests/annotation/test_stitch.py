@@ -120,6 +120,12 @@ def test_a_single_export_needs_no_offset():
     assert parts[0].first == 0 and warnings == [
         "/x/annotations.xml: its frames are RGB frames 0-9 of the sequence's 100: the others get no mask (an export "
         "of another sequence? a part of this one: give its offset, --part annotations.xml:OFFSET)"]
+    # One whose task starts at frame 10 (CVAT's start_frame) is already placed: no offset to give.
+    started = Annotation(path="/x/annotations.xml", format="video", tracks=[], frames=list(range(10, 20, 3)))
+    parts, warnings = place_parts([started], RGB, {})
+    assert (parts[0].first, parts[0].last) == (10, 19) and warnings == [
+        "/x/annotations.xml: its frames are RGB frames 10-19 of the sequence's 100 (its task starts at frame 10): "
+        "the others get no mask"]
 
 
 @pytest.mark.parametrize(
