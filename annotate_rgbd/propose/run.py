@@ -302,7 +302,9 @@ def _run(sequence, folder: OutputFolder, config, poses_path, helpers, progress, 
     result.dropped = dict(Counter(d["reason"] for f in frames for d in f.get("dropped", ())))
     write_json(out_dir / REPORT_NAME, {
         "tool": "annotate-rgbd propose", "version": __version__,
-        "inputs": {"sequence": str(sequence.root), "poses": None if poses_path is None else str(poses_path),
+        # Absolute, as cvat2mask's: review and the next step's command read them from anywhere.
+        "inputs": {"sequence": str(Path(sequence.root).absolute()),
+                   "poses": None if poses_path is None else str(Path(poses_path).absolute()),
                    "every": settings.every, "label": settings.label,
                    "min_area_fraction": config.detect.min_area_fraction,
                    "min_track_frames": settings.min_track_frames, "min_surface_m2": settings.min_surface_m2,

@@ -88,12 +88,7 @@ def read_report(out_dir: str | Path, proposals: bool = False) -> RunRecord:
     report = load_json(data, path)  # strict: no NaN, no lone surrogate
     if is_proposals(report):
         if not proposals:
-            inputs = report.get("inputs") if isinstance(report.get("inputs"), dict) else {}
-            sequence = inputs.get("sequence") if isinstance(inputs.get("sequence"), str) else "SEQUENCE"
-            raise InputError(path, "this is the output of `propose`, not of a cvat2mask run: its planes become masks "
-                                   f"with `annotate-rgbd cvat2mask {shlex.quote(sequence)} "
-                                   f"{shlex.quote(str(Path(out_dir) / 'proposals.xml'))} --out DIR` (after correcting "
-                                   "them in CVAT, or as they are); then use DIR")
+            raise InputError(path, "this is the output of `propose`, not of a cvat2mask run: " + _next_step(report, out_dir))
         try:
             record = proposals_record(report)
             check_run(record)
@@ -352,3 +347,19 @@ def _json_line(line: bytes, path: Path, number: int):
         return json.loads(line)
     except (ValueError, RecursionError):
         raise InputError(path, f"line {number}: not JSON") from None
+
+
+def _next_step(report: dict, out_dir: str | Path) -> str:
+    """How a propose run's planes become a run the other commands read: ``cvat2mask`` on its
+    ``proposals.xml``, with its sequence and trajectory (absolute paths) and configuration."""
+    inputs = report.get("inputs") if isinstance(report.get("inputs"), dict) else {}
+    frames = report.get("frames") if isinstance(report.get("frames"), list) else []
+    if frames and all(isinstance(f, dict) and f.get("rgb") is None for f in frames):
+        return ("a propose run of a depth-only sequence, which cvat2mask cannot take (it needs the RGB frames "
+                "annotations are drawn on): its masks/ hold the proposals")
+    sequence = inputs.get("sequence") if isinstance(inputs.get("sequence"), str) else "SEQUENCE"
+    poses = f" --poses {shlex.quote(inputs['poses'])}" if isinstance(inputs.get("poses"), str) else ""
+    proposals = Path(out_dir).absolute() / "proposals.xml"
+    return (f"its planes become masks with `annotate-rgbd cvat2mask {shlex.quote(sequence)} "
+            f"{shlex.quote(str(proposals))}{poses} --config CONFIG --out DIR` (CONFIG: the propose run's; after "
+            "correcting the planes in CVAT, or as they are); then use DIR")

@@ -274,3 +274,9 @@ def test_propose_reads_a_depth_only_folder(scannet, tmp_path):
     assert review.output.strip().splitlines()[-1] == (
         f"error: {tmp_path / 'out' / 'report.json'}: a propose run of a depth-only sequence: review draws on the RGB "
         "frames, and it has none; look at its masks/ (or proposals.xml in CVAT)")
+    # Nor does stats suggest cvat2mask, which refuses the folder.
+    stats = CliRunner().invoke(app, ["stats", str(tmp_path / "out")])
+    assert stats.exit_code == 1 and stats.stderr == (
+        f"error: {tmp_path / 'out' / 'report.json'}: this is the output of `propose`, not of a cvat2mask run: a propose "
+        "run of a depth-only sequence, which cvat2mask cannot take (it needs the RGB frames annotations are drawn "
+        "on): its masks/ hold the proposals\n")

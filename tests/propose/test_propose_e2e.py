@@ -120,6 +120,15 @@ def test_proposals_with_poses_reach_the_targets(room):
     assert result["colour"] >= 0.95, result
 
 
+def test_the_next_step_after_propose_names_the_trajectory(room):
+    # stats (as export and export-cvat) takes a cvat2mask run: it says how the proposals become one.
+    sequence, root = room
+    result = CliRunner().invoke(app, ["stats", str(root / "posed")])
+    assert result.exit_code == 1
+    assert (f"`annotate-rgbd cvat2mask {sequence.absolute()} {(root / 'posed' / 'proposals.xml').absolute()} --poses "
+            f"{(sequence / 'groundtruth.txt').absolute()} --config CONFIG --out DIR`") in result.stderr
+
+
 def test_the_trajectorys_time_offset_is_applied(room, tmp_path):
     # The trajectory on a clock 100 s ahead of the camera's: with propagate.time_offset = 100 the
     # proposals are those of the trajectory on the camera's clock; without, no frame has a pose.

@@ -142,5 +142,6 @@ def test_other_commands_still_refuse_a_propose_folder(proposals, tmp_path):
         assert outcome.exit_code == 1 and outcome.stderr == (
             f"error: {proposals / 'report.json'}: this is the output of `propose`, not of a cvat2mask run: its planes "
             f"become masks with `annotate-rgbd cvat2mask {sequence} {shlex.quote(str(proposals / 'proposals.xml'))} "
-            "--out DIR` (after correcting them in CVAT, or as they are); then use DIR\n"), command
+            "--config CONFIG --out DIR` (CONFIG: the propose run's; after correcting the planes in CVAT, or as they "
+            "are); then use DIR\n"), command
     assert not (tmp_path / "e").exists()
