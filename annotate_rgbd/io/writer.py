@@ -45,6 +45,11 @@ def prepare_output(folder: Path) -> None:
             pass
     except FileExistsError:
         raise OutputError(folder, "cannot create the output folder: a file of that name is in the way") from None
+    except NotADirectoryError:
+        # A file where one of the folders above it should be (--out notes.txt/run).
+        blocking = next((p for p in reversed(folder.parents) if p.exists() and not p.is_dir()), None)
+        where = f": {blocking} is a file" if blocking is not None else ""
+        raise OutputError(folder, f"cannot create the output folder{where}") from None
     except OSError as exc:
         raise OutputError(folder, f"cannot write to the output folder: {exc.strerror or exc}") from None
 

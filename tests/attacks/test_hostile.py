@@ -593,8 +593,9 @@ def test_prepare_output_refuses_unusable_folders(tmp_path, monkeypatch):
     (tmp_path / "file").write_text("x")
     with pytest.raises(OutputError, match="a file of that name is in the way"):
         writer.prepare_output(tmp_path / "file")
-    with pytest.raises(OutputError, match="cannot write to the output folder: Not a directory"):
-        writer.prepare_output(tmp_path / "file" / "out")
+    with pytest.raises(OutputError) as raised:
+        writer.prepare_output(tmp_path / "file" / "out" / "run")
+    assert str(raised.value) == f"{tmp_path / 'file' / 'out' / 'run'}: cannot create the output folder: {tmp_path / 'file'} is a file"
 
     def read_only(*args, **kwargs):
         raise PermissionError(errno.EACCES, os.strerror(errno.EACCES))
