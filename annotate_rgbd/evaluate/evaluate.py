@@ -46,11 +46,9 @@ class FrameScore:
     missing: bool
     #: Its label files that look like photographs (:func:`looks_like_a_photograph`).
     unlikely_masks: tuple[str, ...] = ()
-    #: Without ``ignore``: the share of GT pixels holding its type's largest value (255, 65535), a
-    #: common "don't care" mark, that label and the GT file; None when there is none.
-    dont_care_share: float | None = None
-    dont_care_label: int = -1
-    gt_path: str = ""
+    #: Without ``ignore``: ``(GT file, label, share of its pixels)`` when GT holds its type's largest
+    #: value (255, 65535), a common "don't care" mark, beside other planes; else None.
+    dont_care: tuple[str, int, float] | None = None
 
 
 @dataclass(frozen=True)
@@ -142,13 +140,13 @@ def evaluate_paths(
         raise InputError(None, f"--ignore must be a label value >= 0 (or -1: none), not {ignore}")
     frames = tuple(score_frame(pair, full=full, part=part, measure=measure, ignore=ignore) for pair in pairs
                    if pair.pred is not None or not skip_missing)
-    marked = [frame for frame in frames if frame.dont_care_share is not None]
+    marked = [frame.dont_care for frame in frames if frame.dont_care is not None]
     if marked:
-        share = float(np.mean([frame.dont_care_share for frame in marked]))
+        (path, label, _), share = marked[0], float(np.mean([share for _, _, share in marked]))
         log.warning(
             "%s: label %d (its type's largest value, a common \"don't care\" mark) covers %.0f %% of the pixels of "
             "%d ground-truth frames and is scored as a plane; if it marks pixels to leave out, add --ignore %d",
-            marked[0].gt_path, marked[0].dont_care_label, 100 * share, len(marked), marked[0].dont_care_label,
+            path, label, 100 * share, len(marked), label,
         )
     if not skip_missing and 2 * len(absent) > len(pairs):  # after the scores: an unreadable file is the error
         log.warning(
@@ -264,20 +262,21 @@ def score_frame(pair: FramePair, *, full: float, part: float, measure: str = "io
         gt, pred = (gt, pred.reshape(gt.shape)) if gt.ndim == 2 else (gt.reshape(pred.shape), pred)
     if pred.shape != gt.shape:
         raise InputError(pair.pred, f"frame is {_size(pred)} but ground truth {pair.gt.name} is {_size(gt)}")
-    share, label = None, -1
+    dont_care = None
     if ignore >= 0:
-        dont_care = gt == ignore
-        if dont_care.any():  # no plane in either: neither a hit nor a miss
-            gt, pred = np.where(dont_care, 0, gt), np.where(dont_care, 0, pred)
+        ignored = gt == ignore
+        if ignored.any():  # no plane in either: neither a hit nor a miss
+            gt, pred = np.where(ignored, 0, gt), np.where(ignored, 0, pred)
     elif gt.dtype in (np.uint8, np.uint16):
         # Beside other planes (a 0/255 mask of one plane is no "don't care" mark).
         label = int(np.iinfo(gt.dtype).max)
         count = int(np.count_nonzero(gt == label))
-        share = count / gt.size if count and np.any((gt > 0) & (gt < label)) else None
+        if count and np.any((gt > 0) & (gt < label)):
+            dont_care = (str(pair.gt), label, count / gt.size)
     unlikely = tuple(str(path) for path, labels in ((pair.gt, gt), (pair.pred, pred)) if looks_like_a_photograph(labels))
     statistics = frame_statistics(gt, pred, full=full, part=part, measure=measure)
     return FrameScore(pair.name, statistics, missing=pair.pred is None, unlikely_masks=unlikely,
-                      dont_care_share=share, dont_care_label=label, gt_path=str(pair.gt))
+                      dont_care=dont_care)
 
 
 def _size(labels: np.ndarray) -> str:
@@ -292,14 +291,10 @@ def format_table(result: EvaluationResult) -> str:
     lines += [f"{name:<{width}}  {value:.4f}" for name, value in result.means.items()]
     lines.append(f"frames: {len(result.frames)} (full IoU >= {result.full}, partial IoU >= {result.part})")
     for names, what in ((result.frames_missing, "missing in PRED (scored as empty)"),
-                        (result.frames_skipped, "missing in PRED (not scored: --skip-missing)")):
-        if names:
-            shown = ", ".join(names[:10]) + (", ..." if len(names) > 10 else "")
-            lines.append(f"{what}: {len(names)}: {shown}")
-    unmatched = result.predictions_unmatched
-    if unmatched:
-        shown = ", ".join(unmatched[:10]) + (", ..." if len(unmatched) > 10 else "")
-        lines.append(f"PRED files without a GT frame (ignored): {len(unmatched)}: {shown}")
+                        (result.frames_skipped, "missing in PRED (not scored: --skip-missing)"),
+                        (result.predictions_unmatched, "PRED files without a GT frame (ignored)")):
+        if names:  # the first ten
+            lines.append(f"{what}: {len(names)}: " + ", ".join(names[:10]) + (", ..." if len(names) > 10 else ""))
     return "\n".join(lines)
 
 
