@@ -127,10 +127,10 @@ def read_run(run_dir: str | Path, poses: str | Path | None = None, world: bool =
     """
     run_dir = Path(run_dir)
     report = read_report(run_dir)
-    trajectory = str(poses) if poses is not None else (report.propagation or {}).get("poses")
+    trajectory = (str(poses) if poses is not None else (report.propagation or {}).get("poses")) if world else None
     written = [f for f in report.frames if f.written and f.mask]
     frame_poses = None
-    if trajectory and world:
+    if trajectory:
         if poses is None and not Path(trajectory).exists():  # a file, or a folder of pose files (ScanNet, 7-Scenes)
             raise InputError(run_dir / "report.json", f"the run's trajectory {trajectory} is gone: give it with --poses")
         gap = report.config.get("sequence", {}).get("max_pose_gap", DEFAULT_MAX_POSE_GAP)
@@ -148,4 +148,4 @@ def read_run(run_dir: str | Path, poses: str | Path | None = None, world: bool =
         if frame_poses is not None and frame_poses.ok[i]:
             pose = (frame_poses.rotations[i], frame_poses.translations[i])
         frames.append(ExportFrame(Path(f.depth).stem, f.depth, f.rgb, f.depth_timestamp, run_dir / f.mask, f.kept, pose))
-    return ExportRun(run_dir, report, frames, (trajectory or None) if world else None)
+    return ExportRun(run_dir, report, frames, trajectory or None)
