@@ -6,26 +6,23 @@ from __future__ import annotations
 import logging
 
 from annotate_rgbd.io.cleanup import remove_review_files, remove_stale_files
-from annotate_rgbd.io.outdir import MASKS, OVERLAYS, REPORT
+from annotate_rgbd.io.outdir import REPORT
 from annotate_rgbd.io.writer import write_json
 from annotate_rgbd.report.run_folder import write_drawn_shapes
 from .execute import SceneRun
 from .resume import remove_journal
-from .tables import TABLES, run_record, write_tables
+from .tables import run_record, write_tables
 
 log = logging.getLogger("annotate_rgbd")
 
 
 def finish_scene(scene: SceneRun) -> None:
-    """Write a scene's tables, remove stale outputs, write its drawn shapes and report, then
-    remove the journal and record what the run left; with overlays (drawn by the frames' jobs)
-    also the review page and contact sheet."""
+    """Remove stale outputs, write a scene's tables, drawn shapes and report, then remove the
+    journal and record what the run left; with overlays (drawn by the frames' jobs) also the
+    review page and contact sheet."""
     plan = scene.plan
-    tables_before = _tables(scene)
+    keep = remove_stale_outputs(scene)
     write_tables(scene.out_dir, plan.tracks, plan.colours)
-    # The earlier review (overlays, page, sheet) still shows this output when neither a mask nor
-    # a table changed.
-    keep = remove_stale_outputs(scene, keep_review=unchanged(scene) and _tables(scene) == tables_before)
     write_drawn_shapes(scene.out_dir, ((plan.frames[i].mask, job.shapes, job.carried) for i, job in plan.jobs
                                        if plan.frames[i].written))
     record = run_record(plan, scene.config)
@@ -38,37 +35,19 @@ def finish_scene(scene: SceneRun) -> None:
         scene.review_page = write_review(scene.folder, record, overlays=False).page
 
 
-def remove_stale_outputs(scene: SceneRun, keep_review: bool = False) -> set[str]:
+def remove_stale_outputs(scene: SceneRun) -> set[str]:
     """Delete the files an earlier run wrote into the scene's folder that this run did not:
     masks of frames now skipped or failed, raw masks and overlays not asked for, the review
-    page and contact sheet of an earlier run (they show its masks), and temporary files;
-    with ``keep_review`` (the run changed nothing) the overlays, page and sheet stay. Files
+    page and contact sheet of an earlier run (they show its masks), and temporary files. Files
     annotate-rgbd did not write are left alone, with a warning. Returns the per-frame files
     the run keeps (relative paths)."""
     keep = {path for f in scene.frames if f.written for path, _ in f.result.outputs}
     keep |= {f.mask for f in scene.frames if f.written}  # records of earlier versions list no outputs
-    if keep_review:
-        keep |= {path for path in scene.previous.files if path.startswith(f"{OVERLAYS}/")}
     cleanup = remove_stale_files(scene.out_dir, scene.previous.files, keep)
-    if not keep_review:
-        remove_review_files(scene.out_dir, cleanup)
+    remove_review_files(scene.out_dir, cleanup)
     for line in cleanup.removals():
         log.info(line)
     for line in cleanup.warnings():
         scene.plan.warnings.append(line)
         log.warning(line)
     return keep
-
-
-def _tables(scene: SceneRun) -> tuple[bytes | None, ...]:
-    """The bytes of the scene's tables (None where there is none)."""
-    return tuple((scene.out_dir / name).read_bytes() if (scene.out_dir / name).is_file() else None
-                 for name in TABLES)
-
-
-def unchanged(scene: SceneRun) -> bool:
-    """Whether the run left the masks as the earlier run had them: every frame reused, none
-    failed, and the same frames masked."""
-    before = {path for path in scene.previous.files if path.startswith(f"{MASKS}/")}
-    now = {f.mask for f in scene.frames if f.written}
-    return scene.counts.made == 0 and scene.counts.failed == 0 and bool(before) and before == now

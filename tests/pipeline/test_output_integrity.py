@@ -233,46 +233,14 @@ def test_the_users_own_files_are_left_alone_with_a_warning(clean_run, tmp_path):
     (out / "overlays").mkdir()
     (out / "overlays" / "sketch.png").write_bytes(b"a sketch")
     (out / "review.html").write_text("my notes")
-    # --force: every mask made again, so the earlier review page would go (an unchanged re-run keeps it).
     result = CliRunner().invoke(app, ["cvat2mask", str(SEQUENCE), str(ANNOTATIONS), "--config", str(CAMERA),
-                                      "--out", str(out), "--force"])
+                                      "--out", str(out)])
     assert result.exit_code == 0, result.output
     assert (out / "masks" / "holiday.png").read_bytes() == b"a photo"
     assert (out / "overlays" / "sketch.png").read_bytes() == b"a sketch"
     assert (out / "review.html").read_text() == "my notes"
     assert ("left alone 3 file(s) in the output folder that annotate-rgbd did not write: masks/holiday.png, "
             "overlays/sketch.png, review.html") in result.output
-
-
-def test_a_rerun_that_changes_nothing_keeps_the_earlier_review(tmp_path):
-    out = tmp_path / "out"
-    runner = CliRunner()
-    base = ["cvat2mask", str(SEQUENCE), str(ANNOTATIONS), "--config", str(CAMERA), "--out", str(out)]
-    assert runner.invoke(app, base).exit_code == 0
-    assert runner.invoke(app, ["review", str(out)]).exit_code == 0
-    review = {path.relative_to(out): path.read_bytes() for path in [out / "review.html", out / "contact_sheet.png",
-                                                                    *(out / "overlays").iterdir()]}
-    assert len(review) == 2 + 19
-    again = runner.invoke(app, base)
-    assert again.exit_code == 0 and "(0 made, 19 unchanged)" in again.output
-    assert "removed" not in again.output
-    assert {path: (out / path).read_bytes() for path in review} == review
-    # A run that changes a mask removes them: they showed the earlier output.
-    changed = runner.invoke(app, [*base, "--set", "refine.grow_pixels=2"])
-    assert changed.exit_code == 0 and "(19 made, 0 unchanged)" in changed.output
-    assert "removed 19 overlays no longer asked for (overlays/)" in changed.output
-    assert "removed review.html and contact_sheet.png of an earlier review" in changed.output
-    assert not (out / "review.html").exists() and not (out / "overlays").exists()
-    # So does one that changes a table only: a label renamed in the export, the masks the same.
-    assert runner.invoke(app, ["review", str(out)]).exit_code == 0
-    renamed = tmp_path / "renamed.xml"
-    renamed.write_text(ANNOTATIONS.read_text(encoding="utf-8").replace('label="floor"', 'label="ground"'),
-                       encoding="utf-8")
-    relabelled = runner.invoke(app, ["cvat2mask", str(SEQUENCE), str(renamed), "--config", str(CAMERA), "--out",
-                                     str(out), "--set", "refine.grow_pixels=2"])
-    assert relabelled.exit_code == 0, relabelled.output
-    assert "0 made" in relabelled.output and "ground" in (out / "planes.csv").read_text()
-    assert not (out / "review.html").exists()
 
 
 def test_removed_files_are_those_of_earlier_runs_and_are_named(tmp_path, caplog):
