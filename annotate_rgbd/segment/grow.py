@@ -147,8 +147,8 @@ def grow_connected(
     floor, cap)`` of ``p``'s plane and of no other growing plane more closely (a tie: the lowest
     id), the mean residual of its window (:func:`annotate_rgbd.segment.refine.window_scores` over these
     pixels and the planes' own, in units of the model's noise) lies within
-    ``refine.coherence_limit`` of 0 (a doormat on a floor lies within its band),
-    and a chain of such pixels (8-connected) links it to ``p``'s own pixels. Unlike refinement's
+    ``refine.coherence_limit`` of 0 (a doormat on a floor lies within its band; no such test
+    when ``refine.coherence_window`` is 0), and a chain of such pixels (8-connected) links it to ``p``'s own pixels. Unlike refinement's
     window test there is no per-plane centre and spread, and the band is the model's (not scaled
     by the plane's noise): on a sensor noisier than its model it grows less, never more.
 
@@ -233,8 +233,11 @@ def grow_connected(
     residual.ravel()[free_at] = residual_free
     # The window test of refinement (a doormat on the floor lies within its band): residuals in
     # noise units, averaged over each candidate's window, must look like the plane's noise.
-    score, usable = window_scores(residual, own | (candidate > 0), refine.coherence_window, refine.min_window_inliers)
-    candidate[~(usable & (np.abs(score) <= refine.coherence_limit))] = 0
+    # ``coherence_window = 0``: no window test, as in refinement.
+    if refine.coherence_window > 0:
+        score, usable = window_scores(residual, own | (candidate > 0), refine.coherence_window,
+                                      refine.min_window_inliers)
+        candidate[~(usable & (np.abs(score) <= refine.coherence_limit))] = 0
     candidates_left = np.bincount(candidate.ravel()[free_at], minlength=len(growing))
     for plane_id in ids:
         if not candidates_left[plane_id]:

@@ -124,3 +124,20 @@ def test_the_same_labels_as_the_whole_image_reference(seed):
     np.testing.assert_array_equal(got, expected)
     assert grown == expected_grown
     assert sum(grown.values()) > 0  # the scenes do grow
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_without_a_window_test_every_candidate_linked_to_the_plane_grows(seed):
+    # refine.coherence_window = 0 turns the window test off (as in refinement): the same as a
+    # test every candidate passes (no fewest inliers, no limit). It raised in OpenCV's boxFilter.
+    labels, drawn, claimed, depth, equations, camera, excluded = _scene(seed)
+    noise = NoiseSettings(SENSOR_MODELS["kinect_v1"], 3.0, 0.002, 0.1)
+    got, grown = grow_connected(labels, drawn, claimed, depth, equations, camera, noise,
+                                RefineConfig(coherence_window=0), excluded)
+    expected, expected_grown = reference_grow_connected(
+        labels, drawn, claimed, depth, equations, camera, noise,
+        RefineConfig(coherence_limit=np.inf, min_window_inliers=0), excluded)
+    np.testing.assert_array_equal(got, expected)
+    assert grown == expected_grown
+    tested, _ = grow_connected(labels, drawn, claimed, depth, equations, camera, noise, RefineConfig(), excluded)
+    assert sum(grown.values()) >= np.count_nonzero(tested != labels) > 0
