@@ -148,9 +148,10 @@ def grow_connected(
     id), the mean residual of its window (:func:`annotate_rgbd.segment.refine.window_scores` over these
     pixels and the planes' own, in units of the model's noise) lies within
     ``refine.coherence_limit`` of 0 (a doormat on a floor lies within its band; no such test
-    when ``refine.coherence_window`` is 0), and a chain of such pixels (8-connected) links it to ``p``'s own pixels. Unlike refinement's
-    window test there is no per-plane centre and spread, and the band is the model's (not scaled
-    by the plane's noise): on a sensor noisier than its model it grows less, never more.
+    when ``refine.coherence_window`` is 0), and a chain of such pixels (8-connected) links it to
+    ``p``'s own pixels. Unlike refinement's window test there is no per-plane centre and spread,
+    and the band is the model's (not scaled by the plane's noise): on a sensor noisier than its
+    model it grows less, never more.
 
     Parameters
     ----------
