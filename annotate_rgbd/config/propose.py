@@ -208,7 +208,8 @@ class ProposeConfig:
         centimetre or more). 20: the detector's cell side, the shortest stretch it tests a plane on.
     seam_reach_px : int
         Pixels between two planes that still meet: the detector leaves a pixel or two unassigned
-        along a bend where the noise takes it off both bands. 2.
+        along a bend where the noise takes it off both bands. 2. 0: planes never meet at a seam
+        (none are joined).
     object_height : float
         A plane parallel to a larger one (within ``detector.min_angle_deg``), in front of it by at
         most this many metres and mostly inside its polygon is an object on it, not proposed

@@ -27,7 +27,7 @@ def seam_pairs(labels: np.ndarray, reach: int) -> dict[tuple[int, int], tuple[np
     labels : ndarray of int, shape (H, W)
         0 for none, else 1..K.
     reach : int
-        Largest gap, in pixels, between two pixels that meet (>= 1).
+        Largest gap, in pixels, between two pixels that meet (1: neighbours; 0: nothing meets).
 
     Returns
     -------
@@ -53,6 +53,8 @@ def seam_pairs(labels: np.ndarray, reach: int) -> dict[tuple[int, int], tuple[np
                 at = at[at % width < width - shift]
             first.append(at)
             second.append(at + step)
+    if not first:
+        return {}
     one, two = np.concatenate(first), np.concatenate(second)
     if one.size == 0:
         return {}

@@ -304,10 +304,11 @@ def test_seam_pairs_find_the_pixels_along_the_border_only():
     np.testing.assert_array_equal(np.unravel_index(right, labels.shape)[1], np.full(8, 7))
 
 
-@pytest.mark.parametrize("reach", [1, 2, 3])
+@pytest.mark.parametrize("reach", [0, 1, 2, 3])
 def test_seam_pairs_match_a_pixel_by_pixel_search(reach):
     # Speckled labels (many short seams, borders at the image's edges) against a walk over
-    # every pixel and its neighbours up to ``reach`` to the right and below.
+    # every pixel and its neighbours up to ``reach`` to the right and below (0: none, no seam;
+    # propose.seam_reach_px = 0 raised in np.concatenate).
     rng = np.random.default_rng(reach)
     labels = rng.integers(0, 5, size=(23, 17)).astype(np.uint8)
     labels[rng.random(labels.shape) < 0.5] = 0
