@@ -54,7 +54,8 @@ class Progress:
 
     def line(self, scene: str) -> str:
         """The status text: the scene's progress and, for several scenes, the overall one; the
-        rate and ETA from the frames done since the first one (none yet: ``--``)."""
+        rate (seconds per frame when slower than a frame a second) and ETA from the frames done
+        since the first one (none yet: ``--``)."""
         done, total = sum(self.done.values()), sum(self.totals.values())
         text = f"{scene}: {self.done[scene]}/{self.totals[scene]} frames"
         if len(self.totals) > 1:
@@ -63,7 +64,13 @@ class Progress:
         if self.first is not None and done > self.first[1]:
             rate = (done - self.first[1]) / max(self.clock() - self.first[0], 1e-9)
         eta = 0.0 if done >= total else (total - done) / rate  # NaN without a rate: "--:--"
-        return text + (f" | {rate:.1f}" if rate == rate else " | --") + f" frames/s | ETA {_duration(eta)}"
+        if rate != rate:
+            speed = "-- frames/s"
+        elif rate >= 1.0:
+            speed = f"{rate:.1f} frames/s"
+        else:  # slower than a frame a second: "0.0 frames/s" would say nothing
+            speed = f"{1.0 / rate:.1f} s/frame"
+        return f"{text} | {speed} | ETA {_duration(eta)}"
 
     def finish(self) -> None:
         """End the in-place line on a terminal (if one was drawn: e.g. ``review --no-overlays``

@@ -46,3 +46,18 @@ def test_the_rate_and_eta_count_from_the_first_frame_not_the_start_up():
     lines = stream.getvalue().splitlines()
     assert lines[0] == "a: 1/101 frames | -- frames/s | ETA --:--"
     assert lines[1] == "a: 11/101 frames | 2.0 frames/s | ETA 00:45"
+
+
+def test_a_run_slower_than_a_frame_a_second_shows_seconds_per_frame():
+    # 2-pixel detector cells take ~40 s a frame: "0.0 frames/s" said nothing.
+    stream, now = io.StringIO(), [0.0]
+    progress = Progress({"a": 0}, stream=stream, interval=0.0, clock=lambda: now[0])
+    update = progress.callback("a")
+    update(1, 30)
+    now[0] = 80.0
+    update(3, 30)
+    now[0] = 82.0
+    update(4, 30)  # 3 frames in 82 s since the first
+    lines = stream.getvalue().splitlines()
+    assert lines[1] == "a: 3/30 frames | 40.0 s/frame | ETA 18:00"
+    assert lines[2] == "a: 4/30 frames | 27.3 s/frame | ETA 11:51"
