@@ -181,6 +181,8 @@ def pool_groups(moments: Moments, group: np.ndarray, heads: np.ndarray) -> Momen
     Moments
         ``G`` sets.
     """
+    if len(heads) == 0:  # nothing to pool (a frame without a plane)
+        return Moments(moments.count[:0].copy(), moments.mean[:0].copy(), moments.scatter[:0].copy())
     count = np.array([moments.count[group == h].sum() for h in heads])
     mean = np.array([(moments.count[group == h, None] * moments.mean[group == h]).sum(0) for h in heads]) / count[:, None]
     scatter = np.array([

@@ -309,3 +309,6 @@ def test_moments_pool_without_their_points():
         np.testing.assert_allclose(got.mean, want.mean, atol=1e-12)
         np.testing.assert_allclose(got.scatter, want.scatter, rtol=1e-9, atol=1e-12)
     assert moments.take([1, 3]).count.tolist() == [200.0, 90.0]
+    # No groups (a frame without a plane): no sets, of the right shapes.
+    empty = pool_groups(moments.take([]), np.zeros(0, dtype=int), np.zeros(0, dtype=int))
+    assert (empty.count.shape, empty.mean.shape, empty.scatter.shape) == ((0,), (0, 3), (0, 3, 3))

@@ -407,3 +407,24 @@ def test_propose_without_poses_names_the_trajectory_beside_the_frames(tmp_path):
     assert outcome.output.count(f"info: {sequence / 'groundtruth.txt'}: a camera trajectory beside the frames; "
                                 "give it as --poses") == 1
     assert json.loads((tmp_path / "out" / "report.json").read_text())["inputs"]["poses"] is None
+
+
+@pytest.mark.parametrize("blank", ["no depth", "noise"])
+def test_a_frame_without_a_plane_gets_an_empty_mask(tmp_path, blank):
+    # A frame the sensor saw nothing on (all zero), or nothing flat: no plane detected, which
+    # raised in the merge of coplanar pieces (pool_groups of no groups).
+    sequence = tmp_path / "sequence"
+    shutil.copytree(SAMPLE_DATA / "sequence", sequence)
+    first = sorted((sequence / "depth").iterdir())[0]
+    depth = cv2.imread(str(first), cv2.IMREAD_UNCHANGED)
+    rng = np.random.default_rng(0)
+    cv2.imwrite(str(first), np.zeros_like(depth) if blank == "no depth"
+                else (rng.random(depth.shape) * 20000).astype(np.uint16))
+    outcome = CliRunner().invoke(app, ["propose", str(sequence), "--out", str(tmp_path / "out"), "--config",
+                                       str(SAMPLE_DATA / "camera.toml"), "--every", "6", "--jobs", "1"])
+    assert outcome.exit_code == 0, outcome.output
+    mask = cv2.imread(str(tmp_path / "out" / "masks" / first.name), cv2.IMREAD_UNCHANGED)
+    assert mask is not None and not mask.any()
+    frame = next(f for f in json.loads((tmp_path / "out" / "report.json").read_text())["frames"]
+                 if f["depth"].endswith(first.name))
+    assert frame["status"] == "written" and frame["planes"] == []
