@@ -96,22 +96,59 @@ def remove_stale_files(folder: Path, ours: set[str], keep: set[str]) -> Cleanup:
     return cleanup
 
 
-def read_review_record(folder: Path) -> dict[str, str]:
-    """What ``review`` recorded it wrote into ``folder``: file name -> digest (empty when none)."""
+@dataclass(frozen=True)
+class ReviewRecord:
+    """What ``review`` wrote into an output folder (:data:`~annotate_rgbd.io.outdir.REVIEW_RECORD`).
+
+    Parameters
+    ----------
+    files : dict of str to str
+        The page and contact sheet it wrote: file name -> digest
+        (:func:`~annotate_rgbd.io.outdir.file_digest`), so that a later run removes them only
+        while they are unchanged.
+    overlays : tuple of str
+        The overlays it drew (names in ``overlays/``), empty when the page shows the run's own
+        (``cvat2mask --overlays``): a re-run that changes no mask keeps the review only when
+        ``review`` drew them all.
+    """
+
+    files: dict[str, str] = field(default_factory=dict)
+    overlays: tuple[str, ...] = ()
+
+    def to_json(self) -> dict:
+        return {"files": dict(self.files), "overlays": list(self.overlays)}
+
+    @classmethod
+    def from_json(cls, data) -> "ReviewRecord":
+        """The record of ``data``; what is not of the record's shape is left out (an earlier
+        version's record, file name -> digest, reads as its ``files``)."""
+        if not isinstance(data, dict):
+            return cls()
+        files = data.get("files", data)
+        overlays = data.get("overlays", [])
+        return cls({k: v for k, v in files.items() if isinstance(k, str) and isinstance(v, str)}
+                   if isinstance(files, dict) else {},
+                   tuple(name for name in overlays if isinstance(name, str) and "/" not in name and "\\" not in name)
+                   if isinstance(overlays, list) else ())
+
+
+#: Bound on the review record (a 100,000-frame run's overlay names: ~3 MiB).
+MAX_REVIEW_RECORD = 16 << 20
+
+
+def read_review_record(folder: Path) -> ReviewRecord:
+    """What ``review`` recorded it wrote into ``folder`` (empty when nothing, or unreadable)."""
     try:
-        record = json.loads(read_bounded(folder / REVIEW_RECORD, 1 << 16))
+        return ReviewRecord.from_json(json.loads(read_bounded(folder / REVIEW_RECORD, MAX_REVIEW_RECORD)))
     except (OSError, ValueError, RecursionError):
-        return {}
-    if not isinstance(record, dict):
-        return {}
-    return {k: v for k, v in record.items() if isinstance(k, str) and isinstance(v, str)}
+        return ReviewRecord()
 
 
 def remove_review_files(folder: Path, cleanup: Cleanup) -> None:
     """Remove the review page and contact sheet of an earlier run (they show its masks), if
     ``review`` wrote them and they are unchanged since; ``cleanup`` gets the names removed
     (``review``) and those left alone (``foreign``)."""
-    recorded = read_review_record(folder)
+    recorded = read_review_record(folder).files
     for name in ("review.html", "contact_sheet.png"):
         path = folder / name
         if not path.exists() or os.path.islink(path):

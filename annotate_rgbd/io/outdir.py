@@ -55,7 +55,7 @@ SHAPES_RECORD = ".annotate-rgbd-shapes.jsonl"
 REPORT, JOURNAL, PROPOSALS = "report.json", ".annotate-rgbd-journal.jsonl", "proposals.xml"
 #: Commands whose output a folder can hold.
 COMMANDS = ("cvat2mask", "propose")
-#: What ``review`` wrote (file name -> digest), so that a later run removes only those files.
+#: What ``review`` wrote (:class:`annotate_rgbd.io.cleanup.ReviewRecord`), so that a later run removes only those files.
 REVIEW_RECORD = ".annotate-rgbd-review.json"
 #: Folders of per-frame outputs: colour masks, raw masks, overlays, instance-id masks.
 MASKS, RAW_MASKS, OVERLAYS, ID_MASKS = "masks", "masks_raw", "overlays", "masks_id"

@@ -29,7 +29,7 @@ from annotate_rgbd.config.settings import config_from_dict
 from annotate_rgbd.errors import InputError
 from annotate_rgbd.geometry.camera import Camera, depth_to_metres
 from annotate_rgbd.geometry.registration import ColourCamera
-from annotate_rgbd.io.cleanup import read_review_record
+from annotate_rgbd.io.cleanup import ReviewRecord, read_review_record
 from annotate_rgbd.io.outdir import OVERLAYS, REVIEW_RECORD, OutputFolder, file_digest
 from annotate_rgbd.io.sequence import read_depth, read_image, read_rgb
 from annotate_rgbd.io.writer import write_bytes_atomic, write_png
@@ -176,8 +176,9 @@ def write_review(
         write_png(output.sheet, contact_sheet(images, [Path(f.depth).stem for f in frames]))
     # So that a later cvat2mask run removes these files, and only these (annotate_rgbd.io.outdir).
     written_files = {p.name: file_digest(p) for p in (output.page, output.sheet) if p is not None}
-    record = {**read_review_record(out_dir), **written_files}
-    write_bytes_atomic(out_dir / REVIEW_RECORD, json.dumps(record, indent=1).encode("utf-8"))
+    record = ReviewRecord({**read_review_record(out_dir).files, **written_files},
+                          tuple(sorted(p.name for p in output.overlays)))
+    write_bytes_atomic(out_dir / REVIEW_RECORD, json.dumps(record.to_json(), indent=1).encode("utf-8"))
     return output
 
 

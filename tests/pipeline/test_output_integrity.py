@@ -259,6 +259,42 @@ def test_removed_files_are_those_of_earlier_runs_and_are_named(tmp_path, caplog)
     assert sorted(p.name for p in out.iterdir() if not p.name.startswith(".")) == ["masks", "planes.csv", "report.json", "tracks.csv"]
 
 
+
+def test_a_rerun_that_changes_nothing_keeps_the_review_that_review_made(tmp_path):
+    out = tmp_path / "out"
+    runner = CliRunner()
+    base = ["cvat2mask", str(SEQUENCE), str(ANNOTATIONS), "--config", str(CAMERA), "--out", str(out)]
+    assert runner.invoke(app, base).exit_code == 0
+    assert runner.invoke(app, ["review", str(out)]).exit_code == 0
+    review = {p.relative_to(out): p.read_bytes() for p in [out / "review.html", out / "contact_sheet.png",
+                                                          *(out / "overlays").iterdir()]}
+    assert len(review) == 2 + 19
+    result = runner.invoke(app, base)  # every mask reused: the review still shows this output
+    assert result.exit_code == 0, result.output
+    assert "earlier review" not in result.output and "overlays no longer asked for" not in result.output
+    assert {p: (out / p).read_bytes() for p in review} == review
+    assert not result.output.count("left alone")  # the kept overlays are still recorded as ours
+    result = runner.invoke(app, [*base, "--max-time-diff", "0.008"])  # masks change: the review goes
+    assert result.exit_code == 0, result.output
+    assert "removed review.html and contact_sheet.png of an earlier review" in result.output
+    assert "removed 19 overlays no longer asked for (overlays/)" in result.output
+    assert not (out / "overlays").exists() and not (out / "review.html").exists()
+
+
+def test_a_rerun_that_changes_nothing_removes_the_runs_own_overlays_not_asked_for(tmp_path):
+    # The page of a run's --overlays shows those overlays, which a run without --overlays removes,
+    # page and all, whether or not a mask changed (only review's record tells its overlays apart).
+    out = tmp_path / "out"
+    runner = CliRunner()
+    base = ["cvat2mask", str(SEQUENCE), str(ANNOTATIONS), "--config", str(CAMERA), "--out", str(out)]
+    assert runner.invoke(app, [*base, "--overlays"]).exit_code == 0
+    assert (out / "review.html").is_file() and len(list((out / "overlays").iterdir())) == 19
+    result = runner.invoke(app, base)
+    assert result.exit_code == 0, result.output
+    assert "removed 19 overlays no longer asked for (overlays/)" in result.output
+    assert not (out / "overlays").exists() and not (out / "review.html").exists()
+    assert not (out / "contact_sheet.png").exists()
+
 # --- 3. No endless wait on a stopped or killed helper --------------------------------------
 
 
