@@ -477,11 +477,13 @@ def export_command(
     ),
 ) -> None:
     """Export a run's plane ground truth: PlaneRCNN layout, per-frame plane parameters, EVOPS labels, COCO."""
-    from annotate_rgbd.export import export_run
+    from annotate_rgbd.export import WORLD_FORMATS, export_run
 
     with user_errors():
         result = export_run(run_dir, fmt, out, poses)
         if result.removed:
             typer.echo(f"removed {counted(len(result.removed), 'file')} of an earlier export ({result.removed[0]}"
                        f"{', ...' if len(result.removed) > 1 else ''})")
-        typer.echo(f"{fmt}: {result.frames} frames ({result.posed} with a pose), {len(result.files)} files in {out}")
+        # Only the world-frame formats read the trajectory: the others' frames have no pose to count.
+        posed = f" ({result.posed} with a pose)" if fmt in WORLD_FORMATS else ""
+        typer.echo(f"{fmt}: {result.frames} frames{posed}, {len(result.files)} files in {out}")

@@ -269,6 +269,12 @@ def test_export_folder_contract(run, tmp_path):
     assert said.output.splitlines()[0] == "removed 6 files of an earlier export (frames/" + sorted(
         p.name for p in (run / "run" / "masks").iterdir())[0].replace(".png", ".json") + ", ...)"
     assert not (out / "frames").exists() and len(list((out / "labels").iterdir())) == 6
+    # EVOPS labels hold no world-frame plane: the trajectory is not read, no pose is counted.
+    files = sum(p.is_file() for p in out.rglob("*"))  # export.json too
+    assert said.output.splitlines()[1] == f"evops: 6 frames, {files} files in {out}"
+    said = CliRunner().invoke(app, ["export", str(run / "run"), "--format", "planes", str(out)])
+    files = sum(p.is_file() for p in out.rglob("*"))
+    assert said.output.splitlines()[-1] == f"planes: 6 frames (6 with a pose), {files} files in {out}"
 
 
 def files_of(folder: Path) -> dict:
