@@ -8,7 +8,7 @@ from typing import List, Optional
 import typer
 
 from annotate_rgbd import __version__
-from .console import output_folder, user_errors
+from .console import one_output, output_folder, user_errors
 from annotate_rgbd.errors import InputError
 from annotate_rgbd.logs import counted
 from annotate_rgbd.pool import STALL_TIMEOUT
@@ -446,7 +446,8 @@ def propose(
 @app.command("export-cvat")
 def export_cvat_command(
     run_dir: Path = typer.Argument(..., metavar="RUN_DIR", help="Output folder of a finished cvat2mask run."),
-    xml: Path = typer.Argument(..., metavar="FILE.xml", help="The CVAT for video 1.1 XML file to write."),
+    xml: Optional[Path] = typer.Argument(None, metavar="FILE.xml", help="The CVAT for video 1.1 XML file to write."),
+    xml_option: Optional[Path] = typer.Option(None, "--out", "-o", metavar="FILE.xml", help="The same as FILE.xml."),
     tolerance: Optional[float] = typer.Option(
         None, "--tolerance", min=0.0, metavar="PX",
         help="Largest distance of a polygon from its mask's outline, pixels (default 0.5).",
@@ -461,6 +462,7 @@ def export_cvat_command(
     with user_errors():
         from annotate_rgbd.io.writer import names_stdout
 
+        xml = one_output(xml, xml_option, "XML file", "FILE.xml")
         polygons = {k: v for k, v in (("tolerance_px", tolerance), ("max_vertices", max_vertices)) if v is not None}
         count = export_cvat(run_dir, xml, **polygons)
         # Into standard output the XML goes alone: the summary to standard error.
@@ -470,8 +472,9 @@ def export_cvat_command(
 @app.command("export")
 def export_command(
     run_dir: Path = typer.Argument(..., metavar="RUN_DIR", help="Output folder of a finished cvat2mask run."),
-    out: Path = typer.Argument(..., metavar="OUT_DIR", help="The export folder (empty, or an earlier export's)."),
+    out: Optional[Path] = typer.Argument(None, metavar="OUT_DIR", help="The export folder (empty, or an earlier export's)."),
     fmt: str = typer.Option(..., "--format", "-f", metavar="FORMAT", help="planercnn, planes, evops or coco."),
+    out_option: Optional[Path] = typer.Option(None, "--out", "-o", metavar="OUT_DIR", help="The same as OUT_DIR."),
     poses: Optional[Path] = typer.Option(
         None, "--poses", metavar="FILE", help="Camera trajectory (TUM format) for world-frame planes; default: the run's."
     ),
@@ -480,6 +483,7 @@ def export_command(
     from annotate_rgbd.export import WORLD_FORMATS, export_run
 
     with user_errors():
+        out = one_output(out, out_option, "export folder", "OUT_DIR")
         result = export_run(run_dir, fmt, out, poses)
         if result.removed:
             typer.echo(f"removed {counted(len(result.removed), 'file')} of an earlier export ({result.removed[0]}"

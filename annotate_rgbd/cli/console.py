@@ -84,3 +84,13 @@ def output_folder(out: str) -> Path:
     if not out.strip():
         raise InputError(None, "--out is empty: name the output folder")
     return Path(out)
+
+
+def one_output(positional: Path | None, option: Path | None, what: str, metavar: str) -> Path:
+    """The output a command was given, as its argument or as ``--out`` (as ``cvat2mask`` and
+    ``propose`` take theirs); an ``InputError`` when neither or both (unless the same)."""
+    if positional is not None and option is not None and positional != option:
+        raise InputError(None, f"two {what}s given, {positional} and --out {option}: give one")
+    if positional is None and option is None:
+        raise InputError(None, f"no {what} given: give it as {metavar} or as --out")
+    return positional if positional is not None else option

@@ -390,3 +390,24 @@ def test_one_export_at_a_time_into_a_folder(run, tmp_path):
         with pytest.raises(OutputError, match="is writing to this folder"):
             export_run(run / "flat", "planes", out)
     assert files_of(out) == before
+
+
+def test_the_export_folder_and_xml_file_may_be_given_as_out_too(run, tmp_path):
+    # As cvat2mask and propose take their output: a user who types --out gets what they meant.
+    runner = CliRunner()
+    said = runner.invoke(app, ["export", str(run / "run"), "--format", "evops", "--out", str(tmp_path / "a")])
+    assert said.exit_code == 0, said.output
+    export_run(run / "run", "evops", tmp_path / "b")
+    assert files_of(tmp_path / "a") == files_of(tmp_path / "b")
+    said = runner.invoke(app, ["export-cvat", str(run / "run"), "-o", str(tmp_path / "a.xml")])
+    assert said.exit_code == 0, said.output
+    assert (tmp_path / "a.xml").read_bytes().startswith(b"<?xml")
+    for command, problem in ((["export", str(run / "run"), "--format", "evops"],
+                              "error: no export folder given: give it as OUT_DIR or as --out"),
+                             (["export", str(run / "run"), str(tmp_path / "c"), "--format", "evops", "--out",
+                               str(tmp_path / "d")],
+                              f"error: two export folders given, {tmp_path / 'c'} and --out {tmp_path / 'd'}: give one"),
+                             (["export-cvat", str(run / "run")], "error: no XML file given: give it as FILE.xml or as --out")):
+        said = runner.invoke(app, command)
+        assert said.exit_code == 1 and said.output.strip() == problem
+    assert not (tmp_path / "c").exists() and not (tmp_path / "d").exists()
