@@ -455,16 +455,25 @@ def export_cvat_command(
     max_vertices: Optional[int] = typer.Option(
         None, "--max-vertices", min=0, metavar="N", help="Vertex budget of each polygon, 0: none (default 200).",
     ),
+    jobs: Optional[int] = typer.Option(None, "--jobs", "-j", min=1, metavar="N", help="Worker processes (default: all cores)."),
 ) -> None:
     """Write a run's refined masks as CVAT polygon tracks, for a correction round."""
-    from annotate_rgbd.export.cvat import export_cvat
-
     with user_errors():
+        from annotate_rgbd.pipeline.execute import default_workers, prepare_process
+
+        workers = jobs or default_workers()
+        prepare_process(workers)
+        from annotate_rgbd.export.cvat import export_cvat
         from annotate_rgbd.io.writer import names_stdout
 
         xml = one_output(xml, xml_option, "XML file", "FILE.xml")
         polygons = {k: v for k, v in (("tolerance_px", tolerance), ("max_vertices", max_vertices)) if v is not None}
-        count = export_cvat(run_dir, xml, **polygons)
+        from annotate_rgbd.progress import Progress
+
+        scene = run_dir.resolve().name
+        progress = Progress({scene: 0})
+        count = export_cvat(run_dir, xml, **polygons, workers=workers, progress=progress.callback(scene))
+        progress.finish()
         # Into standard output the XML goes alone: the summary to standard error.
         typer.echo(f"{counted(count, 'plane track')}: {xml}", err=names_stdout(xml))
 

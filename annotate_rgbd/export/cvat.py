@@ -21,7 +21,10 @@ theirs.
 from __future__ import annotations
 
 import logging
+from contextlib import nullcontext
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
 import cv2
 import numpy as np
@@ -33,11 +36,12 @@ from annotate_rgbd.errors import InputError, OutputError
 from annotate_rgbd.io.outdir import TOP_LEVEL_NAMES, is_output_folder, reading
 from annotate_rgbd.io.writer import is_stream
 from annotate_rgbd.logs import group_problems
+from annotate_rgbd.pool import run_jobs, start_helpers
 from annotate_rgbd.propose.output import TrackShapes, write_polygon_tracks
 from annotate_rgbd.propose.output import colour_image_polygons
 from annotate_rgbd.segment.rasterize import shape_mask
 from annotate_rgbd.io.sequence import read_image
-from annotate_rgbd.report.records import RunRecord
+from annotate_rgbd.report.records import FrameRecord, RunRecord
 from annotate_rgbd.config.settings import Config, config_from_dict
 from annotate_rgbd.report.run_folder import colour_table, mask_plane_ids, read_report
 
@@ -45,7 +49,8 @@ log = logging.getLogger("annotate_rgbd")
 
 
 def export_cvat(run_dir: str | Path, xml_path: str | Path, tolerance_px: float = EXPORT_TOLERANCE_PX,
-                max_vertices: int = EXPORT_MAX_VERTICES) -> int:
+                max_vertices: int = EXPORT_MAX_VERTICES, workers: int = 1,
+                progress: Callable[[int, int], None] | None = None) -> int:
     """Write a run's masks as polygon tracks.
 
     Parameters
@@ -60,6 +65,10 @@ def export_cvat(run_dir: str | Path, xml_path: str | Path, tolerance_px: float =
     max_vertices : int
         Vertex budget of each polygon (0: none); polygons are simple either way
         (:func:`annotate_rgbd.cvat.from_masks.outline_planes`).
+    workers : int
+        Processes that trace the frames' outlines, this one included.
+    progress : callable, optional
+        ``progress(done, total)`` after each frame.
 
     Returns
     -------
@@ -77,44 +86,74 @@ def export_cvat(run_dir: str | Path, xml_path: str | Path, tolerance_px: float =
     with reading(run_dir):
         report = read_report(run_dir)
         check_target(run_dir, Path(xml_path))
-        return _export(run_dir, report, Path(xml_path), tolerance_px, max_vertices)
+        return _export(run_dir, report, Path(xml_path), tolerance_px, max_vertices, workers, progress)
 
 
-def _export(run_dir: Path, report: RunRecord, xml_path: Path, tolerance_px: float, max_vertices: int) -> int:
+@dataclass(frozen=True)
+class FramePolygonsJob:
+    """One frame of the export: its mask, its record and how to trace it
+    (:func:`frame_polygons`, run in a helper process)."""
+
+    mask: Path
+    frame: FrameRecord
+    keys: np.ndarray
+    values: np.ndarray
+    config: Config
+    tolerance_px: float
+    max_vertices: int
+
+
+def frame_polygons(job: FramePolygonsJob) -> tuple[tuple[int, int], list[tuple[int, np.ndarray, int]]]:
+    """A frame's polygons: the mask's size and, per plane on it, ``(plane id, polygon in CVAT
+    coordinates of the image the labeller draws on, z_order)``."""
+    ids = mask_plane_ids(read_image(job.mask, cv2.IMREAD_COLOR), job.keys, job.values, job.mask)
+    present = np.unique(ids[ids > 0])
+    if present.size == 0:
+        return ids.shape, []
+    compact = np.searchsorted(present, ids) + 1
+    compact[ids == 0] = 0
+    outlines = piece_outlines(compact, job.tolerance_px, max_vertices=job.max_vertices)
+    frame = job.frame
+    distance = {p.plane: p.mean_distance for p in frame.result.kept} if frame.result else {}
+    order = [k for k in range(1, len(present) + 1) if k in outlines]
+    windows = [shape_mask(Shape("polygon", outlines[k]), *ids.shape) for k in order]
+    far = np.array([np.nan if distance.get(int(present[k - 1])) is None else distance[int(present[k - 1])]
+                    for k in order], dtype=np.float64)
+    z_order = draw_order(np.searchsorted(order, compact) + 1, windows, far) if order else []
+    order, z_order, outlines = on_colour_image(outlines, order, z_order, present, frame, job.config)
+    return ids.shape, [(int(present[k - 1]), outlines[k], int(z)) for k, z in zip(order, np.asarray(z_order).tolist())]
+
+
+def _export(run_dir: Path, report: RunRecord, xml_path: Path, tolerance_px: float, max_vertices: int,
+            workers: int = 1, progress: Callable[[int, int], None] | None = None) -> int:
     labels_of = {p.plane: p.label for p in report.planes}
     config = config_from_dict(report.config, run_dir / "report.json")  # [colour_camera]: polygons on its images
     keys, values = colour_table(report)
+    frames = _keyframes(report)
+    jobs = [FramePolygonsJob(run_dir / f.mask, f, keys, values, config, tolerance_px, max_vertices) for f in frames]
+    traced: list = [None] * len(jobs)
+    with start_helpers(workers, [__name__]) or nullcontext() as helpers:
+        for done, outcome in enumerate(run_jobs(jobs, frame_polygons, helpers), start=1):
+            if outcome.error is not None:
+                raise outcome.error
+            traced[outcome.index] = outcome.value
+            if progress:
+                progress(done, len(jobs))
     tracks: dict[int, TrackShapes] = {}
     sampled: list[int] = []
     size = None
     other_size: list[tuple[str, str]] = []
-    for frame in _keyframes(report):
-        path = run_dir / frame.mask
-        ids = mask_plane_ids(read_image(path, cv2.IMREAD_COLOR), keys, values, path)
-        if size is not None and ids.shape != size:  # the export's frames have one size, the first mask's
-            other_size.append((str(path), f"mask is {ids.shape[1]} x {ids.shape[0]} pixels, not {size[1]} x {size[0]} "
-                                          "as the first; left out of the export"))
+    for frame, job, (shape, polygons) in zip(frames, jobs, traced):
+        if size is not None and shape != size:  # the export's frames have one size, the first mask's
+            other_size.append((str(job.mask), f"mask is {shape[1]} x {shape[0]} pixels, not {size[1]} x {size[0]} "
+                                              "as the first; left out of the export"))
             continue
-        size = ids.shape
+        size = shape
         sampled.append(frame.rgb_index)
-        present = np.unique(ids[ids > 0])
-        if present.size == 0:
-            continue
-        compact = np.searchsorted(present, ids) + 1
-        compact[ids == 0] = 0
-        outlines = piece_outlines(compact, tolerance_px, max_vertices=max_vertices)
-        distance = {p.plane: p.mean_distance for p in frame.result.kept} if frame.result else {}
-        order = [k for k in range(1, len(present) + 1) if k in outlines]
-        windows = [shape_mask(Shape("polygon", outlines[k]), *ids.shape) for k in order]
-        far = np.array([np.nan if distance.get(int(present[k - 1])) is None else distance[int(present[k - 1])]
-                        for k in order], dtype=np.float64)
-        z_order = draw_order(np.searchsorted(order, compact) + 1, windows, far) if order else []
-        order, z_order, outlines = on_colour_image(outlines, order, z_order, present, frame, config)
-        for k, z in zip(order, np.asarray(z_order).tolist()):
-            plane = int(present[k - 1])
+        for plane, polygon, z in polygons:
             entry = tracks.setdefault(plane, TrackShapes(plane, labels_of.get(plane, "plane"),
                                                          attributes={PLANE_ID: str(plane)}))
-            entry.shapes[frame.rgb_index] = Shape("polygon", outlines[k], z_order=int(z))
+            entry.shapes[frame.rgb_index] = Shape("polygon", polygon, z_order=z)
     if size is None:
         raise InputError(run_dir / "report.json", "the run wrote no mask: nothing to export")
     for line in group_problems(other_size):

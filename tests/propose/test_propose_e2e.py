@@ -247,6 +247,20 @@ def sample_round_trip(tmp_path_factory):
     return first, second, xml
 
 
+def test_export_cvat_with_helpers_writes_the_same_file(sample_round_trip, tmp_path):
+    from annotate_rgbd.export.cvat import export_cvat
+
+    first, _, xml = sample_round_trip  # written by the command line with every core
+    calls = []
+    (tmp_path / "one").mkdir()
+    assert export_cvat(first, tmp_path / "one" / xml.name, workers=1, progress=lambda *c: calls.append(c)) > 0
+    assert (tmp_path / "one" / xml.name).read_bytes() == xml.read_bytes()
+    assert calls == [(done, 19) for done in range(1, 20)]
+    (tmp_path / "three").mkdir()
+    export_cvat(first, tmp_path / "three" / xml.name, workers=3)
+    assert (tmp_path / "three" / xml.name).read_bytes() == xml.read_bytes()
+
+
 def test_export_cvat_round_trip_on_the_sample(sample_round_trip):
     first, second, xml = sample_round_trip
     names = sorted(p.name for p in (first / "masks").iterdir())
