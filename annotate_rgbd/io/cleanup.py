@@ -5,13 +5,15 @@ annotate-rgbd did not write (the records of :mod:`annotate_rgbd.io.outdir` say w
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Iterable
 
 from annotate_rgbd.io.outdir import (
-    ID_MASKS, MASKS, OUTPUT_FOLDERS, OVERLAYS, RAW_MASKS, REVIEW_RECORD, TEMPORARY, file_digest, read_bounded,
+    ID_MASKS, MASKS, OUTPUT_FOLDERS, OVERLAYS, RAW_MASKS, REVIEW_RECORD, TABLES, TEMPORARY, file_digest, read_bounded,
 )
 
 
@@ -107,16 +109,20 @@ class ReviewRecord:
         (:func:`~annotate_rgbd.io.outdir.file_digest`), so that a later run removes them only
         while they are unchanged.
     overlays : tuple of str
-        The overlays it drew (names in ``overlays/``), empty when the page shows the run's own
-        (``cvat2mask --overlays``): a re-run that changes no mask keeps the review only when
-        ``review`` drew them all.
+        The overlays ``review`` drew (names in ``overlays/``), empty when it drew none: a page
+        of a run's own ``--overlays`` shows overlays that a re-run without ``--overlays``
+        removes, page and all.
+    shows : str or None
+        :func:`shown_digest` of the masks and tables the review showed when it was written: a
+        ``cvat2mask`` re-run keeps the review only while they are the same.
     """
 
     files: dict[str, str] = field(default_factory=dict)
     overlays: tuple[str, ...] = ()
+    shows: str | None = None
 
     def to_json(self) -> dict:
-        return {"files": dict(self.files), "overlays": list(self.overlays)}
+        return {"files": dict(self.files), "overlays": list(self.overlays), "shows": self.shows}
 
     @classmethod
     def from_json(cls, data) -> "ReviewRecord":
@@ -126,10 +132,21 @@ class ReviewRecord:
             return cls()
         files = data.get("files", data)
         overlays = data.get("overlays", [])
+        shows = data.get("shows")
         return cls({k: v for k, v in files.items() if isinstance(k, str) and isinstance(v, str)}
                    if isinstance(files, dict) else {},
                    tuple(name for name in overlays if isinstance(name, str) and "/" not in name and "\\" not in name)
-                   if isinstance(overlays, list) else ())
+                   if isinstance(overlays, list) else (),
+                   shows if isinstance(shows, str) else None)
+
+
+def shown_digest(folder: Path, masks: Iterable[str]) -> str:
+    """A digest of what a review of ``folder`` shows: the bytes of each of the ``masks``
+    (relative paths, ``masks/<name>``) and of the run's tables (:data:`~annotate_rgbd.io.outdir.TABLES`)."""
+    digest = hashlib.blake2b(digest_size=16)
+    for name in [*sorted(masks), *TABLES]:
+        digest.update(f"{name}\0{file_digest(folder / name)}\n".encode("utf-8"))
+    return digest.hexdigest()
 
 
 #: Bound on the review record (a 100,000-frame run's overlay names: ~3 MiB).

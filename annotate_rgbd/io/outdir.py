@@ -60,9 +60,11 @@ REVIEW_RECORD = ".annotate-rgbd-review.json"
 #: Folders of per-frame outputs: colour masks, raw masks, overlays, instance-id masks.
 MASKS, RAW_MASKS, OVERLAYS, ID_MASKS = "masks", "masks_raw", "overlays", "masks_id"
 OUTPUT_FOLDERS = (MASKS, RAW_MASKS, OVERLAYS, ID_MASKS)
+#: The tables a ``cvat2mask`` run writes beside its masks.
+TABLES = ("planes.csv", "tracks.csv")
 #: Every name a run may write or remove at the top of the output folder.
 TOP_LEVEL_NAMES = (
-    *OUTPUT_FOLDERS, REPORT, "planes.csv", "tracks.csv", "review.html", "contact_sheet.png", PROPOSALS,
+    *OUTPUT_FOLDERS, REPORT, *TABLES, "review.html", "contact_sheet.png", PROPOSALS,
     JOURNAL, REVIEW_RECORD, OUTPUTS_RECORD, SHAPES_RECORD,
 )
 #: Bound on the outputs record (a 100,000-frame run with every kind of per-frame output: ~12 MiB).

@@ -18,10 +18,6 @@ if TYPE_CHECKING:
     from .plan import RunPlan
 
 
-#: The tables a run writes beside its masks.
-TABLES = ("planes.csv", "tracks.csv")
-
-
 def write_tables(out_dir: Path, tracks: list[TrackPlane], colours: np.ndarray) -> None:
     """Write ``planes.csv`` (colour <-> plane <-> label and tracks) and ``tracks.csv`` (how each
     track got its plane)."""

@@ -29,7 +29,7 @@ from annotate_rgbd.config.settings import config_from_dict
 from annotate_rgbd.errors import InputError
 from annotate_rgbd.geometry.camera import Camera, depth_to_metres
 from annotate_rgbd.geometry.registration import ColourCamera
-from annotate_rgbd.io.cleanup import ReviewRecord, read_review_record
+from annotate_rgbd.io.cleanup import ReviewRecord, read_review_record, shown_digest
 from annotate_rgbd.io.outdir import OVERLAYS, REVIEW_RECORD, OutputFolder, file_digest
 from annotate_rgbd.io.sequence import read_depth, read_image, read_rgb
 from annotate_rgbd.io.writer import write_bytes_atomic, write_png
@@ -176,8 +176,11 @@ def write_review(
         write_png(output.sheet, contact_sheet(images, [Path(f.depth).stem for f in frames]))
     # So that a later cvat2mask run removes these files, and only these (annotate_rgbd.io.outdir).
     written_files = {p.name: file_digest(p) for p in (output.page, output.sheet) if p is not None}
-    record = ReviewRecord({**read_review_record(out_dir).files, **written_files},
-                          tuple(sorted(p.name for p in output.overlays)))
+    earlier = read_review_record(out_dir)
+    # Overlays drawn by an earlier review stay its own when this call draws none (a run removes
+    # the record whenever its masks change, so they show these masks).
+    drawn = tuple(sorted(p.name for p in output.overlays)) if output.overlays else earlier.overlays
+    record = ReviewRecord({**earlier.files, **written_files}, drawn, shown_digest(out_dir, [f.mask for f in written]))
     write_bytes_atomic(out_dir / REVIEW_RECORD, json.dumps(record.to_json(), indent=1).encode("utf-8"))
     return output
 

@@ -9,7 +9,7 @@ from annotate_rgbd.io.outdir import REVIEW_RECORD
 
 
 def test_a_record_reads_back_as_written(tmp_path):
-    record = ReviewRecord({"review.html": "ab12", "contact_sheet.png": "cd34"}, ("1.5.png", "2.5.png"))
+    record = ReviewRecord({"review.html": "ab12", "contact_sheet.png": "cd34"}, ("1.5.png", "2.5.png"), "ef56")
     (tmp_path / REVIEW_RECORD).write_text(json.dumps(record.to_json()))
     assert read_review_record(tmp_path) == record
 

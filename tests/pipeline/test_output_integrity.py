@@ -260,25 +260,59 @@ def test_removed_files_are_those_of_earlier_runs_and_are_named(tmp_path, caplog)
 
 
 
-def test_a_rerun_that_changes_nothing_keeps_the_review_that_review_made(tmp_path):
-    out = tmp_path / "out"
-    runner = CliRunner()
+def _reviewed_run(out: Path) -> tuple[list[str], dict]:
+    """The sample run into ``out`` and its review: the command, and the review's files' bytes."""
     base = ["cvat2mask", str(SEQUENCE), str(ANNOTATIONS), "--config", str(CAMERA), "--out", str(out)]
-    assert runner.invoke(app, base).exit_code == 0
-    assert runner.invoke(app, ["review", str(out)]).exit_code == 0
+    assert CliRunner().invoke(app, base).exit_code == 0
+    assert CliRunner().invoke(app, ["review", str(out)]).exit_code == 0
     review = {p.relative_to(out): p.read_bytes() for p in [out / "review.html", out / "contact_sheet.png",
                                                           *(out / "overlays").iterdir()]}
     assert len(review) == 2 + 19
+    return base, review
+
+
+def test_a_rerun_that_changes_nothing_keeps_the_review_that_review_made(tmp_path):
+    out = tmp_path / "out"
+    base, review = _reviewed_run(out)
+    runner = CliRunner()
+    # review --no-overlays after it: the page is new, the overlays are still the review's.
+    assert runner.invoke(app, ["review", str(out), "--no-overlays", "--no-sheet"]).exit_code == 0
     result = runner.invoke(app, base)  # every mask reused: the review still shows this output
     assert result.exit_code == 0, result.output
-    assert "earlier review" not in result.output and "overlays no longer asked for" not in result.output
+    assert "info: kept the earlier review (review.html, contact_sheet.png, 19 overlays)" in result.output
+    assert "removed" not in result.output and "left alone" not in result.output
     assert {p: (out / p).read_bytes() for p in review} == review
-    assert not result.output.count("left alone")  # the kept overlays are still recorded as ours
+    result = runner.invoke(app, base)  # and again: the kept overlays are still recorded as the tool's
+    assert "kept the earlier review" in result.output and "left alone" not in result.output
     result = runner.invoke(app, [*base, "--max-time-diff", "0.008"])  # masks change: the review goes
     assert result.exit_code == 0, result.output
     assert "removed review.html and contact_sheet.png of an earlier review" in result.output
     assert "removed 19 overlays no longer asked for (overlays/)" in result.output
     assert not (out / "overlays").exists() and not (out / "review.html").exists()
+
+
+def test_a_resumed_run_with_other_masks_removes_the_review(tmp_path):
+    # Interrupted after its last frame, the run with other settings is finished from its journal:
+    # it makes no mask itself, but its masks are not those the review showed.
+    out = tmp_path / "out"
+    base, _ = _reviewed_run(out)
+    config = load_config(CAMERA, {"ransac.distance_threshold": 0.005})
+    with pytest.raises(KeyboardInterrupt):
+        run_cvat2mask(SEQUENCE, [ANNOTATIONS], out, config, progress=_stop_after(19))
+    report = run_cvat2mask(SEQUENCE, [ANNOTATIONS], out, config)
+    assert report.counts.made == 0
+    assert not (out / "review.html").exists() and not (out / "overlays").exists()
+
+
+def test_a_review_with_an_overlay_gone_is_removed(tmp_path):
+    out = tmp_path / "out"
+    base, review = _reviewed_run(out)
+    next((out / "overlays").iterdir()).unlink()  # the page would show a missing image
+    result = CliRunner().invoke(app, base)
+    assert result.exit_code == 0, result.output
+    assert "kept the earlier review" not in result.output
+    assert "removed review.html and contact_sheet.png of an earlier review" in result.output
+    assert not (out / "overlays").exists()
 
 
 def test_a_rerun_that_changes_nothing_removes_the_runs_own_overlays_not_asked_for(tmp_path):
