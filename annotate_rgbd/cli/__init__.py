@@ -459,17 +459,16 @@ def export_cvat_command(
 ) -> None:
     """Write a run's refined masks as CVAT polygon tracks, for a correction round."""
     with user_errors():
+        xml = one_output(xml, xml_option, "XML file", "FILE.xml")
         from annotate_rgbd.pipeline.execute import default_workers, prepare_process
 
         workers = jobs or default_workers()
         prepare_process(workers)
         from annotate_rgbd.export.cvat import export_cvat
         from annotate_rgbd.io.writer import names_stdout
-
-        xml = one_output(xml, xml_option, "XML file", "FILE.xml")
-        polygons = {k: v for k, v in (("tolerance_px", tolerance), ("max_vertices", max_vertices)) if v is not None}
         from annotate_rgbd.progress import Progress
 
+        polygons = {k: v for k, v in (("tolerance_px", tolerance), ("max_vertices", max_vertices)) if v is not None}
         scene = run_dir.resolve().name
         progress = Progress({scene: 0})
         count = export_cvat(run_dir, xml, **polygons, workers=workers, progress=progress.callback(scene))
