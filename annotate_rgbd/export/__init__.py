@@ -160,6 +160,7 @@ def _write(run: ExportRun, fmt: str, out: Path, previous: set[str], made: list[P
         removed = _remove(out, previous - set(names))
         record.update(
             complete=True, run=str(run.run_dir.resolve()), trajectory=run.trajectory,
+            trajectory_time_offset_s=run.time_offset if run.trajectory else None,
             conventions={"files": DESCRIPTIONS[fmt], "plane_equation": EQUATION_CONVENTION},
             frames=len(run.frames), frames_with_pose=sum(f.pose is not None for f in run.frames), files=names,
         )

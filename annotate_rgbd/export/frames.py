@@ -78,12 +78,15 @@ class ExportRun:
         The written frames, in sequence order.
     trajectory : str or None
         The trajectory the poses come from; None: no poses.
+    time_offset : float
+        Seconds added to the frames' timestamps to read the trajectory (:func:`trajectory_offset`).
     """
 
     run_dir: Path
     report: RunRecord
     frames: list[ExportFrame]
     trajectory: str | None = None
+    time_offset: float = 0.0
 
     @property
     def labels(self) -> dict[int, str]:
@@ -129,13 +132,14 @@ def read_run(run_dir: str | Path, poses: str | Path | None = None, world: bool =
     report = read_report(run_dir)
     trajectory = (str(poses) if poses is not None else (report.propagation or {}).get("poses")) if world else None
     written = [f for f in report.frames if f.written and f.mask]
-    frame_poses = None
+    frame_poses, offset = None, 0.0
     if trajectory:
         if poses is None and not Path(trajectory).exists():  # a file, or a folder of pose files (ScanNet, 7-Scenes)
             raise InputError(run_dir / "report.json", f"the run's trajectory {trajectory} is gone: give it with --poses")
         gap = report.config.get("sequence", {}).get("max_pose_gap", DEFAULT_MAX_POSE_GAP)
         samples = read_trajectory(trajectory)
-        times = np.array([f.depth_timestamp for f in written], dtype=np.float64)
+        offset = trajectory_offset(report, trajectory)
+        times = np.array([f.depth_timestamp for f in written], dtype=np.float64) + offset
         # Refused when no frame gets a pose: the export would hold no world-frame plane at all.
         frame_poses, ranges = poses_of_frames(samples, trajectory, times, gap, samples.clock, "written frame")
         missing = int(np.count_nonzero(~frame_poses.ok))
@@ -148,4 +152,19 @@ def read_run(run_dir: str | Path, poses: str | Path | None = None, world: bool =
         if frame_poses is not None and frame_poses.ok[i]:
             pose = (frame_poses.rotations[i], frame_poses.translations[i])
         frames.append(ExportFrame(Path(f.depth).stem, f.depth, f.rgb, f.depth_timestamp, run_dir / f.mask, f.kept, pose))
-    return ExportRun(run_dir, report, frames, trajectory or None)
+    return ExportRun(run_dir, report, frames, trajectory or None, offset)
+
+
+def trajectory_offset(report: RunRecord, trajectory: str) -> float:
+    """Seconds to add to the frames' timestamps to read ``trajectory`` as the run read it: the
+    run's own offset (``propagate.time_offset`` and what it estimated, ``time_offset_s`` of the
+    report's ``propagation``) for the run's own trajectory, else the configured
+    ``propagate.time_offset`` (an estimate holds for the trajectory it was made on only)."""
+    propagation = report.propagation or {}
+    own = propagation.get("poses")
+    if own is not None and Path(own).absolute() == Path(trajectory).absolute():
+        value = propagation.get("time_offset_s")
+        if isinstance(value, (int, float)) and np.isfinite(value):
+            return float(value)
+    value = report.config.get("propagate", {}).get("time_offset", 0.0)
+    return float(value) if isinstance(value, (int, float)) and np.isfinite(value) else 0.0

@@ -8,6 +8,7 @@ from __future__ import annotations
 import csv
 import json
 import logging
+import shutil
 from pathlib import Path
 
 import cv2
@@ -411,3 +412,32 @@ def test_the_export_folder_and_xml_file_may_be_given_as_out_too(run, tmp_path):
         said = runner.invoke(app, command)
         assert said.exit_code == 1 and said.output.strip() == problem
     assert not (tmp_path / "c").exists() and not (tmp_path / "d").exists()
+
+
+def test_world_planes_read_the_trajectory_at_the_runs_time_offset(run, tmp_path):
+    # The run read its trajectory -0.03 s off the frames' clock (configured and estimated: the
+    # report's time_offset_s); the export must read the same poses, and say which offset.
+    from annotate_rgbd.export.frames import read_run
+    from annotate_rgbd.io.poses import poses_at, read_trajectory
+
+    shutil.copytree(run / "run", tmp_path / "run")
+    report = json.loads((tmp_path / "run" / "report.json").read_text())
+    report["propagation"]["time_offset_s"] = -0.03
+    (tmp_path / "run" / "report.json").write_text(json.dumps(report))
+    exported = read_run(tmp_path / "run")
+    times = np.array([f.timestamp for f in exported.frames])
+    expected = poses_at(read_trajectory(report["propagation"]["poses"]), times - 0.03)
+    assert exported.time_offset == -0.03 and expected.ok.sum() >= 4
+    assert [f.pose is not None for f in exported.frames] == expected.ok.tolist()
+    for i in np.flatnonzero(expected.ok):
+        np.testing.assert_allclose(exported.frames[i].pose[0], expected.rotations[i], atol=1e-12)
+        np.testing.assert_allclose(exported.frames[i].pose[1], expected.translations[i], atol=1e-12)
+    unshifted = poses_at(read_trajectory(report["propagation"]["poses"]), times)
+    both = expected.ok & unshifted.ok
+    assert np.abs(unshifted.translations[both] - expected.translations[both]).max() > 1e-3  # the offset matters
+    # Another trajectory than the run's: the configured offset (0 here), not the estimate.
+    other = tmp_path / "other.txt"
+    shutil.copy(report["propagation"]["poses"], other)
+    assert read_run(tmp_path / "run", other).time_offset == 0.0
+    export_run(tmp_path / "run", "planes", tmp_path / "out")
+    assert json.loads((tmp_path / "out" / "export.json").read_text())["trajectory_time_offset_s"] == -0.03
