@@ -224,8 +224,9 @@ def merge_segments(region: np.ndarray, cells: CloudCells, config: DetectorConfig
     grid = region.reshape(rows, cols)
     reach = config.merge_gap_cells + 1
     pairs = set()
-    for dy in range(0, reach + 1):
-        for dx in range(-reach, reach + 1):
+    # Offsets past the grid's size find nothing (and would slice the grid out of step).
+    for dy in range(0, min(reach, rows - 1) + 1):
+        for dx in range(-min(reach, cols - 1), min(reach, cols - 1) + 1):
             if dy == 0 and dx <= 0:
                 continue
             a = grid[dy:, max(dx, 0) : cols + min(dx, 0)]

@@ -243,6 +243,16 @@ def test_deterministic(room):
     assert np.array_equal(first.areas, again.areas)
 
 
+def test_a_merge_gap_beyond_the_grid_merges_as_the_whole_grid(room):
+    # 640 x 480 at 20 px: a 24 x 32 grid. A gap of 1000 cells raised (the offsets sliced the grid
+    # out of step); one of the grid's own size reaches every pair already.
+    depth = room[0]
+    whole = detect_planes(depth, KINECT, DetectorConfig(merge_gap_cells=32))
+    beyond = detect_planes(depth, KINECT, DetectorConfig(merge_gap_cells=1000))
+    np.testing.assert_array_equal(beyond.labels, whole.labels)
+    np.testing.assert_array_equal(beyond.planes, whole.planes)
+
+
 def test_far_noisy_wall_is_one_plane():
     """At 3.5 m the noise is 2 cm: a fixed millimetre threshold would shatter the wall."""
     depth, _, plane = render_facing(wall(3.5))
