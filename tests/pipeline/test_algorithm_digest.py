@@ -166,6 +166,7 @@ def test_a_rerun_after_a_code_change_in_refinement_redoes_every_frame(tmp_path):
     ("propagate.same_surface_angle=91", "'propagate.same_surface_angle' must be in [0, 90] (degrees)"),
     ("propagate.beyond_reach=nan", "'propagate.beyond_reach' must be"),
     ("propagate.border_margin=-1", "'propagate.border_margin' must be >= 0"),
+    ("propagate.time_offset_step=1e-9", "'propagate.time_offset_step' must be in [0.001, 1] s"),
     ("propagate.sideways=1", "unknown key 'propagate.sideways' (known in [propagate]: same_surface_angle,"),
 ])
 def test_bad_tunables_are_one_line_errors(setting, message, tmp_path):
