@@ -178,8 +178,12 @@ def check_target(run_dir: Path, xml_path: Path) -> None:
     """
     if is_stream(xml_path):
         return
+    if xml_path.is_dir():
+        raise OutputError(xml_path, "is a folder: name the XML file to write (e.g. "
+                                    f"{xml_path / 'round2.xml'})")
     if not xml_path.parent.is_dir():
-        raise OutputError(xml_path, f"cannot write output: its folder {xml_path.parent} does not exist")
+        what = "is a file, not a folder" if xml_path.parent.exists() else "does not exist"
+        raise OutputError(xml_path, f"cannot write output: its folder {xml_path.parent} {what}")
     target = xml_path.resolve()
     try:
         inside = target.relative_to(run_dir.resolve()).parts

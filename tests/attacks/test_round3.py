@@ -350,6 +350,21 @@ def test_export_into_a_folder_that_does_not_exist_says_so(finished):
     assert not (finished.root / "nodir").exists()
 
 
+def test_export_to_a_folder_or_under_a_file_says_which(finished):
+    folder = finished.root / "adir"
+    folder.mkdir()
+    result = invoke("export-cvat", finished.out, folder)
+    assert result.exit_code == 1
+    assert error_line(result) == (f"error: {folder}: is a folder: name the XML file to write "
+                                  f"(e.g. {folder / 'round2.xml'})")
+    (finished.root / "afile").write_text("mine")
+    target = finished.root / "afile" / "r.xml"
+    result = invoke("export-cvat", finished.out, target)
+    assert result.exit_code == 1
+    assert error_line(result) == f"error: {target}: cannot write output: its folder {target.parent} is a file, not a folder"
+    assert list(folder.iterdir()) == [] and (finished.root / "afile").read_text() == "mine"
+
+
 @pytest.mark.parametrize("name", ["report.json", "planes.csv", "masks/x.xml"])
 def test_export_never_overwrites_the_run_it_exports(finished, name):
     before = snapshot(finished.out, skip=finished.root / "none")
