@@ -225,17 +225,18 @@ def grow_connected(
         return labels, grown
     candidate = np.zeros(labels.shape, dtype=labels.dtype)
     candidate.ravel()[free_at] = candidate_free
-    # The growing planes' own pixels with depth: their residuals to their own plane.
-    own = label_lookup(growing, labels).view(bool)
-    signed = signed_distances(depth, *(label_lookup(plane_table[:, i], labels) for i in range(4)), camera)
-    residual = np.zeros(labels.shape, dtype=np.float32)
-    with np.errstate(invalid="ignore"):
-        np.copyto(residual, signed * k / np.asarray(noise.band(depth), dtype=np.float32), where=own & np.isfinite(signed))
-    residual.ravel()[free_at] = residual_free
     # The window test of refinement (a doormat on the floor lies within its band): residuals in
     # noise units, averaged over each candidate's window, must look like the plane's noise.
     # ``coherence_window = 0``: no window test, as in refinement.
     if refine.coherence_window > 0:
+        # The growing planes' own pixels with depth: their residuals to their own plane.
+        own = label_lookup(growing, labels).view(bool)
+        signed = signed_distances(depth, *(label_lookup(plane_table[:, i], labels) for i in range(4)), camera)
+        residual = np.zeros(labels.shape, dtype=np.float32)
+        with np.errstate(invalid="ignore"):
+            np.copyto(residual, signed * k / np.asarray(noise.band(depth), dtype=np.float32),
+                      where=own & np.isfinite(signed))
+        residual.ravel()[free_at] = residual_free
         score, usable = window_scores(residual, own | (candidate > 0), refine.coherence_window,
                                       refine.min_window_inliers)
         candidate[~(usable & (np.abs(score) <= refine.coherence_limit))] = 0
