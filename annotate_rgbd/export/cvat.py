@@ -129,8 +129,8 @@ def _export(run_dir: Path, report: RunRecord, xml_path: Path, tolerance_px: floa
     labels_of = {p.plane: p.label for p in report.planes}
     config = config_from_dict(report.config, run_dir / "report.json")  # [colour_camera]: polygons on its images
     keys, values = colour_table(report)
-    frames = _keyframes(report)
-    jobs = [FramePolygonsJob(run_dir / f.mask, f, keys, values, config, tolerance_px, max_vertices) for f in frames]
+    jobs = [FramePolygonsJob(run_dir / f.mask, f, keys, values, config, tolerance_px, max_vertices)
+            for f in _keyframes(report)]
     traced: list = [None] * len(jobs)
     with start_helpers(workers, [__name__]) or nullcontext() as helpers:
         for done, outcome in enumerate(run_jobs(jobs, frame_polygons, helpers), start=1):
@@ -143,17 +143,17 @@ def _export(run_dir: Path, report: RunRecord, xml_path: Path, tolerance_px: floa
     sampled: list[int] = []
     size = None
     other_size: list[tuple[str, str]] = []
-    for frame, job, (shape, polygons) in zip(frames, jobs, traced):
+    for job, (shape, polygons) in zip(jobs, traced):
         if size is not None and shape != size:  # the export's frames have one size, the first mask's
             other_size.append((str(job.mask), f"mask is {shape[1]} x {shape[0]} pixels, not {size[1]} x {size[0]} "
                                               "as the first; left out of the export"))
             continue
         size = shape
-        sampled.append(frame.rgb_index)
+        sampled.append(job.frame.rgb_index)
         for plane, polygon, z in polygons:
             entry = tracks.setdefault(plane, TrackShapes(plane, labels_of.get(plane, "plane"),
                                                          attributes={PLANE_ID: str(plane)}))
-            entry.shapes[frame.rgb_index] = Shape("polygon", polygon, z_order=z)
+            entry.shapes[job.frame.rgb_index] = Shape("polygon", polygon, z_order=z)
     if size is None:
         raise InputError(run_dir / "report.json", "the run wrote no mask: nothing to export")
     for line in group_problems(other_size):
