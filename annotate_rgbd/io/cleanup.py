@@ -130,13 +130,11 @@ class ReviewRecord:
         version's record, file name -> digest, reads as its ``files``)."""
         if not isinstance(data, dict):
             return cls()
-        files = data.get("files", data)
-        overlays = data.get("overlays", [])
-        shows = data.get("shows")
-        return cls({k: v for k, v in files.items() if isinstance(k, str) and isinstance(v, str)}
-                   if isinstance(files, dict) else {},
-                   tuple(name for name in overlays if isinstance(name, str) and "/" not in name and "\\" not in name)
-                   if isinstance(overlays, list) else (),
+        files, overlays, shows = data.get("files", data), data.get("overlays"), data.get("shows")
+        files = files if isinstance(files, dict) else {}
+        overlays = overlays if isinstance(overlays, list) else []
+        return cls({k: v for k, v in files.items() if isinstance(k, str) and isinstance(v, str)},
+                   tuple(n for n in overlays if isinstance(n, str) and "/" not in n and "\\" not in n),
                    shows if isinstance(shows, str) else None)
 
 
