@@ -32,32 +32,25 @@ def test_a_log_gets_a_line_per_interval_and_one_per_finished_scene():
     assert empty.getvalue().startswith("none: 0/0 frames")
 
 
+def _log_lines(updates):
+    """The lines a log file gets of one scene's ``(time s, frames done, frames in all)`` updates."""
+    stream, now = io.StringIO(), [0.0]
+    update = Progress({"a": 0}, stream=stream, interval=0.0, clock=lambda: now[0]).callback("a")
+    for now[0], done, total in updates:
+        update(done, total)
+    return stream.getvalue().splitlines()
+
+
 def test_the_rate_and_eta_count_from_the_first_frame_not_the_start_up():
     # 20 s of start-up and planning, then a frame every 0.5 s: the rate is 2 frames/s, not the
     # 0.05 the whole time since the start gives after the first frame (an ETA 40x too long).
-    stream, now = io.StringIO(), [0.0]
-    progress = Progress({"a": 0}, stream=stream, interval=0.0, clock=lambda: now[0])
-    update = progress.callback("a")
-    update(0, 101)
-    now[0] = 20.0
-    update(1, 101)
-    now[0] = 25.0
-    update(11, 101)
-    lines = stream.getvalue().splitlines()
+    lines = _log_lines([(0.0, 0, 101), (20.0, 1, 101), (25.0, 11, 101)])
     assert lines[0] == "a: 1/101 frames | -- frames/s | ETA --:--"
     assert lines[1] == "a: 11/101 frames | 2.0 frames/s | ETA 00:45"
 
 
 def test_a_run_slower_than_a_frame_a_second_shows_seconds_per_frame():
     # 2-pixel detector cells take ~40 s a frame: "0.0 frames/s" said nothing.
-    stream, now = io.StringIO(), [0.0]
-    progress = Progress({"a": 0}, stream=stream, interval=0.0, clock=lambda: now[0])
-    update = progress.callback("a")
-    update(1, 30)
-    now[0] = 80.0
-    update(3, 30)
-    now[0] = 82.0
-    update(4, 30)  # 3 frames in 82 s since the first
-    lines = stream.getvalue().splitlines()
+    lines = _log_lines([(0.0, 1, 30), (80.0, 3, 30), (82.0, 4, 30)])  # 3 frames in 82 s since the first
     assert lines[1] == "a: 3/30 frames | 40.0 s/frame | ETA 18:00"
     assert lines[2] == "a: 4/30 frames | 27.3 s/frame | ETA 11:51"
