@@ -122,31 +122,11 @@ def cvat2mask(
             progress=progress.callback(sequence_dir.name), job_timeout=job_timeout, poses=poses, warnings=loading,
         )
         progress.finish()
-        from annotate_rgbd.report.records import summarize
-        from annotate_rgbd.report.stats import drop_hint, dropped_words
-
-        counts = summarize(report.frames)
-        planes = len({track.plane for track in report.tracks})
-        # The planes of the annotation, and how many of them are in a mask when not all are (an
-        # export of a longer sequence, planes dropped on every frame).
-        shown = counted(planes, "plane") + (f" ({counts.distinct_planes} in the masks)"
-                                            if counts.distinct_planes < planes else "")
-        reasons = dropped_words(counts.dropped_by_reason)
-        summary = (
-            f"{counted(report.written, 'mask')} in {out / 'masks'} ({report.counts.made} made, "
-            f"{report.counts.reused} unchanged), {shown}, {counted(counts.skipped, 'frame')} skipped, "
-            f"{counts.planes_dropped} of {counts.planes_kept + counts.planes_dropped} planes drawn on frames dropped"
-            + (f" ({reasons})" if reasons else "")
-        )
-        hint = drop_hint(counts, report.config.camera.depth_scale)
+        hint = report.drop_hint()
         if hint:  # advice on the run as a whole, not one of the report's warnings
             typer.echo(f"hint: {hint}", err=True)
+        typer.echo(report.summary())
         failures = report.failures()
-        if counts.frames_failed:
-            summary += f", {counted(counts.frames_failed, 'frame')} failed"
-        if report.warnings:
-            summary += f", {counted(len(report.warnings), 'warning')} (see {out / 'report.json'})"
-        typer.echo(summary)
         for line in failures:
             typer.echo(f"  failed: {line}")
         if report.review_page is not None:

@@ -12,12 +12,13 @@ from typing import TYPE_CHECKING, Callable, Sequence
 
 from annotate_rgbd.config.settings import Config
 from annotate_rgbd.errors import InputError, OutputError
-from annotate_rgbd.io.outdir import OutputFolder
-from annotate_rgbd.logs import group_errors, group_problems, scene_warnings
+from annotate_rgbd.io.outdir import MASKS, REPORT, OutputFolder
+from annotate_rgbd.logs import counted, group_errors, group_problems, scene_warnings
 from annotate_rgbd.pool import (
     STALL_TIMEOUT, HelperPool, JobTimeout, default_workers, prepare_helpers, reuse_freed_memory, run_jobs, start_helpers,
 )
-from annotate_rgbd.report.records import FAILED, TIMED_OUT, UNREADABLE_DEPTH, FrameRecord, MaskRecord
+from annotate_rgbd.report.records import FAILED, TIMED_OUT, UNREADABLE_DEPTH, FrameRecord, MaskRecord, summarize
+from annotate_rgbd.report.stats import drop_hint, dropped_words
 from .resume import Journal, Previous, previous_results
 
 if TYPE_CHECKING:  # the plan's modules import OpenCV, which this module leaves to the helpers' server
@@ -131,6 +132,36 @@ class SceneResult:
     def failed_frames(self) -> list[str]:
         """Depth frames that failed, with the reason (:meth:`failures`)."""
         return self.failures()
+
+    def summary(self) -> str:
+        """``cvat2mask``'s summary line: masks written (made, unchanged), the annotation's planes
+        (and how many reach a mask when not all do), frames skipped, planes dropped by reason,
+        frames failed and warnings.
+
+        Example: ``19 masks in out/masks (19 made, 0 unchanged), 10 planes (8 in the masks), 1
+        frame skipped, 29 of 146 planes drawn on frames dropped (too far 19, no depth 10)``.
+        """
+        counts = summarize(self.frames)
+        planes = len({track.plane for track in self.tracks})
+        # An export of a longer sequence, or planes dropped on every frame: not all in a mask.
+        shown = counted(planes, "plane") + (f" ({counts.distinct_planes} in the masks)"
+                                            if counts.distinct_planes < planes else "")
+        reasons = dropped_words(counts.dropped_by_reason)
+        line = (f"{counted(self.written, 'mask')} in {self.out / MASKS} ({self.counts.made} made, "
+                f"{self.counts.reused} unchanged), {shown}, {counted(counts.skipped, 'frame')} skipped, "
+                f"{counts.planes_dropped} of {counts.planes_kept + counts.planes_dropped} planes drawn on frames dropped"
+                + (f" ({reasons})" if reasons else ""))
+        if counts.frames_failed:
+            line += f", {counted(counts.frames_failed, 'frame')} failed"
+        if self.warnings:
+            line += f", {counted(len(self.warnings), 'warning')} (see {self.out / REPORT})"
+        return line
+
+    def drop_hint(self) -> str | None:
+        """Advice on the run as a whole when most of its planes were dropped for one reason
+        (:func:`annotate_rgbd.report.stats.drop_hint`), else None."""
+        depth_scale = (self.config or Config()).camera.depth_scale
+        return drop_hint(summarize(self.frames), depth_scale)
 
 
 @dataclass

@@ -133,6 +133,13 @@ def test_rerun_redoes_only_changed_frames(tmp_path):
     before = {p.name: p.read_bytes() for p in (tmp_path / "out" / "masks").iterdir()}
     again = run_cvat2mask(seq, [ANNOTATIONS], tmp_path / "out", config)
     assert again.counts == FrameCounts(made=0, reused=19, failed=0)
+    # The command's summary line says so (the CLI prints SceneResult.summary()).
+    out = tmp_path / "out"
+    assert first.summary() == (
+        f"19 masks in {out / 'masks'} (19 made, 0 unchanged), 10 planes (8 in the masks), 1 frame skipped, "
+        f"29 of 146 planes drawn on frames dropped (too far 19, no depth 10), 1 warning (see {out / 'report.json'})")
+    assert again.summary().startswith(f"19 masks in {out / 'masks'} (0 made, 19 unchanged), ")
+    assert first.drop_hint() is None
     # A depth image changes: that frame only is made again.
     depth_file = next(f for f in first.frames if f.written).depth
     depth = cv2.imread(str(seq / depth_file), cv2.IMREAD_UNCHANGED)
