@@ -21,10 +21,11 @@ theirs.
 from __future__ import annotations
 
 import logging
+import os
 from contextlib import nullcontext
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Sequence
 
 import cv2
 import numpy as np
@@ -85,7 +86,7 @@ def export_cvat(run_dir: str | Path, xml_path: str | Path, tolerance_px: float =
     run_dir = Path(run_dir)
     with reading(run_dir):
         report = read_report(run_dir)
-        check_target(run_dir, Path(xml_path))
+        check_target(run_dir, Path(xml_path), [Path(part.file) for part in report.parts])
         return _export(run_dir, report, Path(xml_path), tolerance_px, max_vertices, workers, progress)
 
 
@@ -166,11 +167,12 @@ def _export(run_dir: Path, report: RunRecord, xml_path: Path, tolerance_px: floa
     return len(tracks)
 
 
-def check_target(run_dir: Path, xml_path: Path) -> None:
+def check_target(run_dir: Path, xml_path: Path, annotations: Sequence[Path] = ()) -> None:
     """Refuse to write the export into a folder that does not exist, over a file of the run it
-    is made from (its report, tables, masks: the run would be lost), or over a file of any other
-    annotate-rgbd output folder (another run's ``proposals.xml``: its report would no longer
-    describe it).
+    is made from (its report, tables, masks: the run would be lost), over one of the
+    ``annotations`` the run read (the labeller's work, which the run's report names and a
+    re-run needs), or over a file of any other annotate-rgbd output folder (another run's
+    ``proposals.xml``: its report would no longer describe it).
 
     Raises
     ------
@@ -185,6 +187,10 @@ def check_target(run_dir: Path, xml_path: Path) -> None:
         what = "is a file, not a folder" if xml_path.parent.exists() else "does not exist"
         raise OutputError(xml_path, f"cannot write output: its folder {xml_path.parent} {what}")
     target = xml_path.resolve()
+    for annotation in annotations:
+        if xml_path.exists() and annotation.exists() and os.path.samefile(xml_path, annotation):
+            raise OutputError(xml_path, "is an annotation export the run was made from: the labeller's shapes would "
+                                        "be lost; write the export elsewhere (e.g. round2.xml)")
     try:
         inside = target.relative_to(run_dir.resolve()).parts
     except ValueError:

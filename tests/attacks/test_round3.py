@@ -365,6 +365,23 @@ def test_export_to_a_folder_or_under_a_file_says_which(finished):
     assert list(folder.iterdir()) == [] and (finished.root / "afile").read_text() == "mine"
 
 
+def test_export_never_overwrites_the_annotations_the_run_was_made_from(finished):
+    # ``export-cvat out a.xml`` beside the labeller's a.xml: the shapes the run read (and a
+    # re-run needs) would be gone. Through another name of the same file too (a link).
+    before = finished.xml.read_bytes()
+    (finished.root / "same.xml").hardlink_to(finished.xml)
+    for target in (finished.xml, finished.root / "same.xml"):
+        result = invoke("export-cvat", finished.out, target)
+        assert result.exit_code == 1
+        assert error_line(result) == (f"error: {target}: is an annotation export the run was made from: the "
+                                      "labeller's shapes would be lost; write the export elsewhere (e.g. round2.xml)")
+    assert finished.xml.read_bytes() == before
+    # Another existing file is the user's to replace, as before.
+    (finished.root / "round2.xml").write_text("old")
+    assert invoke("export-cvat", finished.out, finished.root / "round2.xml").exit_code == 0
+    assert read_cvat(finished.root / "round2.xml").tracks
+
+
 @pytest.mark.parametrize("name", ["report.json", "planes.csv", "masks/x.xml"])
 def test_export_never_overwrites_the_run_it_exports(finished, name):
     before = snapshot(finished.out, skip=finished.root / "none")
