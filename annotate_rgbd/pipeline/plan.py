@@ -37,6 +37,7 @@ from annotate_rgbd.propagate.keyframes import keyframe_frames
 from annotate_rgbd.report.records import NO_RGB_FRAME, OUTSIDE_ANNOTATION, RGB_NOT_ANNOTATED, FrameRecord
 from annotate_rgbd.io.sequence import (
     Sequence, associate, camera_problem, intrinsics_problems, read_depth, read_sequence,
+    unmatched_frames,
 )
 from annotate_rgbd.annotation.stitch import PartTracks, TrackPlane, assign_planes, label_conflicts
 from annotate_rgbd.pool import HelperPool
@@ -281,7 +282,6 @@ def plan_frames(
             record.reason = OUTSIDE_ANNOTATION
         elif not association.matched[d]:
             record.reason = NO_RGB_FRAME
-            warnings.append(f"{sequence.root / depth_file}: no RGB frame within {max_time_diff} s; skipped")
         elif rgb not in owners:
             record.reason = RGB_NOT_ANNOTATED
         else:
@@ -293,6 +293,10 @@ def plan_frames(
                 record.pose = "ok" if propagation.depth_poses.ok[d] else str(propagation.depth_poses.reasons[d])
             jobs.append((d, _frame_job(sequence, part, frame, rgb, depth_file, shapes, propagated, expected, output,
                                        carried)))
+    # The frames of the annotated stretch: none with its RGB frame is an error, some a warning.
+    annotated = [d for d, record in enumerate(frames) if record.reason != OUTSIDE_ANNOTATION]
+    warnings += unmatched_frames(sequence.root, sequence.depth.files, association.time_diff, association.matched,
+                                 max_time_diff, np.array(annotated, dtype=np.intp))
     return frames, jobs, warnings
 
 

@@ -3,7 +3,7 @@ import cv2
 import pytest
 
 from annotate_rgbd.errors import InputError
-from annotate_rgbd.io.sequence import associate, read_depth, read_rgb, read_sequence
+from annotate_rgbd.io.sequence import associate, read_depth, read_rgb, read_sequence, unmatched_frames
 
 HEADER = "# color images\n# file: 'rgbd_dataset_freiburg1_rpy.bag'\n# timestamp filename\n"
 
@@ -121,3 +121,28 @@ def test_a_truncated_png_is_one_error_and_libpng_prints_nothing(tmp_path, capfd)
     # Bytes after IEND (some writers add them) are no truncation.
     (tmp_path / "tail.png").write_bytes(whole + b"\0" * 100)
     assert np.array_equal(read_depth(tmp_path / "tail.png"), depth)
+
+
+def test_frames_without_an_rgb_frame_are_one_warning_and_none_matched_is_an_error(tmp_path):
+    from pathlib import Path
+
+    depth_times = np.arange(10) * 0.1
+    rgb_times = depth_times + np.array([0.001, 0.03, 0.03, 0.03, 0.002, 0.03, 0.03, 0.03, 0.03, 0.003])
+    nearest, diff, matched = associate(depth_times, rgb_times, 0.02)
+    files = [f"depth/{i}.png" for i in range(10)]
+    root = Path("seq")
+    # Seven frames apart from their RGB frames: one line names three and counts the rest.
+    assert unmatched_frames(root, files, diff, matched, 0.02) == [
+        "seq/depth/1.png, seq/depth/2.png, seq/depth/3.png and 4 more: no RGB frame within 0.02 s; skipped"]
+    # Only the frames the run considers count.
+    assert unmatched_frames(root, files, diff, matched, 0.02, np.array([0, 4, 9])) == []
+    assert unmatched_frames(root, files, diff, matched, 0.02, np.array([0, 5])) == [
+        "seq/depth/5.png: no RGB frame within 0.02 s; skipped"]
+    # None of them has one: every frame would be skipped, an error with the gaps there are.
+    _, diff, matched = associate(depth_times, rgb_times, 0.0)
+    with pytest.raises(InputError) as error:
+        unmatched_frames(root, files, diff, matched, 0.0)
+    assert str(error.value) == ("seq: no depth frame has an RGB frame within 0 s (sequence.max_time_diff): each is "
+                                "0.001 to 0.03 s from the nearest (median 0.03 s); nothing to make")
+    with pytest.raises(InputError):
+        unmatched_frames(root, files, diff, matched, 0.02, np.array([1, 2]))

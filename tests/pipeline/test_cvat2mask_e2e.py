@@ -19,6 +19,7 @@ from annotate_rgbd.config.settings import load_config
 from annotate_rgbd.pipeline.execute import FrameCounts
 from annotate_rgbd.pipeline.scene import run_cvat2mask
 
+from builders import error_line
 from conftest import SAMPLE_DATA
 
 SEQUENCE = SAMPLE_DATA / "sequence"
@@ -303,3 +304,23 @@ def test_the_summary_counts_the_planes_not_the_highest_plane_id(tmp_path):
     reasons = Counter(plane["reason"] for frame in report["frames"] for plane in frame.get("dropped", []))
     assert reasons == {"too_far": 19, "invalid_depth": 10}
     assert "29 of 146 planes drawn on frames dropped (too far 19, no depth 10)," in result.output
+
+
+def test_no_depth_frame_near_an_rgb_frame_is_one_error_and_writes_nothing(tmp_path):
+    # sequence.max_time_diff = 0 on the sample (its pairs are 5-26 ms apart): every frame would
+    # be skipped. Not 20 warnings and an empty run with exit 0: one line, with the gaps there are.
+    out = tmp_path / "out"
+    args = ["cvat2mask", str(SEQUENCE), str(ANNOTATIONS), "--config", str(SAMPLE_DATA / "camera.toml"), "--out", str(out)]
+    result = CliRunner().invoke(app, args + ["--max-time-diff", "0"])
+    assert result.exit_code == 1
+    assert error_line(result) == (f"error: {SEQUENCE}: no depth frame has an RGB frame within 0 s "
+                                  "(sequence.max_time_diff): each is 0.00502 to 0.0259 s from the nearest (median "
+                                  "0.00807 s); nothing to make")
+    assert "warning:" not in result.stderr and not out.exists()
+    # Some frames: one warning line for all of them.
+    some = CliRunner().invoke(app, args + ["--max-time-diff", "0.008", "--jobs", "1"])
+    assert some.exit_code == 0, some.output
+    warnings = [line for line in some.stderr.splitlines() if line.startswith("warning:")]
+    assert warnings == [f"warning: {SEQUENCE / 'depth'}/1700000000.044158.png, {SEQUENCE / 'depth'}/1700000000.075739.png, "
+                        f"{SEQUENCE / 'depth'}/1700000000.108053.png and 8 more: no RGB frame within 0.008 s; skipped"]
+    assert "11 frames skipped" in some.stdout
