@@ -79,8 +79,8 @@ class RansacConfig:
         tell by how much (``1.4826 median(|d| / sigma(z))`` of its fit's inliers, the MAD
         estimate of a standard deviation); the noise is scaled by that factor when it exceeds
         ``min_noise_scale`` (below, it is within the spread of the estimate: a median of about
-        a thousand points varies by a few per cent) and by at most ``max_noise_scale`` (which
-        ``min_noise_scale`` may not exceed; 1: never scaled)
+        a thousand points varies by a few per cent; at most ``max_noise_scale``, unless that is
+        1) and by at most ``max_noise_scale``
         (measured: the planes of TUM fr1_rpy and of the RealSense office frames are about 1.5
         sigma of the published models; renders with the model's exact noise stay about 1).
     behind_share, min_behind_points, max_behind_depth, max_behind : float, int, float, int
