@@ -79,8 +79,7 @@ class RansacConfig:
         tell by how much (``1.4826 median(|d| / sigma(z))`` of its fit's inliers, the MAD
         estimate of a standard deviation); the noise is scaled by that factor when it exceeds
         ``min_noise_scale`` (below, it is within the spread of the estimate: a median of about
-        a thousand points varies by a few per cent; at most ``max_noise_scale``, unless that is
-        1) and by at most ``max_noise_scale``
+        a thousand points varies by a few per cent) and by at most ``max_noise_scale``
         (measured: the planes of TUM fr1_rpy and of the RealSense office frames are about 1.5
         sigma of the published models; renders with the model's exact noise stay about 1).
     behind_share, min_behind_points, max_behind_depth, max_behind : float, int, float, int
@@ -280,9 +279,6 @@ def range_checks(config: Any) -> list[tuple[str, bool, str]]:
         ("ransac.band_share", 0 < ransac.band_share <= 1, "must be in (0, 1]"),
         ("ransac.exhaustive_below", 0 <= ransac.exhaustive_below <= 1, "must be in [0, 1]"),
         ("ransac.min_noise_scale", ransac.min_noise_scale >= 1, "must be >= 1"),
-        ("ransac.min_noise_scale", ransac.max_noise_scale == 1 or ransac.min_noise_scale <= ransac.max_noise_scale,
-         "must be at most ransac.max_noise_scale (the noise is scaled when found between the two; "
-         "max_noise_scale = 1: never)"),
         ("ransac.max_noise_scale", ransac.max_noise_scale >= 1, "must be >= 1 (1: never scale the noise)"),
         ("ransac.behind_share", ransac.behind_share > 0, "must be > 0"),
         ("ransac.min_behind_points", ransac.min_behind_points >= 3, "must be >= 3"),

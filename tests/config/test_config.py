@@ -105,8 +105,6 @@ def test_a_fixed_distance_threshold_replaces_the_noise_model():
         ("[noise]\nmodel = 'kinect_v2'\n", "'noise.model' must be one of constant, quadratic, icl_nuim, kinect_v1"),
         ("[noise]\nmodel = 'kinect_v1'\nb = 0.1\n", "'noise.b' is not a parameter of model 'kinect_v1'"),
         ("[refine]\ngrow_pixels = -1\n", "'refine.grow_pixels' must be in [0, 50]"),
-        ("[ransac]\nmin_noise_scale = 3.0\nmax_noise_scale = 2.0\n",
-         "'ransac.min_noise_scale' must be at most ransac.max_noise_scale"),
         ("[camera]\nfy = 0\n", "'camera.fy' must not be 0"),
         ("[filter]\nmin_valid_pixels = 2.5\n", "'filter.min_valid_pixels' must be an integer"),
         ("[filter\n", "invalid TOML"),
@@ -121,14 +119,6 @@ def test_bad_files_are_one_line_errors_naming_the_file(tmp_path, text, message):
     assert message in str(error.value)
     assert str(path) in str(error.value)
     assert "\n" not in str(error.value)
-
-
-def test_noise_scale_limits_that_never_scale_are_accepted():
-    # max_noise_scale = 1 is documented as "never scale the noise", whatever the minimum.
-    for settings in ({"ransac.min_noise_scale": 3.0, "ransac.max_noise_scale": 1.0},
-                     {"ransac.min_noise_scale": 2.0, "ransac.max_noise_scale": 2.0}):
-        config = load_config(None, settings)
-        assert (config.ransac.min_noise_scale, config.ransac.max_noise_scale) == tuple(settings.values())
 
 
 def test_unknown_preset_lists_the_presets():
