@@ -22,7 +22,6 @@ from pathlib import Path
 import numpy as np
 
 from annotate_rgbd.errors import InputError
-from annotate_rgbd.logs import group_problems
 from .files import open_regular
 from .inputs import open_input
 from .images import (
@@ -156,46 +155,6 @@ def associate(depth_times: np.ndarray, rgb_times: np.ndarray, max_time_diff: flo
     # A tiny tolerance: timestamps are printed with 6 decimals, so 0.02 must not read as 0.0200001.
     matched = np.abs(time_diff) <= max_time_diff + 1e-9
     return nearest, time_diff, matched
-
-
-def unmatched_frames(root: Path, depth_files, time_diff: np.ndarray, matched: np.ndarray, max_time_diff: float,
-                     considered: np.ndarray | None = None) -> list[str]:
-    """The warnings of the depth frames without an RGB frame within ``max_time_diff`` (grouped:
-    one line names a few of them and counts the rest), or an error when no frame has one.
-
-    Parameters
-    ----------
-    root : Path
-        The sequence folder.
-    depth_files : sequence of str
-        Every depth frame's file, relative to ``root``.
-    time_diff, matched : ndarray, shape (N,)
-        Of :func:`associate`.
-    max_time_diff : float
-    considered : ndarray of int, optional
-        Indices of the frames the run would process (default: all).
-
-    Returns
-    -------
-    list of str
-        ``"<file>, <file>, <file> and 57 more: no RGB frame within 0.02 s; skipped"``; empty when
-        every considered frame has its RGB frame.
-
-    Raises
-    ------
-    InputError
-        Frames were considered and none has an RGB frame within ``max_time_diff``: every frame
-        would be skipped. The message gives the gaps there are, so the user can pick a limit.
-    """
-    considered = np.arange(len(depth_files)) if considered is None else np.asarray(considered, dtype=np.intp)
-    missing = considered[~matched[considered]]
-    if len(considered) and len(missing) == len(considered):
-        gaps = np.abs(time_diff[considered])
-        raise InputError(root, f"no depth frame has an RGB frame within {max_time_diff:g} s (sequence.max_time_diff): "
-                               f"each is {gaps.min():.3g} to {gaps.max():.3g} s from the nearest (median "
-                               f"{float(np.median(gaps)):.3g} s); nothing to make")
-    problem = f"no RGB frame within {max_time_diff:g} s; skipped"
-    return group_problems((str(root / depth_files[i]), problem) for i in missing.tolist())
 
 
 def camera_problem(cx: float, cy: float, width: int, height: int) -> str | None:

@@ -37,8 +37,8 @@ from annotate_rgbd.propagate.keyframes import keyframe_frames
 from annotate_rgbd.report.records import NO_RGB_FRAME, OUTSIDE_ANNOTATION, RGB_NOT_ANNOTATED, FrameRecord
 from annotate_rgbd.io.sequence import (
     Sequence, associate, camera_problem, intrinsics_problems, read_depth, read_sequence,
-    unmatched_frames,
 )
+from annotate_rgbd.io.association_checks import unmatched_frames
 from annotate_rgbd.annotation.stitch import PartTracks, TrackPlane, assign_planes, label_conflicts
 from annotate_rgbd.pool import HelperPool
 
@@ -295,8 +295,9 @@ def plan_frames(
                                        carried)))
     # The frames of the annotated stretch: none with its RGB frame is an error, some a warning.
     annotated = [d for d, record in enumerate(frames) if record.reason != OUTSIDE_ANNOTATION]
+    stretch = "" if len(annotated) == len(frames) else f"of the annotated stretch (RGB frames {first} to {last})"
     warnings += unmatched_frames(sequence.root, sequence.depth.files, association.time_diff, association.matched,
-                                 max_time_diff, np.array(annotated, dtype=np.intp))
+                                 max_time_diff, np.array(annotated, dtype=np.intp), stretch)
     return frames, jobs, warnings
 
 

@@ -20,7 +20,8 @@ from annotate_rgbd.geometry.depth_range import depth_scale_hint, median_raw_dept
 from annotate_rgbd.geometry.lift import plane_to_world
 from annotate_rgbd.pool import default_workers, run_jobs, start_helpers
 from annotate_rgbd.io.poses import load_trajectory, poses_of_frames
-from annotate_rgbd.io.sequence import associate, intrinsics_problems, read_depth, read_sequence, unmatched_frames
+from annotate_rgbd.io.association_checks import unmatched_frames
+from annotate_rgbd.io.sequence import associate, intrinsics_problems, read_depth, read_sequence
 from annotate_rgbd.io.cleanup import remove_review_files, remove_stale_files
 from annotate_rgbd.io.outdir import MASKS, OutputFolder, check_outside_sequence, read_bounded
 from annotate_rgbd.io.layouts.tum import TRAJECTORY as TUM_TRAJECTORY
@@ -157,11 +158,12 @@ def _run(sequence, folder: OutputFolder, config, poses_path, helpers, progress, 
     else:
         nearest, time_diff, matched = associate(depth_times, sequence.rgb.timestamps, config.sequence.max_time_diff)
     chosen = np.arange(0, len(depth_times), settings.every)
+    picked = "" if settings.every == 1 else f"of the {len(chosen)} that --every {settings.every} picks"
     for line in unmatched_frames(sequence.root, sequence.depth.files, time_diff, matched,
-                                 config.sequence.max_time_diff, chosen):
+                                 config.sequence.max_time_diff, chosen, picked):
         log.warning("%s", line)
     for i in chosen[~matched[chosen]]:
-        result.skipped.append(f"{sequence.depth.files[i]}: no RGB frame within {config.sequence.max_time_diff:g} s")
+        result.skipped.append(f"{sequence.depth.files[i]}: no RGB frame within {config.sequence.max_time_diff} s")
     chosen = chosen[matched[chosen]]
     for hint in _camera_hints(sequence, chosen, config):
         result.warnings.append(hint)

@@ -3,7 +3,8 @@ import cv2
 import pytest
 
 from annotate_rgbd.errors import InputError
-from annotate_rgbd.io.sequence import associate, read_depth, read_rgb, read_sequence, unmatched_frames
+from annotate_rgbd.io.association_checks import unmatched_frames
+from annotate_rgbd.io.sequence import associate, read_depth, read_rgb, read_sequence
 
 HEADER = "# color images\n# file: 'rgbd_dataset_freiburg1_rpy.bag'\n# timestamp filename\n"
 
@@ -143,6 +144,9 @@ def test_frames_without_an_rgb_frame_are_one_warning_and_none_matched_is_an_erro
     with pytest.raises(InputError) as error:
         unmatched_frames(root, files, diff, matched, 0.0)
     assert str(error.value) == ("seq: no depth frame has an RGB frame within 0 s (sequence.max_time_diff): each is "
-                                "0.001 to 0.03 s from the nearest (median 0.03 s); nothing to make")
-    with pytest.raises(InputError):
-        unmatched_frames(root, files, diff, matched, 0.02, np.array([1, 2]))
+                                "0.001 to 0.03 s from the nearest (median 0.03 s)")
+    # Of the frames a command would process only: the message says which.
+    _, diff, matched = associate(depth_times, rgb_times, 0.02)
+    with pytest.raises(InputError) as error:
+        unmatched_frames(root, files, diff, matched, 0.02, np.array([1, 2]), "of the 2 that --every 5 picks")
+    assert str(error.value).startswith("seq: no depth frame of the 2 that --every 5 picks has an RGB frame within 0.02 s")

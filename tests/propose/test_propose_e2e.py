@@ -442,3 +442,29 @@ def test_a_frame_without_a_plane_gets_an_empty_mask(tmp_path, blank):
     frame = next(f for f in json.loads((tmp_path / "out" / "report.json").read_text())["frames"]
                  if f["depth"].endswith(first.name))
     assert frame["status"] == "written" and frame["planes"] == []
+
+
+def test_frames_without_an_rgb_frame_are_one_warning_and_none_is_one_error(tmp_path):
+    from builders import error_line
+    from conftest import SAMPLE_DATA
+
+    args = ["propose", str(SAMPLE_DATA / "sequence"), "--config", str(SAMPLE_DATA / "camera.toml"), "--jobs", "1"]
+    # Of the four frames --every 5 picks, none lies within 6 ms of its RGB frame (three others do):
+    # the error says which frames it looked at, and nothing is written.
+    none = CliRunner().invoke(app, args + ["--out", str(tmp_path / "none"), "--every", "5",
+                                           "--set", "sequence.max_time_diff=0.006"])
+    assert none.exit_code == 1
+    assert error_line(none) == (f"error: {SAMPLE_DATA / 'sequence'}: no depth frame of the 4 that --every 5 picks has an "
+                                "RGB frame within 0.006 s (sequence.max_time_diff): each is 0.00648 to 0.0259 s from "
+                                "the nearest (median 0.00904 s)")
+    assert "warning:" not in none.stderr and not (tmp_path / "none" / "proposals.xml").exists()
+    # Every frame: eleven without one, one warning line.
+    some = CliRunner().invoke(app, args + ["--out", str(tmp_path / "some"), "--set", "sequence.max_time_diff=0.008"])
+    assert some.exit_code == 0, some.output
+    depth = SAMPLE_DATA / "sequence" / "depth"
+    assert [line for line in some.stderr.splitlines() if "no RGB frame" in line] == [
+        f"warning: {depth}/1700000000.044158.png, {depth}/1700000000.075739.png, {depth}/1700000000.108053.png and 8 more: "
+        "no RGB frame within 0.008 s; skipped"]
+    report = json.loads((tmp_path / "some" / "report.json").read_text(encoding="utf-8"))
+    assert report["summary"]["frames_skipped"] == len(report["skipped"]) == 11
+    assert report["skipped"][0] == "depth/1700000000.044158.png: no RGB frame within 0.008 s"
