@@ -171,8 +171,9 @@ def check_target(run_dir: Path, xml_path: Path, annotations: Sequence[Path] = ()
     """Refuse to write the export into a folder that does not exist, over a file of the run it
     is made from (its report, tables, masks: the run would be lost), over one of the
     ``annotations`` the run read (the labeller's work, which the run's report names and a
-    re-run needs), or over a file of any other annotate-rgbd output folder (another run's
-    ``proposals.xml``: its report would no longer describe it).
+    re-run needs) or an existing file of the same name as one (the run's report holds absolute
+    paths: a project moved or copied elsewhere), or over a file of any other annotate-rgbd output
+    folder (another run's ``proposals.xml``: its report would no longer describe it).
 
     Raises
     ------
@@ -187,10 +188,15 @@ def check_target(run_dir: Path, xml_path: Path, annotations: Sequence[Path] = ()
         what = "is a file, not a folder" if xml_path.parent.exists() else "does not exist"
         raise OutputError(xml_path, f"cannot write output: its folder {xml_path.parent} {what}")
     target = xml_path.resolve()
-    for annotation in annotations:
-        if xml_path.exists() and annotation.exists() and os.path.samefile(xml_path, annotation):
-            raise OutputError(xml_path, "is an annotation export the run was made from: the labeller's shapes would "
-                                        "be lost; write the export elsewhere (e.g. round2.xml)")
+    if xml_path.exists():
+        elsewhere = f"write the export elsewhere (e.g. {xml_path.stem}-refined.xml)"
+        for annotation in annotations:
+            if annotation.exists() and os.path.samefile(xml_path, annotation):
+                raise OutputError(xml_path, f"is an annotation export the run was made from: the labeller's shapes "
+                                            f"would be lost; {elsewhere}")
+            if xml_path.name == annotation.name:  # the run or its annotations moved since (another machine)
+                raise OutputError(xml_path, f"has the name of an annotation export the run was made from ({annotation}):"
+                                            f" it may be the labeller's shapes; {elsewhere}")
     try:
         inside = target.relative_to(run_dir.resolve()).parts
     except ValueError:

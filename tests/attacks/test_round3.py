@@ -367,15 +367,26 @@ def test_export_to_a_folder_or_under_a_file_says_which(finished):
 
 def test_export_never_overwrites_the_annotations_the_run_was_made_from(finished):
     # ``export-cvat out a.xml`` beside the labeller's a.xml: the shapes the run read (and a
-    # re-run needs) would be gone. Through another name of the same file too (a link).
+    # re-run needs) would be gone. Refused through another name of the same file too (a link,
+    # which the atomic replace would only re-point: refusing is the plain rule).
     before = finished.xml.read_bytes()
     (finished.root / "same.xml").hardlink_to(finished.xml)
     for target in (finished.xml, finished.root / "same.xml"):
         result = invoke("export-cvat", finished.out, target)
         assert result.exit_code == 1
         assert error_line(result) == (f"error: {target}: is an annotation export the run was made from: the "
-                                      "labeller's shapes would be lost; write the export elsewhere (e.g. round2.xml)")
+                                      f"labeller's shapes would be lost; write the export elsewhere (e.g. "
+                                      f"{target.stem}-refined.xml)")
     assert finished.xml.read_bytes() == before
+    # The project moved (the report's absolute path is gone): a file of the annotation's name is refused.
+    moved = finished.root.parent / (finished.root.name + "-moved")
+    shutil.copytree(finished.root, moved)
+    result = invoke("export-cvat", moved / "out", moved / "a.xml")
+    assert result.exit_code == 1
+    assert error_line(result) == (f"error: {moved / 'a.xml'}: has the name of an annotation export the run was made "
+                                  f"from ({finished.xml}): it may be the labeller's shapes; write the export elsewhere "
+                                  "(e.g. a-refined.xml)")
+    assert (moved / "a.xml").read_bytes() == before
     # Another existing file is the user's to replace, as before.
     (finished.root / "round2.xml").write_text("old")
     assert invoke("export-cvat", finished.out, finished.root / "round2.xml").exit_code == 0
