@@ -138,30 +138,41 @@ def run_propose(
     out_dir = Path(out_dir)
     check_outside_sequence(out_dir, sequence)
     workers = workers or default_workers()
+    association = _associate(sequence, config)  # before the output folder: no frame to process writes nothing
     with OutputFolder(out_dir, "propose") as folder:
         helpers = start_helpers(workers, [DETECT_JOB_MODULE])
         try:
-            return _run(sequence, folder, config, poses, helpers, progress, warnings)
+            return _run(sequence, association, folder, config, poses, helpers, progress, warnings)
         finally:
             if helpers is not None:
                 helpers.shutdown()
 
 
-def _run(sequence, folder: OutputFolder, config, poses_path, helpers, progress, warnings=()) -> ProposeResult:
+def _associate(sequence, config) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each depth frame's nearest RGB frame, its time difference and whether it is close enough
+    (:func:`annotate_rgbd.io.sequence.associate`; a depth-only sequence's frames are their own);
+    the frames ``--every`` picks that have none are one warning, all of them an error."""
+    depth_times = sequence.depth.timestamps
+    if sequence.rgb is None:  # depth only: the depth frames are the frames
+        count = len(depth_times)
+        return np.arange(count), np.zeros(count), np.ones(count, bool)
+    nearest, time_diff, matched = associate(depth_times, sequence.rgb.timestamps, config.sequence.max_time_diff)
+    every = config.propose.every
+    picked = "" if every == 1 else f"of the {len(range(0, len(depth_times), every))} that --every {every} picks"
+    for line in unmatched_frames(sequence.root, sequence.depth.files, time_diff, matched,
+                                 config.sequence.max_time_diff, np.arange(0, len(depth_times), every), picked):
+        log.warning("%s", line)
+    return nearest, time_diff, matched
+
+
+def _run(sequence, association, folder: OutputFolder, config, poses_path, helpers, progress,
+         warnings=()) -> ProposeResult:
     out_dir = folder.path
     result = ProposeResult(warnings=list(warnings))
     settings = config.propose
     depth_times = sequence.depth.timestamps
-    if sequence.rgb is None:  # depth only: the depth frames are the frames
-        count = len(depth_times)
-        nearest, time_diff, matched = np.arange(count), np.zeros(count), np.ones(count, bool)
-    else:
-        nearest, time_diff, matched = associate(depth_times, sequence.rgb.timestamps, config.sequence.max_time_diff)
+    nearest, time_diff, matched = association
     chosen = np.arange(0, len(depth_times), settings.every)
-    picked = "" if settings.every == 1 else f"of the {len(chosen)} that --every {settings.every} picks"
-    for line in unmatched_frames(sequence.root, sequence.depth.files, time_diff, matched,
-                                 config.sequence.max_time_diff, chosen, picked):
-        log.warning("%s", line)
     for i in chosen[~matched[chosen]]:
         result.skipped.append(f"{sequence.depth.files[i]}: no RGB frame within {config.sequence.max_time_diff} s")
     chosen = chosen[matched[chosen]]
