@@ -51,7 +51,10 @@ def write_polygon_tracks(
     atomically.
 
     Every shape is a keyframe; CVAT interpolates between the sampled frames of a track's run, and
-    a track absent on a sampled frame gets ``outside="1"`` there.
+    a track absent on a sampled frame gets ``outside="1"`` there. Where the sampled frames stop
+    well before the task does (a tail longer than any gap between them: a run whose masks end
+    early), every track still open ends on the frame after the last sampled one, instead of CVAT
+    carrying its last polygon to the end of the task.
 
     Parameters
     ----------
@@ -76,8 +79,11 @@ def write_polygon_tracks(
         tracks=[Track(t.track, t.label, dict(sorted(t.shapes.items())), attributes=dict(t.attributes)) for t in tracks],
         frames=list(range(n_frames)),
     )
+    sampled = sorted(set(sampled_frames))
+    if sampled and n_frames - 1 - sampled[-1] > max(np.diff(sampled), default=1):
+        sampled.append(sampled[-1] + 1)  # looked at up to here, not beyond: the tracks end
     with open_output(path) as handle:  # atomically; a stream (``-``, /dev/stdout, a FIFO) as it is
-        write_cvat_video(annotation, handle, width=width, height=height, sampled_frames=sorted(set(sampled_frames)))
+        write_cvat_video(annotation, handle, width=width, height=height, sampled_frames=sampled)
 
 
 def write_colour_mask(path: Path, labels: np.ndarray, ids: np.ndarray) -> None:

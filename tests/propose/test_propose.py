@@ -315,3 +315,26 @@ def test_piece_on_an_island_stays_covered():
     outlines = piece_outlines(labels, tolerance_px=0.0)
     drawn = rasterize_frame([(1, Shape("polygon", outlines[1]))], *labels.shape)
     assert drawn[25:35, 25:35].all() and drawn[5:55, 5:55].all()
+
+
+def test_tracks_end_where_the_sampled_frames_stop_not_at_the_end_of_the_task(tmp_path):
+    import numpy as np
+
+    from annotate_rgbd.annotation.model import Shape
+    from annotate_rgbd.cvat import read_cvat
+    from annotate_rgbd.propose.output import TrackShapes, write_polygon_tracks
+
+    square = np.array([[10.0, 10.0], [30.0, 10.0], [30.0, 30.0], [10.0, 30.0]])
+
+    def written(sampled, n_frames):
+        track = TrackShapes(1, "plane", shapes={f: Shape("polygon", square) for f in sampled})
+        path = tmp_path / f"t{len(sampled)}_{n_frames}.xml"
+        write_polygon_tracks([track], path, n_frames=n_frames, sampled_frames=sampled, width=64, height=48)
+        return sorted(read_cvat(path).tracks[0].shapes)
+
+    # A run whose masks stop at frame 9 of a 30-frame task (frames skipped, a part cut short):
+    # the track ends there instead of CVAT carrying its polygon over frames 10-29.
+    assert written(list(range(10)), 30) == list(range(10))
+    # Every 10th frame looked at (propose --every 10): the last shape holds to the task's end, as
+    # between samples.
+    assert written([0, 10, 20], 22) == list(range(22))
