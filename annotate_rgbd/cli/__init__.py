@@ -256,7 +256,9 @@ def evaluate(
     """Score plane masks against ground truth with the EVOPS metrics (sequence means)."""
     from annotate_rgbd.config.command_line import parse_settings
     from annotate_rgbd.config.settings import load_config
-    from annotate_rgbd.evaluate.evaluate import evaluate_paths, format_json, format_table, write_per_frame_csv
+    from annotate_rgbd.evaluate.evaluate import (
+        check_per_frame_target, evaluate_paths, format_json, format_table, write_per_frame_csv,
+    )
 
     with user_errors():
         if part is not None:
@@ -266,6 +268,8 @@ def evaluate(
             typer.echo("warning: evaluate --part is deprecated, use --partial (the same IoU threshold)", err=True)
             partial = part
         thresholds = load_config(config, parse_settings(set_)).evaluate
+        if per_frame is not None:
+            check_per_frame_target(per_frame, gt, pred)
         # The options win over the configuration; evaluate_paths checks them (naming --full, --partial).
         full = thresholds.full if full is None else full
         partial = thresholds.partial if partial is None else partial

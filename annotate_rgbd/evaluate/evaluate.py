@@ -23,6 +23,7 @@ from annotate_rgbd.config.evaluate import EvaluateConfig
 from annotate_rgbd.errors import InputError
 from annotate_rgbd.io.writer import csv_bytes, write_output
 from annotate_rgbd.io.labelmaps import LABEL_SUFFIXES, read_label_map
+from annotate_rgbd.io.outdir import check_output_file
 from .metrics import METRIC_NAMES, FrameStatistics, frame_statistics
 
 log = logging.getLogger("annotate_rgbd")
@@ -301,6 +302,20 @@ def format_table(result: EvaluationResult) -> str:
 def format_json(result: EvaluationResult) -> str:
     """The result as one JSON object (see :meth:`EvaluationResult.to_dict`)."""
     return json.dumps(result.to_dict(), indent=2)
+
+
+def check_per_frame_target(path: str | Path, gt: str | Path, pred: str | Path) -> None:
+    """Refuse a per-frame CSV path that would replace what is being scored or a run's files
+    (:func:`annotate_rgbd.io.outdir.check_output_file`): a folder, a missing folder, a file
+    inside the ground truth or the predictions, a file of an annotate-rgbd output folder (its
+    ``report.json``, ``planes.csv``, masks). Checked before the scoring, not after it.
+
+    Raises
+    ------
+    OutputError
+    """
+    roles = ((label_folder(Path(gt)), "the ground truth being scored"), (label_folder(Path(pred)), "the masks being scored"))
+    check_output_file(Path(path), "per_frame.csv", "the per-frame CSV", "CSV file", roles)
 
 
 def write_per_frame_csv(result: EvaluationResult, path: str | Path) -> None:

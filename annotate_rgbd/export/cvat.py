@@ -34,7 +34,7 @@ from annotate_rgbd.annotation.model import PLANE_ID, Shape
 from annotate_rgbd.config.propose import EXPORT_MAX_VERTICES, EXPORT_TOLERANCE_PX
 from annotate_rgbd.cvat.from_masks import draw_order, piece_outlines
 from annotate_rgbd.errors import InputError, OutputError
-from annotate_rgbd.io.outdir import TOP_LEVEL_NAMES, is_output_folder, reading
+from annotate_rgbd.io.outdir import TOP_LEVEL_NAMES, check_output_file, reading
 from annotate_rgbd.io.writer import is_stream
 from annotate_rgbd.logs import group_problems
 from annotate_rgbd.pool import run_jobs, start_helpers
@@ -181,14 +181,7 @@ def check_target(run_dir: Path, xml_path: Path, annotations: Sequence[Path] = ()
     """
     if is_stream(xml_path):
         return
-    if xml_path.is_dir():
-        raise OutputError(xml_path, "is a folder: name the XML file to write (e.g. "
-                                    f"{xml_path / 'round2.xml'})")
-    if not xml_path.parent.is_dir():
-        what = "is a file, not a folder" if xml_path.parent.exists() else "does not exist"
-        raise OutputError(xml_path, f"cannot write output: its folder {xml_path.parent} {what}")
-    target = xml_path.resolve()
-    if xml_path.exists():
+    if xml_path.is_file():
         elsewhere = f"write the export elsewhere (e.g. {xml_path.stem}-refined.xml)"
         for annotation in annotations:
             if annotation.exists() and os.path.samefile(xml_path, annotation):
@@ -198,15 +191,12 @@ def check_target(run_dir: Path, xml_path: Path, annotations: Sequence[Path] = ()
                 raise OutputError(xml_path, f"has the name of an annotation export the run was made from ({annotation}):"
                                             f" it may be the labeller's shapes; {elsewhere}")
     try:
-        inside = target.relative_to(run_dir.resolve()).parts
+        inside = xml_path.resolve().relative_to(run_dir.resolve()).parts
     except ValueError:
         inside = ()
     if inside and inside[0] in TOP_LEVEL_NAMES:
         raise OutputError(xml_path, f"is {'/'.join(inside)} of the run being exported; write the export elsewhere")
-    for folder in (target.parent, target.parent.parent):  # a top-level file, or one in masks/ ...
-        if target.relative_to(folder).parts[0] in TOP_LEVEL_NAMES and is_output_folder(folder):
-            raise OutputError(xml_path, f"is {target.relative_to(folder).as_posix()} of the annotate-rgbd output "
-                                        f"folder {folder}; write the export elsewhere")
+    check_output_file(xml_path, "round2.xml", "the export", "XML file")
 
 
 def _keyframes(report: RunRecord) -> list:

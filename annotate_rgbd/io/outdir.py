@@ -311,6 +311,52 @@ def _is_output_name(name: object) -> bool:
     return folder in OUTPUT_FOLDERS and leaf not in ("", ".", "..") and "/" not in leaf and "\\" not in leaf
 
 
+def check_output_file(path: Path, example: str, what: str = "the file", kind: str = "file",
+                      keep: Iterable[tuple[Path, str]] = ()) -> None:
+    """Refuse to write a single output file (an export, a CSV) where it would lose something: at a
+    folder, under a folder that does not exist, inside one of the ``keep`` folders (the inputs
+    being read: ground truth, masks), or over a file of an annotate-rgbd output folder (its
+    report, tables, masks: the run would no longer be what it says). A stream (``-``, a pipe) is
+    always fine.
+
+    Parameters
+    ----------
+    path : Path
+        The file to write.
+    example : str
+        A file name to suggest when ``path`` is a folder (``round2.xml``).
+    what : str
+        The output in words, for the messages (``the export``).
+    kind : str
+        Its kind of file (``XML file``).
+    keep : iterable of (Path, str)
+        Folders (or files) not to write into, each with its role (``the ground truth``).
+
+    Raises
+    ------
+    OutputError
+    """
+    from annotate_rgbd.io.writer import is_stream  # OpenCV: not for the command line's start
+
+    if is_stream(path):
+        return
+    path = Path(path)
+    if path.is_dir():
+        raise OutputError(path, f"is a folder: name the {kind} to write (e.g. {path / example})")
+    if not path.parent.is_dir():
+        state = "is a file, not a folder" if path.parent.exists() else "does not exist"
+        raise OutputError(path, f"cannot write output: its folder {path.parent} {state}")
+    target = path.resolve()
+    for folder, role in keep:
+        folder = Path(folder).resolve()
+        if target == folder or folder in target.parents:
+            raise OutputError(path, f"is inside {role} ({folder}); write {what} elsewhere")
+    for folder in (target.parent, target.parent.parent):  # a top-level file, or one in masks/ ...
+        if target.relative_to(folder).parts[0] in TOP_LEVEL_NAMES and is_output_folder(folder):
+            raise OutputError(path, f"is {target.relative_to(folder).as_posix()} of the annotate-rgbd output "
+                                    f"folder {folder}; write {what} elsewhere")
+
+
 def is_output_folder(folder: Path) -> bool:
     """Whether ``folder`` is an annotate-rgbd output folder: it holds the outputs record, or a
     report written by ``cvat2mask`` or ``propose`` (runs made before the record existed)."""

@@ -320,6 +320,34 @@ def test_cli_json_and_per_frame_csv(sequence, tmp_path):
         assert float(row["recall"]) == frame.statistics.recall
 
 
+def test_per_frame_csv_never_replaces_what_is_scored_nor_a_runs_files(tmp_path):
+    from builders import error_line
+    from conftest import SAMPLE_DATA
+
+    run = tmp_path / "run"
+    made = CliRunner().invoke(app, ["cvat2mask", str(SAMPLE_DATA / "sequence"), str(SAMPLE_DATA / "annotations.xml"),
+                                    "--config", str(SAMPLE_DATA / "camera.toml"), "--out", str(run), "--jobs", "1"])
+    assert made.exit_code == 0, made.output
+    before = {p: p.read_bytes() for p in run.rglob("*") if p.is_file()}
+    gt = SAMPLE_DATA / "ground_truth"
+    cases = {
+        run / "planes.csv": f"is planes.csv of the annotate-rgbd output folder {run}; write the per-frame CSV elsewhere",
+        run / "report.json": f"is report.json of the annotate-rgbd output folder {run}; write the per-frame CSV elsewhere",
+        run / "masks" / "x.csv": f"is inside the masks being scored ({run / 'masks'}); write the per-frame CSV elsewhere",
+        gt / "x.csv": f"is inside the ground truth being scored ({gt}); write the per-frame CSV elsewhere",
+        run: f"is a folder: name the CSV file to write (e.g. {run / 'per_frame.csv'})",
+        tmp_path / "none" / "x.csv": f"cannot write output: its folder {tmp_path / 'none'} does not exist",
+    }
+    for target, message in cases.items():
+        result = CliRunner().invoke(app, ["evaluate", str(gt), str(run), "--per-frame", str(target)])
+        assert result.exit_code == 1
+        assert error_line(result) == f"error: {target}: {message}"
+    assert {p: p.read_bytes() for p in run.rglob("*") if p.is_file()} == before
+    assert not (gt / "x.csv").exists()
+    fine = CliRunner().invoke(app, ["evaluate", str(gt), str(run), "--per-frame", str(tmp_path / "frames.csv")])
+    assert fine.exit_code == 0 and (tmp_path / "frames.csv").read_text().startswith("frame,")
+
+
 def test_cli_part_is_the_deprecated_name_of_partial(sequence):
     gt_dir, pred_dir, _, _ = sequence
     base = ["evaluate", str(gt_dir), str(pred_dir), "--json"]
