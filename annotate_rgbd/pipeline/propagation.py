@@ -21,7 +21,7 @@ import numpy as np
 from annotate_rgbd.config.settings import Config
 from annotate_rgbd.annotation.parts import Part
 from annotate_rgbd.io.poses import FramePoses, Trajectory, load_trajectory, missing_poses_text, poses_at, poses_of_frames
-from annotate_rgbd.propagate.keyframes import fit_keyframes, time_samples
+from annotate_rgbd.propagate.keyframes import NO_DEPTH_FRAME, fit_keyframes, time_samples
 from annotate_rgbd.propagate.lift import TrackLift, lift_tracks
 from annotate_rgbd.propagate.timing import TimeOffset, estimate_time_offset
 from annotate_rgbd.pool import HelperPool
@@ -140,7 +140,15 @@ def propagation_warnings(propagation: Propagation) -> list[str]:
             line += f" ({ranges})" if ranges else ""
         lines.append(line)
     failed = [(lift, frame, reason) for lift in propagation.lifts.values() for frame, reason in lift.failed]
-    if failed and not any(lift.keyframes for lift in propagation.lifts.values()):
+    unmatched = [(lift, frame) for lift, frame, reason in failed if reason == NO_DEPTH_FRAME]
+    lifted = sum(len(lift.keyframes) for lift in propagation.lifts.values())
+    if unmatched and lifted:
+        lift, frame = unmatched[0]
+        lines.append(f"{len(unmatched)} of {len(unmatched) + lifted} keyframes (like {lift.part} track {lift.track} "
+                     f"frame {frame}) lie on RGB frames no depth frame is matched to (each depth frame takes the RGB "
+                     "frame nearest to it in time, within sequence.max_time_diff): the poses carry the others' shapes, "
+                     "not theirs (report.json: propagation, keyframes_failed)")
+    if failed and not lifted:
         reasons = Counter(reason for _, _, reason in failed)
         lift, frame, reason = next(f for f in failed if f[2] == reasons.most_common(1)[0][0])
         lines.append(f"{propagation.path}: none of the {len(failed)} keyframes could be lifted onto its plane "

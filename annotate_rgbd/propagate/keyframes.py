@@ -133,6 +133,10 @@ def outline_of(shape: Shape) -> np.ndarray | None:
     return shape.points
 
 
+#: Why a keyframe on an RGB frame that no depth frame takes (each depth frame takes the RGB frame
+#: nearest to it in time, within ``sequence.max_time_diff``; a neighbour may be nearer) is not lifted.
+NO_DEPTH_FRAME = "no depth frame is matched to its RGB frame"
+
 @dataclass
 class FittedTrack:
     """A track's keyframe planes as their depth frames saw them (camera frames), before poses.
@@ -213,7 +217,7 @@ def fit_keyframes(
             for i in keyframes_at[frame]:
                 outline = outline_of(tracks[i].shapes[frame])
                 why = ("mask shapes are not propagated" if outline is None
-                       else "no depth frame near the keyframe" if depth < 0 else None)
+                       else NO_DEPTH_FRAME if depth < 0 else None)
                 keyframe_shapes.append((i, outline, why))
             wanted = [i + 1 for i, _, why in keyframe_shapes if why is None]
             job = None

@@ -266,6 +266,29 @@ def test_each_keyframe_is_fitted_or_says_why_not_in_frame_order(tmp_path):
     plane = fitted.keyframes[0][3][0]
     assert abs(abs(plane[2]) - 1) < 1e-6 and abs(abs(plane[3]) - 2.0) < 1e-3
     assert fitted.keyframes[1][3].startswith("unreadable depth (") and fitted.keyframes[1][2] == 1
-    assert fitted.keyframes[2][3] == "no depth frame near the keyframe" and fitted.keyframes[2][2] == -1
+    assert fitted.keyframes[2][3] == "no depth frame is matched to its RGB frame" and fitted.keyframes[2][2] == -1
     assert fitted.failed == [(3, "mask shapes are not propagated")]
     assert set(fitted.sizes) == {0}
+
+
+def test_keyframes_on_rgb_frames_no_depth_frame_takes_are_one_warning():
+    from annotate_rgbd.io.poses import FramePoses
+    from annotate_rgbd.pipeline.propagation import Propagation, propagation_warnings
+    from annotate_rgbd.propagate.keyframes import NO_DEPTH_FRAME
+    from annotate_rgbd.propagate.lift import LiftedKeyframe, TrackLift
+
+    square = np.array([[0.0, 0, 2], [1, 0, 2], [1, 1, 2], [0, 1, 2]])
+    lifted = [LiftedKeyframe(f, square, np.array([0.0, 0, -1, 2]), 0) for f in (0, 10, 20)]
+    lifts = {("a.xml", 3): TrackLift("a.xml", 3, 4, keyframes=lifted, failed=[(5, NO_DEPTH_FRAME), (7, "unreadable depth")]),
+             ("a.xml", 4): TrackLift("a.xml", 4, 5, keyframes=lifted[:1], failed=[(15, NO_DEPTH_FRAME)])}
+    poses = FramePoses(np.tile(np.eye(3), (2, 1, 1)), np.zeros((2, 3)), np.ones(2, bool), np.array(["", ""]))
+    warnings = propagation_warnings(Propagation("traj.txt", lifts, poses))
+    assert warnings == [
+        "2 of 6 keyframes (like a.xml track 3 frame 5) lie on RGB frames no depth frame is matched to (each depth "
+        "frame takes the RGB frame nearest to it in time, within sequence.max_time_diff): the poses carry the others' "
+        "shapes, not theirs (report.json: propagation, keyframes_failed)"]
+    # None lifted at all: the one warning that says so (every shape in 2-D), not this one too.
+    for lift in lifts.values():
+        lift.keyframes = []
+    warnings = propagation_warnings(Propagation("traj.txt", lifts, poses))
+    assert len(warnings) == 1 and "none of the 3 keyframes could be lifted" in warnings[0]
