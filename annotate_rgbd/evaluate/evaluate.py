@@ -135,6 +135,8 @@ def evaluate_paths(
     for value, name in ((full, "full"), (part, "partial")):  # as the command line names them
         if not 0.0 < value <= 1.0:
             raise InputError(None, f"--{name} must be in (0, 1], not {value}")
+    if part > full:  # a partial overlap above a full match: usr, osr and noise would overlap precision
+        raise InputError(None, f"--partial ({part}) must be at most --full ({full}): a partial overlap is a weaker match")
     pairs, unmatched = match_frames(gt, pred)
     absent = [pair.name for pair in pairs if pair.pred is None]
     if ignore < -1:

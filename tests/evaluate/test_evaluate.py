@@ -384,6 +384,12 @@ def test_cli_reads_the_thresholds_from_the_evaluate_section(sequence, tmp_path):
     bad = CliRunner().invoke(app, [*base, "--set", "evaluate.full=1.5"])
     assert bad.exit_code == 1
     assert bad.stderr == "error: command-line option: 'evaluate.full' must be in (0, 1], got 1.5\n"
+    # A partial overlap stricter than a full match scores nonsense (precision + noise above 1).
+    above = CliRunner().invoke(app, [*base, "--partial", "0.9"])
+    assert above.exit_code == 1
+    assert above.stderr == ("error: --partial (0.9) must be at most --full (0.75): a partial overlap is a weaker "
+                            "match\n")
+    assert CliRunner().invoke(app, [*base, "--partial", "0.75"]).exit_code == 0
 
 
 def test_cli_reports_bad_input_in_one_line(sequence, tmp_path):
