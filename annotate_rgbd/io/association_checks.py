@@ -55,7 +55,7 @@ def unmatched_frames(root: Path, depth_files: Sequence[str], time_diff: np.ndarr
         gaps = np.abs(time_diff[considered])
         frames = f"depth frame {which}" if which else "depth frame"
         raise InputError(root, f"no {frames} has an RGB frame within {max_time_diff:g} s (sequence.max_time_diff): "
-                               f"each is {gaps.min():.3g} to {gaps.max():.3g} s from the nearest (median "
-                               f"{float(np.median(gaps)):.3g} s)")
+                               f"each is {gaps.min():.4g} to {gaps.max():.4g} s from the nearest (median "
+                               f"{float(np.median(gaps)):.4g} s)")
     problem = f"no RGB frame within {max_time_diff:g} s; skipped"
     return group_problems((str(root / depth_files[i]), problem) for i in missing.tolist())

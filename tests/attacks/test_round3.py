@@ -712,3 +712,12 @@ def test_a_problem_many_frames_share_is_said_once(tmp_path):
     assert [line for line in result.stderr.splitlines() if line.startswith("warning:")] == [f"warning: {problem}; failed (no mask)"]
     assert f"  failed: {problem}" in result.stdout.splitlines()
     assert "3 masks in" in result.stdout and "3 frames failed" in result.stdout
+
+
+@pytest.mark.parametrize("tolerance", ["inf", "nan"])
+def test_export_with_a_tolerance_that_is_no_distance_is_one_line(finished, tolerance):
+    target = finished.root / "r.xml"
+    result = invoke("export-cvat", finished.out, target, "--tolerance", tolerance, "--jobs", "1")
+    assert result.exit_code == 1
+    assert error_line(result) == f"error: --tolerance must be a distance in pixels >= 0, not {tolerance}"
+    assert not target.exists()

@@ -314,8 +314,8 @@ def test_no_depth_frame_near_an_rgb_frame_is_one_error_and_writes_nothing(tmp_pa
     result = CliRunner().invoke(app, args + ["--max-time-diff", "0"])
     assert result.exit_code == 1
     assert error_line(result) == (f"error: {SEQUENCE}: no depth frame has an RGB frame within 0 s "
-                                  "(sequence.max_time_diff): each is 0.00502 to 0.0259 s from the nearest (median "
-                                  "0.00807 s)")
+                                  "(sequence.max_time_diff): each is 0.005023 to 0.02591 s from the nearest (median "
+                                  "0.008071 s)")
     assert "warning:" not in result.stderr and not out.exists()
     # Some frames: one warning line for all of them.
     some = CliRunner().invoke(app, args + ["--max-time-diff", "0.008", "--jobs", "1"])

@@ -455,7 +455,7 @@ def test_frames_without_an_rgb_frame_are_one_warning_and_none_is_one_error(tmp_p
                                            "--set", "sequence.max_time_diff=0.006"])
     assert none.exit_code == 1
     assert error_line(none) == (f"error: {SAMPLE_DATA / 'sequence'}: no depth frame of the 4 that --every 5 picks has an "
-                                "RGB frame within 0.006 s (sequence.max_time_diff): each is 0.00648 to 0.0259 s from "
+                                "RGB frame within 0.006 s (sequence.max_time_diff): each is 0.006485 to 0.02591 s from "
                                 "the nearest (median 0.00904 s)")
     assert "warning:" not in none.stderr and not (tmp_path / "none").exists()
     # Every frame: eleven without one, one warning line.
