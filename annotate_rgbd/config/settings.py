@@ -235,13 +235,24 @@ def load_config(source: str | Path | None = None, overrides: Mapping[str, Any] |
     poses = values.get("sequence", {}).get("poses") if isinstance(values.get("sequence"), Mapping) else None
     if isinstance(poses, str) and poses and isinstance(origin, Path):
         values["sequence"]["poses"] = str(origin.parent / poses)  # relative to the file
-    config = _build(values, origin)
+    try:
+        config = _build(values, origin)
+        file_error = None
+    except InputError as error:
+        if not overrides:
+            raise
+        file_error = error  # the overrides may complete it (a model's missing parameter, a bound)
     if overrides:
         for dotted, value in overrides.items():
             section, _, key = dotted.partition(".")
             values.setdefault(section, {})[key] = value
-        # The file alone was valid: what fails now comes from the command line.
-        config = _build(values, overrides_from)
+        try:
+            config = _build(values, overrides_from)
+        except InputError:
+            # What the file got wrong is said as the file's; what fails only now, as the command line's.
+            if file_error is not None:
+                raise file_error from None
+            raise
     # Half-written intrinsics, with the command line's values in (--set camera.fx=... completes a file).
     problem = partial_intrinsics(values.get("camera"), DEFAULT_CAMERA)
     if problem is not None:

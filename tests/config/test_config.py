@@ -290,3 +290,23 @@ def test_a_preset_is_printed_to_start_a_configuration_from():
     assert load_config(None, {}) != load_config("fr1_desk")
     unknown = CliRunner().invoke(app, ["presets", "fr9"])
     assert unknown.exit_code == 1 and unknown.output.startswith("error: no preset 'fr9' (presets: fr1_desk, ")
+
+
+def test_overrides_may_complete_a_file_that_is_not_valid_alone(tmp_path):
+    # docs/configuration.md: --set overrides the file. A file that needs the override to be
+    # valid (a model's missing parameter) is completed by it, not refused first.
+    path = tmp_path / "noise.toml"
+    path.write_text('[noise]\nmodel = "quadratic"\n')
+    config = load_config(path, {"noise.b": 0.003})
+    assert type(config.noise.model).__name__ == "QuadraticNoise" and config.noise.model.b == 0.003
+    # What the overrides do not mend is the file's error, named as the file's.
+    with pytest.raises(InputError) as error:
+        load_config(path, {"noise.c": 1.0})
+    assert str(error.value).startswith(f"{path}: 'noise.b' is missing")
+    with pytest.raises(InputError) as error:
+        load_config(path)
+    assert str(error.value).startswith(f"{path}: 'noise.b' is missing")
+    # A bad override of a valid file is the command line's.
+    with pytest.raises(InputError) as error:
+        load_config(None, {"refine.grow_pixels": -1})
+    assert str(error.value).startswith("command-line option: 'refine.grow_pixels' must be in [0, 50]")
