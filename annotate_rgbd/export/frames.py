@@ -143,6 +143,8 @@ def read_run(run_dir: str | Path, poses: str | Path | None = None, world: bool =
         # Refused when no frame gets a pose: the export would hold no world-frame plane at all.
         frame_poses, ranges = poses_of_frames(samples, trajectory, times, gap, samples.clock, "written frame")
         missing = int(np.count_nonzero(~frame_poses.ok))
+        if missing and offset and ranges:  # the times read are not the frames' own: say so
+            ranges += f"; times are the frames' timestamps {offset:+g} s, the run's clock offset"
         if missing:
             log.warning("%s: %d of %d written frames have no pose: their planes have no world coordinates%s",
                         trajectory, missing, len(written), f" ({ranges})" if ranges else "")

@@ -414,7 +414,7 @@ def test_the_export_folder_and_xml_file_may_be_given_as_out_too(run, tmp_path):
     assert not (tmp_path / "c").exists() and not (tmp_path / "d").exists()
 
 
-def test_world_planes_read_the_trajectory_at_the_runs_time_offset(run, tmp_path):
+def test_world_planes_read_the_trajectory_at_the_runs_time_offset(run, tmp_path, caplog):
     # The run read its trajectory -0.03 s off the frames' clock (configured and estimated: the
     # report's time_offset_s); the export must read the same poses, and say which offset.
     from annotate_rgbd.export.frames import read_run
@@ -429,6 +429,10 @@ def test_world_planes_read_the_trajectory_at_the_runs_time_offset(run, tmp_path)
     expected = poses_at(read_trajectory(report["propagation"]["poses"]), times - 0.03)
     assert exported.time_offset == -0.03 and expected.ok.sum() >= 4
     assert [f.pose is not None for f in exported.frames] == expected.ok.tolist()
+    # The warning about frames without a pose says its times are shifted by the offset.
+    assert not expected.ok.all()
+    said = [r.getMessage() for r in caplog.records if "have no pose" in r.getMessage()]
+    assert len(said) == 1 and said[0].endswith("; times are the frames' timestamps -0.03 s, the run's clock offset)"), said
     for i in np.flatnonzero(expected.ok):
         np.testing.assert_allclose(exported.frames[i].pose[0], expected.rotations[i], atol=1e-12)
         np.testing.assert_allclose(exported.frames[i].pose[1], expected.translations[i], atol=1e-12)
