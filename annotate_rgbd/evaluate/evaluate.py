@@ -168,11 +168,13 @@ def evaluate_paths(
                             frames_skipped=tuple(absent) if skip_missing else ())
 
 
-def label_folder(path: Path) -> Path:
+def label_folder(path: Path, say: bool = True) -> Path:
     """The label files a path stands for: a run's output folder (``report.json`` beside
-    ``masks/``) stands for its ``masks/``; anything else for itself."""
+    ``masks/``) stands for its ``masks/`` (an info line says so, unless ``say`` is False);
+    anything else for itself."""
     if path.is_dir() and (path / "report.json").is_file() and (path / "masks").is_dir():
-        log.info("%s: a run's output folder: scoring its masks/", path)
+        if say:
+            log.info("%s: a run's output folder: scoring its masks/", path)
         return path / "masks"
     return path
 
@@ -316,7 +318,9 @@ def check_per_frame_target(path: str | Path, gt: str | Path, pred: str | Path) -
     ------
     OutputError
     """
-    roles = ((label_folder(Path(gt)), "the ground truth being scored"), (label_folder(Path(pred)), "the masks being scored"))
+    # Quietly: the scoring says which folder it reads (match_frames).
+    roles = ((label_folder(Path(gt), say=False), "the ground truth being scored"),
+             (label_folder(Path(pred), say=False), "the masks being scored"))
     check_output_file(Path(path), "per_frame.csv", "the per-frame CSV", "CSV file", roles)
 
 
