@@ -297,7 +297,7 @@ def plan_frames(
     annotated = [d for d, record in enumerate(frames) if record.reason != OUTSIDE_ANNOTATION]
     stretch = "" if len(annotated) == len(frames) else f"of the annotated stretch (RGB frames {first} to {last})"
     warnings += unmatched_frames(sequence.root, sequence.depth.files, association.time_diff, association.matched,
-                                 max_time_diff, np.array(annotated, dtype=np.intp), stretch)
+                                 max_time_diff, annotated, stretch)
     return frames, jobs, warnings
 
 

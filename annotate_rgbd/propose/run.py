@@ -158,9 +158,10 @@ def _associate(sequence, config) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         return np.arange(count), np.zeros(count), np.ones(count, bool)
     nearest, time_diff, matched = associate(depth_times, sequence.rgb.timestamps, config.sequence.max_time_diff)
     every = config.propose.every
-    picked = "" if every == 1 else f"of the {len(range(0, len(depth_times), every))} that --every {every} picks"
+    chosen = np.arange(0, len(depth_times), every)
+    picked = "" if every == 1 else f"of the {len(chosen)} that --every {every} picks"
     for line in unmatched_frames(sequence.root, sequence.depth.files, time_diff, matched,
-                                 config.sequence.max_time_diff, np.arange(0, len(depth_times), every), picked):
+                                 config.sequence.max_time_diff, chosen, picked):
         log.warning("%s", line)
     return nearest, time_diff, matched
 
