@@ -50,6 +50,8 @@ class FrameScore:
     #: Without ``ignore``: ``(GT file, label, share of its pixels)`` when GT holds its type's largest
     #: value (255, 65535), a common "don't care" mark, beside other planes; else None.
     dont_care: tuple[str, int, float] | None = None
+    #: With ``ignore``: the GT pixels that held it (left out of both), else 0.
+    ignored_pixels: int = 0
 
 
 @dataclass(frozen=True)
@@ -143,6 +145,12 @@ def evaluate_paths(
         raise InputError(None, f"--ignore must be a label value >= 0 (or -1: none), not {ignore}")
     frames = tuple(score_frame(pair, full=full, part=part, measure=measure, ignore=ignore) for pair in pairs
                    if pair.pred is not None or not skip_missing)
+    if ignore >= 0 and frames and not any(frame.ignored_pixels for frame in frames):
+        log.warning(
+            "%s: --ignore %d: no ground-truth pixel holds that label in any of the %d frames scored, so nothing was "
+            "left out (the don't-care value of the kit's and many datasets' 16-bit label files is 65535)",
+            gt, ignore, len(frames),
+        )
     marked = [frame.dont_care for frame in frames if frame.dont_care is not None]
     if marked:
         (path, label, _), share = marked[0], float(np.mean([share for _, _, share in marked]))
@@ -267,10 +275,11 @@ def score_frame(pair: FramePair, *, full: float, part: float, measure: str = "io
         gt, pred = (gt, pred.reshape(gt.shape)) if gt.ndim == 2 else (gt.reshape(pred.shape), pred)
     if pred.shape != gt.shape:
         raise InputError(pair.pred, f"frame is {_size(pred)} but ground truth {pair.gt.name} is {_size(gt)}")
-    dont_care = None
+    dont_care, ignored_pixels = None, 0
     if ignore >= 0:
         ignored = gt == ignore
-        if ignored.any():  # no plane in either: neither a hit nor a miss
+        ignored_pixels = int(np.count_nonzero(ignored))
+        if ignored_pixels:  # no plane in either: neither a hit nor a miss
             gt, pred = np.where(ignored, 0, gt), np.where(ignored, 0, pred)
     elif gt.dtype in (np.uint8, np.uint16):
         # Beside other planes (a 0/255 mask of one plane is no "don't care" mark).
@@ -281,7 +290,7 @@ def score_frame(pair: FramePair, *, full: float, part: float, measure: str = "io
     unlikely = tuple(str(path) for path, labels in ((pair.gt, gt), (pair.pred, pred)) if looks_like_a_photograph(labels))
     statistics = frame_statistics(gt, pred, full=full, part=part, measure=measure)
     return FrameScore(pair.name, statistics, missing=pair.pred is None, unlikely_masks=unlikely,
-                      dont_care=dont_care)
+                      dont_care=dont_care, ignored_pixels=ignored_pixels)
 
 
 def _size(labels: np.ndarray) -> str:

@@ -469,8 +469,14 @@ def test_ignore_leaves_dont_care_pixels_out_of_both(tmp_path, caplog):
         evaluate_paths(gt_dir, pred_dir)
     assert caplog.text == ""
     cv2.imwrite(str(gt_dir / "f.png"), gt)
-    # A label value that is not there changes nothing; from the command line and the configuration.
-    assert evaluate_paths(gt_dir, pred_dir, ignore=7).to_dict() == scored.to_dict()
+    # A label value that is not there changes nothing, and a warning says so (70000: no 16-bit label
+    # file can hold it); from the command line and the configuration.
+    for absent in (7, 70000):
+        caplog.clear()
+        with caplog.at_level("WARNING", logger="annotate_rgbd"):
+            assert evaluate_paths(gt_dir, pred_dir, ignore=absent).to_dict() == scored.to_dict()
+        assert caplog.text.count(f"--ignore {absent}: no ground-truth pixel holds that label in any of the 1 frames "
+                                 "scored, so nothing was left out") == 1
     for args in (["--ignore", "65535"], ["--set", "evaluate.ignore=65535"]):
         result = CliRunner().invoke(app, ["evaluate", str(gt_dir), str(pred_dir), "--json", *args])
         assert result.exit_code == 0, result.output
