@@ -324,3 +324,18 @@ def test_no_depth_frame_near_an_rgb_frame_is_one_error_and_writes_nothing(tmp_pa
     assert warnings == [f"warning: {SEQUENCE / 'depth'}/1700000000.044158.png, {SEQUENCE / 'depth'}/1700000000.075739.png, "
                         f"{SEQUENCE / 'depth'}/1700000000.108053.png and 8 more: no RGB frame within 0.008 s; skipped"]
     assert "11 frames skipped" in some.stdout
+
+
+def test_a_job_timeout_that_is_not_a_number_of_seconds_is_one_error(tmp_path):
+    # NaN passes the option's own minimum (every comparison with it is false) and would then never
+    # take a hung helper for hung; both commands that take it refuse it, and write nothing.
+    out = tmp_path / "out"
+    cvat = ["cvat2mask", str(SEQUENCE), str(ANNOTATIONS), "--config", str(SAMPLE_DATA / "camera.toml"), "--out", str(out)]
+    manifest = tmp_path / "scenes.toml"
+    manifest.write_text(f'[[scene]]\nsequence = "{SEQUENCE}"\nannotations = ["{ANNOTATIONS}"]\n'
+                        f'config = "{SAMPLE_DATA / "camera.toml"}"\nout = "{out}"\n', encoding="utf-8")
+    for args in (cvat, ["batch", str(manifest)]):
+        result = CliRunner().invoke(app, args + ["--job-timeout", "nan"])
+        assert result.exit_code == 1, result.output
+        assert error_line(result) == "error: --job-timeout must be at least 1 second (inf: wait for ever), not nan"
+        assert not out.exists()
