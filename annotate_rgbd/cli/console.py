@@ -1,6 +1,7 @@
 """What the command line shows and how it exits: warnings as ``warning: ...`` lines, input and
 file-system problems as one ``error:`` line with status 1, interrupts with 130 (Ctrl-C) or 143
-(SIGTERM) after the clean-up."""
+(SIGTERM) after the clean-up, and a reader of standard output that stopped reading (``| head``)
+with 141 and nothing printed, as a shell tool that SIGPIPE ends."""
 
 from __future__ import annotations
 
@@ -31,6 +32,8 @@ def user_errors() -> Iterator[None]:
 
     An interrupt (Ctrl-C, SIGINT) exits with status 130 and SIGTERM with 143, after the
     ``finally`` clauses have removed temporary files: finished outputs stay, a re-run goes on.
+    Standard output's reader gone (``annotate-rgbd export-cvat RUN - | head``) is no error of the
+    input: status 141 (128 + SIGPIPE, as ``cat`` gets), without a message.
     """
     handler = logging.StreamHandler(sys.stderr)
     handler.setFormatter(_LowerCaseLevel())
@@ -48,6 +51,11 @@ def user_errors() -> Iterator[None]:
     previous = {s: signal.signal(s, interrupt) for s in (signal.SIGINT, signal.SIGTERM)} if in_main_thread else {}
     try:
         yield
+    except BrokenPipeError:
+        # Python's own advice: point standard output at /dev/null, so that the flush at exit
+        # does not fail again with a message of its own.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        raise typer.Exit(128 + signal.SIGPIPE) from None
     except InputError as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(1) from None

@@ -464,3 +464,16 @@ def test_removals_are_said_in_the_singular_for_one_file():
 
     assert Cleanup({MASKS: 1, OVERLAYS: 2}).removals() == [
         "removed 1 mask of a frame that no longer gets one (masks/)", "removed 2 overlays no longer asked for (overlays/)"]
+
+
+def test_a_reader_that_stops_reading_ends_the_export_quietly(clean_run):
+    # `export-cvat RUN - | head`: the reader closes the pipe after a few bytes of a 230 KB export.
+    # Like `cat`, the command ends with 141 (128 + SIGPIPE) and says nothing: no "error:" line for
+    # what is no fault of the input, and no traceback from the flush at exit.
+    process = subprocess.Popen([*CLI, "export-cvat", str(clean_run), "-"], stdout=subprocess.PIPE,
+                               stderr=subprocess.PIPE)
+    assert process.stdout.read(100).startswith(b"<?xml")
+    process.stdout.close()
+    _, stderr = process.communicate(timeout=60)
+    assert process.returncode == 128 + signal.SIGPIPE
+    assert [line for line in stderr.decode().splitlines() if not line.startswith("out: ")] == []
