@@ -419,7 +419,7 @@ def propose(
                              progress=progress.callback(sequence_dir.name), warnings=loading)
         progress.finish()
         typer.echo(result.summary(out))
-        hint = result.drop_hint(run_config.camera.depth_scale)
+        hint = result.drop_hint(run_config.camera.depth_scale, run_config.filter)
         if hint:  # advice on the run as a whole
             typer.echo(f"hint: {hint}", err=True)
         if result.failed:

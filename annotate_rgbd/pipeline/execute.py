@@ -160,8 +160,8 @@ class SceneResult:
     def drop_hint(self) -> str | None:
         """Advice on the run as a whole when most of its planes were dropped for one reason
         (:func:`annotate_rgbd.report.stats.drop_hint`), else None."""
-        depth_scale = (self.config or Config()).camera.depth_scale
-        return drop_hint(summarize(self.frames), depth_scale)
+        config = self.config or Config()
+        return drop_hint(summarize(self.frames), config.camera.depth_scale, config.filter)
 
 
 @dataclass

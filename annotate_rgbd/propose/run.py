@@ -15,6 +15,7 @@ import numpy as np
 from annotate_rgbd import __version__
 from annotate_rgbd.annotation.model import PLANE_ID, Shape
 from annotate_rgbd.config.settings import Config, config_to_dict
+from annotate_rgbd.config.masks import FilterConfig
 from annotate_rgbd.errors import InputError
 from annotate_rgbd.geometry.depth_range import depth_scale_hint, median_raw_depth
 from annotate_rgbd.geometry.lift import plane_to_world
@@ -84,11 +85,12 @@ class ProposeResult:
                 f"{out_dir / MASKS_DIR}, {out_dir / REPORT_NAME}; {counted(self.proposed, 'plane')} proposed on frames, "
                 f"{sum(self.dropped.values())} not" + (f" ({reasons})" if reasons else ""))
 
-    def drop_hint(self, depth_scale: float) -> str | None:
+    def drop_hint(self, depth_scale: float, filter: FilterConfig | None = None) -> str | None:
         """:func:`annotate_rgbd.report.stats.dropped_hint` of the detected planes, for a reason
-        with a likely cause only (small and flickering detections are dropped by design)."""
+        with a likely cause only (small and flickering detections are dropped by design);
+        ``filter``: the drop rules the run applied."""
         return dropped_hint(self.dropped, self.proposed + sum(self.dropped.values()), depth_scale, "detected planes",
-                            known_only=True)
+                            known_only=True, filter=filter)
 
 
 def run_propose(

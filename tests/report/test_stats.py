@@ -172,3 +172,39 @@ def test_propose_says_what_it_did_not_propose_and_why_and_names_a_wrong_depth_sc
     assert reasons["too_far"] > 0
     assert wrong.stderr.splitlines()[-1].startswith(f"hint: {reasons['too_far']} of ") and (
         " detected planes were dropped as too_far: is camera.depth_scale = 500 right" in wrong.stderr)
+
+
+def test_a_drop_rule_set_stricter_than_its_default_is_what_the_hint_names():
+    # --set filter.max_invalid_ratio=0 drops every plane with one pixel without depth: the hint
+    # names that setting, not the depth's registration; a looser rule keeps the usual hint.
+    from annotate_rgbd.config.masks import FilterConfig
+    from annotate_rgbd.report.records import RunSummary
+    from annotate_rgbd.report.stats import DROP_HINTS, drop_hint
+
+    def summary(reason):
+        return RunSummary(depth_frames=3, masks_written=3, frames_skipped={}, frames_failed=0, planes_kept=1,
+                          planes_dropped=5, distinct_planes=2, dropped_by_reason={reason: 5}, mean_inlier_ratio=0.9)
+
+    cases = [("invalid_depth", FilterConfig(max_invalid_ratio=0.0), "filter.max_invalid_ratio is 0 here, stricter than its default 0.8"),
+             ("too_far", FilterConfig(max_mean_distance=0.5), "filter.max_mean_distance is 0.5 here, stricter than its default 3.5"),
+             ("too_few_points", FilterConfig(min_valid_pixels=5000), "filter.min_valid_pixels is 5000 here, stricter than its default 50")]
+    for reason, strict, named in cases:
+        assert drop_hint(summary(reason), 5000.0, strict) == f"5 of 6 planes were dropped as {reason}: {named}: is that meant?"
+        assert drop_hint(summary(reason), 5000.0, FilterConfig()) == drop_hint(summary(reason), 5000.0)
+    loose = FilterConfig(max_invalid_ratio=0.95)
+    assert drop_hint(summary("invalid_depth"), 5000.0, loose).endswith(DROP_HINTS["invalid_depth"])
+
+
+def test_cvat2mask_and_propose_name_a_strict_drop_rule(tmp_path):
+    from conftest import SAMPLE_DATA
+
+    common = [str(SAMPLE_DATA / "sequence")]
+    config = ["--config", str(SAMPLE_DATA / "camera.toml"), "--jobs", "1", "--set", "filter.max_mean_distance=0.5"]
+    runs = {"cvat2mask": ["cvat2mask", *common, str(SAMPLE_DATA / "annotations.xml"), "--out", str(tmp_path / "a")],
+            "propose": ["propose", *common, "--out", str(tmp_path / "b")]}
+    for name, args in runs.items():
+        result = CliRunner().invoke(app, args + config)
+        assert result.exit_code == 0, result.output
+        hints = [line for line in result.stderr.splitlines() if line.startswith("hint:")]
+        assert len(hints) == 1 and hints[0].endswith(
+            "dropped as too_far: filter.max_mean_distance is 0.5 here, stricter than its default 3.5: is that meant?"), (name, hints)
