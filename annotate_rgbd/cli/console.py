@@ -51,12 +51,14 @@ def user_errors() -> Iterator[None]:
     previous = {s: signal.signal(s, interrupt) for s in (signal.SIGINT, signal.SIGTERM)} if in_main_thread else {}
     try:
         yield
-    except BrokenPipeError:
-        # Python's own advice: point standard output at /dev/null, so that the flush at exit
-        # does not fail again with a message of its own.
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-        raise typer.Exit(128 + signal.SIGPIPE) from None
-    except InputError as exc:
+    except (BrokenPipeError, InputError) as exc:
+        # The writers turn a failed write into an OutputError (an InputError) and keep the
+        # OSError as its context.
+        if isinstance(exc, BrokenPipeError) or isinstance(exc.__context__, BrokenPipeError):
+            # Python's own advice: point standard output at /dev/null, so that the flush at exit
+            # does not fail again with a message of its own.
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+            raise typer.Exit(128 + signal.SIGPIPE) from None
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(1) from None
     except OSError as exc:  # a file system problem outside the writers (e.g. the journal)

@@ -188,8 +188,6 @@ def _stream_output(path: Path) -> Iterator[IO[bytes]]:
     try:
         yield handle
         handle.flush()
-    except BrokenPipeError:
-        raise  # the reader stopped reading (`| head`): the command line ends quietly (cli.console)
     except OSError as exc:
         raise OutputError(path, f"cannot write output: {exc.strerror or exc}") from None
     finally:
