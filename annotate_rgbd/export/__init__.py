@@ -118,17 +118,19 @@ def export_run(run_dir: str | Path, fmt: str, out: str | Path, poses: str | Path
     """
     if fmt not in FORMATS:
         raise InputError(None, f"unknown export format {fmt!r} (formats: {', '.join(FORMATS)})")
+    out = Path(out)
+    # The folder first: a refused one is the only line (no warning about the run's poses before it).
+    if out.resolve() == Path(run_dir).resolve():
+        raise OutputError(out, "is the run's folder: export into a folder of its own")
+    _previous_files(out)  # a folder of other files is refused before anything is read or made
     if poses is not None and fmt not in WORLD_FORMATS:
         log.warning("%s: not used: the %s export holds no world-frame plane (only %s do)", poses, fmt,
                     " and ".join(WORLD_FORMATS))
     with reading(Path(run_dir)):  # never a run half-way through
-        return _export(read_run(run_dir, poses, world=fmt in WORLD_FORMATS), fmt, Path(out))
+        return _export(read_run(run_dir, poses, world=fmt in WORLD_FORMATS), fmt, out)
 
 
 def _export(run: ExportRun, fmt: str, out: Path) -> ExportResult:
-    if out.resolve() == run.run_dir.resolve():
-        raise OutputError(out, "is the run's folder: export into a folder of its own")
-    _previous_files(out)  # a folder of other files is refused before anything is made
     if fmt in CHECKS:
         CHECKS[fmt](run)
     made = [folder for folder in (out, *out.parents) if not folder.exists()]  # deepest first

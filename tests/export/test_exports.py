@@ -253,6 +253,12 @@ def test_export_folder_contract(run, tmp_path):
         export_run(run / "run", "evops", foreign)
     with pytest.raises(OutputError, match="the run's folder"):
         export_run(run / "run", "evops", run / "run")
+    # A refused folder is the only line: no warning about the run or its poses comes before it.
+    trajectory = str(run / "sequence" / "groundtruth.txt")
+    for target in (foreign, run / "run"):
+        said = CliRunner().invoke(app, ["export", str(run / "run"), "--format", "evops", str(target), "--poses", trajectory])
+        assert said.exit_code == 1 and len(said.stderr.splitlines()) == 1, said.stderr
+        assert said.stderr.startswith(f"error: {target}: ")
     with pytest.raises(InputError, match="unknown export format 'png'"):
         export_run(run / "run", "png", tmp_path / "x")
     out = tmp_path / "again"
