@@ -142,7 +142,8 @@ def _stop_after(frames: int):
 
 
 @pytest.mark.parametrize("command", [["review"], ["stats"], ["export-cvat", "{out}/again.xml"],
-                                     ["export", "{out}/../export", "--format", "planes"]])
+                                     ["export", "{out}/../export", "--format", "planes"],
+                                     ["evaluate", str(SAMPLE / "ground_truth")]])
 def test_readers_refuse_a_folder_whose_rerun_was_interrupted(clean_run, tmp_path, command):
     # A re-run with other settings, interrupted: some masks are the new run's, report.json and
     # planes.csv still the earlier run's. Every command that reads the folder must say so.
@@ -152,8 +153,16 @@ def test_readers_refuse_a_folder_whose_rerun_was_interrupted(clean_run, tmp_path
         run_cvat2mask(SEQUENCE, [ANNOTATIONS], out, load_config(CAMERA, {"ransac.distance_threshold": 0.005}),
                       progress=_stop_after(6))
     assert _masks(out) != _masks(clean_run) and (out / "report.json").is_file()
-    args = [part.format(out=out) for part in command]
-    result = CliRunner().invoke(app, [args[0], str(out), *args[1:]])
+
+    def invoke(run):
+        """The command on ``run`` (evaluate takes it after the ground truth)."""
+        args = [part.format(out=out) for part in command]
+        return CliRunner().invoke(app, [*args, str(run)] if args[0] == "evaluate" else [args[0], str(run), *args[1:]])
+
+    if command[0] == "evaluate":  # its masks/ named alone is refused too
+        masks = invoke(out / "masks")
+        assert masks.exit_code == 1 and masks.output.startswith(f"error: {out / JOURNAL}: "), masks.output
+    result = invoke(out)
     assert result.exit_code == 1, result.output
     lines = result.output.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith(f"error: {out / JOURNAL}: "), lines
@@ -161,7 +170,7 @@ def test_readers_refuse_a_folder_whose_rerun_was_interrupted(clean_run, tmp_path
     assert not (out / "again.xml").exists() and not (tmp_path / "export").exists()
     # Finishing the run makes the folder readable again.
     run_cvat2mask(SEQUENCE, [ANNOTATIONS], out, load_config(CAMERA, {"ransac.distance_threshold": 0.005}))
-    result = CliRunner().invoke(app, [args[0], str(out), *args[1:]])
+    result = invoke(out)
     assert result.exit_code == 0, result.output
 
 
