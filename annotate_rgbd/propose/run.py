@@ -85,12 +85,12 @@ class ProposeResult:
                 f"{out_dir / MASKS_DIR}, {out_dir / REPORT_NAME}; {counted(self.proposed, 'plane')} proposed on frames, "
                 f"{sum(self.dropped.values())} not" + (f" ({reasons})" if reasons else ""))
 
-    def drop_hint(self, depth_scale: float, filter: FilterConfig | None = None) -> str | None:
+    def drop_hint(self, depth_scale: float, drop_rules: FilterConfig | None = None) -> str | None:
         """:func:`annotate_rgbd.report.stats.dropped_hint` of the detected planes, for a reason
         with a likely cause only (small and flickering detections are dropped by design);
-        ``filter``: the drop rules the run applied."""
+        ``drop_rules``: the run's ``[filter]`` section."""
         return dropped_hint(self.dropped, self.proposed + sum(self.dropped.values()), depth_scale, "detected planes",
-                            known_only=True, filter=filter)
+                            known_only=True, drop_rules=drop_rules)
 
 
 def run_propose(

@@ -179,7 +179,7 @@ def dropped_words(by_reason: Mapping[str, int]) -> str:
 
 
 #: The ``[filter]`` rule behind a drop reason, and whether a value is stricter than the default
-#: (drops more planes): such a setting is the first thing a hint names.
+#: (drops more planes): such a setting, not the data, is then what the hint names.
 FILTER_RULES = {
     "invalid_depth": ("max_invalid_ratio", lambda value, default: value < default),
     "too_far": ("max_mean_distance", lambda value, default: value < default),
@@ -187,7 +187,7 @@ FILTER_RULES = {
 }
 
 
-def drop_hint(summary: RunSummary, depth_scale: float, filter: FilterConfig | None = None) -> str | None:
+def drop_hint(summary: RunSummary, depth_scale: float, drop_rules: FilterConfig | None = None) -> str | None:
     """A warning when more than half of a run's plane records were dropped for one reason,
     with the likely cause; None otherwise.
 
@@ -196,17 +196,17 @@ def drop_hint(summary: RunSummary, depth_scale: float, filter: FilterConfig | No
     summary : RunSummary
     depth_scale : float
         The configuration's, quoted in the hint about distances.
-    filter : FilterConfig, optional
-        The run's drop rules: when the reason's rule is set stricter than its default (``--set
+    drop_rules : FilterConfig, optional
+        The run's ``[filter]`` section: when the reason's rule is set stricter than its default (``--set
         filter.max_invalid_ratio=0`` drops every plane with a pixel without depth), the hint names
         that setting instead of a cause in the data.
     """
     return dropped_hint(summary.dropped_by_reason, summary.planes_kept + summary.planes_dropped, depth_scale,
-                        filter=filter)
+                        drop_rules=drop_rules)
 
 
 def dropped_hint(by_reason: Mapping[str, int], total: int, depth_scale: float, what: str = "planes",
-                 known_only: bool = False, filter: FilterConfig | None = None) -> str | None:
+                 known_only: bool = False, drop_rules: FilterConfig | None = None) -> str | None:
     """:func:`drop_hint` from the counts: ``by_reason`` of ``total`` records of ``what`` (e.g.
     ``propose``'s "detected planes"); with ``known_only``, only for a reason with a likely
     cause in :data:`DROP_HINTS` (``propose`` drops small and flickering detections by design)."""
@@ -218,9 +218,9 @@ def dropped_hint(by_reason: Mapping[str, int], total: int, depth_scale: float, w
     hint = DROP_HINTS.get(reason, "")
     if reason == "too_far":
         hint = hint.replace("camera.depth_scale right", f"camera.depth_scale = {depth_scale:g} right")
-    if filter is not None and reason in FILTER_RULES:
+    if drop_rules is not None and reason in FILTER_RULES:
         key, stricter = FILTER_RULES[reason]
-        value, default = getattr(filter, key), getattr(FilterConfig, key)
+        value, default = getattr(drop_rules, key), getattr(FilterConfig, key)
         if stricter(value, default):
             hint = f"filter.{key} is {value:g} here, stricter than its default {default:g}: is that meant?"
     return f"{count} of {total} {what} were dropped as {reason}" + (f": {hint}" if hint else "")
