@@ -19,7 +19,8 @@ class Progress:
     totals : dict of str to int
         Frames to make per scene.
     stream : text stream, optional
-        Where to print (default: standard error).
+        Where to print (default: standard error; nothing is printed when the process has none,
+        as under ``2>&-``).
     interval : float
         Seconds between plain log lines when ``stream`` is not a terminal.
     clock : callable
@@ -75,12 +76,14 @@ class Progress:
     def finish(self) -> None:
         """End the in-place line on a terminal (if one was drawn: e.g. ``review --no-overlays``
         reports no progress at all)."""
-        if self.interactive and self.drawn:
+        if self.stream is not None and self.interactive and self.drawn:
             self.stream.write("\n")
             self.stream.flush()
             self.drawn = False
 
     def _show(self, scene: str, final: bool) -> None:
+        if self.stream is None:  # standard error closed (``2>&-``): Python's sys.stderr is None
+            return
         now = self.clock()
         if self.interactive:
             self.stream.write("\r\033[K" + self.line(scene))

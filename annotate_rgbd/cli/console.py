@@ -57,7 +57,7 @@ def user_errors() -> Iterator[None]:
         if isinstance(exc, BrokenPipeError) or isinstance(exc.__context__, BrokenPipeError):
             # Python's own advice: point standard output at /dev/null, so that the flush at exit
             # does not fail again with a message of its own.
-            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+            os.dup2(os.open(os.devnull, os.O_WRONLY), 1)
             raise typer.Exit(128 + signal.SIGPIPE) from None
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(1) from None
@@ -78,8 +78,9 @@ def user_errors() -> Iterator[None]:
         if isinstance(exc, ImportError):
             # Interrupted while a compiled module initialised (the interrupt surfaces as this
             # error): its half-made state can print at a normal exit, so leave at once.
-            sys.stdout.flush()
-            sys.stderr.flush()
+            for stream in (sys.stdout, sys.stderr):
+                if stream is not None:  # None: closed by the caller (``2>&-``)
+                    stream.flush()
             os._exit(status)
         raise typer.Exit(status) from None
     finally:

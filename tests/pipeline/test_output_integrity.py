@@ -486,3 +486,16 @@ def test_a_reader_that_stops_reading_ends_the_export_quietly(clean_run):
     _, stderr = process.communicate(timeout=60)
     assert process.returncode == 128 + signal.SIGPIPE
     assert [line for line in stderr.decode().splitlines() if not line.startswith("out: ")] == []
+
+
+def test_a_run_without_standard_error_finishes(tmp_path):
+    # `2>&-`: Python's sys.stderr is None. The progress line was written to it, and the run
+    # stopped after its first frame with exit 1, no message and its journal left behind.
+    out = tmp_path / "out"
+    done = subprocess.run([*CLI, "cvat2mask", str(SEQUENCE), str(ANNOTATIONS), "--config", str(CAMERA), "--out",
+                           str(out), "--jobs", "2"], stdout=subprocess.PIPE, preexec_fn=lambda: os.close(2),
+                          timeout=120)
+    assert done.returncode == 0, done.stdout
+    assert b"19 masks in" in done.stdout
+    assert (out / "report.json").is_file() and not (out / JOURNAL).exists()
+    assert len(list((out / "masks").iterdir())) == 19
