@@ -53,6 +53,9 @@ OUTPUTS_RECORD = ".annotate-rgbd-outputs.json"
 SHAPES_RECORD = ".annotate-rgbd-shapes.jsonl"
 #: The run's record, the journal of finished frames, and the ``propose`` outputs.
 REPORT, JOURNAL, PROPOSALS = "report.json", ".annotate-rgbd-journal.jsonl", "proposals.xml"
+#: Held by a ``propose`` run from before its first mask until its report is written (its
+#: journal, without a resume: a run that left it behind mixed its masks with an earlier run's).
+UNFINISHED = ".annotate-rgbd-unfinished"
 #: Commands whose output a folder can hold.
 COMMANDS = ("cvat2mask", "propose")
 #: What ``review`` wrote (:class:`annotate_rgbd.io.cleanup.ReviewRecord`), so that a later run removes only those files.
@@ -65,7 +68,7 @@ TABLES = ("planes.csv", "tracks.csv")
 #: Every name a run may write or remove at the top of the output folder.
 TOP_LEVEL_NAMES = (
     *OUTPUT_FOLDERS, REPORT, *TABLES, "review.html", "contact_sheet.png", PROPOSALS,
-    JOURNAL, REVIEW_RECORD, OUTPUTS_RECORD, SHAPES_RECORD,
+    JOURNAL, UNFINISHED, REVIEW_RECORD, OUTPUTS_RECORD, SHAPES_RECORD,
 )
 #: Bound on the outputs record (a 100,000-frame run with every kind of per-frame output: ~12 MiB).
 MAX_OUTPUTS_RECORD = 256 << 20

@@ -24,9 +24,9 @@ from annotate_rgbd.io.poses import load_trajectory, poses_of_frames
 from annotate_rgbd.io.association_checks import unmatched_frames
 from annotate_rgbd.io.sequence import associate, intrinsics_problems, read_depth, read_sequence
 from annotate_rgbd.io.cleanup import remove_review_files, remove_stale_files
-from annotate_rgbd.io.outdir import MASKS, OutputFolder, check_outside_sequence, read_bounded
+from annotate_rgbd.io.outdir import MASKS, UNFINISHED, OutputFolder, check_outside_sequence, read_bounded
 from annotate_rgbd.io.layouts.tum import TRAJECTORY as TUM_TRAJECTORY
-from annotate_rgbd.io.writer import write_json
+from annotate_rgbd.io.writer import write_bytes_atomic, write_json
 from annotate_rgbd.logs import counted, group_problems
 from annotate_rgbd.report.run_folder import write_drawn_shapes
 from annotate_rgbd.report.stats import dropped_hint
@@ -203,6 +203,9 @@ def _run(sequence, association, folder: OutputFolder, config, poses_path, helper
             key_of_rgb[rgb] = position
     ours = folder.expected | _masks_of_report(out_dir)  # what earlier runs here wrote
     folder.expect(f"{MASKS_DIR}/{Path(sequence.depth.files[i]).name}" for i in chosen.tolist())
+    # Until the report is written, the folder's masks may be this run's and an earlier one's: the
+    # readers refuse it (annotate_rgbd.report.run_folder.check_finished).
+    write_bytes_atomic(out_dir / UNFINISHED, b"propose\n")
     (out_dir / MASKS_DIR).mkdir(exist_ok=True)
 
     jobs = [
@@ -336,6 +339,7 @@ def _run(sequence, association, folder: OutputFolder, config, poses_path, helper
         "skipped": result.skipped,
         "warnings": result.warnings,
     })
+    (out_dir / UNFINISHED).unlink()
     folder.settle(written)
     return result
 

@@ -26,7 +26,7 @@ import numpy as np
 from annotate_rgbd.annotation.model import AREA_KINDS, Shape
 from annotate_rgbd.errors import InputError
 from annotate_rgbd.io.files import open_regular
-from annotate_rgbd.io.outdir import JOURNAL, REPORT, SHAPES_RECORD, read_bounded
+from annotate_rgbd.io.outdir import JOURNAL, REPORT, SHAPES_RECORD, UNFINISHED, read_bounded
 from annotate_rgbd.report.proposals import DepthOnlyRun, is_proposals, proposals_record
 from annotate_rgbd.report.records import RecordError, RunRecord
 from annotate_rgbd.report.validation import check_run, load_json
@@ -109,23 +109,28 @@ def read_report(out_dir: str | Path, proposals: bool = False) -> RunRecord:
 
 
 def check_finished(out_dir: Path) -> None:
-    """Refuse a folder where a ``cvat2mask`` run started and did not finish.
+    """Refuse a folder where a ``cvat2mask`` or ``propose`` run started and did not finish.
 
-    A run keeps its journal (:data:`annotate_rgbd.io.outdir.JOURNAL`) from its start until it
-    has written ``report.json``. A journal left behind means the run was interrupted, stopped by
-    a fatal problem, or is still running: the masks it made sit beside an earlier run's report
-    and tables, which no longer describe them.
+    A ``cvat2mask`` run keeps its journal (:data:`annotate_rgbd.io.outdir.JOURNAL`) from its
+    start until it has written ``report.json``, a ``propose`` run its marker
+    (:data:`annotate_rgbd.io.outdir.UNFINISHED`). One left behind means the run was interrupted,
+    stopped by a fatal problem, or is still running: the masks it made sit beside an earlier
+    run's report and tables (or proposals), which no longer describe them.
 
     Raises
     ------
     InputError
-        Naming the journal and what to do.
+        Naming the journal (or marker) and what to do.
     """
-    journal = out_dir / JOURNAL
+    journal, marker = out_dir / JOURNAL, out_dir / UNFINISHED
     if journal.is_file() or journal.is_symlink():
         raise InputError(journal, "a cvat2mask run in this folder did not finish (interrupted, stopped by an error,"
                                   " or still running): its masks may not match report.json; run the same"
                                   " cvat2mask (or batch) command again to finish it")
+    if marker.is_file() or marker.is_symlink():
+        raise InputError(marker, "a propose run in this folder did not finish (interrupted, stopped by an error, or"
+                                 " still running): its masks may not match report.json and proposals.xml; run the"
+                                 " same propose command again to finish it")
 
 
 def colour_table(report: RunRecord) -> tuple[np.ndarray, np.ndarray]:

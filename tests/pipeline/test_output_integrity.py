@@ -499,3 +499,31 @@ def test_a_run_without_standard_error_finishes(tmp_path):
     assert b"19 masks in" in done.stdout
     assert (out / "report.json").is_file() and not (out / JOURNAL).exists()
     assert len(list((out / "masks").iterdir())) == 19
+
+
+def test_readers_refuse_a_propose_folder_whose_rerun_was_interrupted(tmp_path):
+    # A propose re-run with other settings, stopped after a few frames: its masks sit beside the
+    # earlier run's proposals.xml and report.json. review and evaluate drew or scored that mix.
+    from annotate_rgbd.io.outdir import UNFINISHED
+    from annotate_rgbd.propose import run_propose
+
+    out = tmp_path / "proposed"
+    config = load_config(CAMERA)
+    run_propose(SEQUENCE, out, config, workers=1)
+    before = _masks(out)
+    other = load_config(CAMERA, {"ransac.seed": 9, "detect.band_k": 2.5})
+    with pytest.raises(KeyboardInterrupt):
+        run_propose(SEQUENCE, out, other, workers=1, progress=_stop_after(6))
+    assert _masks(out) != before and (out / UNFINISHED).is_file()
+    for command in (["review", str(out)], ["evaluate", str(SAMPLE / "ground_truth"), str(out)],
+                    ["evaluate", str(SAMPLE / "ground_truth"), str(out / "masks")]):
+        result = CliRunner().invoke(app, command)
+        assert result.exit_code == 1, result.output
+        assert result.output == (f"error: {out / UNFINISHED}: a propose run in this folder did not finish (interrupted, "
+                                 "stopped by an error, or still running): its masks may not match report.json and "
+                                 "proposals.xml; run the same propose command again to finish it\n")
+    assert not (out / "review.html").exists()
+    # Finishing the run makes the folder readable again, and leaves no marker.
+    run_propose(SEQUENCE, out, other, workers=1)
+    assert not (out / UNFINISHED).exists()
+    assert CliRunner().invoke(app, ["evaluate", str(SAMPLE / "ground_truth"), str(out)]).exit_code == 0
