@@ -140,11 +140,14 @@ def run_propose(
     out_dir = Path(out_dir)
     check_outside_sequence(out_dir, sequence)
     workers = workers or default_workers()
-    association = _associate(sequence, config)  # before the output folder: no frame to process writes nothing
+    # Before the output folder: no frame to process, or a trajectory that cannot be used, writes nothing.
+    association = _associate(sequence, config)
+    result = ProposeResult(warnings=list(warnings))
+    frames = _frames_and_poses(sequence, association, config, poses, result)
     with OutputFolder(out_dir, "propose") as folder:
         helpers = start_helpers(workers, [DETECT_JOB_MODULE])
         try:
-            return _run(sequence, association, folder, config, poses, helpers, progress, warnings)
+            return _run(sequence, association, folder, config, frames, helpers, progress, result)
         finally:
             if helpers is not None:
                 helpers.shutdown()
@@ -168,14 +171,19 @@ def _associate(sequence, config) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return nearest, time_diff, matched
 
 
-def _run(sequence, association, folder: OutputFolder, config, poses_path, helpers, progress,
-         warnings=()) -> ProposeResult:
-    out_dir = folder.path
-    result = ProposeResult(warnings=list(warnings))
-    settings = config.propose
+def _frames_and_poses(sequence, association, config: Config, poses_path, result: ProposeResult):
+    """The depth frames to process (``--every``'s picks that have an RGB frame; the others go to
+    ``result.skipped``), the trajectory and those frames' poses (None without one): ``(chosen,
+    poses_path, frame_poses)``. The camera's and the trajectory's warnings go to ``result``.
+
+    Raises
+    ------
+    InputError
+        An unreadable trajectory, or one that gives no processed frame a pose.
+    """
     depth_times = sequence.depth.timestamps
-    nearest, time_diff, matched = association
-    chosen = np.arange(0, len(depth_times), settings.every)
+    _, _, matched = association
+    chosen = np.arange(0, len(depth_times), config.propose.every)
     for i in chosen[~matched[chosen]]:
         result.skipped.append(f"{sequence.depth.files[i]}: no RGB frame within {config.sequence.max_time_diff} s")
     chosen = chosen[matched[chosen]]
@@ -195,6 +203,16 @@ def _run(sequence, association, folder: OutputFolder, config, poses_path, helper
         log.info("%s: a camera trajectory beside the frames; give it as --poses to link each plane across frames "
                  "by its place in the room (without, by image overlap: tracks can join different planes when the "
                  "camera moves far between processed frames)", sequence.root / TUM_TRAJECTORY)
+    return chosen, poses_path, frame_poses
+
+
+def _run(sequence, association, folder: OutputFolder, config, frames_and_poses, helpers, progress,
+         result: ProposeResult) -> ProposeResult:
+    out_dir = folder.path
+    settings = config.propose
+    depth_times = sequence.depth.timestamps
+    nearest, time_diff, _ = association
+    chosen, poses_path, frame_poses = frames_and_poses
     # Two depth frames may share their nearest RGB frame; its CVAT keyframe takes the nearer one.
     key_of_rgb: dict[int, int] = {}
     for position, i in enumerate(chosen.tolist()):

@@ -360,10 +360,12 @@ def test_nanosecond_timestamps_are_diagnosed_by_cvat2mask_and_propose(rendered, 
         "the depth frames 1700000000.009 to 1700000000.376 s: the trajectory's timestamps look like nanoseconds: "
         "divide them by 1e+09")
     result = run(rendered, "propose", tmp_path / "proposals", poses)
-    assert result.exit_code == 1
+    assert result.exit_code == 1 and not (tmp_path / "proposals").exists()  # propose made it, empty, before
     assert result.output.strip().splitlines()[-1].startswith(f"error: {poses}: no processed depth frame has a pose: "
                                                             "the trajectory spans ")
     assert "look like nanoseconds: divide them by 1e+09" in result.output
+    result = run(rendered, "propose", tmp_path / "proposals", tmp_path / "missing.txt")
+    assert result.exit_code == 1 and not (tmp_path / "proposals").exists()
 
 
 def test_another_sequences_trajectory_is_diagnosed(rendered, tmp_path):
