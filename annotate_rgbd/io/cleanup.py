@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterable
 
+from annotate_rgbd.logs import counted
 from annotate_rgbd.io.outdir import (
     ID_MASKS, MASKS, OUTPUT_FOLDERS, OVERLAYS, RAW_MASKS, REVIEW_RECORD, TABLES, TEMPORARY, file_digest, read_bounded,
 )
@@ -29,11 +30,14 @@ class Cleanup:
         Files it left alone because annotate-rgbd did not write them (relative paths).
     review : list of str
         The earlier review page and contact sheet removed (:func:`remove_review_files`).
+    review_overlays : int
+        Of the overlays removed, those an earlier ``review`` drew (not a run's ``--overlays``).
     """
 
     removed: dict[str, int] = field(default_factory=dict)
     foreign: list[str] = field(default_factory=list)
     review: list[str] = field(default_factory=list)
+    review_overlays: int = 0
 
     def removals(self) -> list[str]:
         """One line per folder files were removed from, in the user's words."""
@@ -41,11 +45,13 @@ class Cleanup:
                 RAW_MASKS: ("raw mask no longer asked for", "raw masks no longer asked for"),
                 OVERLAYS: ("overlay no longer asked for", "overlays no longer asked for"),
                 ID_MASKS: ("instance-id mask no longer asked for", "instance-id masks no longer asked for")}
-        lines = [f"removed {count} {what[folder][count != 1]} ({folder}/)" for folder, count in self.removed.items()
-                 if count]
-        if self.review:
-            lines.append(f"removed {' and '.join(self.review)} of an earlier review (they showed the earlier output; "
-                         "run review again)")
+        removed = {**self.removed, OVERLAYS: self.removed.get(OVERLAYS, 0) - self.review_overlays}
+        lines = [f"removed {count} {what[folder][count != 1]} ({folder}/)" for folder, count in removed.items() if count]
+        review = [*self.review, *([counted(self.review_overlays, "overlay") + f" ({OVERLAYS}/)"]
+                                  if self.review_overlays else [])]
+        if review:
+            names = review[0] if len(review) == 1 else ", ".join(review[:-1]) + " and " + review[-1]
+            lines.append(f"removed {names} of an earlier review (they showed the earlier output; run review again)")
         return lines
 
     def warnings(self) -> list[str]:
@@ -56,7 +62,7 @@ class Cleanup:
         return [f"left alone {len(self.foreign)} file(s) in the output folder that annotate-rgbd did not write: {shown}"]
 
 
-def remove_stale_files(folder: Path, ours: set[str], keep: set[str]) -> Cleanup:
+def remove_stale_files(folder: Path, ours: set[str], keep: set[str], review_overlays: Iterable[str] = ()) -> Cleanup:
     """Remove the per-frame outputs an earlier run wrote that this run did not.
 
     Parameters
@@ -67,12 +73,16 @@ def remove_stale_files(folder: Path, ours: set[str], keep: set[str]) -> Cleanup:
         Relative paths (``masks/<name>``) that annotate-rgbd wrote into this folder, by its records.
     keep : set of str
         Relative paths this run wrote.
+    review_overlays : iterable of str
+        Relative paths (``overlays/<name>``) of the overlays an earlier ``review`` drew: counted
+        apart when removed (:attr:`Cleanup.review_overlays`).
 
     Returns
     -------
     Cleanup
     """
     cleanup = Cleanup()
+    review_overlays = set(review_overlays)
     for sub in OUTPUT_FOLDERS:
         directory = folder / sub
         if os.path.islink(directory) or not directory.is_dir():
@@ -86,6 +96,7 @@ def remove_stale_files(folder: Path, ours: set[str], keep: set[str]) -> Cleanup:
                 try:
                     path.unlink()
                     removed += not TEMPORARY.match(path.name)
+                    cleanup.review_overlays += relative in review_overlays
                 except OSError:
                     pass
             else:

@@ -53,13 +53,16 @@ def remove_stale_outputs(scene: SceneRun) -> set[str]:
     kept_review = review_still_shown(scene, review)
     if kept_review:
         keep |= {f"{OVERLAYS}/{name}" for name in review.overlays}
-    cleanup = remove_stale_files(scene.out_dir, scene.previous.files, keep)
+    drawn_by_review = () if kept_review else [f"{OVERLAYS}/{name}" for name in review.overlays]
+    cleanup = remove_stale_files(scene.out_dir, scene.previous.files, keep, drawn_by_review)
     if kept_review:
         kept = [name for name in review.files if (scene.out_dir / name).is_file()]
         log.info("kept the earlier review (%s): it shows these masks and tables",
                  ", ".join([*kept, f"{len(review.overlays)} overlays"]))
     else:
         remove_review_files(scene.out_dir, cleanup)
+        if any(job.overlay_path is not None for _, job in scene.plan.jobs):
+            cleanup.review.clear()  # this run writes the page and sheet again (finish_scene): nothing to say
     for line in cleanup.removals():
         log.info(line)
     for line in cleanup.warnings():

@@ -23,8 +23,8 @@ from annotate_rgbd.pool import default_workers, run_jobs, start_helpers
 from annotate_rgbd.io.poses import load_trajectory, poses_of_frames
 from annotate_rgbd.io.association_checks import unmatched_frames
 from annotate_rgbd.io.sequence import associate, intrinsics_problems, read_depth, read_sequence
-from annotate_rgbd.io.cleanup import remove_review_files, remove_stale_files
-from annotate_rgbd.io.outdir import MASKS, UNFINISHED, OutputFolder, check_outside_sequence, read_bounded
+from annotate_rgbd.io.cleanup import read_review_record, remove_review_files, remove_stale_files
+from annotate_rgbd.io.outdir import MASKS, OVERLAYS, UNFINISHED, OutputFolder, check_outside_sequence, read_bounded
 from annotate_rgbd.io.layouts.tum import TRAJECTORY as TUM_TRAJECTORY
 from annotate_rgbd.io.writer import write_bytes_atomic, write_json
 from annotate_rgbd.logs import counted, group_problems
@@ -325,7 +325,8 @@ def _run(sequence, association, folder: OutputFolder, config, frames_and_poses, 
                              sampled_frames=sampled, width=width, height=height)
     result.tracks = len(ordered)
     written = {f["mask"] for f in frames if f["status"] == "written"}
-    cleanup = remove_stale_files(out_dir, ours | folder.expected, written)
+    drawn_by_review = [f"{OVERLAYS}/{name}" for name in read_review_record(out_dir).overlays]
+    cleanup = remove_stale_files(out_dir, ours | folder.expected, written, drawn_by_review)
     remove_review_files(out_dir, cleanup)  # an earlier review shows the earlier proposals
     for line in cleanup.removals():
         log.info(line)

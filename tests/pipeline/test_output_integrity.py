@@ -295,8 +295,10 @@ def test_a_rerun_that_changes_nothing_keeps_the_review_that_review_made(tmp_path
     assert "kept the earlier review" in result.output and "left alone" not in result.output
     result = runner.invoke(app, [*base, "--max-time-diff", "0.008"])  # masks change: the review goes
     assert result.exit_code == 0, result.output
-    assert "removed review.html and contact_sheet.png of an earlier review" in result.output
-    assert "removed 19 overlays no longer asked for (overlays/)" in result.output
+    # One line, and the overlays are said to be the review's: "no longer asked for" would be false.
+    assert ("info: removed review.html, contact_sheet.png and 19 overlays (overlays/) of an earlier review (they "
+            "showed the earlier output; run review again)") in result.output.splitlines()
+    assert "no longer asked for" not in result.output
     assert not (out / "overlays").exists() and not (out / "review.html").exists()
 
 
@@ -320,7 +322,7 @@ def test_a_review_with_an_overlay_gone_is_removed(tmp_path):
     result = CliRunner().invoke(app, base)
     assert result.exit_code == 0, result.output
     assert "kept the earlier review" not in result.output
-    assert "removed review.html and contact_sheet.png of an earlier review" in result.output
+    assert "removed review.html, contact_sheet.png and 18 overlays (overlays/) of an earlier review" in result.output
     assert not (out / "overlays").exists()
 
 
@@ -337,6 +339,19 @@ def test_a_rerun_that_changes_nothing_removes_the_runs_own_overlays_not_asked_fo
     assert "removed 19 overlays no longer asked for (overlays/)" in result.output
     assert not (out / "overlays").exists() and not (out / "review.html").exists()
     assert not (out / "contact_sheet.png").exists()
+
+
+def test_an_identical_rerun_with_overlays_says_nothing_about_its_page(tmp_path):
+    # The run writes its review page and sheet again: "removed ... of an earlier review (run
+    # review again)" was said on every identical re-run, and was false.
+    out = tmp_path / "out"
+    runner = CliRunner()
+    run = ["cvat2mask", str(SEQUENCE), str(ANNOTATIONS), "--config", str(CAMERA), "--out", str(out), "--overlays"]
+    assert runner.invoke(app, run).exit_code == 0
+    again = runner.invoke(app, run)
+    assert again.exit_code == 0, again.output
+    assert "removed" not in again.output and "(0 made, 19 unchanged)" in again.output
+    assert (out / "review.html").is_file() and (out / "contact_sheet.png").is_file()
 
 # --- 3. No endless wait on a stopped or killed helper --------------------------------------
 

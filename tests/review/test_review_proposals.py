@@ -123,14 +123,18 @@ def test_a_new_propose_run_removes_the_earlier_review(proposals, tmp_path, caplo
     shutil.copytree(proposals, out)
     review_run(out, workers=1)
     assert (out / "review.html").exists() and any((out / "overlays").iterdir())
+    overlays = len(list((out / "overlays").iterdir()))
     config = load_config(SAMPLE_DATA / "camera.toml", {"propose.every": 4})
     with caplog.at_level(logging.INFO, logger="annotate_rgbd"):
         run_propose(SAMPLE_DATA / "sequence", out, config, workers=1)
     assert not (out / "review.html").exists() and not (out / "contact_sheet.png").exists()
     assert not (out / "overlays").exists()
     # Said, with the overlays: the user who looks for the page knows where it went.
-    assert ("removed review.html and contact_sheet.png of an earlier review (they showed the earlier output; "
-            "run review again)") in [r.getMessage() for r in caplog.records]
+    said = [r.getMessage() for r in caplog.records]
+    assert [line for line in said if "earlier review" in line] == [
+        f"removed review.html, contact_sheet.png and {overlays} overlays (overlays/) of an earlier review (they showed "
+        "the earlier output; run review again)"]
+    assert not any("no longer asked for" in line for line in said)
 
 
 def test_other_commands_still_refuse_a_propose_folder(proposals, tmp_path):
