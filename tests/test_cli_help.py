@@ -64,3 +64,26 @@ def test_presets_lists_each_preset_with_its_camera_and_source():
         values = f"fx {camera.fx:g}, fy {camera.fy:g}, cx {camera.cx:g}, cy {camera.cy:g}, depth_scale {camera.depth_scale:g}"
         assert entry.startswith(f"    camera: {values}; "), entry
         assert len(entry) > len(f"    camera: {values}; ") + 10, f"{name}: no source of the camera"
+
+
+@pytest.mark.parametrize(("args", "line"), [
+    (["evaluate", "gt", "pred", "--full", ""],
+     "error: Invalid value for '--full': '' is not a valid float (see annotate-rgbd evaluate -h)"),
+    (["evaluate", "gt", "pred", "--fulll", "3"],
+     "error: No such option: --fulll (Possible options: --full) (see annotate-rgbd evaluate -h)"),
+    (["cvat2mask", "seq", "a.xml", "-j", "0"],
+     "error: Invalid value for '--jobs' / '-j': 0 is not in the range x>=1 (see annotate-rgbd cvat2mask -h)"),
+    (["stats"], "error: Missing argument 'RUN_DIR' (see annotate-rgbd stats -h)"),
+    (["relabel"], "error: No such command 'relabel' (see annotate-rgbd -h)"),
+])
+def test_a_command_line_that_cannot_be_parsed_is_one_error_line(args, line):
+    # Click printed the usage, a hint, a blank line and the error: four lines, where every other
+    # problem is one. The status stays Click's 2 (a command line, not an input, is wrong).
+    result = CliRunner().invoke(app, args, prog_name="annotate-rgbd")
+    assert result.exit_code == 2
+    assert result.stderr == line + "\n" and result.stdout == ""
+
+
+def test_the_command_alone_still_prints_its_help():
+    result = CliRunner().invoke(app, [], prog_name="annotate-rgbd")
+    assert "Usage: annotate-rgbd [OPTIONS] COMMAND [ARGS]..." in result.output

@@ -8,12 +8,13 @@ from typing import List, Optional
 import typer
 
 from annotate_rgbd import __version__
-from .console import one_output, output_folder, user_errors
+from .console import OneLineErrors, one_output, output_folder, user_errors
 from annotate_rgbd.errors import InputError
 from annotate_rgbd.logs import counted
 from annotate_rgbd.pool import STALL_TIMEOUT
 
 app = typer.Typer(
+    cls=OneLineErrors,  # a command line that cannot be parsed is one error line, as every other problem
     help="Turn CVAT plane polygons on RGB-D sequences into depth-verified plane instance masks.",
     no_args_is_help=True,
     add_completion=False,

@@ -15,8 +15,45 @@ from pathlib import Path
 from typing import Iterator
 
 import typer
+from typer.core import TyperGroup
+
+from typer._click.exceptions import NoArgsIsHelpError, UsageError  # typer 0.26 (pinned) carries its own Click
 
 from annotate_rgbd.errors import InputError
+
+
+class OneLineUsageError(UsageError):
+    """A command line that cannot be parsed (an unknown option, a value of the wrong type), as
+    one ``error:`` line like every other problem (Click prints the usage, a hint and the error on
+    four), with Click's status 2."""
+
+    def __init__(self, error: UsageError):
+        super().__init__(error.format_message(), error.ctx)
+
+    def show(self, file=None) -> None:
+        where = f" (see {self.ctx.command_path} -h)" if self.ctx is not None else ""
+        typer.echo(f"error: {self.format_message().rstrip('.')}{where}", err=True)
+
+
+class OneLineErrors(TyperGroup):
+    """The command group: its usage errors are :class:`OneLineUsageError`; the help that a
+    command given without arguments prints stays as it is."""
+
+    def make_context(self, *args, **kwargs):
+        try:
+            return super().make_context(*args, **kwargs)
+        except NoArgsIsHelpError:
+            raise
+        except UsageError as error:
+            raise OneLineUsageError(error) from None
+
+    def invoke(self, ctx):
+        try:
+            return super().invoke(ctx)
+        except (NoArgsIsHelpError, OneLineUsageError):
+            raise
+        except UsageError as error:
+            raise OneLineUsageError(error) from None
 
 
 class _LowerCaseLevel(logging.Formatter):
