@@ -5,7 +5,7 @@ A manifest has one ``[[scene]]`` table per scene; paths are relative to the mani
     jobs = 2                       # optional; default: all cores (--jobs overrides)
 
     [[scene]]
-    name = "fr1_desk"              # optional; default: the output folder's name
+    name = "fr1_desk"              # optional; default: the output folder's name (each scene's must differ)
     sequence = "data/rgbd_dataset_freiburg1_desk"
     annotations = ["labels/fr1_desk/0-299.xml", "labels/fr1_desk/295-573.xml"]
     config = "fr1_desk"            # a preset name or a TOML file; optional
@@ -153,6 +153,13 @@ def read_manifest(path: str | Path) -> tuple[list[SceneSpec], int | None]:
     for out in set(outs):
         if outs.count(out) > 1:
             raise InputError(path, f"two scenes write to {out}: give each scene its own 'out'")
+    names = [scene.name for scene in scenes]
+    for number, name in enumerate(names, start=1):
+        first = names.index(name) + 1
+        if first < number:  # summaries, warnings and --merge name scenes: they could not tell these apart
+            named = "their output folders' name" if not (tables[first - 1].get("name") or tables[number - 1].get("name")) else "'name'"
+            raise InputError(path, f"[[scene]] {first} and {number} are both named '{name}' ({named}): give each "
+                                   "scene a 'name' of its own")
     for out in outs:  # a scene's output folder inside another's: each run would see the other's files
         outer = next((other for other in outs if other in out.parents), None)
         if outer is not None:

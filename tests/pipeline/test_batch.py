@@ -175,6 +175,11 @@ def test_a_failed_frame_fails_the_batch_and_is_listed(tmp_path):
         ("jobs = 0\n[[scene]]\nsequence = 'a'\nannotations = ['x.xml']\nout = 'o'\n", "'jobs' must be a positive integer"),
         ("[[scene]]\nsequence = 'a'\nannotations = 'x.xml'\nout = 'o'\n[[scene]]\nsequence = 'b'\nannotations = 'y.xml'\nout = 'o'\n",
          "two scenes write to"),
+        ("[[scene]]\nsequence = 'a'\nannotations = 'x.xml'\nout = 'a/rpy'\n[[scene]]\nsequence = 'b'\nannotations = 'y.xml'\nout = 'b/rpy'\n",
+         r"\[\[scene\]\] 1 and 2 are both named 'rpy' \(their output folders' name\): give each scene a 'name' of its own"),
+        ("[[scene]]\nname = 'same'\nsequence = 'a'\nannotations = 'x.xml'\nout = 'a'\n[[scene]]\nsequence = 'b'\nannotations = 'y.xml'\nout = 'b'\n"
+         "[[scene]]\nname = 'same'\nsequence = 'c'\nannotations = 'z.xml'\nout = 'c'\n",
+         r"\[\[scene\]\] 1 and 3 are both named 'same' \('name'\)"),
         ("[[scene]]\nsequence = 'a'\nannotations = ['x.xml']\nout = 'o'\nparts = ['x.xml']\n", "expected FILE:OFFSET"),
         ("[[scene\n", "invalid TOML"),
         ("[[scene]]\nsequence = 'a'\nannotations = ['x.xml']\nout = 'o'\noverlays = 'yes'\n", "raw_masks, overlays, instance_ids are true or false"),
