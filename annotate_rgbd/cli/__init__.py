@@ -155,6 +155,9 @@ def batch(
         from annotate_rgbd.pipeline.execute import default_workers, prepare_process
         from annotate_rgbd.pipeline.manifest import read_manifest
 
+        if as_json and not merge:  # a run prints its summary lines: there is no JSON of it to print
+            raise InputError(None, "--json is for --merge (a summary of finished runs); a run's summary is its "
+                                   "report.json, and `annotate-rgbd stats OUT --json` prints one scene's")
         scenes, manifest_jobs = read_manifest(manifest)
         if shard is not None:
             from annotate_rgbd.pipeline.shards import parse_shard, select_shard

@@ -124,6 +124,11 @@ def test_merge_names_scenes_without_a_run(tmp_path):
     assert as_json.exit_code == 1
     summary = json.loads(as_json.stdout)
     assert summary["scenes"] == 0 and summary["scenes_without_a_run"] == list(SETTINGS)
+    # --json without --merge was ignored without a word (a run prints lines, not JSON): refused,
+    # before anything runs.
+    alone = CliRunner().invoke(app, ["batch", str(manifest), "--json"])
+    assert alone.exit_code == 1 and alone.stderr.startswith("error: --json is for --merge")
+    assert len(alone.stderr.splitlines()) == 1 and not any((tmp_path / "out").glob("*/report.json"))
 
 
 def test_merge_stats_sums_and_weights():
