@@ -8,7 +8,7 @@ from typing import List, Optional
 import typer
 
 from annotate_rgbd import __version__
-from .console import OneLineErrors, one_output, output_folder, user_errors
+from .console import CheckedCommand, OneLineErrors, one_output, output_folder, user_errors
 from annotate_rgbd.errors import InputError
 from annotate_rgbd.logs import counted
 from annotate_rgbd.pool import STALL_TIMEOUT
@@ -48,7 +48,7 @@ def main(
     """Turn CVAT plane polygons on RGB-D sequences into depth-verified plane instance masks."""
 
 
-@app.command()
+@app.command(cls=CheckedCommand)
 def cvat2mask(
     sequence_dir: Path = typer.Argument(
         ..., metavar="SEQUENCE_DIR", help="Sequence folder: TUM RGB-D, ICL-NUIM (TUM format), ScanNet export or 7-Scenes."
@@ -136,7 +136,7 @@ def cvat2mask(
             raise typer.Exit(1)  # every mask that could be made is written
 
 
-@app.command()
+@app.command(cls=CheckedCommand)
 def batch(
     manifest: Path = typer.Argument(..., metavar="MANIFEST", help="TOML manifest: one scene table per scene (see docs/batch.md)."),
     jobs: Optional[int] = typer.Option(None, "--jobs", "-j", min=1, metavar="N", help="Worker processes (default: the manifest's jobs, else all cores)."),
@@ -210,7 +210,7 @@ def _merge_batch(scenes: list, as_json: bool) -> None:
         raise typer.Exit(1)
 
 
-@app.command()
+@app.command(cls=CheckedCommand)
 def presets(
     name: Optional[str] = typer.Argument(
         None, metavar="[NAME]", help="Print this preset's TOML file (to start your own from: > my_camera.toml)."
@@ -233,7 +233,7 @@ def presets(
         typer.echo("\n".join(lines))  # one write: a reader that stops early (| head) meets no broken pipe
 
 
-@app.command()
+@app.command(cls=CheckedCommand)
 def evaluate(
     ctx: typer.Context,
     gt: Path = typer.Argument(..., metavar="GT", help="Ground-truth masks: a folder of label files, or one file."),
@@ -288,7 +288,7 @@ def evaluate(
                    err=per_frame is not None and names_stdout(per_frame))
 
 
-@app.command()
+@app.command(cls=CheckedCommand)
 def review(
     out_dir: Path = typer.Argument(
         ..., metavar="RUN_DIR", help="Output folder of a finished cvat2mask run, or of propose (its proposals)."
@@ -345,7 +345,7 @@ def review(
         typer.echo("\n".join(lines))
 
 
-@app.command()
+@app.command(cls=CheckedCommand)
 def stats(
     out_dir: Path = typer.Argument(..., metavar="RUN_DIR", help="Output folder of a finished cvat2mask run."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object instead of a table."),
@@ -361,7 +361,7 @@ def stats(
         typer.echo(format_stats_json(summary) if as_json else format_stats(summary))
 
 
-@app.command()
+@app.command(cls=CheckedCommand)
 def propose(
     sequence_dir: Path = typer.Argument(
         ..., metavar="SEQUENCE_DIR",
@@ -431,7 +431,7 @@ def propose(
             raise typer.Exit(1)
 
 
-@app.command("export-cvat")
+@app.command("export-cvat", cls=CheckedCommand)
 def export_cvat_command(
     run_dir: Path = typer.Argument(..., metavar="RUN_DIR", help="Output folder of a finished cvat2mask run."),
     xml: Optional[Path] = typer.Argument(None, metavar="FILE.xml", help="The CVAT for video 1.1 XML file to write."),
@@ -465,7 +465,7 @@ def export_cvat_command(
         typer.echo(f"{counted(count, 'plane track')}: {xml}", err=names_stdout(xml))
 
 
-@app.command("export")
+@app.command("export", cls=CheckedCommand)
 def export_command(
     run_dir: Path = typer.Argument(..., metavar="RUN_DIR", help="Output folder of a finished cvat2mask run."),
     out: Optional[Path] = typer.Argument(None, metavar="OUT_DIR", help="The export folder (empty, or an earlier export's)."),

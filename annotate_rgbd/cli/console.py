@@ -15,7 +15,8 @@ from pathlib import Path
 from typing import Iterator
 
 import typer
-from typer.core import TyperGroup
+from typer.core import TyperCommand, TyperGroup
+from typer.models import TyperPath
 
 from typer._click.exceptions import NoArgsIsHelpError, UsageError  # typer 0.26 (pinned) carries its own Click
 
@@ -33,6 +34,21 @@ class OneLineUsageError(UsageError):
     def show(self, file=None) -> None:
         where = f" (see {self.ctx.command_path} -h)" if self.ctx is not None else ""
         typer.echo(f"error: {self.format_message().rstrip('.')}{where}", err=True)
+
+
+class CheckedCommand(TyperCommand):
+    """A command whose path arguments and ``--config`` may not be empty strings: ``Path("")`` is
+    the current folder, so ``--poses "$UNSET"`` was reported as a problem of ``.``."""
+
+    def parse_args(self, ctx, args):
+        rest = super().parse_args(ctx, args)
+        for param in self.params:
+            value = ctx.params.get(param.name)
+            values = value if isinstance(value, (list, tuple)) else [value]
+            if (isinstance(param.type, TyperPath) or param.name == "config") and any(v == "" for v in values):
+                shown = param.opts[0] if param.opts and param.opts[0].startswith("-") else param.human_readable_name
+                raise UsageError(f"{shown.rstrip('.')} is an empty string (an unset shell variable?)", ctx)
+        return rest
 
 
 class OneLineErrors(TyperGroup):
