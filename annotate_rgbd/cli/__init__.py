@@ -386,16 +386,16 @@ def propose(
         None, "--label", metavar="LABEL", help="CVAT label of the proposed tracks; default: [propose] label."
     ),
     min_area: Optional[float] = typer.Option(
-        None, "--min-area", min=0.0, max=1.0, metavar="SHARE",
-        help="Smallest plane proposed, as a share of the image; default: [detect] min_area_fraction.",
+        None, "--min-area", metavar="SHARE",
+        help="Smallest plane proposed, as a share of the image, in (0, 1]; default: [detect] min_area_fraction.",
     ),
     set_: List[str] = typer.Option([], "--set", metavar="SECTION.KEY=VALUE", help="Override any configuration key: SECTION.KEY=VALUE."),
 ) -> None:
     """Detect planes on the depth frames and write them as CVAT polygon tracks to correct."""
     with user_errors():
         out = output_folder(out)  # the options first, before any work
-        if min_area is not None and min_area <= 0:
-            raise InputError(None, "--min-area must be a share of the image in (0, 1]")
+        if min_area is not None and not 0 < min_area <= 1:  # NaN too
+            raise InputError(None, f"--min-area must be a share of the image in (0, 1], not {min_area:g}")
         from annotate_rgbd.pool import default_workers, prepare_helpers, reuse_freed_memory
 
         workers = jobs or default_workers()
@@ -407,8 +407,6 @@ def propose(
         from annotate_rgbd.config.propose import label_problem
         from annotate_rgbd.propose import run_propose
 
-        if min_area is not None and min_area <= 0:
-            raise InputError(None, "--min-area must be a share of the image in (0, 1]")
         if label is not None and label_problem(label) is not None:
             raise InputError(None, f"--label {label!r} {label_problem(label)}: give the CVAT label of the proposed planes")
         overrides = parse_settings(set_)

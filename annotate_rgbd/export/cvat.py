@@ -84,7 +84,7 @@ def export_cvat(run_dir: str | Path, xml_path: str | Path, tolerance_px: float =
     if max_vertices and max_vertices < 3:
         raise InputError(None, f"a polygon needs at least 3 vertices: --max-vertices {max_vertices} (0: no budget)")
     if not (np.isfinite(tolerance_px) and tolerance_px >= 0):
-        raise InputError(None, f"--tolerance must be a distance in pixels >= 0, not {tolerance_px}")
+        raise InputError(None, f"--tolerance must be a finite distance in pixels >= 0, not {tolerance_px}")
     run_dir = Path(run_dir)
     with reading(run_dir):
         report = read_report(run_dir)

@@ -51,6 +51,7 @@ from annotate_rgbd.report.records import RunRecord
 from annotate_rgbd.review.overlay import MAX_THUMB_ASPECT, contact_sheet, thumbnail_size
 from annotate_rgbd.review.page import page_data
 from builders import CAMERA, error_line, make_sequence, snapshot, timestamp, video_export, wall_track
+from conftest import SAMPLE_DATA as SAMPLE
 
 try:
     import resource
@@ -719,5 +720,17 @@ def test_export_with_a_tolerance_that_is_no_distance_is_one_line(finished, toler
     target = finished.root / "r.xml"
     result = invoke("export-cvat", finished.out, target, "--tolerance", tolerance, "--jobs", "1")
     assert result.exit_code == 1
-    assert error_line(result) == f"error: --tolerance must be a distance in pixels >= 0, not {tolerance}"
+    assert error_line(result) == f"error: --tolerance must be a finite distance in pixels >= 0, not {tolerance}"
     assert not target.exists()
+
+
+@pytest.mark.parametrize("share", ["0", "1.5", "nan"])
+def test_propose_min_area_outside_its_range_is_one_line_and_the_help_says_the_range(tmp_path, share):
+    # The help said [0.0<=x<=1.0] while 0 was refused; NaN passed the option's own range check.
+    result = invoke("propose", SAMPLE / "sequence", "-c", SAMPLE / "camera.toml", "-o", tmp_path / "out",
+                    "--min-area", share)
+    assert result.exit_code == 1
+    assert error_line(result) == f"error: --min-area must be a share of the image in (0, 1], not {share}"
+    assert not (tmp_path / "out").exists()
+    help_text = " ".join(invoke("propose", "--help").output.split())  # as wrapped for any width
+    assert "as a share of the image, in (0, 1]" in help_text and "0.0<=x<=1.0" not in help_text
