@@ -77,6 +77,8 @@ def read_report(out_dir: str | Path, proposals: bool = False) -> RunRecord:
         ``cvat2mask`` run in the folder did not finish (:func:`check_finished`).
     """
     path = Path(out_dir) / REPORT
+    if not Path(out_dir).is_dir():  # not "<it>/report.json: no report", which reads as if the folder were there
+        raise InputError(out_dir, "no such folder" if not Path(out_dir).exists() else "not a folder: give a run's output folder")
     check_finished(Path(out_dir))
     try:
         data = read_bounded(path, MAX_REPORT_BYTES)

@@ -503,3 +503,17 @@ def _table_text(frame: dict, report: dict) -> list[list[str]]:
          source]
         for plane, status, reason, pixels, kept, ratio, source in _expected_rows(frame)
     ]
+
+
+def test_a_run_folder_that_is_not_there_is_said_so(tmp_path):
+    # Not "<folder>/report.json: no report: not the output folder of a finished run", which reads
+    # as if the folder were there.
+    from annotate_rgbd.report.run_folder import read_report
+
+    with pytest.raises(InputError) as missing:
+        read_report(tmp_path / "typo")
+    assert str(missing.value) == f"{tmp_path / 'typo'}: no such folder"
+    (tmp_path / "file.txt").write_text("x")
+    with pytest.raises(InputError) as a_file:
+        review_run(tmp_path / "file.txt")
+    assert str(a_file.value) == f"{tmp_path / 'file.txt'}: not a folder: give a run's output folder"
