@@ -118,6 +118,8 @@ def export_run(run_dir: str | Path, fmt: str, out: str | Path, poses: str | Path
     """
     if fmt not in FORMATS:
         raise InputError(None, f"unknown export format {fmt!r} (formats: {', '.join(FORMATS)})")
+    if str(out) == "-":  # export-cvat's standard output; a layout of several files cannot go there
+        raise OutputError(out, "an export is a folder of files, not a stream: name the folder to write")
     out = Path(out)
     # The folder first: a refused one is the only line (no warning about the run's poses before it).
     if out.resolve() == Path(run_dir).resolve():

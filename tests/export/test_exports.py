@@ -245,7 +245,7 @@ def test_coco_instances_with_plane_paras(run, tmp_path):
             assert np.mean(np.abs(points[mask] @ normal - offset)) < 0.01
 
 
-def test_export_folder_contract(run, tmp_path):
+def test_export_folder_contract(run, tmp_path, monkeypatch):
     foreign = tmp_path / "foreign"
     foreign.mkdir()
     (foreign / "notes.txt").write_text("mine")
@@ -259,6 +259,10 @@ def test_export_folder_contract(run, tmp_path):
         said = CliRunner().invoke(app, ["export", str(run / "run"), "--format", "evops", str(target), "--poses", trajectory])
         assert said.exit_code == 1 and len(said.stderr.splitlines()) == 1, said.stderr
         assert said.stderr.startswith(f"error: {target}: ")
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(OutputError, match="an export is a folder of files, not a stream"):
+        export_run(run / "run", "coco", "-")  # export-cvat's standard output: not a folder named "-"
+    assert not (tmp_path / "-").exists()
     with pytest.raises(InputError, match="unknown export format 'png'"):
         export_run(run / "run", "png", tmp_path / "x")
     out = tmp_path / "again"
