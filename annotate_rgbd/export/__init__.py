@@ -31,7 +31,7 @@ from pathlib import Path
 
 from annotate_rgbd import __version__
 from annotate_rgbd.errors import InputError, OutputError
-from annotate_rgbd.io.outdir import OutputLock, check_not_link, read_bounded, reading
+from annotate_rgbd.io.outdir import EXPORT_RECORD, OutputLock, check_not_link, read_bounded, reading
 from annotate_rgbd.io.writer import prepare_output, write_bytes_atomic, write_json
 from .coco import write_coco
 from .evops import write_evops
@@ -46,7 +46,7 @@ FORMATS = {"planercnn": write_planercnn, "planes": write_frame_planes, "evops": 
 WORLD_FORMATS = ("planercnn", "planes")
 #: Folders the formats write into, inside the export folder.
 SUBFOLDERS = ("segmentation", "frames", "labels")
-RECORD = "export.json"
+RECORD = EXPORT_RECORD
 #: Where the format writes before its files are moved into the export folder: a failed export
 #: removes this folder, never a file it did not write.
 STAGING = ".export-in-progress"

@@ -56,6 +56,9 @@ REPORT, JOURNAL, PROPOSALS = "report.json", ".annotate-rgbd-journal.jsonl", "pro
 #: Held by a ``propose`` run from before its first mask until its report is written (its
 #: journal, without a resume: a run that left it behind mixed its masks with an earlier run's).
 UNFINISHED = ".annotate-rgbd-unfinished"
+#: The record of an ``export`` folder (its format and files; ``evaluate`` finds an EVOPS export's
+#: ``labels/`` by it).
+EXPORT_RECORD = "export.json"
 #: Commands whose output a folder can hold.
 COMMANDS = ("cvat2mask", "propose")
 #: What ``review`` wrote (:class:`annotate_rgbd.io.cleanup.ReviewRecord`), so that a later run removes only those files.

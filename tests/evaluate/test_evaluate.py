@@ -495,3 +495,21 @@ def test_ignore_refuses_colour_ground_truth(tmp_path):
                              "--ignore 65535 needs label files (single-channel PNG, .npy or .csv)\n")
     bad = CliRunner().invoke(app, ["evaluate", str(gt_dir), str(pred_dir), "--set", "evaluate.ignore=-2"])
     assert bad.exit_code == 1 and "'evaluate.ignore' must be a label value >= 0, or -1 for none" in bad.stderr
+
+
+def test_an_evops_export_folder_is_scored_by_its_labels_as_the_run_is(sample_run, tmp_path):
+    # The export's labels/ (plane ids in .npy) and the run's colour masks are one segmentation:
+    # the same score. Before, the folder itself was read and held no label file.
+    from conftest import SAMPLE_DATA
+    from annotate_rgbd.export import export_run
+
+    out, _ = sample_run
+    export_run(out, "evops", tmp_path / "evops")
+    gt = SAMPLE_DATA / "ground_truth"
+    result = CliRunner().invoke(app, ["evaluate", str(gt), str(tmp_path / "evops"), "--json"])
+    assert result.exit_code == 0, result.output
+    assert f"info: {tmp_path / 'evops'}: an EVOPS export: scoring its labels/" in result.stderr
+    scored, expected = json.loads(result.stdout), evaluate_paths(gt, out / "masks").to_dict()
+    assert scored.keys() == expected.keys()
+    for key, value in expected.items():  # the planes' order differs: sums may differ in the last bit
+        assert scored[key] == (pytest.approx(value, abs=1e-12) if isinstance(value, float) else value), key
