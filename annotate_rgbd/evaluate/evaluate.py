@@ -146,6 +146,9 @@ def evaluate_paths(
         raise InputError(None, f"--ignore must be a label value >= 0 (or -1: none), not {ignore}")
     frames = tuple(score_frame(pair, full=full, part=part, measure=measure, ignore=ignore) for pair in pairs
                    if pair.pred is not None or not skip_missing)
+    if ignore == 0:
+        log.warning("--ignore 0: label 0 is \"no plane\" in every label format, so every pixel without a ground-truth "
+                    "plane is left out: a predicted plane that spills over them costs nothing")
     if ignore >= 0 and frames and not any(frame.ignored_pixels for frame in frames):
         log.warning(
             "%s: --ignore %d: no ground-truth pixel holds that label in any of the %d frames scored, so nothing was "

@@ -471,6 +471,9 @@ def test_ignore_leaves_dont_care_pixels_out_of_both(tmp_path, caplog):
     cv2.imwrite(str(gt_dir / "f.png"), gt)
     # A label value that is not there changes nothing, and a warning says so (70000: no 16-bit label
     # file can hold it); from the command line and the configuration.
+    with caplog.at_level("WARNING", logger="annotate_rgbd"):  # the "no plane" label: a likely mistake
+        evaluate_paths(gt_dir, pred_dir, ignore=0)
+    assert caplog.text.count("--ignore 0: label 0 is \"no plane\" in every label format") == 1
     for absent in (7, 70000):
         caplog.clear()
         with caplog.at_level("WARNING", logger="annotate_rgbd"):
