@@ -119,7 +119,7 @@ def test_merge_names_scenes_without_a_run(tmp_path):
     manifest = write_manifest(tmp_path)
     result = CliRunner().invoke(app, ["batch", str(manifest), "--merge"])
     assert result.exit_code == 1
-    assert "room_tight: " in result.output and "no report" in result.output
+    assert "room_tight: " in result.output and "room_tight: no such folder" in result.output  # never run
     as_json = CliRunner().invoke(app, ["batch", str(manifest), "--merge", "--json"])
     assert as_json.exit_code == 1
     summary = json.loads(as_json.stdout)
