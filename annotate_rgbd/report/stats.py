@@ -179,7 +179,7 @@ def dropped_words(by_reason: Mapping[str, int]) -> str:
 
 
 #: The ``[filter]`` rule behind a drop reason, and whether a value is stricter than the default
-#: (drops more planes): such a setting, not the data, is then what the hint names.
+#: (drops more planes): the hint then names that setting first, before the cause in the data.
 FILTER_RULES = {
     "invalid_depth": ("max_invalid_ratio", lambda value, default: value < default),
     "too_far": ("max_mean_distance", lambda value, default: value < default),
@@ -198,8 +198,9 @@ def drop_hint(summary: RunSummary, depth_scale: float, drop_rules: FilterConfig 
         The configuration's, quoted in the hint about distances.
     drop_rules : FilterConfig, optional
         The run's ``[filter]`` section: when the reason's rule is set stricter than its default (``--set
-        filter.max_invalid_ratio=0`` drops every plane with a pixel without depth), the hint names
-        that setting instead of a cause in the data.
+        filter.max_invalid_ratio=0`` drops every plane with a pixel without depth; the
+        ``fr2_pioneer_slam`` preset's 0.75 is EVOPS's own), the hint names that setting first, then
+        the cause in the data.
     """
     return dropped_hint(summary.dropped_by_reason, summary.planes_kept + summary.planes_dropped, depth_scale,
                         drop_rules=drop_rules)
@@ -221,6 +222,7 @@ def dropped_hint(by_reason: Mapping[str, int], total: int, depth_scale: float, w
     if drop_rules is not None and reason in FILTER_RULES:
         key, stricter = FILTER_RULES[reason]
         value, default = getattr(drop_rules, key), getattr(FilterConfig, key)
-        if stricter(value, default):
-            hint = f"filter.{key} is {value:g} here, stricter than its default {default:g}: is that meant?"
+        if stricter(value, default):  # a cause of its own, beside the data's (a preset may set it on purpose)
+            hint = (f"filter.{key} is {value:g} here, stricter than its default {default:g}, which drops more planes"
+                    + (f"; or {hint[0].lower()}{hint[1:]}" if hint else ""))
     return f"{count} of {total} {what} were dropped as {reason}" + (f": {hint}" if hint else "")
