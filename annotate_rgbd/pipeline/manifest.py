@@ -5,7 +5,7 @@ A manifest has one ``[[scene]]`` table per scene; paths are relative to the mani
     jobs = 2                       # optional; default: all cores (--jobs overrides)
 
     [[scene]]
-    name = "fr1_desk"              # optional; default: the output folder's name (each scene's must differ)
+    name = "fr1_desk"              # optional; default: the output folder's name ('out' as written when several share it); names must differ
     sequence = "data/rgbd_dataset_freiburg1_desk"
     annotations = ["labels/fr1_desk/0-299.xml", "labels/fr1_desk/295-573.xml"]
     config = "fr1_desk"            # a preset name or a TOML file; optional
@@ -23,7 +23,7 @@ workers before it starts any.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -153,13 +153,18 @@ def read_manifest(path: str | Path) -> tuple[list[SceneSpec], int | None]:
     for out in set(outs):
         if outs.count(out) > 1:
             raise InputError(path, f"two scenes write to {out}: give each scene its own 'out'")
+    # Summaries, warnings and --merge name scenes: two of one name could not be told apart. A
+    # default name (the output folder's) shared with another scene is its 'out' as written
+    # (scans/scene0000_00/annotate, scans/scene0001_00/annotate); given names must differ.
+    defaults = [scene.name for scene, table in zip(scenes, tables) if not table.get("name")]
+    scenes = [replace(scene, name=table["out"]) if not table.get("name") and defaults.count(scene.name) > 1 else scene
+              for scene, table in zip(scenes, tables)]
     names = [scene.name for scene in scenes]
     for number, name in enumerate(names, start=1):
         first = names.index(name) + 1
-        if first < number:  # summaries, warnings and --merge name scenes: they could not tell these apart
-            named = "their output folders' name" if not (tables[first - 1].get("name") or tables[number - 1].get("name")) else "'name'"
-            raise InputError(path, f"[[scene]] {first} and {number} are both named '{name}' ({named}): give each "
-                                   "scene a 'name' of its own")
+        if first < number:
+            raise InputError(path, f"[[scene]] {first} and {number} are both named '{name}': give each scene a 'name' "
+                                   "of its own")
     for out in outs:  # a scene's output folder inside another's: each run would see the other's files
         outer = next((other for other in outs if other in out.parents), None)
         if outer is not None:

@@ -175,11 +175,9 @@ def test_a_failed_frame_fails_the_batch_and_is_listed(tmp_path):
         ("jobs = 0\n[[scene]]\nsequence = 'a'\nannotations = ['x.xml']\nout = 'o'\n", "'jobs' must be a positive integer"),
         ("[[scene]]\nsequence = 'a'\nannotations = 'x.xml'\nout = 'o'\n[[scene]]\nsequence = 'b'\nannotations = 'y.xml'\nout = 'o'\n",
          "two scenes write to"),
-        ("[[scene]]\nsequence = 'a'\nannotations = 'x.xml'\nout = 'a/rpy'\n[[scene]]\nsequence = 'b'\nannotations = 'y.xml'\nout = 'b/rpy'\n",
-         r"\[\[scene\]\] 1 and 2 are both named 'rpy' \(their output folders' name\): give each scene a 'name' of its own"),
         ("[[scene]]\nname = 'same'\nsequence = 'a'\nannotations = 'x.xml'\nout = 'a'\n[[scene]]\nsequence = 'b'\nannotations = 'y.xml'\nout = 'b'\n"
          "[[scene]]\nname = 'same'\nsequence = 'c'\nannotations = 'z.xml'\nout = 'c'\n",
-         r"\[\[scene\]\] 1 and 3 are both named 'same' \('name'\)"),
+         r"\[\[scene\]\] 1 and 3 are both named 'same': give each scene a 'name' of its own"),
         ("[[scene]]\nsequence = 'a'\nannotations = ['x.xml']\nout = 'o'\nparts = ['x.xml']\n", "expected FILE:OFFSET"),
         ("[[scene\n", "invalid TOML"),
         ("[[scene]]\nsequence = 'a'\nannotations = ['x.xml']\nout = 'o'\noverlays = 'yes'\n", "raw_masks, overlays, instance_ids are true or false"),
@@ -200,3 +198,16 @@ set = ["ransac.distance_treshold=0.01"]""")
     assert result.exit_code == 1
     assert f"error: typo: {manifest}: [[scene]] 3: set: unknown key 'ransac.distance_treshold'" in result.stderr
     assert "command-line option" not in result.output
+
+
+def test_scenes_whose_output_folders_share_a_name_are_named_by_their_out(tmp_path):
+    # A ScanNet-like layout: every scene writes to scans/<scene>/annotate. The default name (the
+    # output folder's) would be 'annotate' for all: summaries, warnings and --merge could not
+    # tell them apart. They are named by 'out' as written; a name of its own is kept.
+    manifest = tmp_path / "batch.toml"
+    manifest.write_text("".join(f"[[scene]]\nsequence = 's{i}'\nannotations = 'x.xml'\nout = 'scans/s{i}/annotate'\n"
+                                for i in range(2))
+                        + "[[scene]]\nname = 'kept'\nsequence = 's2'\nannotations = 'x.xml'\nout = 'scans/s2/annotate'\n"
+                        + "[[scene]]\nsequence = 's3'\nannotations = 'x.xml'\nout = 'alone'\n")
+    scenes, _ = read_manifest(manifest)
+    assert [scene.name for scene in scenes] == ["scans/s0/annotate", "scans/s1/annotate", "kept", "alone"]
