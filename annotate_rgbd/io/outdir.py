@@ -241,16 +241,36 @@ class OutputFolder:
         self._lock = lock
         try:
             holder, self._expected = read_outputs_record(self.path)
-            holder = holder or _command_of_report(self.path)
-            if self.command is not None and holder is not None and holder != self.command:
-                raise OutputError(
-                    self.path, f"holds the output of `{holder}`, not of `{self.command}`: choose another --out "
-                    "(or remove this folder)"
-                )
+            holder = self._check_holder(holder)
             self.command = self.command or holder
         except BaseException:
             self.release()
             raise
+
+    def check(self) -> None:
+        """The refusals of :meth:`open` that need nothing written (links where the command writes,
+        another command's output), for a command to give before it reads its inputs: the folder's
+        error is then its only line. A folder not made yet passes.
+
+        Raises
+        ------
+        OutputError
+        """
+        path = Path(self.path)
+        if path.is_dir():
+            check_output_names(path)
+            self._check_holder(read_outputs_record(path)[0])
+
+    def _check_holder(self, holder: str | None) -> str | None:
+        """The command whose output the folder holds (by its record, else its report), refused
+        when it is not this one's."""
+        holder = holder or _command_of_report(Path(self.path))
+        if self.command is not None and holder is not None and holder != self.command:
+            raise OutputError(
+                self.path, f"holds the output of `{holder}`, not of `{self.command}`: choose another --out "
+                "(or remove this folder)"
+            )
+        return holder
 
     def expect(self, files: Iterable[str]) -> None:
         """Record that this run may write ``files`` (paths relative to the folder), before it

@@ -140,7 +140,9 @@ def run_propose(
     out_dir = Path(out_dir)
     check_outside_sequence(out_dir, sequence)
     workers = workers or default_workers()
-    # Before the output folder: no frame to process, or a trajectory that cannot be used, writes nothing.
+    # A refused output folder first (its error the only line); then, before the folder is made, the
+    # inputs: no frame to process, or a trajectory that cannot be used, writes nothing.
+    OutputFolder(out_dir, "propose").check()
     association = _associate(sequence, config)
     result = ProposeResult(warnings=list(warnings))
     frames = _frames_and_poses(sequence, association, config, poses, result)

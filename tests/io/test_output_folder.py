@@ -74,8 +74,12 @@ def test_propose_leaves_no_stale_mask_after_a_sparser_run(tmp_path):
 
 def test_a_folder_holds_one_commands_output(tmp_path):
     run_cvat2mask(SEQUENCE, [ANNOTATIONS], tmp_path / "masks_run", _config())
-    result = _propose(tmp_path / "masks_run")
+    result = _propose(tmp_path / "masks_run", "--set", "camera.depth_scale=500")
     assert result.exit_code == 1 and "holds the output of `cvat2mask`" in result.output
+    # The folder's error is the only line: propose checks it before it reads a frame (with a wrong
+    # depth scale, the frames' own warning came first).
+    assert result.stderr.splitlines() == [f"error: {tmp_path / 'masks_run'}: holds the output of `cvat2mask`, not of "
+                                          "`propose`: choose another --out (or remove this folder)"]
     assert json.loads((tmp_path / "masks_run" / "report.json").read_text())["tool"]["name"] == "annotate-rgbd"
     assert _propose(tmp_path / "proposals").exit_code == 0
     with pytest.raises(OutputError, match="holds the output of `propose`"):
