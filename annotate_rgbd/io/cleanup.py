@@ -32,12 +32,15 @@ class Cleanup:
         The earlier review page and contact sheet removed (:func:`remove_review_files`).
     review_overlays : int
         Of the overlays removed, those an earlier ``review`` drew (not a run's ``--overlays``).
+    page_of_run : bool
+        The page and sheet removed were an earlier run's own (``--overlays``), not ``review``'s.
     """
 
     removed: dict[str, int] = field(default_factory=dict)
     foreign: list[str] = field(default_factory=list)
     review: list[str] = field(default_factory=list)
     review_overlays: int = 0
+    page_of_run: bool = False
 
     def removals(self) -> list[str]:
         """One line per folder files were removed from, in the user's words."""
@@ -51,7 +54,8 @@ class Cleanup:
                                   if self.review_overlays else [])]
         if review:
             names = review[0] if len(review) == 1 else ", ".join(review[:-1]) + " and " + review[-1]
-            lines.append(f"removed {names} of an earlier review (they showed the earlier output; run review again)")
+            lines.append(f"removed {names} of the earlier run's --overlays (they showed its overlays)" if self.page_of_run
+                         else f"removed {names} of an earlier review (they showed the earlier output; run review again)")
         return lines
 
     def warnings(self) -> list[str]:
@@ -174,7 +178,9 @@ def remove_review_files(folder: Path, cleanup: Cleanup) -> None:
     """Remove the review page and contact sheet of an earlier run (they show its masks), if
     ``review`` wrote them and they are unchanged since; ``cleanup`` gets the names removed
     (``review``) and those left alone (``foreign``)."""
-    recorded = read_review_record(folder).files
+    record = read_review_record(folder)
+    recorded = record.files
+    cleanup.page_of_run = not record.overlays  # review records the overlays it drew; a run's own page none
     for name in ("review.html", "contact_sheet.png"):
         path = folder / name
         if not path.exists() or os.path.islink(path):
