@@ -23,7 +23,7 @@ from annotate_rgbd.config.evaluate import EvaluateConfig
 from annotate_rgbd.errors import InputError
 from annotate_rgbd.io.writer import csv_bytes, write_output
 from annotate_rgbd.io.labelmaps import LABEL_SUFFIXES, read_label_map
-from annotate_rgbd.io.outdir import EXPORT_RECORD, check_output_file
+from annotate_rgbd.io.outdir import EXPORT_RECORD, OUTPUT_FOLDERS, check_output_file
 from annotate_rgbd.report.run_folder import check_finished
 from .metrics import METRIC_NAMES, FrameStatistics, frame_statistics
 
@@ -183,13 +183,17 @@ def evaluate_paths(
 def label_folder(path: Path, say: bool = True) -> Path:
     """The label files a path stands for: a run's output folder (``report.json`` beside
     ``masks/``) stands for its ``masks/``, an ``export --format evops`` folder for its
-    ``labels/`` (an info line says so, unless ``say`` is False); anything else for itself. A run's folder, or its ``masks/``, where a ``cvat2mask`` run did not
-    finish is refused (:func:`annotate_rgbd.report.run_folder.check_finished`): its masks mix two
-    runs."""
-    if path.is_dir() and path.name == "masks":
-        check_finished(path.parent)
-    if path.is_dir() and (path / "report.json").is_file() and (path / "masks").is_dir():
+    ``labels/`` (an info line says so, unless ``say`` is False); anything else for itself.
+
+    A folder where a ``cvat2mask`` or ``propose`` run did not finish (its first run too, before
+    it has a report), or one of its mask folders, is refused
+    (:func:`annotate_rgbd.report.run_folder.check_finished`): its masks may be incomplete or mix
+    two runs."""
+    if path.is_dir():
         check_finished(path)
+        if path.name in OUTPUT_FOLDERS:  # masks/, masks_id/, masks_raw/ of such a run
+            check_finished(path.parent)
+    if path.is_dir() and (path / "report.json").is_file() and (path / "masks").is_dir():
         if say:
             log.info("%s: a run's output folder: scoring its masks/", path)
         return path / "masks"

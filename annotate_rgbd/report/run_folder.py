@@ -131,8 +131,8 @@ def check_finished(out_dir: Path) -> None:
                                   " cvat2mask (or batch) command again to finish it")
     if marker.is_file() or marker.is_symlink():
         raise InputError(marker, "a propose run in this folder did not finish (interrupted, stopped by an error, or"
-                                 " still running): its masks may not match report.json and proposals.xml; run the"
-                                 " same propose command again to finish it")
+                                 " still running): its masks may be incomplete or mixed with an earlier run's; run"
+                                 " the same propose command again to finish it")
 
 
 def colour_table(report: RunRecord) -> tuple[np.ndarray, np.ndarray]:

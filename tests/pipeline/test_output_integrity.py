@@ -538,10 +538,22 @@ def test_readers_refuse_a_propose_folder_whose_rerun_was_interrupted(tmp_path):
         result = CliRunner().invoke(app, command)
         assert result.exit_code == 1, result.output
         assert result.output == (f"error: {out / UNFINISHED}: a propose run in this folder did not finish (interrupted, "
-                                 "stopped by an error, or still running): its masks may not match report.json and "
-                                 "proposals.xml; run the same propose command again to finish it\n")
+                                 "stopped by an error, or still running): its masks may be incomplete or mixed with an "
+                                 "earlier run's; run the same propose command again to finish it\n")
     assert not (out / "review.html").exists()
     # Finishing the run makes the folder readable again, and leaves no marker.
     run_propose(SEQUENCE, out, other, workers=1)
     assert not (out / UNFINISHED).exists()
     assert CliRunner().invoke(app, ["evaluate", str(SAMPLE / "ground_truth"), str(out)]).exit_code == 0
+
+
+def test_evaluate_refuses_the_first_run_of_a_folder_that_did_not_finish(tmp_path):
+    # No report.json yet: the folder was read as a folder of label files ("no label files", or
+    # contact_sheet.png taken for one), and its masks_id/ was scored without a word.
+    out = tmp_path / "out"
+    with pytest.raises(KeyboardInterrupt):
+        run_cvat2mask(SEQUENCE, [ANNOTATIONS], out, load_config(CAMERA), instance_ids=True, progress=_stop_after(6))
+    assert not (out / "report.json").exists() and any((out / "masks_id").iterdir())
+    for pred in (out, out / "masks", out / "masks_id"):
+        result = CliRunner().invoke(app, ["evaluate", str(SAMPLE / "ground_truth"), str(pred)])
+        assert result.exit_code == 1 and result.output.startswith(f"error: {out / JOURNAL}: "), result.output
