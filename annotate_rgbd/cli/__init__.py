@@ -266,7 +266,7 @@ def evaluate(
 
     with user_errors():
         if part is not None:
-            # By name: typer >= 0.29 has its own copy of click, whose enum is not click's.
+            # By name: typer (0.26 on) has its own copy of click, whose enum is not click's.
             if getattr(ctx.get_parameter_source("partial"), "name", None) == "COMMANDLINE":
                 raise InputError(None, "give --partial only (--part is its deprecated name)")
             typer.echo("warning: evaluate --part is deprecated, use --partial (the same IoU threshold)", err=True)

@@ -72,6 +72,35 @@ class OneLineErrors(TyperGroup):
             raise OneLineUsageError(error) from None
 
 
+def _reader_gone(error: BaseException) -> bool:
+    """Whether ``error`` is the reader of an output stream gone: an output file that is a stream
+    (``-``, a FIFO; the writers turn the failed write into an OutputError and keep the OSError
+    as its context), or standard output itself (it fails again when flushed). Not any other
+    broken pipe, such as one to a helper process."""
+    from annotate_rgbd.io.writer import is_stream  # OpenCV: not for the command line's start
+
+    if isinstance(error, InputError):
+        return isinstance(error.__context__, BrokenPipeError) and error.path is not None and is_stream(error.path)
+    try:
+        if sys.stdout is not None:
+            sys.stdout.flush()
+    except BrokenPipeError:
+        return True
+    return False
+
+
+def _silence_stdout() -> None:
+    """Python's own advice after a broken pipe: point standard output at /dev/null, so that its
+    flush at exit does not fail again with a message of its own; only when it is this process's
+    descriptor 1 (not a test runner's or a notebook's stand-in)."""
+    try:
+        if sys.stdout is None or sys.stdout.fileno() != 1:
+            return
+    except (AttributeError, OSError, ValueError):  # io.UnsupportedOperation is both
+        return
+    os.dup2(os.open(os.devnull, os.O_WRONLY), 1)
+
+
 class _LowerCaseLevel(logging.Formatter):
     """``warning: ...``, ``info: ...``: the level in lower case, like the ``error:`` lines."""
 
@@ -105,12 +134,8 @@ def user_errors() -> Iterator[None]:
     try:
         yield
     except (BrokenPipeError, InputError) as exc:
-        # The writers turn a failed write into an OutputError (an InputError) and keep the
-        # OSError as its context.
-        if isinstance(exc, BrokenPipeError) or isinstance(exc.__context__, BrokenPipeError):
-            # Python's own advice: point standard output at /dev/null, so that the flush at exit
-            # does not fail again with a message of its own.
-            os.dup2(os.open(os.devnull, os.O_WRONLY), 1)
+        if _reader_gone(exc):
+            _silence_stdout()
             raise typer.Exit(128 + signal.SIGPIPE) from None
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(1) from None
