@@ -86,6 +86,7 @@ def test_a_command_line_that_cannot_be_parsed_is_one_error_line(args, line):
 
 def test_the_command_alone_still_prints_its_help():
     result = CliRunner().invoke(app, [], prog_name="annotate-rgbd")
+    assert result.exit_code == 2  # Click's for no_args_is_help, as before
     assert "Usage: annotate-rgbd [OPTIONS] COMMAND [ARGS]..." in result.output
 
 
@@ -96,12 +97,13 @@ def test_the_command_alone_still_prints_its_help():
     (["cvat2mask", "s", "a.xml", "-o", "o", "--config", ""], "--config"),
     (["cvat2mask", "s", "a.xml", "", "-o", "o"], "ANNOTATIONS"),
     (["stats", ""], "RUN_DIR"),
+    (["stats", " "], "RUN_DIR"),
+    (["cvat2mask", "s", "a.xml", "-o", ""], "--out"),
 ])
 def test_an_empty_path_is_named_not_taken_for_the_current_folder(args, shown, tmp_path, monkeypatch):
     # Path("") is ".": `--poses "$UNSET"` was reported as a problem of the current folder.
     monkeypatch.chdir(tmp_path)
     result = CliRunner().invoke(app, args, prog_name="annotate-rgbd")
     assert result.exit_code == 2
-    assert result.stderr == (f"error: {shown} is an empty string (an unset shell variable?) "
-                             f"(see annotate-rgbd {args[0]} -h)\n")
+    assert result.stderr == f"error: {shown} is empty (an unset shell variable?) (see annotate-rgbd {args[0]} -h)\n"
     assert list(tmp_path.iterdir()) == []

@@ -8,7 +8,7 @@ from typing import List, Optional
 import typer
 
 from annotate_rgbd import __version__
-from .console import CheckedCommand, OneLineErrors, one_output, output_folder, user_errors
+from .console import CheckedCommand, OneLineErrors, one_output, user_errors
 from annotate_rgbd.errors import InputError
 from annotate_rgbd.logs import counted
 from annotate_rgbd.pool import STALL_TIMEOUT
@@ -92,7 +92,7 @@ def cvat2mask(
     Several exports are annotation parts of one sequence: their tracks are matched into one plane id per physical plane (see tracks.csv).
     """
     with user_errors():
-        out = output_folder(out)
+        out = Path(out)  # never empty (CheckedCommand)
         from annotate_rgbd.pipeline.execute import default_workers, prepare_process
 
         workers = jobs or default_workers()
@@ -393,7 +393,7 @@ def propose(
 ) -> None:
     """Detect planes on the depth frames and write them as CVAT polygon tracks to correct."""
     with user_errors():
-        out = output_folder(out)  # the options first, before any work
+        out = Path(out)  # never empty (CheckedCommand); the options first, before any work
         if min_area is not None and not 0 < min_area <= 1:  # NaN too
             raise InputError(None, f"--min-area must be a share of the image in (0, 1], not {min_area:g}")
         from annotate_rgbd.pool import default_workers, prepare_helpers, reuse_freed_memory

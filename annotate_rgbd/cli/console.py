@@ -36,18 +36,25 @@ class OneLineUsageError(UsageError):
         typer.echo(f"error: {self.format_message().rstrip('.')}{where}", err=True)
 
 
+#: Parameters that name a file or folder without being typed as a path (``--config`` may be a
+#: preset's name; ``cvat2mask`` and ``propose`` take ``--out`` as text).
+NAMED_PATHS = ("config", "out")
+
+
 class CheckedCommand(TyperCommand):
-    """A command whose path arguments and ``--config`` may not be empty strings: ``Path("")`` is
-    the current folder, so ``--poses "$UNSET"`` was reported as a problem of ``.``."""
+    """A command whose path arguments, ``--config`` and ``--out`` may not be empty (or blank):
+    ``Path("")`` is the current folder, so ``--poses "$UNSET"`` was reported as a problem of
+    ``.``."""
 
     def parse_args(self, ctx, args):
         rest = super().parse_args(ctx, args)
         for param in self.params:
             value = ctx.params.get(param.name)
             values = value if isinstance(value, (list, tuple)) else [value]
-            if (isinstance(param.type, TyperPath) or param.name == "config") and any(v == "" for v in values):
+            named = isinstance(param.type, TyperPath) or param.name in NAMED_PATHS
+            if named and any(isinstance(v, str) and not v.strip() for v in values):
                 shown = param.opts[0] if param.opts and param.opts[0].startswith("-") else param.human_readable_name
-                raise UsageError(f"{shown.rstrip('.')} is an empty string (an unset shell variable?)", ctx)
+                raise UsageError(f"{shown.rstrip('.')} is empty (an unset shell variable?)", ctx)
         return rest
 
 
@@ -165,14 +172,6 @@ def user_errors() -> Iterator[None]:
         for signum, handler_before in previous.items():
             signal.signal(signum, signal.SIG_DFL if handler_before is None else handler_before)
         logger.removeHandler(handler)
-
-
-def output_folder(out: str) -> Path:
-    """``--out`` as a path; an empty one is refused (``Path("")`` is the working directory,
-    which the user did not name)."""
-    if not out.strip():
-        raise InputError(None, "--out is empty: name the output folder")
-    return Path(out)
 
 
 def one_output(positional: Path | None, option: Path | None, what: str, metavar: str) -> Path:
