@@ -48,7 +48,8 @@ def run_batch(
         ``progress_for(scene name)`` returns that scene's ``progress(done, total)`` callback.
     job_timeout : float
         Seconds without a frame finished by the helpers before they are taken to hang
-        (:func:`annotate_rgbd.pipeline.execute.execute_scenes`), at least 1 (``inf``: never).
+        (:func:`annotate_rgbd.pipeline.execute.execute_scenes`), > 0 (``inf``: never; the command
+        line asks for at least 1).
     scene_names : bool
         Start warnings with the scene's name (``cvat2mask``, one scene, does not).
 
@@ -57,8 +58,8 @@ def run_batch(
     list of SceneResult
         One per scene, in manifest order.
     """
-    if not job_timeout >= 1.0:  # NaN too: its comparisons are all false, so a hang would never be noticed
-        raise InputError(None, f"--job-timeout must be at least 1 second (inf: wait for ever), not {job_timeout:g}")
+    if not job_timeout > 0:  # NaN too: its comparisons are all false, so a hang would never be noticed
+        raise InputError(None, f"--job-timeout must be a number of seconds > 0 (inf: wait for ever), not {job_timeout:g}")
     outcomes: list[SceneResult] = [SceneResult(spec.name, spec.out) for spec in scenes]
     runs: list[tuple[int, SceneRun]] = []
     named = (lambda name: scene_warnings(name)) if scene_names else (lambda name: scene_warnings(None))
