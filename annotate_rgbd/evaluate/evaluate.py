@@ -152,8 +152,8 @@ def evaluate_paths(
     if ignore >= 0 and frames and not any(frame.ignored_pixels for frame in frames):
         log.warning(
             "%s: --ignore %d: no ground-truth pixel holds that label in any of the %d frames scored, so nothing was "
-            "left out (the don't-care value of the kit's and many datasets' 16-bit label files is 65535)",
-            gt, ignore, len(frames),
+            "left out%s", gt, ignore, len(frames),
+            "" if ignore == 65535 else " (16-bit label files often mark don't-care pixels 65535)",
         )
     marked = [frame.dont_care for frame in frames if frame.dont_care is not None]
     if marked:
