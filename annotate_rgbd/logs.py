@@ -4,15 +4,33 @@ line per problem that many frames share."""
 from __future__ import annotations
 
 import logging
+import re
 from contextlib import contextmanager
 from typing import Iterable, Iterator
 
 LOGGER = "annotate_rgbd"
 
+#: Command-line advice in a message, and the manifest's way of saying it (:func:`manifest_words`).
+_MANIFEST_WORDS = (
+    (re.compile(r"--part (.+?):OFFSET"), r'parts = ["\1:OFFSET"]'),
+    (re.compile(r"--set ([A-Za-z_]+\.[A-Za-z_]+=[^\s;,)]+)"), r'set = ["\1"]'),
+    (re.compile(r"--(config|poses|out)\b"), r"'\1'"),
+)
+
+
+def manifest_words(message: str) -> str:
+    """A message's command-line advice in a batch manifest's words: ``--part FILE:OFFSET`` is a
+    scene's ``parts = ["FILE:OFFSET"]``, ``--set KEY=VALUE`` its ``set = ["KEY=VALUE"]``,
+    ``--config``, ``--poses`` and ``--out`` its ``'config'``, ``'poses'`` and ``'out'``."""
+    for pattern, words in _MANIFEST_WORDS:
+        message = pattern.sub(words, message)
+    return message
+
 
 @contextmanager
 def scene_warnings(name: str | None) -> Iterator[None]:
-    """Put ``name: `` in front of every message the package logs inside the block.
+    """Put ``name: `` in front of every message the package logs inside the block, its advice in
+    a manifest's words (:func:`manifest_words`: the scene is one of a batch).
 
     Parameters
     ----------
@@ -24,7 +42,8 @@ def scene_warnings(name: str | None) -> Iterator[None]:
         return
 
     def prefix(record: logging.LogRecord) -> bool:
-        record.unprefixed = record.getMessage()  # for collect_warnings: a scene's report names no scene
+        # For collect_warnings: a scene's report names no scene.
+        record.unprefixed = manifest_words(record.getMessage())
         record.msg, record.args = f"{name}: {record.unprefixed}", ()
         return True
 

@@ -10,7 +10,7 @@ import typer
 from annotate_rgbd import __version__
 from .console import CheckedCommand, OneLineErrors, one_output, user_errors
 from annotate_rgbd.errors import InputError
-from annotate_rgbd.logs import counted
+from annotate_rgbd.logs import counted, manifest_words
 from annotate_rgbd.pool import STALL_TIMEOUT
 
 app = typer.Typer(
@@ -184,7 +184,7 @@ def batch(
             typer.echo(line)
         for outcome in outcomes:  # also where errors go: a log of standard error alone has them
             if outcome.error is not None:
-                typer.echo(f"error: {outcome.name}: {outcome.error}", err=True)
+                typer.echo(f"error: {outcome.name}: {manifest_words(outcome.error)}", err=True)
         if any(o.error is not None or o.failed_frames for o in outcomes):
             raise typer.Exit(1)
 

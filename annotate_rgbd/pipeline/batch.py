@@ -12,7 +12,7 @@ from typing import Callable
 from annotate_rgbd.config.layout import load_run_config
 from annotate_rgbd.config.settings import Config
 from annotate_rgbd.errors import InputError
-from annotate_rgbd.logs import collect_warnings, scene_warnings
+from annotate_rgbd.logs import collect_warnings, manifest_words, scene_warnings
 from annotate_rgbd.report.records import summarize
 from .execute import STALL_TIMEOUT, SceneResult, SceneRun, execute_scenes, start_frame_helpers
 from .manifest import SceneSpec
@@ -103,11 +103,12 @@ def run_batch(
 
 
 def summary_lines(outcomes: list[SceneResult]) -> list[str]:
-    """A per-scene summary: frames written, unchanged, failed; planes kept and dropped."""
+    """A per-scene summary: frames written, unchanged, failed; planes kept and dropped (a scene's
+    error with its advice in the manifest's words, :func:`annotate_rgbd.logs.manifest_words`)."""
     lines = []
     for outcome in outcomes:
         if outcome.error is not None:
-            lines.append(f"{outcome.name}: FAILED: {outcome.error}")
+            lines.append(f"{outcome.name}: FAILED: {manifest_words(outcome.error)}")
             continue
         counts, summary = outcome.counts, summarize(outcome.frames)
         lines.append(

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -211,3 +212,20 @@ def test_scenes_whose_output_folders_share_a_name_are_named_by_their_out(tmp_pat
                         + "[[scene]]\nsequence = 's3'\nannotations = 'x.xml'\nout = 'alone'\n")
     scenes, _ = read_manifest(manifest)
     assert [scene.name for scene in scenes] == ["scans/s0/annotate", "scans/s1/annotate", "kept", "alone"]
+
+
+def test_a_scenes_advice_is_given_in_the_manifests_words(tmp_path):
+    # A batch scene has no command line: "--part one.xml:OFFSET" and "--set camera.depth_scale=5000"
+    # are its manifest's parts and set.
+    for name in ("one.xml", "two.xml"):
+        shutil.copy(SAMPLE_DATA / "annotations.xml", tmp_path / name)
+    scene = f'sequence = "{SAMPLE_DATA / "sequence"}"\nconfig = "{SAMPLE_DATA / "camera.toml"}"\n'
+    manifest = tmp_path / "batch.toml"
+    manifest.write_text(f'[[scene]]\n{scene}annotations = ["one.xml", "two.xml"]\nout = "parts"\n'
+                        f'[[scene]]\n{scene}annotations = ["one.xml"]\nout = "scale"\nset = ["camera.depth_scale=500"]\n')
+    result = CliRunner().invoke(app, ["batch", str(manifest), "--jobs", "1"])
+    assert result.exit_code == 1
+    assert (f"error: parts: {tmp_path / 'one.xml'}: cannot tell where this part starts in the sequence: give "
+            'parts = ["one.xml:OFFSET"] (the RGB index of its frame 0)') in result.stderr
+    assert "or with set = [\"camera.depth_scale=5000\"]" in result.stderr and "--set" not in result.stderr
+    assert "--part" not in result.output
