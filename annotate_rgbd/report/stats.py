@@ -12,8 +12,12 @@ import json
 from collections import Counter
 from collections.abc import Mapping
 
-from annotate_rgbd.config.masks import FilterConfig
+from typing import TYPE_CHECKING
+
 from .records import RunRecord, RunSummary, summarize
+
+if TYPE_CHECKING:  # stats imports no configuration (it pulls in OpenCV): `stats` runs in 1 GB
+    from annotate_rgbd.config.masks import FilterConfig
 
 #: The drop reason of a plane the poses carried that was not where they put it
 #: (:data:`annotate_rgbd.segment.filters.NOT_WHERE_EXPECTED`; not imported: ``stats`` loads no
@@ -221,7 +225,7 @@ def dropped_hint(by_reason: Mapping[str, int], total: int, depth_scale: float, w
         hint = hint.replace("camera.depth_scale right", f"camera.depth_scale = {depth_scale:g} right")
     if drop_rules is not None and reason in FILTER_RULES:
         key, stricter = FILTER_RULES[reason]
-        value, default = getattr(drop_rules, key), getattr(FilterConfig, key)
+        value, default = getattr(drop_rules, key), getattr(type(drop_rules), key)  # the dataclass's default
         if stricter(value, default):  # a cause of its own, beside the data's (a preset may set it on purpose)
             hint = (f"filter.{key} is {value:g} here, stricter than its default {default:g}, which drops more planes"
                     + (f"; or {hint[0].lower()}{hint[1:]}" if hint else ""))
