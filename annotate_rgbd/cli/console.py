@@ -15,10 +15,9 @@ from pathlib import Path
 from typing import Iterator
 
 import typer
+from typer._click.exceptions import NoArgsIsHelpError, UsageError  # typer 0.26 (pinned) carries its own Click
 from typer.core import TyperCommand, TyperGroup
 from typer.models import TyperPath
-
-from typer._click.exceptions import NoArgsIsHelpError, UsageError  # typer 0.26 (pinned) carries its own Click
 
 from annotate_rgbd.errors import InputError
 

@@ -12,10 +12,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterable
 
-from annotate_rgbd.logs import counted
 from annotate_rgbd.io.outdir import (
     ID_MASKS, MASKS, OUTPUT_FOLDERS, OVERLAYS, RAW_MASKS, REVIEW_RECORD, TABLES, TEMPORARY, file_digest, read_bounded,
 )
+from annotate_rgbd.logs import counted
 
 
 @dataclass
