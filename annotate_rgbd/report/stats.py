@@ -11,7 +11,6 @@ from __future__ import annotations
 import json
 from collections import Counter
 from collections.abc import Mapping
-
 from typing import TYPE_CHECKING
 
 from .records import RunRecord, RunSummary, summarize
