@@ -75,6 +75,7 @@ def test_presets_lists_each_preset_with_its_camera_and_source():
      "error: Invalid value for '--jobs' / '-j': 0 is not in the range x>=1 (see annotate-rgbd cvat2mask -h)"),
     (["stats"], "error: Missing argument 'RUN_DIR' (see annotate-rgbd stats -h)"),
     (["relabel"], "error: No such command 'relabel' (see annotate-rgbd -h)"),
+    (["export", "run", "--format"], "error: Option '--format' requires an argument (see annotate-rgbd export -h)"),
 ])
 def test_a_command_line_that_cannot_be_parsed_is_one_error_line(args, line):
     # Click printed the usage, a hint, a blank line and the error: four lines, where every other

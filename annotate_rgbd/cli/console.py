@@ -27,11 +27,13 @@ class OneLineUsageError(UsageError):
     one ``error:`` line like every other problem (Click prints the usage, a hint and the error on
     four), with Click's status 2."""
 
-    def __init__(self, error: UsageError):
+    def __init__(self, error: UsageError, command: str | None = None):
         super().__init__(error.format_message(), error.ctx)
+        # The command's path for the pointer to its help; Click's parser errors carry no context.
+        self.command = error.ctx.command_path if error.ctx is not None else command
 
     def show(self, file=None) -> None:
-        where = f" (see {self.ctx.command_path} -h)" if self.ctx is not None else ""
+        where = f" (see {self.command} -h)" if self.command else ""
         typer.echo(f"error: {self.format_message().rstrip('.')}{where}", err=True)
 
 
@@ -75,7 +77,8 @@ class OneLineErrors(TyperGroup):
         except (NoArgsIsHelpError, OneLineUsageError):
             raise
         except UsageError as error:
-            raise OneLineUsageError(error) from None
+            command = " ".join(filter(None, (ctx.command_path, ctx.invoked_subcommand)))
+            raise OneLineUsageError(error, command) from None
 
 
 def _reader_gone(error: BaseException) -> bool:
