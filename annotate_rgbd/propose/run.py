@@ -157,35 +157,35 @@ def run_propose(
 
 def _associate(sequence, config) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Each depth frame's nearest RGB frame, its time difference and whether it is close enough
-    (:func:`annotate_rgbd.io.sequence.associate`; a depth-only sequence's frames are their own);
-    the frames ``--every`` picks that have none are one warning, all of them an error."""
+    (:func:`annotate_rgbd.io.sequence.associate`; a depth-only sequence's frames are their own)."""
     depth_times = sequence.depth.timestamps
     if sequence.rgb is None:  # depth only: the depth frames are the frames
         count = len(depth_times)
         return np.arange(count), np.zeros(count), np.ones(count, bool)
-    nearest, time_diff, matched = associate(depth_times, sequence.rgb.timestamps, config.sequence.max_time_diff)
-    every = config.propose.every
-    chosen = np.arange(0, len(depth_times), every)
-    picked = "" if every == 1 else f"of the {len(chosen)} that --every {every} picks"
-    for line in unmatched_frames(sequence.root, sequence.depth.files, time_diff, matched,
-                                 config.sequence.max_time_diff, chosen, picked):
-        log.warning("%s", line)
-    return nearest, time_diff, matched
+    return associate(depth_times, sequence.rgb.timestamps, config.sequence.max_time_diff)
 
 
 def _frames_and_poses(sequence, association, config: Config, poses_path, result: ProposeResult):
     """The depth frames to process (``--every``'s picks that have an RGB frame; the others go to
-    ``result.skipped``), the trajectory and those frames' poses (None without one): ``(chosen,
-    poses_path, frame_poses)``. The camera's and the trajectory's warnings go to ``result``.
+    ``result.skipped``, in one warning), the trajectory and those frames' poses (None without
+    one): ``(chosen, poses_path, frame_poses)``. The camera's and the trajectory's warnings go to
+    ``result``.
 
     Raises
     ------
     InputError
-        An unreadable trajectory, or one that gives no processed frame a pose.
+        No pick has an RGB frame; an unreadable trajectory, or one that gives no processed frame a
+        pose.
     """
     depth_times = sequence.depth.timestamps
-    _, _, matched = association
-    chosen = np.arange(0, len(depth_times), config.propose.every)
+    _, time_diff, matched = association
+    every = config.propose.every
+    chosen = np.arange(0, len(depth_times), every)
+    # The picks without an RGB frame: one warning; all of them: an error.
+    picked = "" if every == 1 else f"of the {len(chosen)} that --every {every} picks"
+    for line in unmatched_frames(sequence.root, sequence.depth.files, time_diff, matched,
+                                 config.sequence.max_time_diff, chosen, picked):
+        log.warning("%s", line)
     for i in chosen[~matched[chosen]]:
         result.skipped.append(f"{sequence.depth.files[i]}: no RGB frame within {config.sequence.max_time_diff} s")
     chosen = chosen[matched[chosen]]
