@@ -137,6 +137,7 @@ def outline_of(shape: Shape) -> np.ndarray | None:
 #: nearest to it in time, within ``sequence.max_time_diff``; a neighbour may be nearer) is not lifted.
 NO_DEPTH_FRAME = "no depth frame is matched to its RGB frame"
 
+
 @dataclass
 class FittedTrack:
     """A track's keyframe planes as their depth frames saw them (camera frames), before poses.

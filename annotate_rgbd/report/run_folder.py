@@ -124,15 +124,15 @@ def check_finished(out_dir: Path) -> None:
     InputError
         Naming the journal (or marker) and what to do.
     """
-    journal, marker = out_dir / JOURNAL, out_dir / UNFINISHED
-    if journal.is_file() or journal.is_symlink():
-        raise InputError(journal, "a cvat2mask run in this folder did not finish (interrupted, stopped by an error,"
-                                  " or still running): its masks may not match report.json; run the same"
-                                  " cvat2mask (or batch) command again to finish it")
-    if marker.is_file() or marker.is_symlink():
-        raise InputError(marker, "a propose run in this folder did not finish (interrupted, stopped by an error, or"
-                                 " still running): its masks may be incomplete or mixed with an earlier run's; run"
-                                 " the same propose command again to finish it")
+    for name, command, what, again in (
+        (JOURNAL, "cvat2mask", "may not match report.json", "cvat2mask (or batch)"),
+        (UNFINISHED, "propose", "may be incomplete or mixed with an earlier run's", "propose"),
+    ):
+        path = out_dir / name
+        if path.is_file() or path.is_symlink():
+            raise InputError(path, f"a {command} run in this folder did not finish (interrupted, stopped by an error, "
+                                   f"or still running): its masks {what}; run the same {again} command again to "
+                                   "finish it")
 
 
 def colour_table(report: RunRecord) -> tuple[np.ndarray, np.ndarray]:
