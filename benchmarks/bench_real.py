@@ -110,6 +110,12 @@ def main() -> None:
         print("\nwhat each row with poses misses of what the dense row labels right, on the planes the poses carried:")
         for line in explained:
             print(line)
+    review = review_lines(scene / "eval" / args.gt, out / "runs", results)
+    if review:
+        print("\nthe carried planes the runs list to check (keyframes before and after disagree), against the "
+              "dense row: how many of those that lose most they hold:")
+        for line in review:
+            print(line)
     print(f"\nbenchmark took {time.perf_counter() - started:.0f} s")
 
 
@@ -383,6 +389,115 @@ def excluded_lines(gt_dir: Path, runs: Path, results: dict) -> list[str]:
                      "inside such a region")
     return lines
 
+
+def pair_ious(truth: np.ndarray, labels: np.ndarray, min_pixels: int) -> dict[int, tuple[int, float]]:
+    """For every ground-truth plane of at least ``min_pixels`` pixels on a frame, the run's plane
+    that overlaps it most and their IoU (the ground truth's "don't care" pixels left out).
+
+    Returns
+    -------
+    dict of int to (int, float)
+        Ground-truth plane -> (run plane, IoU); run plane 0 with IoU 0 where none overlaps it.
+    """
+    known = truth != GT_IGNORE
+    values, labels = truth[known], labels[known]
+    sizes = np.bincount(labels)
+    pairs, counts = np.unique(values * (int(labels.max()) + 1) + labels, return_counts=True)
+    found = {}
+    for value in np.unique(values[values != 0]).tolist():
+        at = (pairs // (int(labels.max()) + 1)) == value
+        size, planes, inter = counts[at].sum(), pairs[at] % (int(labels.max()) + 1), counts[at]
+        if size < min_pixels:
+            continue
+        hit = planes != 0
+        if not hit.any():
+            found[value] = (0, 0.0)
+            continue
+        best = int(np.argmax(np.where(hit, inter, -1)))
+        found[value] = (int(planes[best]), float(inter[best] / (sizes[planes[best]] + size - inter[best])))
+    return found
+
+
+def review_scores(gt_dir: Path, run_dir: Path, dense_dir: Path, bad_loss: float = 0.15,
+                  min_pixels: int = 1000) -> dict[str, float]:
+    """How well a run's list of carried planes to check (``stats``' ``carried_to_check``) finds
+    the carried planes that lose most against the dense row.
+
+    A *pair* is a ground-truth plane of at least ``min_pixels`` pixels on a frame and the run's
+    plane that overlaps it most (:func:`pair_ious`); it is *carried* when the poses carried that
+    plane to the frame (its record says ``propagated``), and *bad* when its IoU is more than
+    ``bad_loss`` below the dense run's on the same ground-truth plane and frame.
+
+    Returns
+    -------
+    dict
+        ``carried``, ``bad`` and ``listed`` pairs, ``listed_bad``, ``loss`` (the carried pairs'
+        summed IoU lost), ``listed_loss``, and ``auc``: how well the keyframes' agreement ranks
+        the bad pairs first (0.5: no better than chance; pairs without one rank as agreeing).
+
+    Raises
+    ------
+    InputError
+        A folder without a report, or an image that cannot be read or is not the size of the
+        ground truth.
+    """
+    from annotate_rgbd.report.run_folder import colour_table, read_report
+    from annotate_rgbd.report.stats import carried_to_check
+
+    report = read_report(run_dir)
+    listed = {(Path(c["depth"]).name, c["plane"]) for c in carried_to_check(report)}
+    run_ids, dense_ids = colour_table(report), colour_table(read_report(dense_dir))
+    rows = []  # (loss, agreement, listed)
+    for frame in report.frames:
+        name = Path(frame.depth).name
+        carried = {r.plane for r in frame.kept if r.propagated}
+        if not carried or not (gt_dir / name).is_file() or not (dense_dir / "masks" / name).is_file():
+            continue
+        truth = _read_truth(gt_dir / name)
+        ours = pair_ious(truth, _plane_labels(run_dir / "masks" / name, run_ids, truth.shape), min_pixels)
+        dense = pair_ious(truth, _plane_labels(dense_dir / "masks" / name, dense_ids, truth.shape), min_pixels)
+        agree = frame.keyframes_agree or {}
+        for value, (plane, iou) in ours.items():
+            if plane in carried and value in dense:
+                rows.append((dense[value][1] - iou, agree.get(plane, 1.0), (name, plane) in listed))
+    if not rows:
+        return {"carried": 0}
+    loss, agreement, on_list = (np.array(column) for column in zip(*rows))
+    bad = loss > bad_loss
+    # Rank-sum AUC of "low agreement" for the bad pairs, ties counted half.
+    below = (agreement[bad][:, None] < agreement[~bad][None, :]).mean() if bad.any() and (~bad).any() else float("nan")
+    ties = (agreement[bad][:, None] == agreement[~bad][None, :]).mean() if bad.any() and (~bad).any() else 0.0
+    positive = np.clip(loss, 0, None)
+    return {"carried": len(rows), "bad": int(bad.sum()), "listed": int(on_list.sum()),
+            "listed_bad": int((on_list & bad).sum()), "loss": float(positive.sum()),
+            "listed_loss": float(positive[on_list].sum()), "auc": float(below + ties / 2)}
+
+
+def review_lines(gt_dir: Path, runs: Path, results: dict) -> list[str]:
+    """One line per sparse variant with poses: :func:`review_scores` against the dense row with
+    poses, for the rows in ``results`` that were scored."""
+    from annotate_rgbd.errors import InputError
+
+    ran = {name for name, result in results.items() if "mean_iou" in result and not result.get("returncode")}
+    if "full_pose" not in ran:
+        return []
+    lines = []
+    for variant, label in LABELS.items():
+        if variant == "full" or f"{variant}_pose" not in ran:
+            continue
+        try:
+            scores = review_scores(gt_dir, runs / f"{variant}_pose", runs / "full_pose")
+        except InputError as exc:
+            lines.append(f"  {label}: not measured ({exc})")
+            continue
+        if not scores["carried"]:
+            continue
+        carried, bad = scores["carried"], max(scores["bad"], 1)
+        lines.append(f"  {label}: {carried:,} carried plane-frames, {scores['bad']} lose more than 0.15 IoU; "
+                     f"{scores['listed']} listed ({scores['listed'] / carried:.0%}) hold {scores['listed_bad']} of "
+                     f"them ({scores['listed_bad'] / bad:.0%}) and {scores['listed_loss'] / max(scores['loss'], 1e-9):.0%} "
+                     f"of the IoU lost; ranking AUC {scores['auc']:.2f}")
+    return lines
 
 
 if __name__ == "__main__":

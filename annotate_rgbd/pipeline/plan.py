@@ -32,7 +32,7 @@ from annotate_rgbd.report.palette import plane_colours
 from .part_overlap import part_pair_iou
 from .propagation import Propagation, plan_propagation, propagation_warnings
 from annotate_rgbd.annotation.parts import Part, frame_owners, place_parts
-from annotate_rgbd.propagate.carry import carried_layers
+from annotate_rgbd.propagate.carry import carried_layers, keyframe_agreement
 from annotate_rgbd.propagate.keyframes import keyframe_frames
 from annotate_rgbd.report.records import NO_RGB_FRAME, OUTSIDE_ANNOTATION, RGB_NOT_ANNOTATED, FrameRecord
 from annotate_rgbd.io.sequence import (
@@ -288,9 +288,10 @@ def plan_frames(
             part = parts[owners[rgb]]
             frame = part.frame_of_rgb[rgb]
             record.part, record.cvat_frame = part.name, frame
-            shapes, propagated, expected, carried = _frame_shapes(part, frame, plane_of, propagation, config, d)
+            shapes, propagated, expected, carried, agreement = _frame_shapes(part, frame, plane_of, propagation, config, d)
             if propagation is not None:
                 record.pose = "ok" if propagation.depth_poses.ok[d] else str(propagation.depth_poses.reasons[d])
+                record.keyframes_agree = agreement or None
             jobs.append((d, _frame_job(sequence, part, frame, rgb, depth_file, shapes, propagated, expected, output,
                                        carried)))
     # The frames of the annotated stretch: none with its RGB frame is an error, some a warning.
@@ -310,8 +311,10 @@ def _frame_shapes(
     track whose keyframes disagree about its plane), and
     ``(position, plane id, z_order, layers, beyond)`` of each: what its keyframes say about it
     (:func:`annotate_rgbd.propagate.carry.carried_layers`), to go among the shapes at
-    ``position``."""
-    shapes, propagated, expected, carried = [], set(), [], []
+    ``position``, and how much the keyframes on either side agree about each of those planes
+    (plane id -> IoU, :func:`annotate_rgbd.propagate.carry.keyframe_agreement`; planes with
+    keyframes on one side only left out)."""
+    shapes, propagated, expected, carried, agreement = [], set(), [], [], {}
     has_pose = propagation is not None and bool(propagation.depth_poses.ok[depth])
     for track in part.annotation.tracks:
         if frame not in track.shapes:
@@ -329,12 +332,23 @@ def _frame_shapes(
         if layers or beyond:
             carried.append((len(shapes), plane, nearest.z_order, layers, beyond))
         propagated.add(plane)
+        size = part.annotation.image_size.get(frame) or _image_size(config)
+        agree = keyframe_agreement(lift, frame, config, pose, size)
+        if agree is not None:
+            agreement[plane] = round(agree, 3)
         if lift.consistent:
             # A track whose keyframes disagree about its plane (listed for review) says no plane
             # to hold the frame's fit to: the frame's own depth decides.
             expected.append((plane, tuple(float(v) for v in plane_to_camera(nearest.plane, *pose))))
     return (tuple(shapes), (frozenset(propagated) if propagation is not None else None), tuple(expected),
-            tuple(carried))
+            tuple(carried), agreement)
+
+
+def _image_size(config: Config) -> tuple[int, int]:
+    """(width, height) of the annotated image where the export does not state it: twice the
+    principal point of the camera the shapes are drawn in (a sensor's is near the centre)."""
+    camera = config.colour_camera.intrinsics if config.colour_camera is not None else config.camera
+    return max(1, round(2 * abs(camera.cx))), max(1, round(2 * abs(camera.cy)))
 
 
 def _frame_job(

@@ -20,15 +20,18 @@ coordinates like drawn ones.
 The steps: :mod:`annotate_rgbd.propagate.keyframes` fits the keyframe planes on their depth
 frames (the only I/O), :mod:`annotate_rgbd.propagate.timing` estimates the trajectory's time
 offset from them, :mod:`annotate_rgbd.propagate.lift` lifts the keyframes onto their planes with
-the poses, and this module carries them to a frame (:func:`carried_layers`, pure).
+the poses, and this module carries them to a frame (:func:`carried_layers`, pure) and says how
+much the keyframes on either side of it agree there (:func:`keyframe_agreement`: the review list).
 """
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
 from annotate_rgbd.config.settings import Config
-from annotate_rgbd.geometry.lift import project_polygons
+from annotate_rgbd.geometry.camera import project
+from annotate_rgbd.geometry.lift import NEAR, lift_polygon, plane_to_camera, project_polygons, world_to_camera
 from .lift import LiftedKeyframe, TrackLift, rgb_view
 
 
@@ -82,6 +85,98 @@ def carried_layers(
     layers = [(sign, polygon) for sign, polygon, ok in zip(signs, projected, usable) if ok]
     beyond = [polygon for polygon, ok in zip(projected[len(worlds):], usable[len(worlds):]) if ok]
     return tuple(layers), tuple(beyond)
+
+
+#: Side (px) of the cells :func:`keyframe_agreement` fills the keyframes' regions on: a quarter
+#: of the image's resolution in each direction (16 times fewer pixels to fill), far below the
+#: size of a plane worth a polygon.
+AGREEMENT_CELL = 4
+#: Sub-cell bits of the vertices given to OpenCV's polygon fill.
+_SHIFT = 4
+#: Vertices are clamped to this many cells around the image: far enough that no filled cell of the
+#: image moves (a polygon's edges inside the image change only when a vertex lies farther out
+#: than this), near enough that OpenCV's fixed-point coordinates do not overflow.
+_REACH = 1 << 16
+
+
+def keyframe_agreement(
+    lift: TrackLift, frame: int, config: Config, pose: tuple[np.ndarray, np.ndarray], image_size: tuple[int, int],
+) -> float | None:
+    """How much the nearest keyframe before a frame and the nearest one after it agree about where
+    their plane is on it, where both could see it.
+
+    Each keyframe's region is its outline, projected with the frame's pose. Only the part of the frame both keyframes saw is compared: a cell of the
+    two regions' union counts when its point on the plane (the nearer keyframe's) lies inside
+    both keyframe images (``view``); the camera moving on, so that the later keyframe outlines
+    a part of the plane the earlier one could not see, is no disagreement. The agreement is the
+    share of the cells compared that both regions hold, on cells of :data:`AGREEMENT_CELL` px.
+    Where the keyframes that bracket a frame disagree (the labeller drew the plane differently,
+    or another surface; or the poses are off), what is carried there is least certain.
+
+    Parameters
+    ----------
+    lift : TrackLift
+    frame : int
+        The CVAT frame (of the track's part) the depth frame shows.
+    config : Config
+        For the camera.
+    pose : (ndarray (3, 3), ndarray (3,))
+        The depth frame's camera-to-world pose.
+    image_size : (int, int)
+        (width, height) of the annotated image, px.
+
+    Returns
+    -------
+    float or None
+        The agreement, in [0, 1]; None when the frame has a keyframe on one side only, or no
+        cell of either region in the image was seen by both keyframes.
+    """
+    before = [k for k in lift.keyframes if k.frame <= frame][-1:]
+    after = [k for k in lift.keyframes if k.frame > frame][:1]
+    if not before or not after:
+        return None
+    camera, pose = rgb_view(config, pose)
+    width, height = image_size
+    shape = (-(-int(height) // AGREEMENT_CELL), -(-int(width) // AGREEMENT_CELL))
+    pair = (before[0], after[0])
+    first, second = (_projected_region(keyframe, camera, pose, shape) for keyframe in pair)
+    rows, cols = np.nonzero(first | second)
+    if rows.size == 0:
+        return None
+    centres = np.stack([(cols + 0.5) * AGREEMENT_CELL, (rows + 0.5) * AGREEMENT_CELL], axis=1)
+    nearer = min(pair, key=lambda k: (abs(k.frame - frame), k.frame))
+    on_plane = lift_polygon(centres, plane_to_camera(nearer.plane, *pose), camera, *pose)
+    seen = on_plane.valid.copy()
+    for keyframe in pair:
+        if keyframe.view is not None:
+            seen &= _in_view(np.where(on_plane.valid[:, None], on_plane.world, 0.0), keyframe.view, camera)
+    compared = np.count_nonzero(seen)
+    if compared == 0:
+        return None
+    return float(np.count_nonzero(seen & first[rows, cols] & second[rows, cols]) / compared)
+
+
+def _in_view(points: np.ndarray, view: tuple, camera) -> np.ndarray:
+    """Which world points (N, 3) a keyframe's camera saw: in front of it and inside its image."""
+    rotation, translation, (width, height) = view
+    in_camera = world_to_camera(points, rotation, translation)
+    ahead = in_camera[:, 2] > NEAR
+    pixels = project(np.where(ahead[:, None], in_camera, 1.0), camera) + 0.5  # CVAT coordinates
+    return ahead & (pixels[:, 0] >= 0) & (pixels[:, 0] < width) & (pixels[:, 1] >= 0) & (pixels[:, 1] < height)
+
+
+def _projected_region(keyframe: LiftedKeyframe, camera, pose: tuple[np.ndarray, np.ndarray],
+                      shape: tuple[int, int]) -> np.ndarray:
+    """A keyframe's outline, projected, on cells of :data:`AGREEMENT_CELL` px (bool, ``shape``).
+    What it left out lies outside it (and gives way to it in :func:`carried_layers`)."""
+    region = np.zeros(shape, dtype=np.uint8)
+    polygon = project_polygons([keyframe.world], camera, *pose)[0]
+    if len(polygon) >= 3 and np.isfinite(polygon).all():
+        # Image coordinates count from a pixel's corner (CVAT); a cell's centre is at +0.5 cell.
+        cells = polygon * ((1 << _SHIFT) / AGREEMENT_CELL) - (1 << (_SHIFT - 1))
+        cells = np.clip(cells, -_REACH << _SHIFT, (_REACH + max(shape)) << _SHIFT)
+        cv2.fillPoly(region, [np.round(cells).astype(np.int32)], 1, shift=_SHIFT)
+    return region.astype(bool)
 
 
 def nearest_keyframes(keyframes: list[LiftedKeyframe], frame: int, each_side: int) -> list[LiftedKeyframe]:

@@ -46,6 +46,10 @@ class LiftedKeyframe:
     excluded : tuple of ndarray, shape (V, 3)
         World outlines of what the keyframe's labeller saw touching the plane and left out
         (:mod:`annotate_rgbd.propagate.evidence`).
+    view : (ndarray (3, 3), ndarray (3,), (int, int)), optional
+        The camera-to-world pose of the camera the shape was drawn in and the keyframe image's
+        (width, height): what part of the plane the labeller could see. None where the export
+        does not state the image's size.
     """
 
     frame: int
@@ -54,6 +58,7 @@ class LiftedKeyframe:
     z_order: int
     beyond: tuple = ()
     excluded: tuple = ()
+    view: tuple | None = None
 
 
 @dataclass
@@ -308,8 +313,9 @@ def _lift_onto_planes(lift: TrackLift, track: Track, fitted: list, config: Confi
         if target is plane:  # what the outline left out, judged against its own plane
             found = [lift_polygon(o, plane_to_camera(target, *pose), camera, *pose) for o in result[2]]
             excluded = tuple(f.world for f in found if f.ok)
+        view = (pose[0], pose[1], tuple(sizes[frame])) if frame in sizes else None
         lift.keyframes.append(LiftedKeyframe(frame, lifted.world, target, track.shapes[frame].z_order, beyond,
-                                             excluded))
+                                             excluded, view))
         if plane is not None and target is consensus and not agrees.get(frame, False):
             lift.off_plane.append(frame)
             if weight[frame] >= config.propagate.min_keyframe_weight * largest:

@@ -117,6 +117,12 @@ class FrameRecord:
     pose : str, optional
         With camera poses: ``ok``, or why the frame has none (``pose_gap``,
         ``outside_trajectory``: its shapes are then interpolated in 2-D). None without poses.
+    keyframes_agree : dict of int to float, optional
+        With camera poses: for each plane the poses carried to the frame between two of its
+        keyframes, how much the nearest keyframe before and after agree about it there (IoU of
+        their projected regions, :func:`annotate_rgbd.propagate.carry.keyframe_agreement`): the
+        lower, the less certain what was carried. None without poses, or where no plane was carried
+        between two keyframes.
     """
 
     depth: str
@@ -132,6 +138,7 @@ class FrameRecord:
     result: MaskRecord | None = None
     mask: str | None = None
     pose: str | None = None
+    keyframes_agree: dict[int, float] | None = None
 
     @property
     def written(self) -> bool:
@@ -170,6 +177,8 @@ class FrameRecord:
             entry.update(part=self.part, cvat_frame=self.cvat_frame)
         if self.pose is not None:
             entry["pose"] = self.pose
+        if self.keyframes_agree:
+            entry["keyframes_agree"] = {str(plane): iou for plane, iou in sorted(self.keyframes_agree.items())}
         if self.reason is not None:
             entry["reason"] = self.reason
         if self.error is not None:
@@ -211,7 +220,19 @@ class FrameRecord:
             result=result,
             mask=_text(entry, "mask") if status == WRITTEN else None,
             pose=_text(entry, "pose", optional=True),
+            keyframes_agree=_agreement(entry),
         )
+
+
+def _agreement(entry: dict) -> dict[int, float] | None:
+    """A frame entry's ``keyframes_agree`` (absent in reports of earlier versions and of runs
+    without poses: None)."""
+    if entry.get("keyframes_agree") is None:
+        return None
+    agree = _mapping(entry["keyframes_agree"], "keyframes_agree")
+    if not all(key.isdigit() for key in agree):
+        raise RecordError("keyframes_agree is not an object of plane ids")
+    return {int(key): _number(agree, key) for key in agree}
 
 
 @dataclass(frozen=True)

@@ -22,6 +22,12 @@ if TYPE_CHECKING:  # stats imports no configuration (it pulls in OpenCV): `stats
 #: (:data:`annotate_rgbd.segment.filters.NOT_WHERE_EXPECTED`; not imported: ``stats`` loads no
 #: image library).
 NOT_WHERE_EXPECTED = "not_where_expected"
+#: A plane carried between two keyframes is listed to check when those keyframes' regions
+#: overlap by less than this IoU on the frame (``keyframes_agree``): they share less of the
+#: plane there than they disagree about. On TUM fr1_rpy at a keyframe every 10th frame
+#: (docs/propagation.md) a third of the carried planes fall below it, holding 72 % of those that
+#: lose more than 0.15 IoU against a labeller's polygon on every frame; the list is worst first.
+DISAGREE_BELOW = 0.5
 
 
 def run_stats(report: RunRecord) -> dict:
@@ -40,9 +46,10 @@ def run_stats(report: RunRecord) -> dict:
         mask), ``planes_annotated`` (global planes of the annotation), ``depth_frames``,
         ``frames_skipped`` (by reason), ``frames_failed`` (unreadable depth), ``planes_dropped`` and ``dropped_by_reason`` (plane
         records of the written frames), ``mean_inlier_ratio`` (over the kept plane records;
-        ``None`` without any), ``tracks_to_review`` (keyframes off their track's plane) and
+        ``None`` without any), ``tracks_to_review`` (keyframes off their track's plane),
         ``frames_to_review`` (depth frames where a plane the poses carried was not where they
-        put it: dropped there, ``not_where_expected``).
+        put it: dropped there, ``not_where_expected``) and ``carried_to_check``
+        (:func:`carried_to_check`).
     """
     summary = summarize(report.frames)
     written, kept = summary.masks_written, summary.planes_kept
@@ -61,7 +68,33 @@ def run_stats(report: RunRecord) -> dict:
         "tracks_to_review": list((report.propagation or {}).get("inconsistent_tracks", [])),
         # With poses: frames where a carried plane was not where the poses put it (dropped there).
         "frames_to_review": [f.depth for f in report.frames if any(p.reason == NOT_WHERE_EXPECTED for p in f.dropped)],
+        "carried_to_check": carried_to_check(report),
     }
+
+
+def carried_to_check(report: RunRecord, below: float = DISAGREE_BELOW) -> list[dict]:
+    """The planes the poses carried to a written frame between two keyframes that disagree
+    there, worst first: where a labeller's check pays most.
+
+    Parameters
+    ----------
+    report : RunRecord
+    below : float
+        Listed when the keyframes' agreement (``keyframes_agree``, an IoU) is below this.
+
+    Returns
+    -------
+    list of dict
+        ``{"depth": file, "plane": id, "keyframes_agree": IoU}``, by agreement, then in
+        sequence order.
+    """
+    found = [
+        (iou, index, plane, frame.depth)
+        for index, frame in enumerate(report.frames) if frame.written and frame.keyframes_agree
+        for plane, iou in frame.keyframes_agree.items()
+        if iou < below and plane in {r.plane for r in (*frame.kept, *frame.dropped)}
+    ]
+    return [{"depth": depth, "plane": plane, "keyframes_agree": iou} for iou, _, plane, depth in sorted(found)]
 
 
 def merge_stats(scenes: list[dict]) -> dict:
@@ -79,7 +112,8 @@ def merge_stats(scenes: list[dict]) -> dict:
         per run: plane ids are a run's own), ``planes_per_observation`` and
         ``mean_inlier_ratio`` over all of them (the ratio weighted by each run's kept planes),
         ``tracks_to_review`` and ``frames_to_review`` prefixed by the run's position
-        (``2:part.xml:5``); and ``scenes``.
+        (``2:part.xml:5``), ``carried_to_check`` of all runs, worst first, each with its run's
+        position (``scene``); and ``scenes``.
     """
     def total(key: str) -> int:
         return sum(s[key] for s in scenes)
@@ -108,6 +142,9 @@ def merge_stats(scenes: list[dict]) -> dict:
         "mean_inlier_ratio": round(sum(r * w for r, w in rated) / weight, 4) if weight else None,
         "tracks_to_review": [f"{i}:{t}" for i, s in enumerate(scenes, start=1) for t in s["tracks_to_review"]],
         "frames_to_review": [f"{i}:{f}" for i, s in enumerate(scenes, start=1) for f in s.get("frames_to_review", [])],
+        "carried_to_check": sorted(
+            ({"scene": i, **c} for i, s in enumerate(scenes, start=1) for c in s.get("carried_to_check", [])),
+            key=lambda c: (c["keyframes_agree"], c["scene"])),
     }
 
 
@@ -144,8 +181,18 @@ def format_stats(stats: dict) -> str:
         frames = stats["frames_to_review"]
         shown = ", ".join(frames[:10]) + (f" and {len(frames) - 10} more" if len(frames) > 10 else "")
         rows.append((f"frames to review ({len(frames)}: a carried plane not where the poses put it)", shown))
+    if stats.get("carried_to_check"):
+        carried = stats["carried_to_check"]
+        shown = ", ".join(_carried_text(c) for c in carried[:10]) + (f" and {len(carried) - 10} more" if len(carried) > 10 else "")
+        rows.append((f"carried planes to check ({len(carried)}: keyframes before and after disagree, worst first)", shown))
     width = max(len(name) for name, _ in rows)
     return "\n".join(f"{name:<{width}}  {value}" for name, value in rows)
+
+
+def _carried_text(entry: dict) -> str:
+    """``2:000123.png plane 4 (0.12)``."""
+    scene = f"{entry['scene']}:" if "scene" in entry else ""
+    return f"{scene}{entry['depth']} plane {entry['plane']} ({entry['keyframes_agree']:.2f})"
 
 
 def format_stats_json(stats: dict) -> str:

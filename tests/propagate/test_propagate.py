@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import shutil
 from dataclasses import replace
 from pathlib import Path
@@ -20,6 +21,8 @@ from annotate_rgbd.cvat import read_cvat, write_cvat_video
 from annotate_rgbd.geometry.lift import plane_agreement
 from annotate_rgbd.pipeline.scene import run_cvat2mask
 from annotate_rgbd.propagate.lift import consensus_plane
+from annotate_rgbd.report.run_folder import read_report
+from annotate_rgbd.report.stats import run_stats
 from annotate_rgbd.synthetic import make_sequence
 
 CAMERA = Camera(fx=262.5, fy=262.5, cx=159.5, cy=119.5, depth_scale=5000.0)
@@ -238,7 +241,34 @@ def test_review_and_stats_show_drawn_and_propagated_planes_and_tracks_to_review(
     assert sources == {"drawn", "propagated"}
     assert data["stats"]["tracks_to_review"] == [f"wrong.xml:{floor.track_id}"]
     stats = CliRunner().invoke(app, ["stats", str(out)])
-    assert f"tracks to review (keyframes off their plane)  wrong.xml:{floor.track_id}" in stats.output
+    assert re.search(rf"tracks to review \(keyframes off their plane\) +wrong.xml:{floor.track_id}\n", stats.output)
+
+
+def test_a_plane_carried_between_keyframes_that_disagree_is_listed_to_check(rendered, tmp_path):
+    """The floor's middle keyframe outlines a small patch of what the others outline: on the frames
+    between it and its neighbours the floor is listed, worst first; the run as drawn lists nothing."""
+    annotation = read_cvat(rendered["keyframes"])
+    floor = next(t for t in annotation.tracks if t.label == "floor")
+    shape = floor.shapes[STEP]
+    centre = shape.points.mean(axis=0)
+    floor.shapes[STEP] = replace(shape, points=centre + 0.3 * (shape.points - centre))
+    export = tmp_path / "patch.xml"
+    write_cvat_video(annotation, export, width=320, height=240, keyframe_step=STEP, keyframes_only=True)
+    config = load_config(rendered["config"])
+    patched = run_cvat2mask(rendered["sequence"], [export], tmp_path / "patch", config, poses=rendered["poses"])
+    run_cvat2mask(rendered["sequence"], [rendered["keyframes"]], tmp_path / "good", config, poses=rendered["poses"])
+    plane = next(t.plane for t in patched.tracks if t.track == floor.track_id)
+    report = read_report(tmp_path / "patch")
+    listed = run_stats(report)["carried_to_check"]
+    index = {frame.depth: i for i, frame in enumerate(report.frames)}  # depth frame i shows CVAT frame i
+    frames = [index[c["depth"]] for c in listed]
+    assert listed and {c["plane"] for c in listed} == {plane}
+    assert set(frames) <= set(range(1, 2 * STEP)) - {STEP} and len(frames) >= STEP
+    assert [c["keyframes_agree"] for c in listed] == sorted(c["keyframes_agree"] for c in listed)
+    assert all(c["keyframes_agree"] < 0.3 for c in listed)
+    assert run_stats(read_report(tmp_path / "good"))["carried_to_check"] == []
+    result = CliRunner().invoke(app, ["stats", str(tmp_path / "patch")])
+    assert f"carried planes to check ({len(listed)}: keyframes before and after disagree, worst first)" in result.output
 
 
 def test_review_of_a_run_with_poses_draws_the_shapes_the_poses_carried(rendered, tmp_path):
