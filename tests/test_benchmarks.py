@@ -130,3 +130,43 @@ def test_excluded_lines_read_only_the_rows_that_were_scored(bench_real, tmp_path
     results = {"full_pose": {"mean_iou": 0.9, "returncode": 0}, "every10_pose": {"mean_iou": 0.8}}
     lines = bench_real.excluded_lines(tmp_path, tmp_path, results)
     assert len(lines) == 1 and lines[0].startswith("  every 10th frame: not measured (") and "report" in lines[0]
+
+
+def test_pair_ious_match_each_ground_truth_plane_with_the_run_plane_that_overlaps_it_most(bench_real):
+    truth = np.full((10, 10), bench_real.GT_IGNORE, np.int64)
+    truth[:4], truth[4:6], truth[6:7] = 7, 9, 0
+    labels = np.zeros((10, 10), np.intp)
+    labels[:3], labels[3:5, :5], labels[3:5, 5:] = 1, 2, 3
+    labels[8:] = 2  # on "don't care": not counted
+    # Plane 7 (40 px): plane 1 holds 30 of it (IoU 30 / 40); plane 9 (20 px): planes 2 and 3 hold
+    # 5 each, the lower id wins: 5 of 10 known pixels of plane 2 -> 5 / (10 + 20 - 5).
+    found = bench_real.pair_ious(truth, labels, min_pixels=1)
+    assert found == {7: (1, 0.75), 9: (2, 0.2)}
+    assert bench_real.pair_ious(truth, labels, min_pixels=21) == {7: (1, 0.75)}
+    assert bench_real.pair_ious(truth, np.zeros_like(labels), min_pixels=1) == {7: (0, 0.0), 9: (0, 0.0)}
+
+
+def test_review_scores_count_the_listed_carried_planes_that_lose_against_the_dense_row(bench_real, tmp_path):
+    """The runs of the test above, with planes 1 and 2 carried on both frames: plane 1 (for plane 7)
+    loses 0.4 IoU against the dense row and its keyframes agree 0.2 (listed), plane 2 (for plane 9)
+    gains and its keyframes agree 0.9 (not listed)."""
+    import json
+
+    test_excluded_misses_counts_what_a_keyframe_left_out(bench_real, tmp_path)
+    run_labels = np.zeros((240, 320), np.intp)
+    run_labels[:50], run_labels[60:70], run_labels[100:200] = 1, 3, 2
+    posed = _run_folder(tmp_path, "posed_again", run_labels, [])
+    first, second = sorted(p.name for p in (posed / "masks").glob("*.png"))
+    shutil.copy(tmp_path / "gt" / second, tmp_path / "gt" / first)  # the test above cut the first one short
+    report = json.loads((posed / "report.json").read_text())
+    for frame in report["frames"]:
+        if frame["status"] == "written":
+            kept = {record["plane"]: record for record in frame["kept"]}
+            template = next(iter(kept.values()))
+            frame["kept"] = [{**template, "plane": plane, "propagated": plane in (1, 2)} for plane in (1, 2, 3)]
+            frame["keyframes_agree"] = {"1": 0.2, "2": 0.9}
+    (posed / "report.json").write_text(json.dumps(report))
+    scores = bench_real.review_scores(tmp_path / "gt", posed, tmp_path / "dense")
+    assert scores == {"carried": 4, "bad": 2, "listed": 2, "listed_bad": 2, "loss": pytest.approx(0.8),
+                      "listed_loss": pytest.approx(0.8), "auc": 1.0}
+    assert bench_real.review_lines(tmp_path / "gt", tmp_path, {"every10_pose": {"mean_iou": 0.8}}) == []

@@ -232,7 +232,7 @@ def _agreement(entry: dict) -> dict[int, float] | None:
     agree = _mapping(entry["keyframes_agree"], "keyframes_agree")
     if not all(key.isdigit() for key in agree):
         raise RecordError("keyframes_agree is not an object of plane ids")
-    return {int(key): _number(agree, key) for key in agree}
+    return {int(key): _number({f"keyframes_agree[{key}]": value}, f"keyframes_agree[{key}]") for key, value in agree.items()}
 
 
 @dataclass(frozen=True)

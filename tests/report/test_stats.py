@@ -5,10 +5,11 @@ from __future__ import annotations
 import json
 from collections import Counter
 
+import pytest
 from typer.testing import CliRunner
 
 from annotate_rgbd.cli import app
-from annotate_rgbd.report.records import RunRecord
+from annotate_rgbd.report.records import RecordError, RunRecord
 from annotate_rgbd.report.stats import format_stats, run_stats
 
 
@@ -69,6 +70,45 @@ def test_frames_where_a_carried_plane_was_not_where_the_poses_put_it_are_listed_
     from annotate_rgbd.segment.filters import NOT_WHERE_EXPECTED
 
     assert module.NOT_WHERE_EXPECTED == NOT_WHERE_EXPECTED
+
+
+def test_carried_planes_whose_keyframes_disagree_are_listed_worst_first():
+    frames = [dict(f) for f in REPORT["frames"]]
+    frames[1] = {**frames[1], "keyframes_agree": {"1": 0.2, "2": 0.7, "3": 0.1}}
+    frames[2] = {**frames[2], "keyframes_agree": {"1": 0.05, "2": 0.49}}
+    frames[3] = {**frames[3], "keyframes_agree": {"4": 0.0}}  # plane 4 is not in the frame's records
+    stats = run_stats(RunRecord.from_json({**REPORT, "frames": frames}))
+    assert stats["carried_to_check"] == [
+        {"depth": "d2.png", "plane": 1, "keyframes_agree": 0.05}, {"depth": "d1.png", "plane": 3, "keyframes_agree": 0.1},
+        {"depth": "d1.png", "plane": 1, "keyframes_agree": 0.2}, {"depth": "d2.png", "plane": 2, "keyframes_agree": 0.49}]
+    assert ("carried planes to check (4: keyframes before and after disagree, worst first)  d2.png plane 1 (0.05), "
+            "d1.png plane 3 (0.10), d1.png plane 1 (0.20), d2.png plane 2 (0.49)") in format_stats(stats)
+    assert run_stats(RunRecord.from_json(REPORT))["carried_to_check"] == []
+    assert "carried planes" not in format_stats(run_stats(RunRecord.from_json(REPORT)))
+    # Read back as written; a layout that is not plane ids to numbers is an error naming the field.
+    record = RunRecord.from_json({**REPORT, "frames": frames})
+    assert record.frames[1].keyframes_agree == {1: 0.2, 2: 0.7, 3: 0.1}
+    assert RunRecord.from_json(record.to_json()).frames[1].to_json() == record.frames[1].to_json()
+    assert record.frames[1].to_json()["keyframes_agree"] == {"1": 0.2, "2": 0.7, "3": 0.1}
+    for bad in ({"a": 0.1}, {"1": "x"}, [0.1]):
+        frames[1] = {**frames[1], "keyframes_agree": bad}
+        with pytest.raises(RecordError, match="keyframes_agree"):
+            RunRecord.from_json({**REPORT, "frames": frames})
+
+
+def test_merged_stats_list_the_carried_planes_to_check_of_all_runs_worst_first():
+    from annotate_rgbd.report.stats import merge_stats
+
+    frames = [dict(f) for f in REPORT["frames"]]
+    frames[1] = {**frames[1], "keyframes_agree": {"1": 0.3}}
+    first = run_stats(RunRecord.from_json({**REPORT, "frames": frames}))
+    frames[1] = {**frames[1], "keyframes_agree": {"2": 0.1, "1": 0.3}}
+    second = run_stats(RunRecord.from_json({**REPORT, "frames": frames}))
+    merged = merge_stats([first, second])
+    assert merged["carried_to_check"] == [{"scene": 2, "depth": "d1.png", "plane": 2, "keyframes_agree": 0.1},
+                                          {"scene": 1, "depth": "d1.png", "plane": 1, "keyframes_agree": 0.3},
+                                          {"scene": 2, "depth": "d1.png", "plane": 1, "keyframes_agree": 0.3}]
+    assert "2:d1.png plane 2 (0.10), 1:d1.png plane 1 (0.30)" in format_stats(merged)
 
 
 def test_run_stats_of_a_run_without_masks():
