@@ -1,6 +1,7 @@
 """What the command line shows and how it exits: warnings as ``warning: ...`` lines, input and
 file-system problems as one ``error:`` line with status 1, interrupts with 130 (Ctrl-C) or 143
-(SIGTERM) after the clean-up, and a reader of standard output that stopped reading (``| head``)
+(SIGTERM) after the clean-up, a standard output that cannot be written (a full disk) as one
+``error:`` line naming it, and a reader of standard output that stopped reading (``| head``)
 with 141 and nothing printed, as a shell tool that SIGPIPE ends."""
 
 from __future__ import annotations
@@ -59,9 +60,85 @@ class CheckedCommand(TyperCommand):
         return rest
 
 
+class _WatchedOutput:
+    """Standard output as the command line writes to it (its text stream, or the binary buffer
+    under it), keeping the errors its writes raise.
+
+    A failed write of standard output raises an ``OSError`` without a file name, as a failed
+    write of any other open file does (the journal's): the errors kept here tell them apart.
+
+    Parameters
+    ----------
+    stream : file object
+        The stream written to.
+    failures : list of OSError, optional
+        Where the errors are kept; shared with the wrapper of the buffer.
+    """
+
+    def __init__(self, stream, failures: list[OSError] | None = None):
+        self._stream = stream
+        self.failures = [] if failures is None else failures
+
+    def write(self, data):
+        try:
+            return self._stream.write(data)
+        except OSError as exc:
+            self.failures.append(exc)
+            raise
+
+    def flush(self) -> None:
+        try:
+            self._stream.flush()
+        except OSError as exc:
+            self.failures.append(exc)
+            raise
+
+    @property
+    def buffer(self) -> "_WatchedOutput":
+        # Click writes bytes there, and into a text stream of its own over it when the
+        # encoding of this one is ASCII.
+        return _WatchedOutput(self._stream.buffer, self.failures)
+
+    def __getattr__(self, name: str):
+        return getattr(self._stream, name)
+
+
+def _stdout_failed(error: BaseException) -> bool:
+    """Whether ``error`` was raised by a write to standard output (:class:`_WatchedOutput`)."""
+    stdout = sys.stdout
+    return isinstance(stdout, _WatchedOutput) and any(error is failure for failure in stdout.failures)
+
+
+def _stdout_error(problem: str, standalone_mode: bool) -> int:
+    """Say that standard output cannot be written, in one line on standard error, and exit 1
+    (return 1 to a caller that asked Click not to exit)."""
+    _silence_stdout()  # what is left in its buffer fails again at exit, with a traceback of its own
+    typer.echo(f"error: cannot write to standard output: {problem}", err=True)
+    if standalone_mode:
+        sys.exit(1)
+    return 1
+
+
 class OneLineErrors(TyperGroup):
     """The command group: its usage errors are :class:`OneLineUsageError`; the help that a
-    command given without arguments prints stays as it is."""
+    command given without arguments prints stays as it is. A write to standard output that
+    fails (``> /dev/full``), in any command, ``--help`` or ``--version``, is one ``error:`` line
+    naming standard output, with status 1."""
+
+    def main(self, *args, **kwargs):
+        stdout = sys.stdout
+        if stdout is None:  # closed (``>&-``): Click writes nothing
+            return super().main(*args, **kwargs)
+        sys.stdout = watched = _WatchedOutput(stdout)
+        try:
+            return super().main(*args, **kwargs)
+        except OSError as exc:
+            if not _stdout_failed(exc):
+                raise
+            return _stdout_error(exc.strerror or str(exc), kwargs.get("standalone_mode", True))
+        finally:
+            if sys.stdout is watched:  # Click's own wrapper after a broken pipe stays
+                sys.stdout = stdout
 
     def make_context(self, *args, **kwargs):
         try:
@@ -149,6 +226,8 @@ def user_errors() -> Iterator[None]:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(1) from None
     except OSError as exc:  # a file system problem outside the writers (e.g. the journal)
+        if _stdout_failed(exc):
+            raise  # said by OneLineErrors.main, as a failed write of --help or --version
         where = f"{exc.filename}: " if exc.filename else ""
         typer.echo(f"error: {where}{exc.strerror or exc}", err=True)
         raise typer.Exit(1) from None

@@ -1,0 +1,51 @@
+"""Standard output as the command line writes to it: a write that fails is one ``error:`` line
+naming standard output, whichever command (or ``--help``, ``--version``) wrote."""
+
+from __future__ import annotations
+
+import errno
+import os
+import subprocess
+import sys
+
+import pytest
+from typer.testing import CliRunner
+
+from annotate_rgbd.cli import app
+from conftest import REPO_ROOT, SAMPLE_DATA
+
+#: The command line of this tree (``-m`` puts the working folder first on ``sys.path``).
+CLI = [sys.executable, "-m", "annotate_rgbd"]
+
+
+def run_cli(args: list, stdout) -> subprocess.CompletedProcess:
+    """The command line in a process of its own, standard output ``stdout``, standard error read."""
+    return subprocess.run([*CLI, *map(str, args)], stdout=stdout, stderr=subprocess.PIPE, cwd=REPO_ROOT,
+                          timeout=120)
+
+
+def stdout_writers(run) -> list[list]:
+    """Command lines that print to standard output and nothing to standard error."""
+    return [["stats", run], ["stats", run, "--json"], ["evaluate", SAMPLE_DATA / "ground_truth", run / "masks"],
+            ["presets"], ["presets", "fr1_desk"], ["--version"], ["stats", "-h"]]
+
+
+@pytest.mark.skipif(not os.path.exists("/dev/full"), reason="no /dev/full")
+def test_a_full_standard_output_is_one_line_naming_it(sample_run):
+    # `stats RUN > /dev/full` said "error: No space left on device": no word of which file.
+    with open("/dev/full", "wb") as full:
+        for args in stdout_writers(sample_run[0]):
+            done = run_cli(args, full)
+            assert (done.returncode, done.stderr.decode()) == (
+                1, "error: cannot write to standard output: No space left on device\n"), args
+
+
+def test_a_failed_write_of_another_file_is_not_said_as_standard_output(sample_run, monkeypatch):
+    # An OSError without a file name (a failed write of an open file, as the journal's) is not
+    # standard output's only because it names no file.
+    def full_disk(report):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr("annotate_rgbd.report.stats.run_stats", full_disk)
+    result = CliRunner().invoke(app, ["stats", str(sample_run[0])])
+    assert (result.exit_code, result.stderr) == (1, "error: No space left on device\n")
