@@ -161,12 +161,14 @@ class OneLineErrors(TyperGroup):
 def _reader_gone(error: BaseException) -> bool:
     """Whether ``error`` is the reader of an output stream gone: an output file that is a stream
     (``-``, a FIFO; the writers turn the failed write into an OutputError and keep the OSError
-    as its context), or standard output itself (it fails again when flushed). Not any other
-    broken pipe, such as one to a helper process."""
+    as its context), or standard output itself (a write of it raised ``error``, or it fails
+    again when flushed). Not any other broken pipe, such as one to a helper process."""
     from annotate_rgbd.io.writer import is_stream  # OpenCV: not for the command line's start
 
     if isinstance(error, InputError):
         return isinstance(error.__context__, BrokenPipeError) and error.path is not None and is_stream(error.path)
+    if isinstance(error, BrokenPipeError) and _stdout_failed(error):  # its buffer is emptied: a flush passes
+        return True
     try:
         if sys.stdout is not None:
             sys.stdout.flush()

@@ -24,17 +24,21 @@ def run_cli(args: list, stdout) -> subprocess.CompletedProcess:
                           timeout=120)
 
 
+#: Command lines that print only to standard output, besides the commands of a run.
+HELP_AND_VERSION = [["--version"], ["stats", "-h"]]
+
+
 def stdout_writers(run) -> list[list]:
-    """Command lines that print to standard output and nothing to standard error."""
+    """Commands that print to standard output and nothing to standard error, given a run's folder."""
     return [["stats", run], ["stats", run, "--json"], ["evaluate", SAMPLE_DATA / "ground_truth", run / "masks"],
-            ["presets"], ["presets", "fr1_desk"], ["--version"], ["stats", "-h"]]
+            ["presets"], ["presets", "fr1_desk"]]
 
 
 @pytest.mark.skipif(not os.path.exists("/dev/full"), reason="no /dev/full")
 def test_a_full_standard_output_is_one_line_naming_it(sample_run):
     # `stats RUN > /dev/full` said "error: No space left on device": no word of which file.
     with open("/dev/full", "wb") as full:
-        for args in stdout_writers(sample_run[0]):
+        for args in stdout_writers(sample_run[0]) + HELP_AND_VERSION:
             done = run_cli(args, full)
             assert (done.returncode, done.stderr.decode()) == (
                 1, "error: cannot write to standard output: No space left on device\n"), args
@@ -49,3 +53,16 @@ def test_a_failed_write_of_another_file_is_not_said_as_standard_output(sample_ru
     monkeypatch.setattr("annotate_rgbd.report.stats.run_stats", full_disk)
     result = CliRunner().invoke(app, ["stats", str(sample_run[0])])
     assert (result.exit_code, result.stderr) == (1, "error: No space left on device\n")
+
+
+def test_a_reader_of_standard_output_gone_ends_a_command_quietly(sample_run):
+    # `stats RUN | head -c0`: as for export-cvat's stream output (test_output_integrity), status
+    # 141 and nothing said; stats said "error: [Errno 32] Broken pipe".
+    for args in stdout_writers(sample_run[0]):  # not HELP_AND_VERSION: Click's own exit 1, silent
+        reader, writer = os.pipe()
+        os.close(reader)
+        try:
+            done = run_cli(args, writer)
+        finally:
+            os.close(writer)
+        assert (done.returncode, done.stderr.decode()) == (141, ""), args
