@@ -123,12 +123,14 @@ class OneLineErrors(TyperGroup):
     """The command group: its usage errors are :class:`OneLineUsageError`; the help that a
     command given without arguments prints stays as it is. A write to standard output that
     fails (``> /dev/full``), in any command, ``--help`` or ``--version``, is one ``error:`` line
-    naming standard output, with status 1."""
+    naming standard output, with status 1; a closed standard output (``>&-``) is refused so,
+    before any work: every command prints to it."""
 
     def main(self, *args, **kwargs):
         stdout = sys.stdout
-        if stdout is None:  # closed (``>&-``): Click writes nothing
-            return super().main(*args, **kwargs)
+        if stdout is None:  # closed (``>&-``): Click would print nothing, and exit 0
+            return _stdout_error("it is closed (to discard what the command prints, send it to /dev/null)",
+                                 kwargs.get("standalone_mode", True))
         sys.stdout = watched = _WatchedOutput(stdout)
         try:
             return super().main(*args, **kwargs)

@@ -66,3 +66,16 @@ def test_a_reader_of_standard_output_gone_ends_a_command_quietly(sample_run):
         finally:
             os.close(writer)
         assert (done.returncode, done.stderr.decode()) == (141, ""), args
+
+
+def test_a_closed_standard_output_is_refused_before_any_work(sample_run, tmp_path):
+    # `stats RUN >&-` exited 0 having printed nothing; `export-cvat RUN - >&-` ended in a traceback.
+    run = sample_run[0]
+    for args in [*stdout_writers(run), *HELP_AND_VERSION, ["export-cvat", run, "-"],
+                 ["export", run, "--format", "coco", tmp_path / "coco"]]:
+        done = subprocess.run([*CLI, *map(str, args)], stderr=subprocess.PIPE, cwd=REPO_ROOT, timeout=120,
+                              preexec_fn=lambda: os.close(1))
+        assert (done.returncode, done.stderr.decode()) == (1, "error: cannot write to standard output: it is closed "
+                                                              "(to discard what the command prints, send it to "
+                                                              "/dev/null)\n"), args
+    assert not (tmp_path / "coco").exists()
