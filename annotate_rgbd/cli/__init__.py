@@ -478,10 +478,7 @@ def export_command(
 
     with user_errors():
         out = one_output(out, out_option, "export folder", "OUT_DIR")
-        result = export_run(run_dir, fmt, out, poses)
-        if result.removed:
-            typer.echo(f"removed {counted(len(result.removed), 'file')} of an earlier export ({result.removed[0]}"
-                       f"{', ...' if len(result.removed) > 1 else ''})")
+        result = export_run(run_dir, fmt, out, poses)  # its removals of an earlier export's files: info lines
         # Only the world-frame formats read the trajectory: the others' frames have no pose to count.
         posed = f" ({result.posed} with a pose)" if fmt in WORLD_FORMATS else ""
         typer.echo(f"{fmt}: {result.frames} frames{posed}, {len(result.files)} files in {out}")

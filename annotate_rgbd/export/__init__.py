@@ -33,6 +33,7 @@ from annotate_rgbd import __version__
 from annotate_rgbd.errors import InputError, OutputError
 from annotate_rgbd.io.outdir import EXPORT_RECORD, OutputLock, check_not_link, read_bounded, reading
 from annotate_rgbd.io.writer import prepare_output, write_bytes_atomic, write_json
+from annotate_rgbd.logs import counted
 from .coco import write_coco
 from .evops import write_evops
 from .frames import ExportRun, read_run
@@ -80,7 +81,8 @@ class ExportResult:
     posed : int
         Of these, frames with a camera pose.
     removed : list of str
-        Files of an earlier export in the folder that this one did not write again, removed.
+        Files of an earlier export in the folder that this one did not write again, removed
+        (said in one ``info`` line of the package's log).
     """
 
     files: list[Path]
@@ -162,6 +164,9 @@ def _write(run: ExportRun, fmt: str, out: Path, previous: set[str], made: list[P
             placed.append(name)
         shutil.rmtree(staging)
         removed = _remove(out, previous - set(names))
+        if removed:  # as a run says the files it removed: an info line
+            log.info("removed %s of an earlier export (%s%s)", counted(len(removed), "file"), removed[0],
+                     ", ..." if len(removed) > 1 else "")
         record.update(
             complete=True, run=str(run.run_dir.resolve()), trajectory=run.trajectory,
             trajectory_time_offset_s=run.time_offset if run.trajectory else None,

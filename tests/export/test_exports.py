@@ -277,12 +277,13 @@ def test_export_folder_contract(run, tmp_path, monkeypatch):
     assert len(list((out / "frames").iterdir())) == 6
     said = CliRunner().invoke(app, ["export", str(run / "run"), "--format", "evops", str(out)])
     assert said.exit_code == 0, said.output
-    assert said.output.splitlines()[0] == "removed 6 files of an earlier export (frames/" + sorted(
-        p.name for p in (run / "run" / "masks").iterdir())[0].replace(".png", ".json") + ", ...)"
+    # An info line on standard error, as a run says the files it removed; the summary alone on standard output.
+    assert said.stderr == "info: removed 6 files of an earlier export (frames/" + sorted(
+        p.name for p in (run / "run" / "masks").iterdir())[0].replace(".png", ".json") + ", ...)\n"
     assert not (out / "frames").exists() and len(list((out / "labels").iterdir())) == 6
     # EVOPS labels hold no world-frame plane: the trajectory is not read, no pose is counted.
     files = sum(p.is_file() for p in out.rglob("*"))  # export.json too
-    assert said.output.splitlines()[1] == f"evops: 6 frames, {files} files in {out}"
+    assert said.stdout == f"evops: 6 frames, {files} files in {out}\n"
     said = CliRunner().invoke(app, ["export", str(run / "run"), "--format", "planes", str(out)])
     files = sum(p.is_file() for p in out.rglob("*"))
     assert said.output.splitlines()[-1] == f"planes: 6 frames (6 with a pose), {files} files in {out}"
