@@ -432,8 +432,9 @@ def propose(
 @app.command("export-cvat", cls=CheckedCommand)
 def export_cvat_command(
     run_dir: Path = typer.Argument(..., metavar="RUN_DIR", help="Output folder of a finished cvat2mask run."),
-    xml: Optional[Path] = typer.Argument(None, metavar="FILE.xml", help="The CVAT for video 1.1 XML file to write."),
-    xml_option: Optional[Path] = typer.Option(None, "--out", "-o", metavar="FILE.xml", help="The same as FILE.xml."),
+    # Text, not Path: Path("./-") is "-", standard output (one_output).
+    xml: Optional[str] = typer.Argument(None, metavar="FILE.xml", help="The CVAT for video 1.1 XML file to write."),
+    xml_option: Optional[str] = typer.Option(None, "--out", "-o", metavar="FILE.xml", help="The same as FILE.xml."),
     tolerance: Optional[float] = typer.Option(
         None, "--tolerance", min=0.0, metavar="PX",
         help="Largest distance of a polygon from its mask's outline, pixels (default 0.5).",
@@ -466,9 +467,10 @@ def export_cvat_command(
 @app.command("export", cls=CheckedCommand)
 def export_command(
     run_dir: Path = typer.Argument(..., metavar="RUN_DIR", help="Output folder of a finished cvat2mask run."),
-    out: Optional[Path] = typer.Argument(None, metavar="OUT_DIR", help="The export folder (empty, or an earlier export's)."),
+    # Text, not Path: Path("./-") is "-", which export refuses as standard output (one_output).
+    out: Optional[str] = typer.Argument(None, metavar="OUT_DIR", help="The export folder (empty, or an earlier export's)."),
     fmt: str = typer.Option(..., "--format", "-f", metavar="FORMAT", help="planercnn, planes, evops or coco."),
-    out_option: Optional[Path] = typer.Option(None, "--out", "-o", metavar="OUT_DIR", help="The same as OUT_DIR."),
+    out_option: Optional[str] = typer.Option(None, "--out", "-o", metavar="OUT_DIR", help="The same as OUT_DIR."),
     poses: Optional[Path] = typer.Option(
         None, "--poses", metavar="FILE", help="Camera trajectory (TUM format) for world-frame planes; default: the run's."
     ),

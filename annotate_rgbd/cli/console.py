@@ -39,8 +39,9 @@ class OneLineUsageError(UsageError):
 
 
 #: Parameters that name a file or folder without being typed as a path (``--config`` may be a
-#: preset's name; ``cvat2mask`` and ``propose`` take ``--out`` as text).
-NAMED_PATHS = ("config", "out")
+#: preset's name; ``cvat2mask`` and ``propose`` take ``--out`` as text, ``export`` and
+#: ``export-cvat`` their outputs: :func:`one_output`).
+NAMED_PATHS = ("config", "out", "out_option", "xml", "xml_option")
 
 
 class CheckedCommand(TyperCommand):
@@ -259,9 +260,19 @@ def user_errors() -> Iterator[None]:
         logger.removeHandler(handler)
 
 
-def one_output(positional: Path | None, option: Path | None, what: str, metavar: str) -> Path:
+def output_path(text: str) -> Path:
+    """An output named on the command line, as a path: ``-`` (standard output) stays ``-``; any
+    other name that ``Path`` shortens to ``-`` (``./-``, the way to name a file or folder ``-``)
+    is made absolute, so that no writer takes it for standard output."""
+    path = Path(text)
+    return path.absolute() if str(path) == "-" and text != "-" else path
+
+
+def one_output(positional: str | None, option: str | None, what: str, metavar: str) -> Path:
     """The output a command was given, as its argument or as ``--out`` (as ``cvat2mask`` and
-    ``propose`` take theirs); an ``InputError`` when neither or both (unless the same)."""
+    ``propose`` take theirs), as the text given (:func:`output_path`); an ``InputError`` when
+    neither or both (unless the same path)."""
+    positional, option = (None if text is None else output_path(text) for text in (positional, option))
     if positional is not None and option is not None and positional != option:
         raise InputError(None, f"two {what}s given, {positional} and --out {option}: give one")
     if positional is None and option is None:
