@@ -41,6 +41,8 @@ from annotate_rgbd.config.settings import load_config  # noqa: E402
 from annotate_rgbd.cvat import read_cvat, write_cvat_video  # noqa: E402
 from annotate_rgbd.pipeline.execute import prepare_process  # noqa: E402
 from annotate_rgbd.pipeline.scene import run_cvat2mask  # noqa: E402
+from annotate_rgbd.report.run_folder import read_report  # noqa: E402
+from annotate_rgbd.report.stats import run_stats  # noqa: E402
 
 FIGURES = ("mean IoU", "precision@0.8", "recall@0.8", "leak clutter %", "mask pixels on clutter or no depth %")
 
@@ -81,19 +83,24 @@ def main() -> None:
             run = run_cvat2mask(rendered.sequence, [export], out, config, workers=args.workers, force=True, poses=poses)
             figures = score(out, run, rendered)
             inconsistent = len(run.propagation.to_json()["inconsistent_tracks"]) if run.propagation else 0
-            rows.append((step, drawn, "with poses" if poses else "2-D (today)", figures, inconsistent))
+            report = read_report(out)  # the carried planes between keyframes, and those listed to check
+            between = sum(len(frame.keyframes_agree or {}) for frame in report.frames)
+            listed = f"{len(run_stats(report)['carried_to_check'])}/{between}"
+            rows.append((step, drawn, "with poses" if poses else "2-D (today)", figures, inconsistent, listed))
 
     given = "exact" if noise is None else f"median error {args.pose_noise[0]:g} cm / {args.pose_noise[1]:g} deg"
     given += f", clock offset {args.time_offset:g} s" if args.time_offset else ""
     print(f"\n{args.frames} frames at 640x480, keyframe polygons off by up to {args.jitter:g} px, "
           f"exact ground truth of the rendered {args.scene} scene; poses: {given}")
     header = f"{'keyframe every':>14} {'polygons':>9} {'shapes between keyframes':>25}" + "".join(f"{f:>12.12}" for f in FIGURES)
-    print(header + f"{'flagged':>9}")
-    for step, drawn, how, figures, inconsistent in rows:
+    print(header + f"{'flagged':>9}{'to check':>11}")
+    for step, drawn, how, figures, inconsistent, listed in rows:
         cells = "".join(f"{figures[f]:>12.4f}" for f in FIGURES)
-        print(f"{step:>14} {drawn:>9} {how:>25}{cells}{inconsistent:>9}")
+        print(f"{step:>14} {drawn:>9} {how:>25}{cells}{inconsistent:>9}{listed:>11}")
+    print("(flagged: tracks whose keyframes lie off their plane; to check: carried planes whose keyframes before and "
+          "after disagree, of the frame-plane pairs carried between two keyframes, docs/propagation.md)")
     targets = {10: (("mean IoU", 0.94), ("recall@0.8", 0.95)), 30: (("mean IoU", 0.90),)}
-    for step, drawn, how, figures, _ in rows:
+    for step, drawn, how, figures, *_ in rows:
         for name, limit in targets.get(step, ()):
             if how == "with poses":
                 print(f"target: keyframe every {step}, with poses, {name} >= {limit}: "
