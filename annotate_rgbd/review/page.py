@@ -42,16 +42,19 @@ def page_data(report: RunRecord, overlays: Mapping[str, str]) -> dict:
         ``rgb``, ``part``, ``cvat_frame``, ``mask``, ``mask_url`` and ``overlay`` (links relative
         to the page, percent-encoded; ``overlay`` ``None`` without one) and ``planes``,
         rows ``[plane, "kept" | "dropped", reason, pixels, pixels after refinement, inlier
-        ratio, shape]`` in plane order, ``shape`` being ``propagated`` when camera poses carried
-        it there (:mod:`annotate_rgbd.propagate.carry`) and ``drawn`` when it comes from the
-        export (drawn on the frame, or interpolated by CVAT between keyframes).
+        ratio, shape, keyframes' agreement]`` in plane order, ``shape`` being ``propagated`` when
+        camera poses carried it there (:mod:`annotate_rgbd.propagate.carry`) and ``drawn`` when
+        it comes from the export (drawn on the frame, or interpolated by CVAT between keyframes),
+        the agreement the frame's ``keyframes_agree`` for the plane (``None`` without one).
     """
     frames = []
     for index, frame in enumerate(report.frames):
         if not frame.written:
             continue
-        rows = [[r.plane, "kept", None, r.pixels, r.inliers, r.inlier_ratio, _source(r)] for r in frame.kept]
-        rows += [[r.plane, "dropped", r.reason, r.pixels, 0, None, _source(r)] for r in frame.dropped]
+        agree = frame.keyframes_agree or {}
+        rows = [[r.plane, "kept", None, r.pixels, r.inliers, r.inlier_ratio, _source(r), agree.get(r.plane)]
+                for r in frame.kept]
+        rows += [[r.plane, "dropped", r.reason, r.pixels, 0, None, _source(r), agree.get(r.plane)] for r in frame.dropped]
         frames.append({
             "index": index,
             "depth": frame.depth,

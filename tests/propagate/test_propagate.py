@@ -269,6 +269,12 @@ def test_a_plane_carried_between_keyframes_that_disagree_is_listed_to_check(rend
     assert run_stats(read_report(tmp_path / "good"))["carried_to_check"] == []
     result = CliRunner().invoke(app, ["stats", str(tmp_path / "patch")])
     assert f"carried planes to check ({len(listed)}: keyframes before and after disagree, worst first)" in result.output
+    # The review page's plane table gives each carried plane its keyframes' agreement.
+    from annotate_rgbd.review.page import page_data
+
+    rows = {(frame["depth"], row[0]): row for frame in page_data(report, {})["frames"] for row in frame["planes"]}
+    assert all(rows[c["depth"], plane][6:] == ["propagated", c["keyframes_agree"]] for c in listed)
+    assert all(row[7] is None for row in rows.values() if row[6] == "drawn")
 
 
 def test_review_of_a_run_with_poses_draws_the_shapes_the_poses_carried(rendered, tmp_path):

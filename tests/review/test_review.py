@@ -273,8 +273,12 @@ def _expected_rows(frame: dict) -> list[list]:
     def source(r: dict) -> str:
         return {None: "drawn", True: "propagated", False: "drawn"}[r.get("propagated")]
 
-    rows = [[r["plane"], "kept", None, r["pixels"], r["inliers"], r["inlier_ratio"], source(r)] for r in frame["kept"]]
-    rows += [[r["plane"], "dropped", r["reason"], r["pixels"], 0, None, source(r)] for r in frame["dropped"]]
+    def agree(r: dict) -> float | None:
+        return frame.get("keyframes_agree", {}).get(str(r["plane"]))
+
+    rows = [[r["plane"], "kept", None, r["pixels"], r["inliers"], r["inlier_ratio"], source(r), agree(r)]
+            for r in frame["kept"]]
+    rows += [[r["plane"], "dropped", r["reason"], r["pixels"], 0, None, source(r), agree(r)] for r in frame["dropped"]]
     return sorted(rows, key=lambda row: row[0])
 
 
@@ -500,8 +504,8 @@ def _table_text(frame: dict, report: dict) -> list[list[str]]:
     labels = {p["plane"]: p["label"] for p in report["planes"]}
     return [
         [str(plane), labels[plane], status, reason or "", str(pixels), str(kept), "" if ratio is None else f"{ratio:.3f}",
-         source]
-        for plane, status, reason, pixels, kept, ratio, source in _expected_rows(frame)
+         source if agree is None else f"{source}, keyframes agree {agree:.2f}"]
+        for plane, status, reason, pixels, kept, ratio, source, agree in _expected_rows(frame)
     ]
 
 
@@ -517,3 +521,31 @@ def test_a_run_folder_that_is_not_there_is_said_so(tmp_path):
     with pytest.raises(InputError) as a_file:
         review_run(tmp_path / "file.txt")
     assert str(a_file.value) == f"{tmp_path / 'file.txt'}: not a folder: give a run's output folder"
+
+
+def test_review_page_shows_what_to_check_of_a_run_with_poses_in_a_browser(finished_run, browser, tmp_path):
+    """The lists of a run with poses (its report edited: a carried plane whose keyframes disagree,
+    a carried plane dropped where the poses put it) in the page's totals and plane table."""
+    out = tmp_path / "posed"
+    shutil.copytree(finished_run, out)
+    report = _report(out)
+    written = [f for f in report["frames"] if f["status"] == "written"]
+    carried = written[0]["kept"][0]
+    carried["propagated"] = True
+    written[0]["keyframes_agree"] = {str(carried["plane"]): 0.21}
+    written[1]["dropped"][0]["reason"] = "not_where_expected"
+    (out / "report.json").write_text(json.dumps(report), encoding="utf-8")
+    review_run(out)
+    page = Page(browser)
+    page.call("Page.navigate", url=(out / "review.html").resolve().as_uri())
+    browser.wait_for_event("Page.loadEventFired")
+    assert page.evaluate(IMAGES_LOADED)
+    rows = page.evaluate(TABLE_ROWS)
+    assert rows == _table_text(written[0], report)
+    assert [carried["plane"]] == [int(row[0]) for row in rows if row[-1] == "propagated, keyframes agree 0.21"]
+    totals = dict(page.evaluate("""Array.from(document.querySelectorAll('#totals tr')).map(tr =>
+        Array.from(tr.cells).map(td => td.textContent))"""))
+    assert totals["carried planes to check (1: keyframes before and after disagree, worst first)"] == \
+        f"{written[0]['depth']} plane {carried['plane']} (0.21)"
+    assert totals["frames to review (1: a carried plane not where the poses put it)"] == written[1]["depth"]
+    assert page.errors() == []
