@@ -39,11 +39,11 @@ def test_agreement_is_the_iou_of_the_two_outlines_where_both_keyframes_saw_the_p
     before = LiftedKeyframe(0, _on_plane(40, 200, 40, 160), PLANE, 0, view=(*IDENTITY, SIZE))
     after = LiftedKeyframe(10, _on_plane(120, 280, 40, 160), PLANE, 0, view=(*IDENTITY, SIZE))
     assert keyframe_agreement(_lift(before, after), 5, CONFIG, IDENTITY, SIZE) == pytest.approx(1 / 3, abs=0.02)
-    # The later keyframe's camera 100 px to the right (on the plane): it saw columns 100 and on
-    # only, so what the earlier one outlined left of them is no disagreement: 80 of 180 columns.
-    shifted = (np.eye(3), np.array([100 * Z / CAMERA.fx, 0.0, 0.0]))
+    # The later keyframe's camera 96 px to the right (on the plane): it saw columns 96 and on
+    # only, so what the earlier one outlined left of them is no disagreement: 80 of 184 columns.
+    shifted = (np.eye(3), np.array([96 * Z / CAMERA.fx, 0.0, 0.0]))
     after = replace(after, view=(*shifted, SIZE))
-    assert keyframe_agreement(_lift(before, after), 5, CONFIG, IDENTITY, SIZE) == pytest.approx(4 / 9, abs=0.02)
+    assert keyframe_agreement(_lift(before, after), 5, CONFIG, IDENTITY, SIZE) == pytest.approx(80 / 184, abs=0.02)
     # Without a view (the export did not state the image's size) the whole image counts.
     after = replace(after, view=None)
     assert keyframe_agreement(_lift(before, after), 5, CONFIG, IDENTITY, SIZE) == pytest.approx(1 / 3, abs=0.02)
