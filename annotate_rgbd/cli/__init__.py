@@ -8,7 +8,7 @@ from typing import List, Optional
 import typer
 
 from annotate_rgbd import __version__
-from .console import CheckedCommand, OneLineErrors, one_output, user_errors
+from .console import CheckedCommand, OneLineErrors, one_output, output_path, user_errors
 from annotate_rgbd.errors import InputError
 from annotate_rgbd.logs import counted, manifest_words
 from annotate_rgbd.pool import STALL_TIMEOUT
@@ -247,7 +247,9 @@ def evaluate(
     config: Optional[str] = typer.Option(None, "--config", "-c", metavar="FILE|PRESET", help="TOML file or preset name (its [evaluate] section)."),
     set_: List[str] = typer.Option([], "--set", metavar="SECTION.KEY=VALUE", help="Override any configuration key: SECTION.KEY=VALUE."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON object instead of a table."),
-    per_frame: Optional[Path] = typer.Option(None, "--per-frame", metavar="CSV", help="Also write each frame's statistics to this CSV."),
+    # Text, not Path: Path("./-") is "-", standard output (output_path).
+    per_frame_text: Optional[str] = typer.Option(
+        None, "--per-frame", metavar="CSV", help="Also write each frame's statistics to this CSV ('-': standard output)."),
     ignore: Optional[int] = typer.Option(
         None, "--ignore", metavar="LABEL", help="GT label value of don't-care pixels, left out of GT and PRED "
         "(e.g. 65535); default: [evaluate] ignore (-1: none). GT must be label files, not colour masks."),
@@ -264,6 +266,7 @@ def evaluate(
         check_per_frame_target, evaluate_paths, format_json, format_table, write_per_frame_csv,
     )
 
+    per_frame = None if per_frame_text is None else output_path(per_frame_text)
     with user_errors():
         if part is not None:
             # By name: typer (0.26 on) has its own copy of click, whose enum is not click's.

@@ -40,8 +40,9 @@ class OneLineUsageError(UsageError):
 
 #: Parameters that name a file or folder without being typed as a path (``--config`` may be a
 #: preset's name; ``cvat2mask`` and ``propose`` take ``--out`` as text, ``export`` and
-#: ``export-cvat`` their outputs: :func:`one_output`).
-NAMED_PATHS = ("config", "out", "out_option", "xml", "xml_option")
+#: ``export-cvat`` their outputs (:func:`one_output`), ``evaluate`` its ``--per-frame``
+#: (:func:`output_path`)).
+NAMED_PATHS = ("config", "out", "out_option", "xml", "xml_option", "per_frame_text")
 
 
 class CheckedCommand(TyperCommand):

@@ -33,3 +33,17 @@ def test_export_cvat_into_dot_slash_dash_is_a_file_named_dash(sample_run, tmp_pa
     assert said.exit_code == 0, said.output
     assert said.stdout == f"8 plane tracks: {tmp_path / '-'}\n"
     assert (tmp_path / "-").read_bytes().startswith(b"<?xml")
+
+
+def test_evaluate_per_frame_into_dot_slash_dash_is_a_file_named_dash(sample_run, tmp_path, monkeypatch):
+    # It wrote the CSV to standard output (and the means to standard error).
+    monkeypatch.chdir(tmp_path)
+    masks = str(sample_run[0] / "masks")
+    said = CliRunner().invoke(app, ["evaluate", masks, masks, "--per-frame", "./-"])
+    assert said.exit_code == 0, said.output
+    assert said.stdout.startswith("metric     mean\n")
+    assert (tmp_path / "-").read_text().startswith("frame,")
+    streamed = CliRunner().invoke(app, ["evaluate", masks, masks, "--per-frame", "-"])
+    assert streamed.exit_code == 0 and streamed.stdout.startswith("frame,")
+    empty = CliRunner().invoke(app, ["evaluate", masks, masks, "--per-frame", ""])
+    assert empty.exit_code == 2 and "--per-frame is empty" in empty.stderr
