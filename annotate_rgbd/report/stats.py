@@ -85,16 +85,19 @@ def carried_to_check(report: RunRecord, below: float = DISAGREE_BELOW) -> list[d
     Returns
     -------
     list of dict
-        ``{"depth": file, "plane": id, "keyframes_agree": IoU}``, by agreement, then in
-        sequence order.
+        ``{"depth": file, "part": annotation part, "cvat_frame": its frame there (where to add a
+        keyframe in CVAT), "plane": id, "keyframes_agree": IoU}``, by agreement, then in sequence
+        order.
     """
     found = [
-        (iou, index, plane, frame.depth)
+        (iou, index, plane)
         for index, frame in enumerate(report.frames) if frame.written and frame.keyframes_agree
         for plane, iou in frame.keyframes_agree.items()
         if iou < below and plane in {r.plane for r in (*frame.kept, *frame.dropped)}
     ]
-    return [{"depth": depth, "plane": plane, "keyframes_agree": iou} for iou, _, plane, depth in sorted(found)]
+    return [{"depth": report.frames[index].depth, "part": report.frames[index].part,
+             "cvat_frame": report.frames[index].cvat_frame, "plane": plane, "keyframes_agree": iou}
+            for iou, index, plane in sorted(found)]
 
 
 def merge_stats(scenes: list[dict]) -> dict:

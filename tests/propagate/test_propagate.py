@@ -262,6 +262,7 @@ def test_a_plane_carried_between_keyframes_that_disagree_is_listed_to_check(rend
     listed = run_stats(report)["carried_to_check"]
     index = {frame.depth: i for i, frame in enumerate(report.frames)}  # depth frame i shows CVAT frame i
     frames = [index[c["depth"]] for c in listed]
+    assert [c["cvat_frame"] for c in listed] == frames and {c["part"] for c in listed} == {"patch.xml"}
     assert listed and {c["plane"] for c in listed} == {plane}
     assert set(frames) <= set(range(1, 2 * STEP)) - {STEP} and len(frames) >= STEP
     assert [c["keyframes_agree"] for c in listed] == sorted(c["keyframes_agree"] for c in listed)

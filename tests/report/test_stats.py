@@ -74,13 +74,13 @@ def test_frames_where_a_carried_plane_was_not_where_the_poses_put_it_are_listed_
 
 def test_carried_planes_whose_keyframes_disagree_are_listed_worst_first():
     frames = [dict(f) for f in REPORT["frames"]]
-    frames[1] = {**frames[1], "keyframes_agree": {"1": 0.2, "2": 0.7, "3": 0.1}}
-    frames[2] = {**frames[2], "keyframes_agree": {"1": 0.05, "2": 0.49}}
+    frames[1] = {**frames[1], "part": "a.xml", "cvat_frame": 11, "keyframes_agree": {"1": 0.2, "2": 0.7, "3": 0.1}}
+    frames[2] = {**frames[2], "part": "a.xml", "cvat_frame": 12, "keyframes_agree": {"1": 0.05, "2": 0.49}}
     frames[3] = {**frames[3], "keyframes_agree": {"4": 0.0}}  # plane 4 is not in the frame's records
     stats = run_stats(RunRecord.from_json({**REPORT, "frames": frames}))
-    assert stats["carried_to_check"] == [
-        {"depth": "d2.png", "plane": 1, "keyframes_agree": 0.05}, {"depth": "d1.png", "plane": 3, "keyframes_agree": 0.1},
-        {"depth": "d1.png", "plane": 1, "keyframes_agree": 0.2}, {"depth": "d2.png", "plane": 2, "keyframes_agree": 0.49}]
+    assert [(c["depth"], c["plane"], c["keyframes_agree"]) for c in stats["carried_to_check"]] == [
+        ("d2.png", 1, 0.05), ("d1.png", 3, 0.1), ("d1.png", 1, 0.2), ("d2.png", 2, 0.49)]
+    assert {(c["part"], c["cvat_frame"]) for c in stats["carried_to_check"]} == {("a.xml", 11), ("a.xml", 12)}
     assert ("carried planes to check (4: keyframes before and after disagree, worst first)  d2.png plane 1 (0.05), "
             "d1.png plane 3 (0.10), d1.png plane 1 (0.20), d2.png plane 2 (0.49)") in format_stats(stats)
     assert run_stats(RunRecord.from_json(REPORT))["carried_to_check"] == []
@@ -105,9 +105,8 @@ def test_merged_stats_list_the_carried_planes_to_check_of_all_runs_worst_first()
     frames[1] = {**frames[1], "keyframes_agree": {"2": 0.1, "1": 0.3}}
     second = run_stats(RunRecord.from_json({**REPORT, "frames": frames}))
     merged = merge_stats([first, second])
-    assert merged["carried_to_check"] == [{"scene": 2, "depth": "d1.png", "plane": 2, "keyframes_agree": 0.1},
-                                          {"scene": 1, "depth": "d1.png", "plane": 1, "keyframes_agree": 0.3},
-                                          {"scene": 2, "depth": "d1.png", "plane": 1, "keyframes_agree": 0.3}]
+    assert [(c["scene"], c["depth"], c["plane"], c["keyframes_agree"]) for c in merged["carried_to_check"]] == [
+        (2, "d1.png", 2, 0.1), (1, "d1.png", 1, 0.3), (2, "d1.png", 1, 0.3)]
     assert "2:d1.png plane 2 (0.10), 1:d1.png plane 1 (0.30)" in format_stats(merged)
 
 
