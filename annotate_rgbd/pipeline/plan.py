@@ -332,8 +332,7 @@ def _frame_shapes(
         if layers or beyond:
             carried.append((len(shapes), plane, nearest.z_order, layers, beyond))
         propagated.add(plane)
-        size = part.annotation.image_size.get(frame) or _image_size(config)
-        agree = keyframe_agreement(lift, frame, config, pose, size)
+        agree = keyframe_agreement(lift, frame, config, pose, part.annotation.image_size.get(frame))
         if agree is not None:
             agreement[plane] = round(agree, 3)
         if lift.consistent:
@@ -342,13 +341,6 @@ def _frame_shapes(
             expected.append((plane, tuple(float(v) for v in plane_to_camera(nearest.plane, *pose))))
     return (tuple(shapes), (frozenset(propagated) if propagation is not None else None), tuple(expected),
             tuple(carried), agreement)
-
-
-def _image_size(config: Config) -> tuple[int, int]:
-    """(width, height) of the annotated image where the export does not state it: twice the
-    principal point of the camera the shapes are drawn in (a sensor's is near the centre)."""
-    camera = config.colour_camera.intrinsics if config.colour_camera is not None else config.camera
-    return max(1, round(2 * abs(camera.cx))), max(1, round(2 * abs(camera.cy)))
 
 
 def _frame_job(

@@ -89,7 +89,7 @@ def carried_layers(
 
 
 #: Spacing (px) of the pixels :func:`keyframe_agreement` compares the keyframes' regions at (one
-#: in the middle of every such square): far below the size of a plane worth a polygon (1 % of a
+#: near the middle of every such square): far below the size of a plane worth a polygon (1 % of a
 #: 640 x 480 image is 48 of them). On TUM fr1_rpy at a keyframe every 10th frame, every 4th
 #: pixel ranked the carried planes that went wrong no better (docs/propagation.md) at 1.5 times
 #: the time.
@@ -103,7 +103,8 @@ _REACH = 1 << 20
 
 
 def keyframe_agreement(
-    lift: TrackLift, frame: int, config: Config, pose: tuple[np.ndarray, np.ndarray], image_size: tuple[int, int],
+    lift: TrackLift, frame: int, config: Config, pose: tuple[np.ndarray, np.ndarray],
+    image_size: tuple[int, int] | None = None,
 ) -> float | None:
     """How much the nearest keyframe before a frame and the nearest one after it agree about where
     their plane is on it, where both could see it.
@@ -126,14 +127,15 @@ def keyframe_agreement(
         For the camera.
     pose : (ndarray (3, 3), ndarray (3,))
         The depth frame's camera-to-world pose.
-    image_size : (int, int)
-        (width, height) of the annotated image, px.
+    image_size : (int, int), optional
+        (width, height) of the annotated image, px; default: the keyframes' (``view``).
 
     Returns
     -------
     float or None
-        The agreement, in [0, 1]; None when the frame has a keyframe on one side only, or no
-        pixel of either region in the image was seen by both keyframes.
+        The agreement, in [0, 1]; None when the frame has a keyframe on one side only, no
+        pixel of either region in the image was seen by both keyframes, or the image's size is
+        not known.
     """
     keyframes = lift.keyframes  # in frame order
     i = bisect_right(keyframes, frame, key=lambda k: k.frame)
@@ -141,6 +143,10 @@ def keyframe_agreement(
         return None
     pair = (keyframes[i - 1], keyframes[i])
     camera, (rotation, translation) = rgb_view(config, pose)
+    if image_size is None:
+        image_size = next((k.view[2] for k in pair if k.view is not None), None)
+        if image_size is None:
+            return None
     shape = (int(image_size[1]), int(image_size[0]))
     outlines = project_polygons([k.world for k in pair], camera, rotation, translation)
     sample = (slice(AGREEMENT_CELL // 2, None, AGREEMENT_CELL),) * 2  # the pixels compared
@@ -155,7 +161,7 @@ def keyframe_agreement(
     plane = plane_to_camera(nearer.plane, rotation, translation)
     with np.errstate(divide="ignore", invalid="ignore"):
         depth = -plane[3] / (rays @ plane[:3])
-    seen = depth > NEAR  # NaN (a ray along the plane) is not
+    seen = np.isfinite(depth) & (depth > NEAR)  # a ray along the plane meets it nowhere
     points = rays * np.where(seen, depth, 0.0)[:, None]
     for keyframe in pair:
         if keyframe.view is not None:
@@ -181,7 +187,9 @@ def _in_view(points: np.ndarray, rotation: np.ndarray, translation: np.ndarray, 
 
 def _filled(polygon: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     """A projected outline (CVAT image coordinates) filled on the image's pixels (bool,
-    ``shape``); nothing for one that did not project."""
+    ``shape``); nothing for one that did not project. As
+    :func:`annotate_rgbd.segment.rasterize.fill_window` fills, with the vertices clamped: an
+    outline carried by the poses may reach far past the image."""
     region = np.zeros(shape, dtype=np.uint8)
     if len(polygon) >= 3 and np.isfinite(polygon).all():
         # CVAT coordinates count from a pixel's corner, OpenCV's from its centre.

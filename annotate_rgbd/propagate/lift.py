@@ -48,8 +48,10 @@ class LiftedKeyframe:
         (:mod:`annotate_rgbd.propagate.evidence`).
     view : (ndarray (3, 3), ndarray (3,), (int, int)), optional
         The camera-to-world pose of the camera the shape was drawn in and the keyframe image's
-        (width, height): what part of the plane the labeller could see. None where the export
-        does not state the image's size.
+        (width, height) (the colour camera's, or the keyframe's depth frame's): what part of the
+        plane the labeller could see. None where that size is not known (the keyframe's depth
+        frame could not be read, and its shape was lifted onto the plane the track's other
+        keyframes agree on).
     """
 
     frame: int

@@ -230,7 +230,7 @@ def _agreement(entry: dict) -> dict[int, float] | None:
     if entry.get("keyframes_agree") is None:
         return None
     agree = _mapping(entry["keyframes_agree"], "keyframes_agree")
-    if not all(key.isdigit() for key in agree):
+    if not all(key.isascii() and key.isdigit() for key in agree):
         raise RecordError("keyframes_agree is not an object of plane ids")
     return {int(key): _number({f"keyframes_agree[{key}]": value}, f"keyframes_agree[{key}]") for key, value in agree.items()}
 

@@ -23,9 +23,9 @@ if TYPE_CHECKING:  # stats imports no configuration (it pulls in OpenCV): `stats
 #: image library).
 NOT_WHERE_EXPECTED = "not_where_expected"
 #: A plane carried between two keyframes is listed to check when those keyframes' regions
-#: overlap by less than this IoU on the frame (``keyframes_agree``): they share less of the
-#: plane there than they disagree about. On TUM fr1_rpy at a keyframe every 10th frame
-#: (docs/propagation.md) a third of the carried planes fall below it, holding 72 % of those that
+#: overlap by less than this on the frame (``keyframes_agree``): they share less of what both
+#: saw of the plane than they disagree on. On TUM fr1_rpy at a keyframe every 10th frame
+#: (docs/propagation.md) 12 % of the carried planes fall below it, holding 62 % of those that
 #: lose more than 0.15 IoU against a labeller's polygon on every frame; the list is worst first.
 DISAGREE_BELOW = 0.5
 
@@ -73,8 +73,9 @@ def run_stats(report: RunRecord) -> dict:
 
 
 def carried_to_check(report: RunRecord, below: float = DISAGREE_BELOW) -> list[dict]:
-    """The planes the poses carried to a written frame between two keyframes that disagree
-    there, worst first: where a labeller's check pays most.
+    """The planes the poses carried to a frame's mask between two keyframes that disagree there,
+    worst first: where a labeller's check pays most (a carried plane dropped from the mask is
+    not listed; one dropped where the poses put it is in ``frames_to_review``).
 
     Parameters
     ----------
@@ -93,7 +94,7 @@ def carried_to_check(report: RunRecord, below: float = DISAGREE_BELOW) -> list[d
         (iou, index, plane)
         for index, frame in enumerate(report.frames) if frame.written and frame.keyframes_agree
         for plane, iou in frame.keyframes_agree.items()
-        if iou < below and plane in {r.plane for r in (*frame.kept, *frame.dropped)}
+        if iou < below and plane in {r.plane for r in frame.kept}
     ]
     return [{"depth": report.frames[index].depth, "part": report.frames[index].part,
              "cvat_frame": report.frames[index].cvat_frame, "plane": plane, "keyframes_agree": iou}
@@ -187,7 +188,7 @@ def format_stats(stats: dict) -> str:
     if stats.get("carried_to_check"):
         carried = stats["carried_to_check"]
         shown = ", ".join(_carried_text(c) for c in carried[:10]) + (f" and {len(carried) - 10} more" if len(carried) > 10 else "")
-        rows.append((f"carried planes to check ({len(carried)}: keyframes before and after disagree, worst first)", shown))
+        rows.append((f"carried planes to check ({len(carried)}, worst first)", shown))
     width = max(len(name) for name, _ in rows)
     return "\n".join(f"{name:<{width}}  {value}" for name, value in rows)
 

@@ -33,20 +33,89 @@ def _lift(*keyframes: LiftedKeyframe) -> TrackLift:
     return TrackLift("a.xml", 1, 2, keyframes=list(keyframes))
 
 
+def _on_plane_at(z: float, u0: float, u1: float, v0: float, v1: float) -> np.ndarray:
+    """:func:`_on_plane` on the plane at depth ``z``."""
+    return _on_plane(u0, u1, v0, v1) * (z / Z)
+
+
+def _plane_at(z: float) -> np.ndarray:
+    return np.array([0.0, 0.0, 1.0, -z])
+
+
+def _sampled(u0: float, u1: float) -> set[int]:
+    """The columns compared (every 8th pixel, 8c + 4) whose CVAT centre lies in [u0, u1]."""
+    return {c for c in range(SIZE[0] // 8) if u0 <= 8 * c + 4.5 <= u1}
+
+
 def test_agreement_is_the_iou_of_the_two_outlines_where_both_keyframes_saw_the_plane():
     # Both keyframes drawn from the frame's own camera: the whole image was seen by both, and the
-    # agreement is the rectangles' IoU, 80 x 120 over 240 x 120 px.
+    # agreement is the rectangles' IoU on the columns compared (rows alike in both).
+    first, second = _sampled(40, 200), _sampled(120, 280)
     before = LiftedKeyframe(0, _on_plane(40, 200, 40, 160), PLANE, 0, view=(*IDENTITY, SIZE))
     after = LiftedKeyframe(10, _on_plane(120, 280, 40, 160), PLANE, 0, view=(*IDENTITY, SIZE))
-    assert keyframe_agreement(_lift(before, after), 5, CONFIG, IDENTITY, SIZE) == pytest.approx(1 / 3, abs=0.02)
-    # The later keyframe's camera 96 px to the right (on the plane): it saw columns 96 and on
-    # only, so what the earlier one outlined left of them is no disagreement: 80 of 184 columns.
-    shifted = (np.eye(3), np.array([96 * Z / CAMERA.fx, 0.0, 0.0]))
-    after = replace(after, view=(*shifted, SIZE))
-    assert keyframe_agreement(_lift(before, after), 5, CONFIG, IDENTITY, SIZE) == pytest.approx(80 / 184, abs=0.02)
-    # Without a view (the export did not state the image's size) the whole image counts.
-    after = replace(after, view=None)
-    assert keyframe_agreement(_lift(before, after), 5, CONFIG, IDENTITY, SIZE) == pytest.approx(1 / 3, abs=0.02)
+    expected = len(first & second) / len(first | second)
+    assert expected == pytest.approx(1 / 3)
+    assert keyframe_agreement(_lift(before, after), 5, CONFIG, IDENTITY, SIZE) == pytest.approx(expected)
+    # The later keyframe's camera 100 px to the right (on the plane): it saw the columns from 100
+    # on (the pixel whose centre lies on that edge too), so what the earlier one outlined left of
+    # them is no disagreement.
+    shifted = (np.eye(3), np.array([100 * Z / CAMERA.fx, 0.0, 0.0]))
+    seen = {c for c in first | second if 8 * c + 4 >= 100}
+    shifted_after = replace(after, view=(*shifted, SIZE))
+    assert keyframe_agreement(_lift(before, shifted_after), 5, CONFIG, IDENTITY, SIZE) == pytest.approx(
+        len(first & second & seen) / len(seen))
+    # Without a view (its size unknown) the whole image counts; the image's size then comes from
+    # the other keyframe.
+    blind = replace(after, view=None)
+    assert keyframe_agreement(_lift(before, blind), 5, CONFIG, IDENTITY, SIZE) == pytest.approx(expected)
+    assert keyframe_agreement(_lift(before, blind), 5, CONFIG, IDENTITY) == pytest.approx(expected)
+    assert keyframe_agreement(_lift(replace(before, view=None), blind), 5, CONFIG, IDENTITY) is None
+
+
+def test_outline_edges_are_taken_in_cvat_coordinates():
+    # The column compared at pixel 100 has its CVAT centre at 100.5: an outline ending at 100.6
+    # holds it, one ending at 99.8 does not (OpenCV's fill takes a pixel an edge reaches half of).
+    rows = (36, 100)
+    wide = LiftedKeyframe(0, _on_plane(36, 100.6, *rows), PLANE, 0, view=(*IDENTITY, SIZE))
+    short = LiftedKeyframe(10, _on_plane(36, 99.8, *rows), PLANE, 0, view=(*IDENTITY, SIZE))
+    assert keyframe_agreement(_lift(wide, short), 5, CONFIG, IDENTITY, SIZE) == pytest.approx(8 / 9)
+
+
+def test_what_a_turned_keyframe_saw_is_found_on_the_nearer_keyframes_plane():
+    # The later keyframe looked 20 degrees to the right: a column of the frame counts when its
+    # point on the plane lies inside that keyframe's image (computed here ray by ray).
+    angle = np.radians(20)
+    turn = np.array([[np.cos(angle), 0, np.sin(angle)], [0, 1, 0], [-np.sin(angle), 0, np.cos(angle)]])
+    before = LiftedKeyframe(0, _on_plane(40, 200, 40, 160), PLANE, 0, view=(*IDENTITY, SIZE))
+    after = LiftedKeyframe(10, _on_plane(120, 240, 40, 160), PLANE, 0, view=(turn, np.zeros(3), SIZE))
+
+    def seen_by(rotation, translation, z) -> set[int]:
+        found = set()
+        for c in range(SIZE[0] // 8):
+            point = np.array([(8 * c + 4 - CAMERA.cx) / CAMERA.fx, (8 * 7 + 4 - CAMERA.cy) / CAMERA.fy, 1.0]) * z
+            own = rotation.T @ (point - translation)
+            u = own[0] * CAMERA.fx / own[2] + CAMERA.cx + 0.5
+            if own[2] > 0.05 and 0 <= u < SIZE[0]:
+                found.add(c)
+        return found
+
+    first, second = _sampled(40, 200), _sampled(120, 240)
+    seen = seen_by(turn, np.zeros(3), Z) & (first | second)
+    assert 0 < len(seen) < len(first | second)
+    assert keyframe_agreement(_lift(before, after), 5, CONFIG, IDENTITY, SIZE) == pytest.approx(
+        len(first & second & seen) / len(seen))
+    # The keyframes on two parallel planes, 2 and 3 m away, the later one's camera moved 0.73 m
+    # to the right: the points are on the nearer keyframe's plane, so the columns it saw are those
+    # from 100 px on at 2 m (frame 2, nearer the first keyframe) and from 67 px on at 3 m (frame 8).
+    move = np.array([100 * Z / CAMERA.fx, 0.0, 0.0])
+    near = LiftedKeyframe(0, _on_plane_at(2.0, 40, 200, 40, 160), _plane_at(2.0), 0, view=(*IDENTITY, SIZE))
+    far = LiftedKeyframe(10, _on_plane_at(3.0, 120, 280, 40, 160), _plane_at(3.0), 0, view=(np.eye(3), move, SIZE))
+    first, second = _sampled(40, 200), _sampled(120, 280)
+    for frame, z in ((2, 2.0), (8, 3.0)):
+        seen = seen_by(np.eye(3), move, z) & (first | second)
+        assert keyframe_agreement(_lift(near, far), frame, CONFIG, IDENTITY, SIZE) == pytest.approx(
+            len(first & second & seen) / len(seen)), frame
+    assert len(seen_by(np.eye(3), move, 2.0)) != len(seen_by(np.eye(3), move, 3.0))
 
 
 def test_agreement_needs_a_keyframe_on_each_side_and_a_region_both_saw():

@@ -269,7 +269,7 @@ def test_a_plane_carried_between_keyframes_that_disagree_is_listed_to_check(rend
     assert all(c["keyframes_agree"] < 0.3 for c in listed)
     assert run_stats(read_report(tmp_path / "good"))["carried_to_check"] == []
     result = CliRunner().invoke(app, ["stats", str(tmp_path / "patch")])
-    assert f"carried planes to check ({len(listed)}: keyframes before and after disagree, worst first)" in result.output
+    assert f"carried planes to check ({len(listed)}, worst first)" in result.output
     # The review page's plane table gives each carried plane its keyframes' agreement.
     from annotate_rgbd.review.page import page_data
 
