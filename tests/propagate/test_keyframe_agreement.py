@@ -10,7 +10,7 @@ import pytest
 
 from annotate_rgbd.config.settings import Config
 from annotate_rgbd.geometry.camera import Camera
-from annotate_rgbd.propagate.carry import keyframe_agreement
+from annotate_rgbd.propagate.carry import PRIOR_SAMPLES, keyframe_agreement
 from annotate_rgbd.propagate.lift import LiftedKeyframe, TrackLift
 
 CAMERA = Camera(fx=262.5, fy=262.5, cx=159.5, cy=119.5, depth_scale=5000.0)
@@ -19,6 +19,7 @@ SIZE = (320, 240)
 Z = 2.0
 PLANE = np.array([0.0, 0.0, 1.0, -Z])  # z = 2 in the world, which is the frame's camera
 IDENTITY = (np.eye(3), np.zeros(3))
+ROWS = 15  # the rows compared (every 8th pixel, 8r + 4) whose CVAT centre lies in [40, 160]
 
 
 def _on_plane(u0: float, u1: float, v0: float, v1: float) -> np.ndarray:
@@ -27,6 +28,11 @@ def _on_plane(u0: float, u1: float, v0: float, v1: float) -> np.ndarray:
     x = (corners[:, 0] - CAMERA.cx) / CAMERA.fx * Z
     y = (corners[:, 1] - CAMERA.cy) / CAMERA.fy * Z
     return np.stack([x, y, np.full(4, Z)], axis=1)
+
+
+def _share(both: int, compared: int, rows: int = 1) -> float:
+    """The agreement of ``both`` of ``compared`` columns over ``rows`` rows (the prior added)."""
+    return (both * rows + PRIOR_SAMPLES) / (compared * rows + PRIOR_SAMPLES)
 
 
 def _lift(*keyframes: LiftedKeyframe) -> TrackLift:
@@ -53,8 +59,8 @@ def test_agreement_is_the_iou_of_the_two_outlines_where_both_keyframes_saw_the_p
     first, second = _sampled(40, 200), _sampled(120, 280)
     before = LiftedKeyframe(0, _on_plane(40, 200, 40, 160), PLANE, 0, view=(*IDENTITY, SIZE))
     after = LiftedKeyframe(10, _on_plane(120, 280, 40, 160), PLANE, 0, view=(*IDENTITY, SIZE))
-    expected = len(first & second) / len(first | second)
-    assert expected == pytest.approx(1 / 3)
+    assert len(first & second) / len(first | second) == pytest.approx(1 / 3)
+    expected = _share(len(first & second), len(first | second), ROWS)
     assert keyframe_agreement(_lift(before, after), 5, CONFIG, IDENTITY, SIZE) == pytest.approx(expected)
     # The later keyframe's camera 100 px to the right (on the plane): it saw the columns from 100
     # on (the pixel whose centre lies on that edge too), so what the earlier one outlined left of
@@ -63,7 +69,7 @@ def test_agreement_is_the_iou_of_the_two_outlines_where_both_keyframes_saw_the_p
     seen = {c for c in first | second if 8 * c + 4 >= 100}
     shifted_after = replace(after, view=(*shifted, SIZE))
     assert keyframe_agreement(_lift(before, shifted_after), 5, CONFIG, IDENTITY, SIZE) == pytest.approx(
-        len(first & second & seen) / len(seen))
+        _share(len(first & second & seen), len(seen), ROWS))
     # Without a view (its size unknown) the whole image counts; the image's size then comes from
     # the other keyframe.
     blind = replace(after, view=None)
@@ -75,10 +81,10 @@ def test_agreement_is_the_iou_of_the_two_outlines_where_both_keyframes_saw_the_p
 def test_outline_edges_are_taken_in_cvat_coordinates():
     # The column compared at pixel 100 has its CVAT centre at 100.5: an outline ending at 100.6
     # holds it, one ending at 99.8 does not (OpenCV's fill takes a pixel an edge reaches half of).
-    rows = (36, 100)
+    rows = (36, 99.8)  # 8 rows compared
     wide = LiftedKeyframe(0, _on_plane(36, 100.6, *rows), PLANE, 0, view=(*IDENTITY, SIZE))
     short = LiftedKeyframe(10, _on_plane(36, 99.8, *rows), PLANE, 0, view=(*IDENTITY, SIZE))
-    assert keyframe_agreement(_lift(wide, short), 5, CONFIG, IDENTITY, SIZE) == pytest.approx(8 / 9)
+    assert keyframe_agreement(_lift(wide, short), 5, CONFIG, IDENTITY, SIZE) == pytest.approx(_share(8, 9, rows=8))
 
 
 def test_what_a_turned_keyframe_saw_is_found_on_the_nearer_keyframes_plane():
@@ -103,7 +109,7 @@ def test_what_a_turned_keyframe_saw_is_found_on_the_nearer_keyframes_plane():
     seen = seen_by(turn, np.zeros(3), Z) & (first | second)
     assert 0 < len(seen) < len(first | second)
     assert keyframe_agreement(_lift(before, after), 5, CONFIG, IDENTITY, SIZE) == pytest.approx(
-        len(first & second & seen) / len(seen))
+        _share(len(first & second & seen), len(seen), ROWS))
     # The keyframes on two parallel planes, 2 and 3 m away, the later one's camera moved 0.73 m
     # to the right: the points are on the nearer keyframe's plane, so the columns it saw are those
     # from 100 px on at 2 m (frame 2, nearer the first keyframe) and from 67 px on at 3 m (frame 8).
@@ -114,7 +120,7 @@ def test_what_a_turned_keyframe_saw_is_found_on_the_nearer_keyframes_plane():
     for frame, z in ((2, 2.0), (8, 3.0)):
         seen = seen_by(np.eye(3), move, z) & (first | second)
         assert keyframe_agreement(_lift(near, far), frame, CONFIG, IDENTITY, SIZE) == pytest.approx(
-            len(first & second & seen) / len(seen)), frame
+            _share(len(first & second & seen), len(seen), ROWS)), frame
     assert len(seen_by(np.eye(3), move, 2.0)) != len(seen_by(np.eye(3), move, 3.0))
 
 
