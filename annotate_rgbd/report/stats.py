@@ -101,13 +101,15 @@ def carried_to_check(report: RunRecord, below: float = DISAGREE_BELOW) -> list[d
             for iou, index, plane in sorted(found)]
 
 
-def merge_stats(scenes: list[dict]) -> dict:
+def merge_stats(scenes: list[dict], names: list[str] | None = None) -> dict:
     """One summary of several runs (the scenes of a batch, e.g. run as shards).
 
     Parameters
     ----------
     scenes : list of dict
         :func:`run_stats` of each run.
+    names : list of str, optional
+        Each run's name (a batch's scene names); default: its position, from 1.
 
     Returns
     -------
@@ -115,10 +117,11 @@ def merge_stats(scenes: list[dict]) -> dict:
         The keys of :func:`run_stats`: counts summed over the runs (distinct and annotated planes
         per run: plane ids are a run's own), ``planes_per_observation`` and
         ``mean_inlier_ratio`` over all of them (the ratio weighted by each run's kept planes),
-        ``tracks_to_review`` and ``frames_to_review`` prefixed by the run's position
-        (``2:part.xml:5``), ``carried_to_check`` of all runs, worst first, each with its run's
-        position (``scene``); and ``scenes``.
+        ``tracks_to_review`` and ``frames_to_review`` prefixed by the run's name
+        (``kitchen:part.xml:5``), ``carried_to_check`` of all runs, worst first, each with its
+        run's name (``scene``); and ``scenes``.
     """
+    names = [str(i) for i in range(1, len(scenes) + 1)] if names is None else list(names)
     def total(key: str) -> int:
         return sum(s[key] for s in scenes)
 
@@ -144,11 +147,11 @@ def merge_stats(scenes: list[dict]) -> dict:
         "planes_dropped": total("planes_dropped"),
         "dropped_by_reason": by_reason("dropped_by_reason"),
         "mean_inlier_ratio": round(sum(r * w for r, w in rated) / weight, 4) if weight else None,
-        "tracks_to_review": [f"{i}:{t}" for i, s in enumerate(scenes, start=1) for t in s["tracks_to_review"]],
-        "frames_to_review": [f"{i}:{f}" for i, s in enumerate(scenes, start=1) for f in s.get("frames_to_review", [])],
-        "carried_to_check": sorted(
-            ({"scene": i, **c} for i, s in enumerate(scenes, start=1) for c in s.get("carried_to_check", [])),
-            key=lambda c: (c["keyframes_agree"], c["scene"])),
+        "tracks_to_review": [f"{name}:{t}" for name, s in zip(names, scenes) for t in s["tracks_to_review"]],
+        "frames_to_review": [f"{name}:{f}" for name, s in zip(names, scenes) for f in s.get("frames_to_review", [])],
+        "carried_to_check": sorted(  # stable: runs in their order at equal agreement
+            ({"scene": name, **c} for name, s in zip(names, scenes) for c in s.get("carried_to_check", [])),
+            key=lambda c: c["keyframes_agree"]),
     }
 
 

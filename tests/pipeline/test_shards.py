@@ -4,6 +4,7 @@ shards run as separate processes make exactly the files of one unsharded run."""
 from __future__ import annotations
 
 import json
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -143,3 +144,24 @@ def test_merge_stats_sums_and_weights():
     assert merged["frames_skipped"] == {"a": 3, "b": 4} and merged["frames_failed"] == 1
     assert merged["mean_inlier_ratio"] == pytest.approx((0.9 * 30 + 0.5 * 10) / 40)
     assert merged["tracks_to_review"] == ["1:p.xml:1"] and merged["scenes"] == 2
+    assert merge_stats([one, two], ["kitchen", "office"])["tracks_to_review"] == ["kitchen:p.xml:1"]
+
+
+def test_merged_lists_name_their_scene_when_an_earlier_scene_has_no_run(tmp_path, sample_run):
+    # The prefix was the position among the scenes with a run: the second scene's entries were
+    # said to be scene 1's, the name of another scene in the manifest.
+    manifest = write_manifest(tmp_path)
+    first, second = list(SETTINGS)[:2]
+    shutil.copytree(sample_run[0], tmp_path / "out" / second)
+    path = tmp_path / "out" / second / "report.json"
+    report = json.loads(path.read_text(encoding="utf-8"))
+    written = next(f for f in report["frames"] if f["status"] == "written")
+    written["kept"][0]["propagated"] = True
+    written["keyframes_agree"] = {str(written["kept"][0]["plane"]): 0.2}
+    path.write_text(json.dumps(report), encoding="utf-8")
+    result = CliRunner().invoke(app, ["batch", str(manifest), "--merge", "--json"])
+    summary = json.loads(result.stdout)
+    assert summary["scenes"] == 1 and first in summary["scenes_without_a_run"]
+    assert [c["scene"] for c in summary["carried_to_check"]] == [second]
+    text = CliRunner().invoke(app, ["batch", str(manifest), "--merge"]).stdout
+    assert f"{second}:{written['depth']} plane {written['kept'][0]['plane']} (0.20)" in text

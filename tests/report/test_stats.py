@@ -107,7 +107,7 @@ def test_merged_stats_list_the_carried_planes_to_check_of_all_runs_worst_first()
     second = run_stats(RunRecord.from_json({**REPORT, "frames": frames}))
     merged = merge_stats([first, second])
     assert [(c["scene"], c["depth"], c["plane"], c["keyframes_agree"]) for c in merged["carried_to_check"]] == [
-        (2, "d1.png", 2, 0.1), (1, "d1.png", 1, 0.3), (2, "d1.png", 1, 0.3)]
+        ("2", "d1.png", 2, 0.1), ("1", "d1.png", 1, 0.3), ("2", "d1.png", 1, 0.3)]
     assert "2:d1.png plane 2 (0.10), 1:d1.png plane 1 (0.30)" in format_stats(merged)
 
 
