@@ -126,7 +126,7 @@ def propagation_warnings(propagation: Propagation) -> list[str]:
         f"{lift.part} track {lift.track} (plane {lift.plane}): "
         f"{_keyframes_lie(lift.substantial)} off the plane its other keyframes agree on (up to {lift.angle:.1f} degrees, {100 * lift.offset:.1f} cm): "
         "a shape over another surface or clutter, two surfaces under one track, or poses that are off; "
-        "they were lifted onto the agreed plane"
+        f"{'it was' if len(lift.substantial) == 1 else 'they were'} lifted onto the agreed plane"
         for lift in propagation.lifts.values() if not lift.consistent
     ]
     missing = int(np.count_nonzero(~propagation.depth_poses.ok))

@@ -174,6 +174,8 @@ def test_a_keyframe_drawn_over_another_surface_is_listed_and_lifted_onto_the_agr
     report = json.loads((tmp_path / "out" / "report.json").read_text())
     assert f"{export.name}:{floor.track_id}" in report["propagation"]["inconsistent_tracks"]
     assert any(f"track {floor.track_id}" in w and "off the plane its other keyframes agree on" in w for w in report["warnings"])
+    said = next(w for w in report["warnings"] if f"track {floor.track_id}" in w)
+    assert len(lift.substantial) == 1 and "keyframe 8 lies" in said and said.endswith("it was lifted onto the agreed plane")
 
 
 def test_consensus_plane_is_the_best_supported_one():
