@@ -548,4 +548,10 @@ def test_review_page_shows_what_to_check_of_a_run_with_poses_in_a_browser(finish
     assert totals["carried planes to check (1, worst first)"] == \
         f"{written[0]['depth']} plane {carried['plane']} (0.21)"
     assert totals["frames to review (1: a carried plane not where the poses put it)"] == written[1]["depth"]
+    # Each entry is a link to its frame.
+    page.evaluate("""document.querySelectorAll('#totals a')[0].click()""")  # the frame to review
+    assert page.evaluate("document.getElementById('counter').textContent") == f"frame 2 of {len(written)}"
+    assert page.evaluate(TABLE_ROWS) == _table_text(written[1], report)
+    page.evaluate("""document.querySelectorAll('#totals a')[1].click()""")  # the carried plane to check
+    assert page.evaluate("document.getElementById('counter').textContent") == f"frame 1 of {len(written)}"
     assert page.errors() == []
