@@ -1,4 +1,5 @@
-"""The real-data benchmark's arithmetic (benchmarks/bench_real.py), on made-up kit results and runs."""
+"""The real-data benchmark's arithmetic (benchmarks/bench_real.py and its real_losses.py), on made-up
+kit results and runs."""
 
 import importlib.util
 import shutil
@@ -19,6 +20,12 @@ def bench_real():
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
+
+
+@pytest.fixture(scope="module")
+def losses(bench_real):
+    """benchmarks/real_losses.py, as bench_real.py imports it (its folder on the path)."""
+    return importlib.import_module("real_losses")
 
 
 def _result(planes: dict) -> dict:
@@ -68,7 +75,7 @@ def _box(x0, y0, x1, y1) -> np.ndarray:
     return np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]], dtype=np.float64)
 
 
-def test_excluded_misses_counts_what_a_keyframe_left_out(bench_real, tmp_path):
+def test_excluded_misses_counts_what_a_keyframe_left_out(bench_real, losses, tmp_path):
     """Made-up runs on a 320 x 240 grid, two frames alike. Ground truth: plane 7 on rows 0-99,
     plane 9 on rows 100-139, "don't care" below. Dense run: plane 1 on rows 0-89, plane 2 on rows
     90-199 (most of it on "don't care", then on plane 9: it stands for plane 9). Posed run: plane 1
@@ -89,7 +96,7 @@ def test_excluded_misses_counts_what_a_keyframe_left_out(bench_real, tmp_path):
     run_cvat2mask(tmp_path / "sequence", [tmp_path / "export.xml"], tmp_path / "base", config)
     masks = sorted(p.name for p in (tmp_path / "base" / "masks").glob("*.png"))
     assert len(masks) == 2
-    truth = np.full((240, 320), bench_real.GT_IGNORE, np.uint16)
+    truth = np.full((240, 320), losses.GT_IGNORE, np.uint16)
     truth[:100] = 7
     truth[100:140] = 9
     (tmp_path / "gt").mkdir()
@@ -104,18 +111,18 @@ def test_excluded_misses_counts_what_a_keyframe_left_out(bench_real, tmp_path):
     desk = ((-1, _box(0, 95, 320, 120)), (1, _box(0, 120, 320, 200)))
     dense = _run_folder(tmp_path, "dense", dense_labels, [])
     posed = _run_folder(tmp_path, "posed", run_labels, [(0, 1, 0, first, ()), (1, 1, 0, second, ()), (2, 2, 0, desk, ())])
-    counts = bench_real.excluded_misses(tmp_path / "gt", posed, dense, inner_px=5)
+    counts = losses.excluded_misses(tmp_path / "gt", posed, dense, inner_px=5)
     # Plane 1 (plane 7): missed rows 50-89 (plane 3's too), left out rows 50-84, deep rows 55-79
     # (the image's border does not count as the region's edge). Plane 2 (plane 9): missed rows
     # 100-119 (rows 90-99 are plane 7's), left out there all of them, deep rows 100-114.
     per_frame = {"missed": (40 + 20) * 320, "excluded": (35 + 20) * 320, "deep": (25 + 15) * 320}
     assert counts == {kind: 2 * count for kind, count in per_frame.items()}
     # A run without carried planes has nothing to count.
-    assert bench_real.excluded_misses(tmp_path / "gt", dense, dense)["missed"] == 0
+    assert losses.excluded_misses(tmp_path / "gt", dense, dense)["missed"] == 0
     # An image of another size than the ground truth: one clear error.
     cv2.imwrite(str(tmp_path / "gt" / masks[0]), truth[:100])
     with pytest.raises(InputError, match="not the size of the ground truth"):
-        bench_real.excluded_misses(tmp_path / "gt", posed, dense)
+        losses.excluded_misses(tmp_path / "gt", posed, dense)
 
 
 def test_excluded_lines_read_only_the_rows_that_were_scored(bench_real, tmp_path):
@@ -132,27 +139,27 @@ def test_excluded_lines_read_only_the_rows_that_were_scored(bench_real, tmp_path
     assert len(lines) == 1 and lines[0].startswith("  every 10th frame: not measured (") and "report" in lines[0]
 
 
-def test_pair_ious_match_each_ground_truth_plane_with_the_run_plane_that_overlaps_it_most(bench_real):
-    truth = np.full((10, 10), bench_real.GT_IGNORE, np.int64)
+def test_pair_ious_match_each_ground_truth_plane_with_the_run_plane_that_overlaps_it_most(bench_real, losses):
+    truth = np.full((10, 10), losses.GT_IGNORE, np.int64)
     truth[:4], truth[4:6], truth[6:7] = 7, 9, 0
     labels = np.zeros((10, 10), np.intp)
     labels[:3], labels[3:5, :5], labels[3:5, 5:] = 1, 2, 3
     labels[8:] = 2  # on "don't care": not counted
     # Plane 7 (40 px): plane 1 holds 30 of it (IoU 30 / 40); plane 9 (20 px): planes 2 and 3 hold
     # 5 each, the lower id wins: 5 of 10 known pixels of plane 2 -> 5 / (10 + 20 - 5).
-    found = bench_real.pair_ious(truth, labels, min_pixels=1)
+    found = losses.pair_ious(truth, labels, min_pixels=1)
     assert found == {7: (1, 0.75), 9: (2, 0.2)}
-    assert bench_real.pair_ious(truth, labels, min_pixels=21) == {7: (1, 0.75)}
-    assert bench_real.pair_ious(truth, np.zeros_like(labels), min_pixels=1) == {7: (0, 0.0), 9: (0, 0.0)}
+    assert losses.pair_ious(truth, labels, min_pixels=21) == {7: (1, 0.75)}
+    assert losses.pair_ious(truth, np.zeros_like(labels), min_pixels=1) == {7: (0, 0.0), 9: (0, 0.0)}
 
 
-def test_review_scores_count_the_listed_carried_planes_that_lose_against_the_dense_row(bench_real, tmp_path):
+def test_review_scores_count_the_listed_carried_planes_that_lose_against_the_dense_row(bench_real, losses, tmp_path):
     """The runs of the test above, with planes 1 and 2 carried on both frames: plane 1 (for plane 7)
     loses 0.4 IoU against the dense row and its keyframes agree 0.2 (listed), plane 2 (for plane 9)
     gains and its keyframes agree 0.9 (not listed)."""
     import json
 
-    test_excluded_misses_counts_what_a_keyframe_left_out(bench_real, tmp_path)
+    test_excluded_misses_counts_what_a_keyframe_left_out(bench_real, losses, tmp_path)
     run_labels = np.zeros((240, 320), np.intp)
     run_labels[:50], run_labels[60:70], run_labels[100:200] = 1, 3, 2
     posed = _run_folder(tmp_path, "posed_again", run_labels, [])
@@ -166,7 +173,7 @@ def test_review_scores_count_the_listed_carried_planes_that_lose_against_the_den
             frame["kept"] = [{**template, "plane": plane, "propagated": plane in (1, 2)} for plane in (1, 2, 3)]
             frame["keyframes_agree"] = {"1": 0.2, "2": 0.9}
     (posed / "report.json").write_text(json.dumps(report))
-    scores = bench_real.review_scores(tmp_path / "gt", posed, tmp_path / "dense")
+    scores = losses.review_scores(tmp_path / "gt", posed, tmp_path / "dense")
     assert scores == {"carried": 4, "bad": 2, "listed": 2, "listed_bad": 2, "loss": pytest.approx(0.8),
                       "listed_loss": pytest.approx(0.8), "auc": 1.0}
     assert bench_real.review_lines(tmp_path / "gt", tmp_path, {"every10_pose": {"mean_iou": 0.8}}) == []
