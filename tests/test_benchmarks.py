@@ -23,9 +23,12 @@ def bench_real():
 
 
 @pytest.fixture(scope="module")
-def losses(bench_real):
-    """benchmarks/real_losses.py, as bench_real.py imports it (its folder on the path)."""
-    return importlib.import_module("real_losses")
+def losses():
+    """benchmarks/real_losses.py, the analyses bench_real.py imports."""
+    spec = importlib.util.spec_from_file_location("real_losses", SCRIPT.parent / "real_losses.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
 
 
 def _result(planes: dict) -> dict:

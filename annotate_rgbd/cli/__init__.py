@@ -194,17 +194,17 @@ def _merge_batch(scenes: list, as_json: bool) -> None:
     from annotate_rgbd.report.run_folder import read_report
     from annotate_rgbd.report.stats import format_stats, format_stats_json, merge_stats, run_stats
 
-    found, ran, missing, names = [], [], [], []
+    found, ran, missing, without_run = [], [], [], []
     for scene in scenes:
         try:
             found.append(run_stats(read_report(scene.out)))
             ran.append(scene.name)
         except InputError as exc:
             missing.append(f"{scene.name}: {exc}")
-            names.append(scene.name)
+            without_run.append(scene.name)
     merged = merge_stats(found, ran)  # the lists name their scene
     # The JSON names the scenes left out: a script reading it alone can tell the summary is partial.
-    typer.echo(format_stats_json({**merged, "scenes_without_a_run": names}) if as_json else format_stats(merged))
+    typer.echo(format_stats_json({**merged, "scenes_without_a_run": without_run}) if as_json else format_stats(merged))
     for line in missing:
         typer.echo(f"error: {line}", err=True)
     if missing:

@@ -88,12 +88,12 @@ def carried_layers(
     return tuple(layers), tuple(beyond)
 
 
-#: Spacing (px) of the pixels :func:`keyframe_agreement` compares the keyframes' regions at (one
-#: near the middle of every such square): far below the size of a plane worth a polygon (1 % of a
-#: 640 x 480 image is 48 of them). On TUM fr1_rpy at a keyframe every 10th frame, every 4th
-#: pixel ranked the carried planes that went wrong no better (docs/propagation.md) at 1.5 times
-#: the time.
-AGREEMENT_CELL = 8
+#: Spacing (px) of the pixels :func:`keyframe_agreement` compares the keyframes' regions at, in
+#: rows and columns (one near the middle of every such square): far below the size of a plane
+#: worth a polygon (1 % of a 640 x 480 image is 48 of them). On TUM fr1_rpy at a keyframe every
+#: 10th frame, every 4th pixel ranked the carried planes that went wrong no better (AUC 0.845
+#: against 0.847, commit 33daa9a) at 1.5 times the time.
+AGREEMENT_STRIDE = 8
 #: A disagreement needs evidence: the share is taken as if this many more pixels compared had
 #: agreed, so that a score resting on a handful of pixels (two keyframes that saw only a corner
 #: of the frame in common) is no alarm, while one on hundreds hardly moves. 12 (768 px of the
@@ -121,8 +121,9 @@ def keyframe_agreement(
     on the plane (the nearer keyframe's) lies inside both keyframe images (``view``); the camera
     moving on, so that the later keyframe outlines a part of the plane the earlier one could not
     see, is no disagreement. The agreement is the share of the pixels compared that both regions
-    hold (as if :data:`PRIOR_SAMPLES` more had), on every :data:`AGREEMENT_CELL`-th pixel of
-    every such row. Where the keyframes that
+    hold (as if :data:`PRIOR_SAMPLES` more had), on every :data:`AGREEMENT_STRIDE`-th pixel of
+    every :data:`AGREEMENT_STRIDE`-th row. A keyframe whose image size is not known (``view``
+    None) limits nothing. Where the keyframes that
     bracket a frame disagree (the labeller drew the plane differently, or another surface; or
     the poses are off), what is carried there is least certain.
 
@@ -157,14 +158,14 @@ def keyframe_agreement(
             return None
     shape = (int(image_size[1]), int(image_size[0]))
     outlines = project_polygons([k.world for k in pair], camera, rotation, translation)
-    sample = (slice(AGREEMENT_CELL // 2, None, AGREEMENT_CELL),) * 2  # the pixels compared
+    sample = (slice(AGREEMENT_STRIDE // 2, None, AGREEMENT_STRIDE),) * 2  # the pixels compared
     first, second = (_filled(outline, shape)[sample] for outline in outlines)
     rows, cols = np.nonzero(first | second)
     if rows.size == 0:
         return None
     # Those pixels' points on the nearer keyframe's plane, in the frame's camera.
-    rays = np.stack([(cols * AGREEMENT_CELL + AGREEMENT_CELL // 2 - camera.cx) / camera.fx,
-                     (rows * AGREEMENT_CELL + AGREEMENT_CELL // 2 - camera.cy) / camera.fy, np.ones(rows.size)], axis=1)
+    rays = np.stack([(cols * AGREEMENT_STRIDE + AGREEMENT_STRIDE // 2 - camera.cx) / camera.fx,
+                     (rows * AGREEMENT_STRIDE + AGREEMENT_STRIDE // 2 - camera.cy) / camera.fy, np.ones(rows.size)], axis=1)
     nearer = min(pair, key=lambda k: (abs(k.frame - frame), k.frame))
     plane = plane_to_camera(nearer.plane, rotation, translation)
     with np.errstate(divide="ignore", invalid="ignore"):

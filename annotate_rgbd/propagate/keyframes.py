@@ -156,7 +156,8 @@ class FittedTrack:
     failed : list of (int, str)
         Keyframes that cannot be lifted whatever the poses (mask shapes).
     sizes : dict of int to (int, int)
-        CVAT frame -> (width, height) of the keyframe's depth frame.
+        CVAT frame -> (width, height) of the image the keyframe's shapes are drawn on: the colour
+        camera's (``[colour_camera]``), or else the keyframe's depth frame's.
     """
 
     part: str

@@ -22,9 +22,9 @@ if TYPE_CHECKING:  # stats imports no configuration (it pulls in OpenCV): `stats
 #: (:data:`annotate_rgbd.segment.filters.NOT_WHERE_EXPECTED`; not imported: ``stats`` loads no
 #: image library).
 NOT_WHERE_EXPECTED = "not_where_expected"
-#: A plane carried between two keyframes is listed to check when those keyframes' regions
-#: overlap by less than this on the frame (``keyframes_agree``): they share less of what both
-#: saw of the plane than they disagree on. On TUM fr1_rpy at a keyframe every 10th frame
+#: A plane carried between two keyframes is listed to check when those keyframes' agreement on
+#: the frame (``keyframes_agree``) is below this: they share less of what both saw of the plane
+#: than they disagree on (about: the agreement counts a few pixels more as agreeing). On TUM fr1_rpy at a keyframe every 10th frame
 #: (docs/propagation.md) 12 % of the carried planes fall below it, holding 62 % of those that
 #: lose more than 0.15 IoU against a labeller's polygon on every frame; the list is worst first.
 DISAGREE_BELOW = 0.5
@@ -75,20 +75,21 @@ def run_stats(report: RunRecord) -> dict:
 def carried_to_check(report: RunRecord, below: float = DISAGREE_BELOW) -> list[dict]:
     """The planes the poses carried to a frame's mask between two keyframes that disagree there,
     worst first: where a labeller's check pays most (a carried plane dropped from the mask is
-    not listed; one dropped where the poses put it is in ``frames_to_review``).
+    not listed: one dropped because it was not where the poses put it is in
+    ``frames_to_review``, one dropped by a drop rule in neither).
 
     Parameters
     ----------
     report : RunRecord
     below : float
-        Listed when the keyframes' agreement (``keyframes_agree``, an IoU) is below this.
+        Listed when the keyframes' agreement (``keyframes_agree``) is below this.
 
     Returns
     -------
     list of dict
         ``{"depth": file, "part": annotation part, "cvat_frame": its frame there (where to add a
-        keyframe in CVAT), "plane": id, "keyframes_agree": IoU}``, by agreement, then in sequence
-        order.
+        keyframe in CVAT), "plane": id, "keyframes_agree": agreement}``, by agreement, then in
+        sequence order.
     """
     found = [
         (iou, index, plane)
@@ -197,7 +198,7 @@ def format_stats(stats: dict) -> str:
 
 
 def _carried_text(entry: dict) -> str:
-    """``2:000123.png plane 4 (0.12)``."""
+    """``kitchen:000123.png plane 4 (0.12)``."""
     scene = f"{entry['scene']}:" if "scene" in entry else ""
     return f"{scene}{entry['depth']} plane {entry['plane']} ({entry['keyframes_agree']:.2f})"
 
