@@ -123,9 +123,9 @@ def keyframe_agreement(
     see, is no disagreement. The agreement is the share of the pixels compared that both regions
     hold (as if :data:`PRIOR_SAMPLES` more had), on every :data:`AGREEMENT_STRIDE`-th pixel of
     every :data:`AGREEMENT_STRIDE`-th row. A keyframe whose image size is not known (``view``
-    None) limits nothing. Where the keyframes that
-    bracket a frame disagree (the labeller drew the plane differently, or another surface; or
-    the poses are off), what is carried there is least certain.
+    None) limits nothing. Where the keyframes that bracket a frame disagree (the labeller drew
+    the plane differently, or another surface; or the poses are off), what is carried there is
+    least certain.
 
     Parameters
     ----------

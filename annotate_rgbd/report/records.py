@@ -119,9 +119,9 @@ class FrameRecord:
         ``outside_trajectory``: its shapes are then interpolated in 2-D). None without poses.
     keyframes_agree : dict of int to float, optional
         With camera poses: for each plane the poses carried to the frame between two of its
-        keyframes, how much the nearest keyframe before and after agree about it there (IoU of
-        their projected regions, :func:`annotate_rgbd.propagate.carry.keyframe_agreement`): the
-        lower, the less certain what was carried. None without poses, or where no plane was carried
+        keyframes, how much the nearest keyframe before and after agree about it there (the share
+        of what both saw that both outline, :func:`annotate_rgbd.propagate.carry.keyframe_agreement`):
+        the lower, the less certain what was carried. None without poses, or where no plane was carried
         between two keyframes.
     """
 
@@ -178,7 +178,7 @@ class FrameRecord:
         if self.pose is not None:
             entry["pose"] = self.pose
         if self.keyframes_agree:
-            entry["keyframes_agree"] = {str(plane): iou for plane, iou in sorted(self.keyframes_agree.items())}
+            entry["keyframes_agree"] = {str(plane): agree for plane, agree in sorted(self.keyframes_agree.items())}
         if self.reason is not None:
             entry["reason"] = self.reason
         if self.error is not None:

@@ -92,14 +92,14 @@ def carried_to_check(report: RunRecord, below: float = DISAGREE_BELOW) -> list[d
         sequence order.
     """
     found = [
-        (iou, index, plane)
+        (agree, index, plane)
         for index, frame in enumerate(report.frames) if frame.written and frame.keyframes_agree
-        for plane, iou in frame.keyframes_agree.items()
-        if iou < below and plane in {r.plane for r in frame.kept}
+        for plane, agree in frame.keyframes_agree.items()
+        if agree < below and plane in {r.plane for r in frame.kept}
     ]
     return [{"depth": report.frames[index].depth, "part": report.frames[index].part,
-             "cvat_frame": report.frames[index].cvat_frame, "plane": plane, "keyframes_agree": iou}
-            for iou, index, plane in sorted(found)]
+             "cvat_frame": report.frames[index].cvat_frame, "plane": plane, "keyframes_agree": agree}
+            for agree, index, plane in sorted(found)]
 
 
 def merge_stats(scenes: list[dict], names: list[str] | None = None) -> dict:
