@@ -127,22 +127,21 @@ def pair_ious(truth: np.ndarray, labels: np.ndarray, min_pixels: int) -> dict[in
     dict of int to (int, float)
         Ground-truth plane -> (run plane, IoU); run plane 0 with IoU 0 where none overlaps it.
     """
+    from annotate_rgbd.evaluate.metrics import plane_overlaps
+
     known = truth != GT_IGNORE
-    values, labels = truth[known], labels[known]
-    sizes = np.bincount(labels)
-    pairs, counts = np.unique(values * (int(labels.max()) + 1) + labels, return_counts=True)
+    table = plane_overlaps(truth[known], labels[known])
+    ious = table.iou()
     found = {}
-    for value in np.unique(values[values != 0]).tolist():
-        at = (pairs // (int(labels.max()) + 1)) == value
-        size, planes, inter = counts[at].sum(), pairs[at] % (int(labels.max()) + 1), counts[at]
+    for g, (value, size) in enumerate(zip(table.gt_labels.tolist(), table.gt_sizes.tolist())):
         if size < min_pixels:
             continue
-        hit = planes != 0
-        if not hit.any():
+        pairs = np.flatnonzero(table.gt_index == g)  # in ascending run plane: a tie goes to the lower id
+        if pairs.size == 0:
             found[value] = (0, 0.0)
             continue
-        best = int(np.argmax(np.where(hit, inter, -1)))
-        found[value] = (int(planes[best]), float(inter[best] / (sizes[planes[best]] + size - inter[best])))
+        best = pairs[np.argmax(table.intersection[pairs])]
+        found[value] = (int(table.pred_labels[table.pred_index[best]]), float(ious[best]))
     return found
 
 
