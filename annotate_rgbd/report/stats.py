@@ -24,9 +24,10 @@ if TYPE_CHECKING:  # stats imports no configuration (it pulls in OpenCV): `stats
 NOT_WHERE_EXPECTED = "not_where_expected"
 #: A plane carried between two keyframes is listed to check when those keyframes' agreement on
 #: the frame (``keyframes_agree``) is below this: they share less of what both saw of the plane
-#: than they disagree on (about: the agreement counts a few pixels more as agreeing). On TUM fr1_rpy at a keyframe every 10th frame
-#: (docs/propagation.md) 12 % of the carried planes fall below it, holding 62 % of those that
-#: lose more than 0.15 IoU against a labeller's polygon on every frame; the list is worst first.
+#: than they disagree on (about: the agreement counts a few pixels more as agreeing). On TUM
+#: fr1_rpy at a keyframe every 10th frame (docs/propagation.md) 12 % of the carried planes fall
+#: below it, holding 62 % of those that lose more than 0.15 IoU against a labeller's polygon on
+#: every frame; the list is worst first.
 DISAGREE_BELOW = 0.5
 
 
@@ -91,15 +92,14 @@ def carried_to_check(report: RunRecord, below: float = DISAGREE_BELOW) -> list[d
         keyframe in CVAT), "plane": id, "keyframes_agree": agreement}``, by agreement, then in
         sequence order.
     """
-    found = [
-        (agree, index, plane)
-        for index, frame in enumerate(report.frames) if frame.written and frame.keyframes_agree
-        for plane, agree in frame.keyframes_agree.items()
-        if agree < below and plane in {r.plane for r in frame.kept}
-    ]
-    return [{"depth": report.frames[index].depth, "part": report.frames[index].part,
-             "cvat_frame": report.frames[index].cvat_frame, "plane": plane, "keyframes_agree": agree}
-            for agree, index, plane in sorted(found)]
+    found = []  # (agreement, position in the sequence, entry)
+    for index, frame in enumerate(report.frames):
+        if frame.written and frame.keyframes_agree:
+            kept = {r.plane for r in frame.kept}
+            found += [(agree, index, {"depth": frame.depth, "part": frame.part, "cvat_frame": frame.cvat_frame,
+                                      "plane": plane, "keyframes_agree": agree})
+                      for plane, agree in sorted(frame.keyframes_agree.items()) if agree < below and plane in kept]
+    return [entry for _, _, entry in sorted(found, key=lambda item: item[:2])]
 
 
 def merge_stats(scenes: list[dict], names: list[str] | None = None) -> dict:
@@ -187,14 +187,18 @@ def format_stats(stats: dict) -> str:
         rows.append(("tracks to review (keyframes off their plane)", ", ".join(stats["tracks_to_review"])))
     if stats.get("frames_to_review"):
         frames = stats["frames_to_review"]
-        shown = ", ".join(frames[:10]) + (f" and {len(frames) - 10} more" if len(frames) > 10 else "")
-        rows.append((f"frames to review ({len(frames)}: a carried plane not where the poses put it)", shown))
+        rows.append((f"frames to review ({len(frames)}: a carried plane not where the poses put it)", _first_ten(frames)))
     if stats.get("carried_to_check"):
         carried = stats["carried_to_check"]
-        shown = ", ".join(_carried_text(c) for c in carried[:10]) + (f" and {len(carried) - 10} more" if len(carried) > 10 else "")
-        rows.append((f"carried planes to check ({len(carried)}, worst first)", shown))
+        rows.append((f"carried planes to check ({len(carried)}, worst first)",
+                     _first_ten([_carried_text(c) for c in carried])))
     width = max(len(name) for name, _ in rows)
     return "\n".join(f"{name:<{width}}  {value}" for name, value in rows)
+
+
+def _first_ten(items: list[str]) -> str:
+    """``a, b, c`` and, past ten, `` and 5 more``."""
+    return ", ".join(items[:10]) + (f" and {len(items) - 10} more" if len(items) > 10 else "")
 
 
 def _carried_text(entry: dict) -> str:
