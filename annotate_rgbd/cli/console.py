@@ -82,15 +82,15 @@ class _WatchedOutput:
         self.failures = [] if failures is None else failures
 
     def write(self, data):
-        try:
-            return self._stream.write(data)
-        except OSError as exc:
-            self.failures.append(exc)
-            raise
+        return self._watched(self._stream.write, data)
 
     def flush(self) -> None:
+        self._watched(self._stream.flush)
+
+    def _watched(self, call, *args):
+        """``call(*args)``, keeping the ``OSError`` it raises."""
         try:
-            self._stream.flush()
+            return call(*args)
         except OSError as exc:
             self.failures.append(exc)
             raise
