@@ -237,8 +237,8 @@ def user_errors() -> Iterator[None]:
         where = f"{exc.filename}: " if exc.filename else ""
         typer.echo(f"error: {where}{exc.strerror or exc}", err=True)
         raise typer.Exit(1) from None
-    except (KeyboardInterrupt, ImportError) as exc:
-        if isinstance(exc, ImportError) and not received:
+    except (KeyboardInterrupt, ImportError, RuntimeError) as exc:
+        if not isinstance(exc, KeyboardInterrupt) and not _interrupted_import(exc, received):
             raise
         terminated = received[-1] == signal.SIGTERM if received else exc.args == ("SIGTERM",)
         typer.echo(
@@ -247,9 +247,9 @@ def user_errors() -> Iterator[None]:
             err=True,
         )
         status = 143 if terminated else 130
-        if isinstance(exc, ImportError):
-            # Interrupted while a compiled module initialised (the interrupt surfaces as this
-            # error): its half-made state can print at a normal exit, so leave at once.
+        if not isinstance(exc, KeyboardInterrupt):
+            # Interrupted while a module initialised (the interrupt surfaces as another error):
+            # its half-made state can print at a normal exit, so leave at once.
             for stream in (sys.stdout, sys.stderr):
                 if stream is not None:  # None: closed by the caller (``2>&-``)
                     stream.flush()
@@ -259,6 +259,20 @@ def user_errors() -> Iterator[None]:
         for signum, handler_before in previous.items():
             signal.signal(signum, signal.SIG_DFL if handler_before is None else handler_before)
         logger.removeHandler(handler)
+
+
+def _interrupted_import(error: BaseException, received: list[int]) -> bool:
+    """Whether ``error`` is an interrupt that arrived while a module was being imported: a
+    compiled module's initialisation turns it into an ``ImportError``, and a class being defined
+    (a dataclass's fields, Python 3.11) into a ``RuntimeError`` caused by the ``KeyboardInterrupt``."""
+    if not received:
+        return False
+    if isinstance(error, ImportError):
+        return True
+    cause = error.__cause__
+    while cause is not None and not isinstance(cause, KeyboardInterrupt):
+        cause = cause.__cause__
+    return cause is not None
 
 
 def output_path(text: str) -> Path:

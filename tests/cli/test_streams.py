@@ -79,3 +79,23 @@ def test_a_closed_standard_output_is_refused_before_any_work(sample_run, tmp_pat
                                                               "(to discard what the command prints, send it to "
                                                               "/dev/null)\n"), args
     assert not (tmp_path / "coco").exists()
+
+
+def test_an_interrupt_while_a_class_is_defined_is_one_line(tmp_path):
+    # SIGTERM arriving while an imported module defines a dataclass (the command's first imports)
+    # surfaced in Python 3.11 as "RuntimeError: Error calling __set_name__", with a traceback.
+    script = tmp_path / "script.py"
+    script.write_text(
+        "import os, signal\n"
+        "from annotate_rgbd.cli.console import user_errors\n"
+        "class Field:\n"
+        "    def __set_name__(self, owner, name):\n"
+        "        os.kill(os.getpid(), signal.SIGTERM)\n"
+        "with user_errors():\n"
+        "    class Record:\n"
+        "        removed = Field()\n"
+        "print('not reached')\n", encoding="utf-8")
+    done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=60)
+    assert (done.returncode, done.stdout) == (143, "")
+    assert done.stderr.splitlines() == ["error: terminated; finished files are complete, nothing partial was left; "
+                                        "run the same command again to continue"]
