@@ -38,7 +38,7 @@ from .coco import write_coco
 from .evops import write_evops
 from .frames import ExportRun, read_run
 from .planercnn import check_planercnn, write_planercnn
-from .planes import EQUATION_CONVENTION, write_frame_planes
+from .planes import write_frame_planes
 
 log = logging.getLogger("annotate_rgbd")
 
@@ -170,7 +170,7 @@ def _write(run: ExportRun, fmt: str, out: Path, previous: set[str], made: list[P
         record.update(
             complete=True, run=str(run.run_dir.resolve()), trajectory=run.trajectory,
             trajectory_time_offset_s=run.time_offset if run.trajectory else None,
-            conventions={"files": DESCRIPTIONS[fmt], "plane_equation": EQUATION_CONVENTION},
+            conventions={"files": DESCRIPTIONS[fmt], "plane_equation": run.equation_convention},
             frames=len(run.frames), frames_with_pose=sum(f.pose is not None for f in run.frames), files=names,
         )
         write_json(out / RECORD, record)

@@ -18,7 +18,7 @@ import numpy as np
 
 from annotate_rgbd.io.writer import write_json
 from .frames import ExportRun
-from .planes import EQUATION_CONVENTION, plane_paras
+from .planes import plane_paras
 
 CATEGORY = {"id": 1, "name": "plane", "supercategory": "plane"}
 
@@ -58,7 +58,7 @@ def write_coco(run: ExportRun, out: Path) -> list[Path]:
             })
     document = {
         "info": {"description": "annotate-rgbd plane instances", "plane_paras": "[nx, ny, nz, offset]: camera frame, "
-                 "metres, normal away from the camera, normal . X = offset (offset > 0); " + EQUATION_CONVENTION},
+                 "metres, normal away from the camera, normal . X = offset (offset > 0); " + run.equation_convention},
         "images": images, "annotations": annotations, "categories": [CATEGORY],
     }
     path = out / "annotations.json"

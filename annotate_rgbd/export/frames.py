@@ -66,6 +66,32 @@ class ExportFrame:
         return {p.plane: plane_to_world(np.array(p.equation), *self.pose) for p in self.planes if p.equation}
 
 
+def equation_convention(fx: float = 1.0, fy: float = 1.0) -> str:
+    """The plane-equation convention as every export states it (``export.json``, every frame's file).
+
+    The camera frame's axes follow the depth camera's intrinsics: ``x = (col - cx) z / fx`` and
+    ``y = (row - cy) z / fy``, so a negative ``fy`` (ICL-NUIM's) makes y point up, a negative
+    ``fx`` x point left.
+
+    Parameters
+    ----------
+    fx, fy : float
+        The depth camera's focal lengths (px); only their signs matter.
+
+    Returns
+    -------
+    str
+    """
+    axes = f"x {'right' if fx > 0 else 'left'}, y {'down' if fy > 0 else 'up'}, z forward"
+    signs = "" if fx > 0 and fy > 0 else f", as the camera's focal lengths fx = {fx:g}, fy = {fy:g} give"
+    return (
+        "plane equation (a, b, c, d): a x + b y + c z + d = 0, metres, (a, b, c) a unit normal; camera frame = the "
+        f"depth camera's ({axes}{signs}), normal towards the camera, so d > 0 is the camera's distance to "
+        "the plane; world frame = the camera trajectory's, normal R n and offset d - (R n) . t for the "
+        "camera-to-world pose (R, t)"
+    )
+
+
 @dataclass
 class ExportRun:
     """The written frames of a run and where its plane ids come from.
@@ -87,6 +113,12 @@ class ExportRun:
     frames: list[ExportFrame]
     trajectory: str | None = None
     time_offset: float = 0.0
+
+    @property
+    def equation_convention(self) -> str:
+        """The plane-equation convention of this run's camera (:func:`equation_convention`)."""
+        camera = self.report.config.get("camera", {})
+        return equation_convention(float(camera.get("fx", 1.0)), float(camera.get("fy", 1.0)))
 
     @property
     def labels(self) -> dict[int, str]:

@@ -6,6 +6,8 @@ Conventions (also written into every export's ``export.json``):
   frame (x right, y down, z forward, the depth camera's) the normal points towards the camera,
   so ``d > 0`` is the camera's distance to the plane. In the world frame (the trajectory's) the
   same plane: normal ``R n``, offset ``d - (R n) . t`` for the camera-to-world pose ``(R, t)``.
+  The axes follow the intrinsics' signs: with a negative ``fy`` (ICL-NUIM) y points up
+  (:func:`annotate_rgbd.export.frames.equation_convention`).
 - PlaneRCNN (``planes.npy``): one 3-vector per plane, ``normal * offset`` with the plane's
   points ``X`` satisfying ``normal . X = offset``: the foot of the perpendicular from the
   origin, ``-d n`` for our ``(n, d)``; its norm is the plane's distance to the origin. A plane
@@ -23,15 +25,6 @@ import numpy as np
 
 from annotate_rgbd.io.writer import write_json
 from .frames import ExportRun
-
-#: The conventions, as every export states them in its ``export.json``.
-EQUATION_CONVENTION = (
-    "plane equation (a, b, c, d): a x + b y + c z + d = 0, metres, (a, b, c) a unit normal; camera frame = the "
-    "depth camera's (x right, y down, z forward), normal towards the camera, so d > 0 is the camera's distance to "
-    "the plane; world frame = the camera trajectory's, normal R n and offset d - (R n) . t for the "
-    "camera-to-world pose (R, t)"
-)
-
 
 def foot_vector(equation: np.ndarray) -> np.ndarray:
     """PlaneRCNN's plane vector: ``normal * offset`` with ``normal . X = offset``.
@@ -117,7 +110,7 @@ def write_frame_planes(run: ExportRun, out: Path) -> list[Path]:
             "rgb": frame.rgb,
             "depth_timestamp": frame.timestamp,
             "camera_to_world": None if frame.pose is None else _matrix(*frame.pose),
-            "convention": EQUATION_CONVENTION,
+            "convention": run.equation_convention,
             "planes": [
                 {
                     "plane": p.plane,

@@ -456,3 +456,41 @@ def test_world_planes_read_the_trajectory_at_the_runs_time_offset(run, tmp_path,
     assert read_run(tmp_path / "run", other).time_offset == 0.0
     export_run(tmp_path / "run", "planes", tmp_path / "out")
     assert json.loads((tmp_path / "out" / "export.json").read_text())["trajectory_time_offset_s"] == -0.03
+
+
+def test_the_stated_camera_frame_is_the_one_of_the_equations_when_fy_is_negative(tmp_path):
+    # ICL-NUIM's intrinsics have a negative fy: its camera frame's y points up. Every equation
+    # must hold for the mask's pixels back-projected with the run's own intrinsics, and the
+    # export must say y up (a y-down reader would swap floor and ceiling).
+    camera = Camera(fx=262.5, fy=-262.5, cx=159.5, cy=119.5, depth_scale=5000.0)
+    annotation = make_sequence(tmp_path / "sequence", n_frames=2, width=320, height=240, camera=camera, seed=5,
+                               dropped_rgb_frames=())
+    xml = tmp_path / "annotations.xml"
+    write_cvat_video(annotation, xml, width=320, height=240)
+    config = load_config(None, {"camera.fx": 262.5, "camera.fy": -262.5, "camera.cx": 159.5, "camera.cy": 119.5})
+    run_cvat2mask(tmp_path / "sequence", [xml], tmp_path / "run", config)
+    export_run(tmp_path / "run", "planes", tmp_path / "e")
+    record = json.loads((tmp_path / "e" / "export.json").read_text())
+    assert "y up" in record["conventions"]["plane_equation"] and "y down" not in record["conventions"]["plane_equation"]
+    checked = 0
+    for path in sorted((tmp_path / "e" / "frames").iterdir()):
+        entry = json.loads(path.read_text())
+        assert "y up" in entry["convention"]
+        ids = mask_ids(tmp_path / "run", entry["frame"])
+        depth = cv2.imread(str(tmp_path / "sequence" / entry["depth"]), cv2.IMREAD_UNCHANGED) / 5000.0
+        for plane in entry["planes"]:
+            rows, cols = np.nonzero(ids == plane["plane"])
+            z = depth[rows, cols]
+            points = np.stack([(cols - 159.5) * z / 262.5, (rows - 119.5) * z / -262.5, z], axis=1)
+            a, b, c, d = plane["camera"]
+            assert np.median(np.abs(points @ [a, b, c] + d)) < 0.01
+            checked += 1
+    assert checked >= 4
+
+
+def test_the_stated_camera_frame_follows_the_focal_lengths_signs():
+    from annotate_rgbd.export.frames import equation_convention
+
+    assert "x right, y down, z forward)" in equation_convention(517.3, 516.5)
+    assert "x right, y up, z forward, as the camera's focal lengths fx = 481.2, fy = -480 give" in equation_convention(481.2, -480.0)
+    assert "x left, y down" in equation_convention(-500.0, 500.0)
