@@ -150,3 +150,24 @@ def test_frames_without_an_rgb_frame_are_one_warning_and_none_matched_is_an_erro
     with pytest.raises(InputError) as error:
         unmatched_frames(root, files, diff, matched, 0.02, np.array([1, 2]), "of the 2 that --every 5 picks")
     assert str(error.value).startswith("seq: no depth frame of the 2 that --every 5 picks has an RGB frame within 0.02 s")
+
+
+def test_a_damaged_png_is_one_error_and_libpng_prints_nothing(tmp_path, capfd):
+    # Bytes overwritten inside a depth PNG (a bad disk, a broken copy): its chunk's checksum
+    # fails. Refused naming the file and the chunk, without the decoder's own "libpng error" line.
+    depth = (np.arange(48 * 64, dtype=np.uint16).reshape(48, 64) * 7)
+    whole = bytearray(cv2.imencode(".png", depth)[1].tobytes())
+    start = whole.index(b"IDAT") + 20
+    whole[start : start + 10] = bytes(10)
+    (tmp_path / "damaged.png").write_bytes(bytes(whole))
+    with pytest.raises(InputError, match=r"damaged.png: not a readable image \(corrupt PNG: its IDAT chunk fails"):
+        read_depth(tmp_path / "damaged.png")
+    assert capfd.readouterr().err == ""
+    # The same bytes undamaged decode as before; a damaged ancillary chunk is named too.
+    good = bytearray(cv2.imencode(".png", depth)[1].tobytes())
+    (tmp_path / "good.png").write_bytes(bytes(good))
+    assert np.array_equal(read_depth(tmp_path / "good.png"), depth)
+    good[good.index(b"IHDR") + 20 : good.index(b"IHDR") + 21] = b"\xff"  # the IHDR CRC itself
+    (tmp_path / "header.png").write_bytes(bytes(good))
+    with pytest.raises(InputError, match="header.png: not a readable image"):
+        read_depth(tmp_path / "header.png")
