@@ -32,6 +32,7 @@ from annotate_rgbd.report.palette import plane_colours
 from .part_overlap import part_pair_iou
 from .propagation import Propagation, plan_propagation, propagation_warnings
 from annotate_rgbd.annotation.parts import Part, frame_owners, place_parts
+from annotate_rgbd.propagate import DISAGREE_BELOW
 from annotate_rgbd.propagate.carry import carried_layers, keyframe_agreement
 from annotate_rgbd.propagate.keyframes import keyframe_frames
 from annotate_rgbd.report.records import NO_RGB_FRAME, OUTSIDE_ANNOTATION, RGB_NOT_ANNOTATED, FrameRecord
@@ -310,8 +311,9 @@ def _frame_shapes(
     each of those (its nearest keyframe's plane, in the depth frame's camera frame; none for a
     track whose keyframes disagree about its plane), and
     ``(position, plane id, z_order, layers, beyond)`` of each: what its keyframes say about it
-    (:func:`annotate_rgbd.propagate.carry.carried_layers`), to go among the shapes at
-    ``position``, and how much the keyframes on either side agree about each of those planes
+    (:func:`annotate_rgbd.propagate.carry.carried_layers`; every outline over every exclusion
+    where the keyframes on either side disagree, :data:`annotate_rgbd.propagate.DISAGREE_BELOW`),
+    to go among the shapes at ``position``, and how much the keyframes on either side agree about each of those planes
     (plane id -> agreement, :func:`annotate_rgbd.propagate.carry.keyframe_agreement`; planes with
     keyframes on one side only left out)."""
     shapes, propagated, expected, carried, agreement = [], set(), [], [], {}
@@ -327,12 +329,13 @@ def _frame_shapes(
             shapes.append((plane, track.shapes[frame]))
             continue
         pose = (propagation.depth_poses.rotations[depth], propagation.depth_poses.translations[depth])
-        layers, beyond = carried_layers(lift, frame, config, pose)
+        agree = keyframe_agreement(lift, frame, config, pose, part.annotation.image_size.get(frame))
+        disagree = agree is not None and agree < DISAGREE_BELOW
+        layers, beyond = carried_layers(lift, frame, config, pose, disagree)
         nearest = min(lift.keyframes, key=lambda k: (abs(k.frame - frame), k.frame))
         if layers or beyond:
             carried.append((len(shapes), plane, nearest.z_order, layers, beyond))
         propagated.add(plane)
-        agree = keyframe_agreement(lift, frame, config, pose, part.annotation.image_size.get(frame))
         if agree is not None:
             agreement[plane] = round(agree, 3)
         if lift.consistent:

@@ -13,6 +13,7 @@ from collections import Counter
 from collections.abc import Mapping
 from typing import TYPE_CHECKING
 
+from annotate_rgbd.propagate import DISAGREE_BELOW
 from .records import RunRecord, RunSummary, summarize
 
 if TYPE_CHECKING:  # stats imports no configuration (it pulls in OpenCV): `stats` runs in 1 GB
@@ -22,13 +23,6 @@ if TYPE_CHECKING:  # stats imports no configuration (it pulls in OpenCV): `stats
 #: (:data:`annotate_rgbd.segment.filters.NOT_WHERE_EXPECTED`; not imported: ``stats`` loads no
 #: image library).
 NOT_WHERE_EXPECTED = "not_where_expected"
-#: A plane carried between two keyframes is listed to check when those keyframes' agreement on
-#: the frame (``keyframes_agree``) is below this: they share less of what both saw of the plane
-#: than they disagree on (about: the agreement counts a few pixels more as agreeing). On TUM
-#: fr1_rpy at a keyframe every 10th frame (docs/propagation.md) 12 % of the carried planes fall
-#: below it, holding 62 % of those that lose more than 0.15 IoU against a labeller's polygon on
-#: every frame; the list is worst first.
-DISAGREE_BELOW = 0.5
 
 
 def run_stats(report: RunRecord) -> dict:

@@ -137,3 +137,25 @@ def test_agreement_needs_a_keyframe_on_each_side_and_a_region_both_saw():
     # The later keyframe saw none of what either outlines (its camera far to the side).
     aside = (np.eye(3), np.array([50.0, 0.0, 0.0]))
     assert keyframe_agreement(_lift(before, replace(after, view=(*aside, SIZE))), 5, CONFIG, IDENTITY, SIZE) is None
+
+
+def test_where_the_keyframes_disagree_every_outline_goes_over_every_exclusion():
+    # Keyframe 0 (nearer to frame 4) outlined columns 40-200 and left out 200-300 as touching
+    # the plane; keyframe 10 outlined 120-280. Normally the nearer keyframe decides 200-280 (left
+    # out); where the two disagree, what any of them outlined is the plane's and only 280-300,
+    # which no outline holds, stays left out.
+    from annotate_rgbd.propagate.carry import carried_layers
+    from annotate_rgbd.segment.rasterize import paint_layers
+
+    near = LiftedKeyframe(0, _on_plane(40, 200, 40, 160), PLANE, 0, excluded=(_on_plane(200, 300, 40, 160),),
+                          view=(*IDENTITY, SIZE))
+    far = LiftedKeyframe(10, _on_plane(120, 280, 40, 160), PLANE, 0, view=(*IDENTITY, SIZE))
+    painted = {}
+    for disagree in (False, True):
+        layers, beyond = carried_layers(_lift(near, far), 4, CONFIG, IDENTITY, disagree)
+        assert beyond == ()
+        inside, excluded = paint_layers(layers, SIZE[1], SIZE[0])
+        painted[disagree] = (inside.astype(np.int8) - excluded)[100]  # one row inside every rectangle
+    assert (painted[False][50:199] == 1).all() and (painted[False][201:299] == -1).all()
+    assert (painted[True][50:279] == 1).all() and (painted[True][281:299] == -1).all()
+    assert (painted[True][:39] == 0).all() and (painted[True][301:] == 0).all()
