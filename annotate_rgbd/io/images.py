@@ -117,9 +117,9 @@ def decode_image(data: np.ndarray, path: Path, flags: int) -> np.ndarray:
 
     A PNG's size is read from its header first (:func:`png_size`): one larger than
     ``MAX_IMAGE_PIXELS`` is refused before anything is allocated; a PNG without its closing
-    ``IEND`` chunk (a file cut short by a copy or a full disk), or with a chunk whose checksum
-    fails (bytes overwritten: :func:`png_damaged_chunk`), is refused without decoding, where
-    libpng would print a line of its own.
+    ``IEND`` chunk (a file cut short by a copy or a full disk), or whose pixel chunks fail their
+    checksum (bytes overwritten: :func:`png_chunk_check`), is refused without decoding, where
+    libpng would print a line of its own; metadata chunks that fail theirs are left out.
 
     Raises
     ------
@@ -136,10 +136,14 @@ def decode_image(data: np.ndarray, path: Path, flags: int) -> np.ndarray:
         if b"IEND" not in data[-PNG_END_SEARCH:].tobytes() and b"IEND" not in data.tobytes():
             raise InputError(path, "not a readable image (truncated PNG: its closing IEND chunk is missing, "
                                    "the file was cut short)")
-        damaged = png_damaged_chunk(data)
-        if damaged:
-            raise InputError(path, f"not a readable image (corrupt PNG: its {damaged} chunk fails its checksum, "
-                                   "the file was damaged)")
+        problem, metadata = png_chunk_check(data)
+        if problem:
+            raise InputError(path, f"not a readable image (corrupt PNG: {problem}, the file was damaged)")
+        if metadata:  # no pixel in them: left out, as libpng would, without its warning line
+            keep = np.ones(data.size, dtype=bool)
+            for start, stop in metadata:
+                keep[start:stop] = False
+            data = data[keep]
     try:
         image = cv2.imdecode(data, flags) if data.size else None
     except cv2.error:  # e.g. beyond OpenCV's own size limit in a format whose header is not read here
@@ -149,12 +153,14 @@ def decode_image(data: np.ndarray, path: Path, flags: int) -> np.ndarray:
     return image
 
 
-def png_damaged_chunk(data: np.ndarray) -> str | None:
-    """The type of the first chunk of a PNG whose CRC does not match its bytes, None when every
-    chunk up to ``IEND`` (or the data's end) checks.
+def png_chunk_check(data: np.ndarray) -> tuple[str | None, list[tuple[int, int]]]:
+    """Check a PNG's chunks (length, type, data, CRC-32 of type and data) up to ``IEND``.
 
-    A walk over the chunks (length, type, data, CRC-32 of type and data), about 1 % of the
-    decoding's time. A chunk running past the data's end is left to the caller's truncation test.
+    A walk over the chunks, about 1 % of the decoding's time. A critical chunk (its type's first
+    letter upper case: ``IHDR``, ``PLTE``, ``IDAT``, ``IEND``) that fails its checksum, a chunk
+    whose type is not four letters or whose length runs past the data's end make the file
+    unreadable; a metadata chunk (``tEXt``, ``pHYs``, ...) that fails its checksum holds no pixel
+    and is only to be left out (libpng would skip it, printing a warning of its own).
 
     Parameters
     ----------
@@ -163,23 +169,30 @@ def png_damaged_chunk(data: np.ndarray) -> str | None:
 
     Returns
     -------
-    str or None
-        The chunk's type (``IDAT``, ...), printable.
+    problem : str or None
+        What makes the file unreadable, as a phrase for a message; None when nothing does.
+    metadata : list of (int, int)
+        ``(start, stop)`` byte ranges of the metadata chunks that fail their checksum.
     """
     view = memoryview(np.ascontiguousarray(data)).cast("B")
-    position = len(PNG_SIGNATURE)
+    position, metadata = len(PNG_SIGNATURE), []
     while position + 12 <= len(view):
         length = struct.unpack(">I", view[position : position + 4])[0]
+        kind = bytes(view[position + 4 : position + 8])
+        if not kind.isalpha():  # ASCII letters only
+            return "a chunk's type is not a PNG chunk type (its header was overwritten)", metadata
+        name = kind.decode("ascii")
         end = position + 8 + length
         if end + 4 > len(view):
-            return None
-        stored = struct.unpack(">I", view[end : end + 4])[0]
-        if zlib.crc32(view[position + 4 : end]) != stored:
-            return bytes(view[position + 4 : position + 8]).decode("ascii", "replace")
-        if bytes(view[position + 4 : position + 8]) == b"IEND":
-            return None
+            return f"its {name} chunk's length runs past the end of the file", metadata
+        if zlib.crc32(view[position + 4 : end]) != struct.unpack(">I", view[end : end + 4])[0]:
+            if name[0].isupper():
+                return f"its {name} chunk fails its checksum", metadata
+            metadata.append((position, end + 4))
+        if kind == b"IEND":
+            break
         position = end + 4
-    return None
+    return None, metadata
 
 
 def png_size(data: np.ndarray | bytes, path: Path) -> tuple[int, int]:

@@ -152,22 +152,43 @@ def test_frames_without_an_rgb_frame_are_one_warning_and_none_matched_is_an_erro
     assert str(error.value).startswith("seq: no depth frame of the 2 that --every 5 picks has an RGB frame within 0.02 s")
 
 
+def _chunk(kind: bytes, payload: bytes, crc_offset: int = 0) -> bytes:
+    """One PNG chunk, its CRC off by ``crc_offset``."""
+    import struct
+    import zlib
+
+    return struct.pack(">I", len(payload)) + kind + payload + struct.pack(">I", (zlib.crc32(kind + payload) + crc_offset) % 2**32)
+
+
 def test_a_damaged_png_is_one_error_and_libpng_prints_nothing(tmp_path, capfd):
-    # Bytes overwritten inside a depth PNG (a bad disk, a broken copy): its chunk's checksum
+    # Bytes overwritten inside a depth PNG (a bad disk, a broken copy): a pixel chunk's checksum
     # fails. Refused naming the file and the chunk, without the decoder's own "libpng error" line.
     depth = (np.arange(48 * 64, dtype=np.uint16).reshape(48, 64) * 7)
-    whole = bytearray(cv2.imencode(".png", depth)[1].tobytes())
-    start = whole.index(b"IDAT") + 20
-    whole[start : start + 10] = bytes(10)
-    (tmp_path / "damaged.png").write_bytes(bytes(whole))
-    with pytest.raises(InputError, match=r"damaged.png: not a readable image \(corrupt PNG: its IDAT chunk fails"):
+    whole = cv2.imencode(".png", depth)[1].tobytes()
+    idat = whole.index(b"IDAT") - 4
+    damaged = bytearray(whole)
+    damaged[idat + 28 : idat + 38] = bytes(10)
+    (tmp_path / "damaged.png").write_bytes(bytes(damaged))
+    with pytest.raises(InputError, match=r"damaged.png: not a readable image \(corrupt PNG: its IDAT chunk fails its checksum"):
         read_depth(tmp_path / "damaged.png")
+    # A chunk type overwritten with control bytes: said without them.
+    damaged = bytearray(whole)
+    damaged[idat + 4 : idat + 8] = b"\x00\n\x1b["
+    (tmp_path / "type.png").write_bytes(bytes(damaged))
+    with pytest.raises(InputError, match=r"type.png: .*a chunk's type is not a PNG chunk type") as raised:
+        read_depth(tmp_path / "type.png")
+    assert str(raised.value).isprintable()
+    # A length field overwritten to run past the end, IEND still there.
+    damaged = bytearray(whole)
+    damaged[idat : idat + 4] = b"\x7f\xff\xff\xff"
+    (tmp_path / "length.png").write_bytes(bytes(damaged))
+    with pytest.raises(InputError, match=r"length.png: .*its IDAT chunk's length runs past the end"):
+        read_depth(tmp_path / "length.png")
     assert capfd.readouterr().err == ""
-    # The same bytes undamaged decode as before; a damaged ancillary chunk is named too.
-    good = bytearray(cv2.imencode(".png", depth)[1].tobytes())
-    (tmp_path / "good.png").write_bytes(bytes(good))
-    assert np.array_equal(read_depth(tmp_path / "good.png"), depth)
-    good[good.index(b"IHDR") + 20 : good.index(b"IHDR") + 21] = b"\xff"  # the IHDR CRC itself
-    (tmp_path / "header.png").write_bytes(bytes(good))
-    with pytest.raises(InputError, match="header.png: not a readable image"):
-        read_depth(tmp_path / "header.png")
+    # A metadata chunk (no pixels) failing its checksum is left out: the image reads as it is,
+    # and libpng's warning line is not printed either. One with a good checksum changes nothing.
+    for crc_offset in (1, 0):
+        text = whole[:idat] + _chunk(b"tEXt", b"Comment\x00made by a test", crc_offset) + whole[idat:]
+        (tmp_path / "text.png").write_bytes(text)
+        assert np.array_equal(read_depth(tmp_path / "text.png"), depth)
+    assert capfd.readouterr().err == ""
