@@ -222,7 +222,8 @@ class PropagateConfig:
         in proportion (1e-5 s took a gigabyte on 120 frames) and finds nothing more.
     keyframes_each_side : int
         A frame between keyframes gets what the nearest this many keyframes before it and after
-        it say about each plane (the nearest one that saw a pixel decides it): each outlines the
+        it say about each plane (the nearest one that saw a pixel decides it, but where the two
+        nearest disagree every outline counts: :func:`annotate_rgbd.propagate.carry.carried_layers`): each outlines the
         part of the plane in view when it was drawn, and farther ones add only what the nearer
         ones did not see. On benchmarks/bench_propagate.py's walk ... (measured in the README).
     exclude : bool

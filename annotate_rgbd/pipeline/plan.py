@@ -330,6 +330,7 @@ def _frame_shapes(
             continue
         pose = (propagation.depth_poses.rotations[depth], propagation.depth_poses.translations[depth])
         agree = keyframe_agreement(lift, frame, config, pose, part.annotation.image_size.get(frame))
+        agree = None if agree is None else round(agree, 3)  # as recorded: what stats lists is what was repainted
         disagree = agree is not None and agree < DISAGREE_BELOW
         layers, beyond = carried_layers(lift, frame, config, pose, disagree)
         nearest = min(lift.keyframes, key=lambda k: (abs(k.frame - frame), k.frame))
@@ -337,7 +338,7 @@ def _frame_shapes(
             carried.append((len(shapes), plane, nearest.z_order, layers, beyond))
         propagated.add(plane)
         if agree is not None:
-            agreement[plane] = round(agree, 3)
+            agreement[plane] = agree
         if lift.consistent:
             # A track whose keyframes disagree about its plane (listed for review) says no plane
             # to hold the frame's fit to: the frame's own depth decides.

@@ -159,3 +159,33 @@ def test_where_the_keyframes_disagree_every_outline_goes_over_every_exclusion():
     assert (painted[False][50:199] == 1).all() and (painted[False][201:299] == -1).all()
     assert (painted[True][50:279] == 1).all() and (painted[True][281:299] == -1).all()
     assert (painted[True][:39] == 0).all() and (painted[True][301:] == 0).all()
+
+
+def test_the_plan_carries_with_every_outline_only_where_the_keyframes_disagree():
+    # The frame's shapes as the plan makes them (pipeline.plan._frame_shapes): keyframes 0 and 10
+    # drawn, frame 4 carried. Outlines 40-200 and 120-280 (agreement about 0.5 on what both saw)
+    # disagree; 40-200 and 50-210 agree. Only the first pair is painted with every outline last.
+    from types import SimpleNamespace
+
+    from annotate_rgbd.annotation.model import Shape, Track
+    from annotate_rgbd.pipeline.plan import _frame_shapes
+    from annotate_rgbd.propagate import DISAGREE_BELOW
+    from annotate_rgbd.propagate.carry import carried_layers
+
+    excluded = (_on_plane(200, 300, 40, 160),)
+    for far_columns, disagree in (((120, 280), True), ((50, 210), False)):
+        near = LiftedKeyframe(0, _on_plane(40, 200, 40, 160), PLANE, 0, excluded=excluded, view=(*IDENTITY, SIZE))
+        far = LiftedKeyframe(10, _on_plane(*far_columns, 40, 160), PLANE, 0, view=(*IDENTITY, SIZE))
+        lift = _lift(near, far)
+        square = Shape("polygon", np.array([[0.0, 0.0], [10.0, 0.0], [10.0, 10.0]]))
+        track = Track(2, "plane", shapes={f: square for f in range(11)}, keyframes=frozenset({0, 10}))
+        part = SimpleNamespace(name="a.xml", annotation=SimpleNamespace(tracks=[track], image_size={4: SIZE}))
+        poses = SimpleNamespace(ok=np.ones(1, dtype=bool), rotations=np.eye(3)[None], translations=np.zeros((1, 3)))
+        propagation = SimpleNamespace(lifts={("a.xml", 2): lift}, depth_poses=poses)
+        _, propagated, _, carried, agreement = _frame_shapes(part, 4, {("a.xml", 2): 7}, propagation, CONFIG, 0)
+        assert propagated == {7} and (agreement[7] < DISAGREE_BELOW) == disagree
+        (_, plane, _, layers, _), = carried
+        expected, _ = carried_layers(lift, 4, CONFIG, IDENTITY, disagree)
+        other, _ = carried_layers(lift, 4, CONFIG, IDENTITY, not disagree)
+        signs = [sign for sign, _ in layers]
+        assert plane == 7 and signs == [sign for sign, _ in expected] != [sign for sign, _ in other]
