@@ -35,6 +35,27 @@ def _load_config(sequence_dir: Path, config: Optional[str], overrides: dict):
     return load_run_config(sequence_dir, config, overrides)
 
 
+def _share_of_image(value: Optional[float]) -> Optional[float]:
+    """``--min-area``: a share of the image in (0, 1] (NaN passes a range check of its own)."""
+    if value is not None and not 0 < value <= 1:
+        raise typer.BadParameter(f"must be a share of the image in (0, 1], not {value:g}")
+    return value
+
+
+def _finite_pixels(value: Optional[float]) -> Optional[float]:
+    """``--tolerance``: a finite distance in pixels (the option's range lets NaN and infinity through)."""
+    if value is not None and not (value >= 0 and value != float("inf")):
+        raise typer.BadParameter(f"must be a finite distance in pixels >= 0, not {value:g}")
+    return value
+
+
+def _vertex_budget(value: Optional[int]) -> Optional[int]:
+    """``--max-vertices``: 0 (no budget) or at least the 3 vertices a polygon needs."""
+    if value is not None and 0 < value < 3:
+        raise typer.BadParameter(f"a polygon needs at least 3 vertices, not {value} (0: no budget)")
+    return value
+
+
 def _version(value: bool) -> None:
     if value:
         typer.echo(f"annotate-rgbd {__version__}")
@@ -390,7 +411,7 @@ def propose(
         None, "--label", metavar="LABEL", help="CVAT label of the proposed tracks; default: [propose] label."
     ),
     min_area: Optional[float] = typer.Option(
-        None, "--min-area", metavar="SHARE",
+        None, "--min-area", metavar="SHARE", callback=_share_of_image,
         help="Smallest plane proposed, as a share of the image, in (0, 1]; default: [detect] min_area_fraction.",
     ),
     set_: List[str] = typer.Option([], "--set", metavar="SECTION.KEY=VALUE", help="Override any configuration key: SECTION.KEY=VALUE."),
@@ -398,8 +419,6 @@ def propose(
     """Detect planes on the depth frames and write them as CVAT polygon tracks to correct."""
     with user_errors():
         out = Path(out)  # never empty (CheckedCommand); the options first, before any work
-        if min_area is not None and not 0 < min_area <= 1:  # NaN too
-            raise InputError(None, f"--min-area must be a share of the image in (0, 1], not {min_area:g}")
         from annotate_rgbd.pool import default_workers, prepare_helpers, reuse_freed_memory
 
         workers = jobs or default_workers()
@@ -440,11 +459,11 @@ def export_cvat_command(
     xml: Optional[str] = typer.Argument(None, metavar="FILE.xml", help="The CVAT for video 1.1 XML file to write."),
     xml_option: Optional[str] = typer.Option(None, "--out", "-o", metavar="FILE.xml", help="The same as FILE.xml."),
     tolerance: Optional[float] = typer.Option(
-        None, "--tolerance", min=0.0, metavar="PX",
+        None, "--tolerance", min=0.0, metavar="PX", callback=_finite_pixels,
         help="Largest distance of a polygon from its mask's outline, pixels (default 0.5).",
     ),
     max_vertices: Optional[int] = typer.Option(
-        None, "--max-vertices", min=0, metavar="N", help="Vertex budget of each polygon, 0: none (default 200).",
+        None, "--max-vertices", min=0, metavar="N", callback=_vertex_budget, help="Vertex budget of each polygon, 0: none (default 200).",
     ),
     jobs: Optional[int] = typer.Option(None, "--jobs", "-j", min=1, metavar="N", help="Worker processes (default: all cores)."),
 ) -> None:

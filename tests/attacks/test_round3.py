@@ -719,8 +719,19 @@ def test_a_problem_many_frames_share_is_said_once(tmp_path):
 def test_export_with_a_tolerance_that_is_no_distance_is_one_line(finished, tolerance):
     target = finished.root / "r.xml"
     result = invoke("export-cvat", finished.out, target, "--tolerance", tolerance, "--jobs", "1")
-    assert result.exit_code == 1
-    assert error_line(result) == f"error: --tolerance must be a finite distance in pixels >= 0, not {tolerance}"
+    assert result.exit_code == 2  # a value out of the option's range, as click's own range checks say
+    assert error_line(result).startswith(f"error: Invalid value for '--tolerance': must be a finite distance in pixels "
+                                         f">= 0, not {tolerance} (see ")
+    assert not target.exists()
+
+
+@pytest.mark.parametrize("budget", ["1", "2"])
+def test_export_with_a_vertex_budget_under_a_triangle_is_one_line_and_status_2(finished, budget):
+    target = finished.root / "r.xml"
+    result = invoke("export-cvat", finished.out, target, "--max-vertices", budget, "--jobs", "1")
+    assert result.exit_code == 2
+    assert error_line(result).startswith(f"error: Invalid value for '--max-vertices': a polygon needs at least 3 "
+                                         f"vertices, not {budget} (0: no budget) (see ")
     assert not target.exists()
 
 
@@ -729,8 +740,9 @@ def test_propose_min_area_outside_its_range_is_one_line_and_the_help_says_the_ra
     # The help said [0.0<=x<=1.0] while 0 was refused; NaN passed the option's own range check.
     result = invoke("propose", SAMPLE / "sequence", "-c", SAMPLE / "camera.toml", "-o", tmp_path / "out",
                     "--min-area", share)
-    assert result.exit_code == 1
-    assert error_line(result) == f"error: --min-area must be a share of the image in (0, 1], not {share}"
+    assert result.exit_code == 2  # out of the option's range, as --every 0 is
+    assert error_line(result).startswith(f"error: Invalid value for '--min-area': must be a share of the image in "
+                                         f"(0, 1], not {share} (see ")
     assert not (tmp_path / "out").exists()
     help_text = " ".join(invoke("propose", "--help").output.split())  # as wrapped for any width
     assert "as a share of the image, in (0, 1]" in help_text and "0.0<=x<=1.0" not in help_text
