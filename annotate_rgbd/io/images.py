@@ -29,6 +29,12 @@ PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 #: A PNG ends with its IEND chunk (12 bytes), looked for in this many last bytes first (a few
 #: writers append bytes after it, which decoders ignore), then in the whole file.
 PNG_END_SEARCH = 64
+#: PNG chunks that hold no pixel and choose none (text, time, physical size, colour space and
+#: palette hints, ISO 15948 and its extensions): one failing its checksum is left out, not refused.
+PNG_METADATA_CHUNKS = frozenset({
+    b"tEXt", b"zTXt", b"iTXt", b"tIME", b"pHYs", b"gAMA", b"cHRM", b"sRGB", b"iCCP", b"sBIT", b"bKGD",
+    b"hIST", b"sPLT", b"eXIf", b"cICP", b"oFFs", b"pCAL", b"sCAL",
+})
 #: A 16-bit depth value read as "no depth": the largest one. 7-Scenes marks invalid depth with it;
 #: as a measurement it would be 65.5 m in millimetres, 13.1 m at TUM's 1/5000 m, beyond every
 #: RGB-D sensor, so no dataset loses a real reading by it.
@@ -138,7 +144,7 @@ def decode_image(data: np.ndarray, path: Path, flags: int) -> np.ndarray:
                                    "the file was cut short)")
         problem, metadata = png_chunk_check(data)
         if problem:
-            raise InputError(path, f"not a readable image (corrupt PNG: {problem}, the file was damaged)")
+            raise InputError(path, f"not a readable image ({problem})")
         if metadata:  # no pixel in them: left out, as libpng would, without its warning line
             keep = np.ones(data.size, dtype=bool)
             for start, stop in metadata:
@@ -156,11 +162,13 @@ def decode_image(data: np.ndarray, path: Path, flags: int) -> np.ndarray:
 def png_chunk_check(data: np.ndarray) -> tuple[str | None, list[tuple[int, int]]]:
     """Check a PNG's chunks (length, type, data, CRC-32 of type and data) up to ``IEND``.
 
-    A walk over the chunks, about 1 % of the decoding's time. A critical chunk (its type's first
-    letter upper case: ``IHDR``, ``PLTE``, ``IDAT``, ``IEND``) that fails its checksum, a chunk
-    whose type is not four letters or whose length runs past the data's end make the file
-    unreadable; a metadata chunk (``tEXt``, ``pHYs``, ...) that fails its checksum holds no pixel
-    and is only to be left out (libpng would skip it, printing a warning of its own).
+    A walk over the chunks, a few per cent of the decoding's time. A chunk that fails its
+    checksum makes the file unreadable, unless it is one of :data:`PNG_METADATA_CHUNKS`, which
+    hold no pixel and are only to be left out (libpng would skip it, printing a warning of its
+    own): the type's letter case cannot tell, since a damaged type (``IDAT`` read as ``iDAT``) is
+    what fails, and an animated PNG's ``fcTL`` and ``fdAT`` choose and hold a frame's pixels. So do
+    a chunk whose type is not four letters, one whose length runs past the data's end, and data
+    that ends before ``IEND``.
 
     Parameters
     ----------
@@ -170,7 +178,8 @@ def png_chunk_check(data: np.ndarray) -> tuple[str | None, list[tuple[int, int]]
     Returns
     -------
     problem : str or None
-        What makes the file unreadable, as a phrase for a message; None when nothing does.
+        What makes the file unreadable, as words for a message (``corrupt PNG: ...``,
+        ``truncated PNG: ...``); None when nothing does.
     metadata : list of (int, int)
         ``(start, stop)`` byte ranges of the metadata chunks that fail their checksum.
     """
@@ -180,19 +189,19 @@ def png_chunk_check(data: np.ndarray) -> tuple[str | None, list[tuple[int, int]]
         length = struct.unpack(">I", view[position : position + 4])[0]
         kind = bytes(view[position + 4 : position + 8])
         if not kind.isalpha():  # ASCII letters only
-            return "a chunk's type is not a PNG chunk type (its header was overwritten)", metadata
+            return "corrupt PNG: a chunk's type is not a PNG chunk type, its header was overwritten", metadata
         name = kind.decode("ascii")
         end = position + 8 + length
         if end + 4 > len(view):
-            return f"its {name} chunk's length runs past the end of the file", metadata
+            return f"corrupt PNG: its {name} chunk's length runs past the end of the file, the file was damaged", metadata
         if zlib.crc32(view[position + 4 : end]) != struct.unpack(">I", view[end : end + 4])[0]:
-            if name[0].isupper():
-                return f"its {name} chunk fails its checksum", metadata
+            if kind not in PNG_METADATA_CHUNKS:
+                return f"corrupt PNG: its {name} chunk fails its checksum, the file was damaged", metadata
             metadata.append((position, end + 4))
         if kind == b"IEND":
-            break
+            return None, metadata
         position = end + 4
-    return None, metadata
+    return "truncated PNG: it ends inside a chunk, before its closing IEND chunk, the file was cut short", metadata
 
 
 def png_size(data: np.ndarray | bytes, path: Path) -> tuple[int, int]:

@@ -178,6 +178,18 @@ def test_a_damaged_png_is_one_error_and_libpng_prints_nothing(tmp_path, capfd):
     with pytest.raises(InputError, match=r"type.png: .*a chunk's type is not a PNG chunk type") as raised:
         read_depth(tmp_path / "type.png")
     assert str(raised.value).isprintable()
+    # One bit of a pixel chunk's type flipped (IDAT read as iDAT): its checksum fails, and it is
+    # not taken for metadata to leave out.
+    damaged = bytearray(whole)
+    damaged[idat + 4] ^= 0x20
+    (tmp_path / "case.png").write_bytes(bytes(damaged))
+    with pytest.raises(InputError, match=r"case.png: not a readable image \(corrupt PNG: its iDAT chunk fails its checksum"):
+        read_depth(tmp_path / "case.png")
+    # Cut inside the closing IEND chunk's checksum (its type still there).
+    for cut in (1, 4):
+        (tmp_path / "end.png").write_bytes(whole[:-cut])
+        with pytest.raises(InputError, match=r"end.png: not a readable image \(truncated PNG"):
+            read_depth(tmp_path / "end.png")
     # A length field overwritten to run past the end, IEND still there.
     damaged = bytearray(whole)
     damaged[idat : idat + 4] = b"\x7f\xff\xff\xff"
