@@ -49,10 +49,17 @@ def _finite_pixels(value: Optional[float]) -> Optional[float]:
     return value
 
 
+def _finite_seconds(value: float) -> float:
+    """``--job-timeout``: finite seconds (the option's range lets NaN and infinity through)."""
+    if not (value >= 1 and value != float("inf")):
+        raise typer.BadParameter(f"must be a finite number of seconds >= 1, not {value:g}")
+    return value
+
+
 def _vertex_budget(value: Optional[int]) -> Optional[int]:
     """``--max-vertices``: 0 (no budget) or at least the 3 vertices a polygon needs."""
-    if value is not None and 0 < value < 3:
-        raise typer.BadParameter(f"a polygon needs at least 3 vertices, not {value} (0: no budget)")
+    if value is not None and (value < 0 or 0 < value < 3):
+        raise typer.BadParameter(f"must be 0 (no budget) or at least a polygon's 3 vertices, not {value}")
     return value
 
 
@@ -100,7 +107,7 @@ def cvat2mask(
         False, "--instance-ids", help="Also write masks_id/: plane ids as pixel values (8/16-bit, as in planes.csv)."
     ),
     job_timeout: float = typer.Option(
-        STALL_TIMEOUT, "--job-timeout", min=1.0, metavar="SECONDS", help="Seconds without a frame finished by the helpers before they are replaced."
+        STALL_TIMEOUT, "--job-timeout", min=1.0, metavar="SECONDS", callback=_finite_seconds, help="Seconds without a frame finished by the helpers before they are replaced."
     ),
     poses: Optional[Path] = typer.Option(
         None, "--poses", metavar="FILE|DIR",
@@ -163,7 +170,7 @@ def batch(
     jobs: Optional[int] = typer.Option(None, "--jobs", "-j", min=1, metavar="N", help="Worker processes (default: the manifest's jobs, else all cores)."),
     force: bool = typer.Option(False, "--force", help="Redo every frame, even those unchanged since the last run."),
     job_timeout: float = typer.Option(
-        STALL_TIMEOUT, "--job-timeout", min=1.0, metavar="SECONDS", help="Seconds without a frame finished by the helpers before they are replaced."
+        STALL_TIMEOUT, "--job-timeout", min=1.0, metavar="SECONDS", callback=_finite_seconds, help="Seconds without a frame finished by the helpers before they are replaced."
     ),
     shard: Optional[str] = typer.Option(
         None, "--shard", metavar="K/N", help="Run only the K-th of N disjoint shards of the scenes (by a hash of their names)."
@@ -463,7 +470,8 @@ def export_cvat_command(
         help="Largest distance of a polygon from its mask's outline, pixels (default 0.5).",
     ),
     max_vertices: Optional[int] = typer.Option(
-        None, "--max-vertices", min=0, metavar="N", callback=_vertex_budget, help="Vertex budget of each polygon, 0: none (default 200).",
+        None, "--max-vertices", metavar="N", callback=_vertex_budget,
+        help="Vertex budget of each polygon: 0 for none, else at least 3 (default 200).",
     ),
     jobs: Optional[int] = typer.Option(None, "--jobs", "-j", min=1, metavar="N", help="Worker processes (default: all cores)."),
 ) -> None:

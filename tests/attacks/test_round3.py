@@ -725,14 +725,28 @@ def test_export_with_a_tolerance_that_is_no_distance_is_one_line(finished, toler
     assert not target.exists()
 
 
-@pytest.mark.parametrize("budget", ["1", "2"])
+@pytest.mark.parametrize("budget", ["1", "2", "-1"])
 def test_export_with_a_vertex_budget_under_a_triangle_is_one_line_and_status_2(finished, budget):
     target = finished.root / "r.xml"
     result = invoke("export-cvat", finished.out, target, "--max-vertices", budget, "--jobs", "1")
     assert result.exit_code == 2
-    assert error_line(result).startswith(f"error: Invalid value for '--max-vertices': a polygon needs at least 3 "
-                                         f"vertices, not {budget} (0: no budget) (see ")
+    assert error_line(result).startswith(f"error: Invalid value for '--max-vertices': must be 0 (no budget) or at least "
+                                         f"a polygon's 3 vertices, not {budget} (see ")
     assert not target.exists()
+    help_text = " ".join(invoke("export-cvat", "--help").output.split())
+    assert "0 for none, else at least 3 (default 200). -j" in help_text  # no [x>=0] after it
+
+
+@pytest.mark.parametrize("command", ["cvat2mask", "batch"])
+def test_a_job_timeout_that_is_no_number_of_seconds_is_one_line_and_status_2(tmp_path, command):
+    # NaN passes the option's own range check (min 1).
+    args = ([SAMPLE / "sequence", SAMPLE / "annotations.xml", "-c", SAMPLE / "camera.toml", "-o", tmp_path / "out"]
+            if command == "cvat2mask" else [tmp_path / "scenes.toml"])
+    result = invoke(command, *args, "--job-timeout", "nan")
+    assert result.exit_code == 2
+    assert error_line(result).startswith("error: Invalid value for '--job-timeout': must be a finite number of seconds >= 1, "
+                                         "not nan (see ")
+    assert not (tmp_path / "out").exists()
 
 
 @pytest.mark.parametrize("share", ["0", "1.5", "nan"])
