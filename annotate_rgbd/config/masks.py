@@ -223,9 +223,10 @@ class PropagateConfig:
     keyframes_each_side : int
         A frame between keyframes gets what the nearest this many keyframes before it and after
         it say about each plane (the nearest one that saw a pixel decides it, but where the two
-        nearest disagree every outline counts: :func:`annotate_rgbd.propagate.carry.carried_layers`): each outlines the
-        part of the plane in view when it was drawn, and farther ones add only what the nearer
-        ones did not see. On benchmarks/bench_propagate.py's walk ... (measured in the README).
+        nearest disagree every outline counts:
+        :func:`annotate_rgbd.propagate.carry.carried_layers`): each outlines the part of the
+        plane in view when it was drawn, and farther ones add only what the nearer ones did not
+        see. On benchmarks/bench_propagate.py's walk ... (measured in the README).
     exclude : bool
         Carry what each keyframe's outline left out as well as what it holds
         (:mod:`annotate_rgbd.propagate.evidence`): the surfaces touching the plane, within
