@@ -163,7 +163,7 @@ def test_where_the_keyframes_disagree_every_outline_goes_over_every_exclusion():
 
 def test_the_plan_carries_with_every_outline_only_where_the_keyframes_disagree():
     # The frame's shapes as the plan makes them (pipeline.plan._frame_shapes): keyframes 0 and 10
-    # drawn, frame 4 carried. Outlines 40-200 and 120-280 (agreement about 0.5 on what both saw)
+    # drawn, frame 4 carried. Outlines 40-200 and 120-280 (agreement about a third on what both saw)
     # disagree; 40-200 and 50-210 agree. Only the first pair is painted with every outline last.
     from types import SimpleNamespace
 
