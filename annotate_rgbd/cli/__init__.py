@@ -49,10 +49,11 @@ def _finite_pixels(value: Optional[float]) -> Optional[float]:
     return value
 
 
-def _finite_seconds(value: float) -> float:
-    """``--job-timeout``: finite seconds (the option's range lets NaN and infinity through)."""
-    if not (value >= 1 and value != float("inf")):
-        raise typer.BadParameter(f"must be a finite number of seconds >= 1, not {value:g}")
+def _seconds(value: float) -> float:
+    """``--job-timeout``: seconds, ``inf`` to wait for ever (the option's range lets NaN through,
+    which would never take a hung helper for hung)."""
+    if not value >= 1:
+        raise typer.BadParameter(f"must be a number of seconds >= 1 (inf: wait for ever), not {value:g}")
     return value
 
 
@@ -107,7 +108,7 @@ def cvat2mask(
         False, "--instance-ids", help="Also write masks_id/: plane ids as pixel values (8/16-bit, as in planes.csv)."
     ),
     job_timeout: float = typer.Option(
-        STALL_TIMEOUT, "--job-timeout", min=1.0, metavar="SECONDS", callback=_finite_seconds, help="Seconds without a frame finished by the helpers before they are replaced."
+        STALL_TIMEOUT, "--job-timeout", min=1.0, metavar="SECONDS", callback=_seconds, help="Seconds without a frame finished by the helpers before they are replaced."
     ),
     poses: Optional[Path] = typer.Option(
         None, "--poses", metavar="FILE|DIR",
@@ -170,7 +171,7 @@ def batch(
     jobs: Optional[int] = typer.Option(None, "--jobs", "-j", min=1, metavar="N", help="Worker processes (default: the manifest's jobs, else all cores)."),
     force: bool = typer.Option(False, "--force", help="Redo every frame, even those unchanged since the last run."),
     job_timeout: float = typer.Option(
-        STALL_TIMEOUT, "--job-timeout", min=1.0, metavar="SECONDS", callback=_finite_seconds, help="Seconds without a frame finished by the helpers before they are replaced."
+        STALL_TIMEOUT, "--job-timeout", min=1.0, metavar="SECONDS", callback=_seconds, help="Seconds without a frame finished by the helpers before they are replaced."
     ),
     shard: Optional[str] = typer.Option(
         None, "--shard", metavar="K/N", help="Run only the K-th of N disjoint shards of the scenes (by a hash of their names)."

@@ -737,18 +737,6 @@ def test_export_with_a_vertex_budget_under_a_triangle_is_one_line_and_status_2(f
     assert "0 for none, else at least 3 (default 200). -j" in help_text  # no [x>=0] after it
 
 
-@pytest.mark.parametrize("command", ["cvat2mask", "batch"])
-def test_a_job_timeout_that_is_no_number_of_seconds_is_one_line_and_status_2(tmp_path, command):
-    # NaN passes the option's own range check (min 1).
-    args = ([SAMPLE / "sequence", SAMPLE / "annotations.xml", "-c", SAMPLE / "camera.toml", "-o", tmp_path / "out"]
-            if command == "cvat2mask" else [tmp_path / "scenes.toml"])
-    result = invoke(command, *args, "--job-timeout", "nan")
-    assert result.exit_code == 2
-    assert error_line(result).startswith("error: Invalid value for '--job-timeout': must be a finite number of seconds >= 1, "
-                                         "not nan (see ")
-    assert not (tmp_path / "out").exists()
-
-
 @pytest.mark.parametrize("share", ["0", "1.5", "nan"])
 def test_propose_min_area_outside_its_range_is_one_line_and_the_help_says_the_range(tmp_path, share):
     # The help said [0.0<=x<=1.0] while 0 was refused; NaN passed the option's own range check.

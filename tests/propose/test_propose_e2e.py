@@ -326,7 +326,7 @@ def test_export_cvat_polygons_are_simple_and_within_the_budget(sample_round_trip
     counts = [len(points) for _, _, points in keyframe_polygons(small)]
     assert max(counts) <= 12 and max(counts) > 4
     outcome = CliRunner().invoke(app, ["export-cvat", str(first), str(tmp_path / "bad.xml"), "--max-vertices", "2"])
-    assert outcome.exit_code != 0 and "at least 3 vertices" in outcome.output
+    assert outcome.exit_code != 0 and "at least a polygon's 3 vertices" in outcome.output
     assert not (tmp_path / "bad.xml").exists()
 
 
