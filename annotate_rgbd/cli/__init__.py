@@ -43,9 +43,14 @@ def _share_of_image(value: Optional[float]) -> Optional[float]:
 
 
 def _finite_pixels(value: Optional[float]) -> Optional[float]:
-    """``--tolerance``: a finite distance in pixels (the option's range lets NaN and infinity through)."""
-    if value is not None and not (value >= 0 and value != float("inf")):
-        raise typer.BadParameter(f"must be a finite distance in pixels >= 0, not {value:g}")
+    """``--tolerance``: a finite distance in pixels (the option's range lets NaN and infinity
+    through), as :func:`annotate_rgbd.export.cvat.export_cvat` takes it."""
+    if value is not None:
+        from annotate_rgbd.export.cvat import tolerance_problem
+
+        problem = tolerance_problem(value)
+        if problem:
+            raise typer.BadParameter(problem)
     return value
 
 
@@ -58,9 +63,14 @@ def _seconds(value: float) -> float:
 
 
 def _vertex_budget(value: Optional[int]) -> Optional[int]:
-    """``--max-vertices``: 0 (no budget) or at least the 3 vertices a polygon needs."""
-    if value is not None and (value < 0 or 0 < value < 3):
-        raise typer.BadParameter(f"must be 0 (no budget) or at least a polygon's 3 vertices, not {value}")
+    """``--max-vertices``: 0 (no budget) or at least the 3 vertices a polygon needs, as
+    :func:`annotate_rgbd.export.cvat.export_cvat` takes it."""
+    if value is not None:
+        from annotate_rgbd.export.cvat import vertex_budget_problem
+
+        problem = vertex_budget_problem(value)
+        if problem:
+            raise typer.BadParameter(problem)
     return value
 
 

@@ -81,15 +81,31 @@ def export_cvat(run_dir: str | Path, xml_path: str | Path, tolerance_px: float =
     InputError
         No report, a mask missing or unreadable, a mask colour that is no plane of the run.
     """
-    if max_vertices and max_vertices < 3:
-        raise InputError(None, f"a polygon needs at least 3 vertices: --max-vertices {max_vertices} (0: no budget)")
-    if not (np.isfinite(tolerance_px) and tolerance_px >= 0):
-        raise InputError(None, f"--tolerance must be a finite distance in pixels >= 0, not {tolerance_px}")
+    for option, problem in (("--max-vertices", vertex_budget_problem(max_vertices)),
+                            ("--tolerance", tolerance_problem(tolerance_px))):
+        if problem:
+            raise InputError(None, f"{option} {problem}")
     run_dir = Path(run_dir)
     with reading(run_dir):
         report = read_report(run_dir)
         check_target(run_dir, Path(xml_path), [Path(part.file) for part in report.parts])
         return _export(run_dir, report, Path(xml_path), tolerance_px, max_vertices, workers, progress)
+
+
+def tolerance_problem(tolerance_px: float) -> str | None:
+    """Why a value is no outline tolerance, in words after the option's name; None when it is
+    one (a finite distance in pixels, at least 0)."""
+    if np.isfinite(tolerance_px) and tolerance_px >= 0:
+        return None
+    return f"must be a finite distance in pixels >= 0, not {tolerance_px:g}"
+
+
+def vertex_budget_problem(max_vertices: int) -> str | None:
+    """Why a value is no vertex budget, in words after the option's name; None when it is one
+    (0, no budget, or at least the 3 vertices of a polygon)."""
+    if max_vertices == 0 or max_vertices >= 3:
+        return None
+    return f"must be 0 (no budget) or at least a polygon's 3 vertices, not {max_vertices}"
 
 
 @dataclass(frozen=True)
