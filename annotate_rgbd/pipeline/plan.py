@@ -314,8 +314,9 @@ def _frame_shapes(
     (:func:`annotate_rgbd.propagate.carry.carried_layers`; every outline over every exclusion
     where the keyframes on either side disagree, :data:`annotate_rgbd.propagate.DISAGREE_BELOW`),
     to go among the shapes at ``position``, and how much the keyframes on either side agree
-    about each of those planes (plane id -> agreement, :func:`annotate_rgbd.propagate.carry.keyframe_agreement`; planes with
-    keyframes on one side only left out)."""
+    about each of those planes (plane id -> agreement,
+    :func:`annotate_rgbd.propagate.carry.keyframe_agreement`; planes with keyframes on one side
+    only left out)."""
     shapes, propagated, expected, carried, agreement = [], set(), [], [], {}
     has_pose = propagation is not None and bool(propagation.depth_poses.ok[depth])
     for track in part.annotation.tracks:

@@ -83,24 +83,19 @@ def carried_layers(
     # benchmarks/bench_propagate.py, keyframe every 30th frame: mean IoU 0.71 with the two
     # neighbouring keyframes, 0.87 with all).
     nearest = nearest_keyframes(lift.keyframes, frame, config.propagate.keyframes_each_side)
-    signs, worlds = [], []
     farthest_first = sorted(nearest, key=lambda k: (-abs(k.frame - frame), k.frame))
-    for keyframe in farthest_first:
-        for world in keyframe.excluded:
-            signs.append(-1)
-            worlds.append(world)
-        if not disagree:
-            signs.append(1)
-            worlds.append(keyframe.world)
-    if disagree:
-        signs += [1] * len(farthest_first)
-        worlds += [keyframe.world for keyframe in farthest_first]
+    excluded = [[(-1, world) for world in keyframe.excluded] for keyframe in farthest_first]
+    outlines = [(1, keyframe.world) for keyframe in farthest_first]
+    if disagree:  # every exclusion, then every outline
+        signed = [layer for group in excluded for layer in group] + outlines
+    else:  # keyframe by keyframe, each one's outline over its own exclusions
+        signed = [layer for group, outline in zip(excluded, outlines) for layer in (*group, outline)]
     quads = [quad for keyframe in nearest for quad in keyframe.beyond]
     camera, pose = rgb_view(config, pose)
-    projected = project_polygons(worlds + quads, camera, *pose)
+    projected = project_polygons([world for _, world in signed] + quads, camera, *pose)
     usable = [len(polygon) >= 3 and np.isfinite(polygon).all() for polygon in projected]
-    layers = [(sign, polygon) for sign, polygon, ok in zip(signs, projected, usable) if ok]
-    beyond = [polygon for polygon, ok in zip(projected[len(worlds):], usable[len(worlds):]) if ok]
+    layers = [(sign, polygon) for (sign, _), polygon, ok in zip(signed, projected, usable) if ok]
+    beyond = [polygon for polygon, ok in zip(projected[len(signed):], usable[len(signed):]) if ok]
     return tuple(layers), tuple(beyond)
 
 
