@@ -42,18 +42,6 @@ def _share_of_image(value: Optional[float]) -> Optional[float]:
     return value
 
 
-def _finite_pixels(value: Optional[float]) -> Optional[float]:
-    """``--tolerance``: a finite distance in pixels (the option's range lets NaN and infinity
-    through), as :func:`annotate_rgbd.export.cvat.export_cvat` takes it."""
-    if value is not None:
-        from annotate_rgbd.export.cvat import tolerance_problem
-
-        problem = tolerance_problem(value)
-        if problem:
-            raise typer.BadParameter(problem)
-    return value
-
-
 def _seconds(value: float) -> float:
     """``--job-timeout``: seconds, ``inf`` to wait for ever (the option's range lets NaN through,
     which would never take a hung helper for hung)."""
@@ -62,13 +50,13 @@ def _seconds(value: float) -> float:
     return value
 
 
-def _vertex_budget(value: Optional[int]) -> Optional[int]:
-    """``--max-vertices``: 0 (no budget) or at least the 3 vertices a polygon needs, as
-    :func:`annotate_rgbd.export.cvat.export_cvat` takes it."""
+def _polygon_budget(param: typer.CallbackParam, value: Optional[float]) -> Optional[float]:
+    """``export-cvat --tolerance`` (the option's range lets NaN and infinity through) and
+    ``--max-vertices`` (0 or at least 3), as :func:`annotate_rgbd.export.cvat.export_cvat` takes them."""
     if value is not None:
-        from annotate_rgbd.export.cvat import vertex_budget_problem
+        from annotate_rgbd.export.cvat import tolerance_problem, vertex_budget_problem
 
-        problem = vertex_budget_problem(value)
+        problem = (tolerance_problem if param.name == "tolerance" else vertex_budget_problem)(value)
         if problem:
             raise typer.BadParameter(problem)
     return value
@@ -477,11 +465,11 @@ def export_cvat_command(
     xml: Optional[str] = typer.Argument(None, metavar="FILE.xml", help="The CVAT for video 1.1 XML file to write."),
     xml_option: Optional[str] = typer.Option(None, "--out", "-o", metavar="FILE.xml", help="The same as FILE.xml."),
     tolerance: Optional[float] = typer.Option(
-        None, "--tolerance", min=0.0, metavar="PX", callback=_finite_pixels,
+        None, "--tolerance", min=0.0, metavar="PX", callback=_polygon_budget,
         help="Largest distance of a polygon from its mask's outline, pixels (default 0.5).",
     ),
     max_vertices: Optional[int] = typer.Option(
-        None, "--max-vertices", metavar="N", callback=_vertex_budget,
+        None, "--max-vertices", metavar="N", callback=_polygon_budget,
         help="Vertex budget of each polygon: 0 for none, else at least 3 (default 200).",
     ),
     jobs: Optional[int] = typer.Option(None, "--jobs", "-j", min=1, metavar="N", help="Worker processes (default: all cores)."),
