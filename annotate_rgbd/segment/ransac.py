@@ -105,8 +105,8 @@ def fit_plane(
         Where camera poses put the plane in this frame (a track's keyframe plane): a surface
         behind replaces RANSAC's plane only when it is that one (within
         ``propagate.same_surface_angle`` and ``same_surface_offset``); and when RANSAC's plane
-        holds under ``config.exhaustive_below`` of the points, RANSAC runs again through all its
-        iterations (:func:`every_hypothesis`; the plane with more inliers is kept).
+        holds under ``config.exhaustive_below`` of the points, RANSAC goes on through all its
+        iterations (as :func:`every_hypothesis`; the plane with more inliers is kept).
     propagate : PropagateConfig
         The same-surface tolerances.
 
@@ -123,14 +123,19 @@ def fit_plane(
         if len(sample) < 3:  # a stride over very few points (max_points = 3) can leave two
             sample = points[: max(config.max_points, 3)]
     threshold = config.band_share * float(noise.band(median(sample[:, 2])))
-    equation, inliers = _ransac(sample, threshold, config)
+    search = RansacSearch(sample, threshold, config.num_iterations, config.seed)
+    search.score()
+    equation, inliers = search.best()
     if inliers == 0:  # the points lie on one line: no plane to find (nor behind it, nor to re-fit)
         return PlaneFit(np.full(4, np.nan), np.zeros(len(points), dtype=bool))
     if expected is not None and inliers < config.exhaustive_below * len(sample):
         # RANSAC stops searching once its plane is likely the best given the share of points it
         # holds; with two surfaces of about half each it can stop on a plane leaning between them.
-        again = every_hypothesis(sample, threshold, config.num_iterations, config.seed)
-        equation, inliers = again if again[1] > inliers else (equation, inliers)
+        # The search goes on through every hypothesis (as every_hypothesis, without scoring the
+        # first ones again); a plane with more inliers replaces the first one.
+        search.score(probability=1.0)
+        if search.best_count > inliers:
+            equation, inliers = search.best()
     band = noise.band(sample[:, 2])
     behind = False
     for _ in range(config.max_behind if look_behind or expected is not None else 0):
@@ -261,7 +266,7 @@ def ransac_plane(
     The first block is :data:`FIRST_BLOCK` hypotheses, as many as a plane that dominates needs.
     Each hypothesis is three distinct points, drawn :data:`TRIPLES_DRAWN` at a time (all of them
     at once for the default 1,000 iterations), so a search that stops early scored the first of
-    the hypotheses a full search scores. Degenerate
+    the hypotheses a full search scores (:class:`RansacSearch` goes on from there). Degenerate
     hypotheses (three collinear points) hold no points.
 
     Parameters
@@ -286,46 +291,78 @@ def ransac_plane(
     inliers : int
         Points within ``threshold`` of the best hypothesis.
     """
-    if not 0 < probability <= 1:
-        raise ValueError(f"RANSAC's probability must be in (0, 1], not {probability}")
-    points = np.asarray(points, dtype=np.float64)
-    iterations, rng = max(int(iterations), 1), np.random.default_rng(seed)
-    drawn, drawn_from = np.zeros((0, 3), dtype=np.int64), 0  # the hypotheses drawn, from the drawn_from-th
-    coords = np.ascontiguousarray(points.T)
-    per_block = int(np.clip(DISTANCES_PER_BLOCK // max(len(points), 1), 1, 100))
-    best_plane, best_count, done, needed = np.zeros(4), 0, 0, iterations
-    size = min(FIRST_BLOCK, per_block) if probability < 1 else per_block
-    while done < needed:
-        if done == drawn_from + len(drawn):
-            drawn, drawn_from = _distinct_triples(len(points), min(TRIPLES_DRAWN, iterations - done), rng), done
-        corners = points[drawn[done - drawn_from:min(done + size, needed) - drawn_from]]
-        normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
-        length = np.sqrt(np.einsum("ij,ij->i", normals, normals))
-        usable = length > 0
-        normals[usable] /= length[usable, None]
-        offsets = -np.einsum("ij,ij->i", normals, corners[:, 0])
-        # einsum, not ``@``: no BLAS threads (geometry.planes._fit says why).
-        distance = np.einsum("ij,jn->in", normals, coords)
-        distance += offsets[:, None]
-        np.abs(distance, out=distance)
-        counts = np.count_nonzero(distance < threshold, axis=1)
-        counts[~usable] = 0
-        best = int(np.argmax(counts))
-        if counts[best] > best_count:
-            best_plane, best_count = np.append(normals[best], offsets[best]), int(counts[best])
-        done += len(corners)
-        size = per_block
-        share = best_count / len(points)
-        if probability < 1 and share > 0:
-            needed = done if share >= 1 else min(needed, int(np.ceil(np.log1p(-probability) / np.log1p(-share**3))))
-    if best_count < 3:  # no usable hypothesis (its own three points are its inliers)
-        return np.full(4, np.nan), 0
-    plane = best_plane
-    try:
-        plane = weighted_plane_fit(points[np.abs(points @ plane[:3] + plane[3]) < threshold])
-    except ValueError:  # inliers on one line (three nearly collinear points, a tiny threshold)
-        pass
-    return (-plane if plane[3] < 0 else plane), best_count
+    search = RansacSearch(points, threshold, iterations, seed)
+    search.score(probability)
+    return search.best()
+
+
+class RansacSearch:
+    """A RANSAC search that can go on where it stopped (:func:`ransac_plane` is one).
+
+    A search stopped early at some probability and then taken on with ``probability = 1``
+    scores every hypothesis, each once, and ends where :func:`every_hypothesis` does (the first
+    of the hypotheses with the most inliers): what :func:`fit_plane` does when a carried
+    shape's plane holds too few of its points, without scoring the first hypotheses twice.
+
+    Parameters
+    ----------
+    points, threshold, iterations, seed
+        As :func:`ransac_plane`'s.
+    """
+
+    def __init__(self, points: np.ndarray, threshold: float, iterations: int, seed: int):
+        self.points = np.asarray(points, dtype=np.float64)
+        self.coords = np.ascontiguousarray(self.points.T)
+        self.threshold = threshold
+        self.iterations, self.rng = max(int(iterations), 1), np.random.default_rng(seed)
+        self.drawn, self.drawn_from = np.zeros((0, 3), dtype=np.int64), 0  # the hypotheses drawn, from the drawn_from-th
+        self.per_block = int(np.clip(DISTANCES_PER_BLOCK // max(len(self.points), 1), 1, 100))
+        self.best_plane, self.best_count, self.done = np.zeros(4), 0, 0
+
+    def score(self, probability: float = DEFAULT_PROBABILITY) -> None:
+        """Score the next hypotheses until the best plane is found with ``probability`` (in (0,
+        1]; 1: until every hypothesis is scored)."""
+        if not 0 < probability <= 1:
+            raise ValueError(f"RANSAC's probability must be in (0, 1], not {probability}")
+        points, needed = self.points, self.iterations
+        size = min(FIRST_BLOCK, self.per_block) if probability < 1 and self.done == 0 else self.per_block
+        while self.done < needed:
+            done, drawn_from = self.done, self.drawn_from
+            if done == drawn_from + len(self.drawn):
+                self.drawn = _distinct_triples(len(points), min(TRIPLES_DRAWN, self.iterations - done), self.rng)
+                self.drawn_from = drawn_from = done
+            corners = points[self.drawn[done - drawn_from:min(done + size, needed) - drawn_from]]
+            normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+            length = np.sqrt(np.einsum("ij,ij->i", normals, normals))
+            usable = length > 0
+            normals[usable] /= length[usable, None]
+            offsets = -np.einsum("ij,ij->i", normals, corners[:, 0])
+            # einsum, not ``@``: no BLAS threads (geometry.planes._fit says why).
+            distance = np.einsum("ij,jn->in", normals, self.coords)
+            distance += offsets[:, None]
+            np.abs(distance, out=distance)
+            counts = np.count_nonzero(distance < self.threshold, axis=1)
+            counts[~usable] = 0
+            best = int(np.argmax(counts))
+            if counts[best] > self.best_count:
+                self.best_plane, self.best_count = np.append(normals[best], offsets[best]), int(counts[best])
+            self.done += len(corners)
+            size = self.per_block
+            share = self.best_count / len(points)
+            if probability < 1 and share > 0:
+                needed = self.done if share >= 1 else min(needed, int(np.ceil(np.log1p(-probability) / np.log1p(-share**3))))
+
+    def best(self) -> tuple[np.ndarray, int]:
+        """The best hypothesis so far, re-fitted to its inliers, and its inlier count (as
+        :func:`ransac_plane` returns them)."""
+        if self.best_count < 3:  # no usable hypothesis (its own three points are its inliers)
+            return np.full(4, np.nan), 0
+        plane, points = self.best_plane, self.points
+        try:
+            plane = weighted_plane_fit(points[np.abs(points @ plane[:3] + plane[3]) < self.threshold])
+        except ValueError:  # inliers on one line (three nearly collinear points, a tiny threshold)
+            pass
+        return (-plane if plane[3] < 0 else plane), self.best_count
 
 
 def _distinct_triples(count: int, triples: int, rng: np.random.Generator) -> np.ndarray:

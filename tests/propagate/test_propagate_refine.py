@@ -162,16 +162,20 @@ def test_a_carried_shape_whose_ransac_plane_holds_few_points_gets_an_exhaustive_
     points = np.vstack([wall, recess])
     calls = []
 
-    def early_stop(sample, threshold, config):
-        calls.append(False)
-        return np.array([0.0, 0.0, -1.0, 2.10]), 450
+    class StandIn:
+        """The early stop finds the recess (450 inliers), the rest of the hypotheses the wall (550)."""
 
-    def exhaustive(sample, threshold, iterations, seed):
-        calls.append(True)
-        return np.array([0.0, 0.0, -1.0, 2.0]), 550
+        def __init__(self, sample, threshold, iterations, seed):
+            self.best_count = 0
 
-    monkeypatch.setattr(ransac, "_ransac", early_stop)
-    monkeypatch.setattr(ransac, "every_hypothesis", exhaustive)
+        def score(self, probability=ransac.DEFAULT_PROBABILITY):
+            calls.append(probability == 1.0)
+            self.best_count = 550 if probability == 1.0 else 450
+
+        def best(self):
+            return np.array([0.0, 0.0, -1.0, 2.0 if self.best_count == 550 else 2.10]), self.best_count
+
+    monkeypatch.setattr(ransac, "RansacSearch", StandIn)
     expected = np.array([0.0, 0.0, -1.0, 2.0])
     fit = fit_plane(points, RansacConfig(max_points=0), KINECT, look_behind=False, expected=expected)
     assert calls[:2] == [False, True]

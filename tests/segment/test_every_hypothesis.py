@@ -200,3 +200,31 @@ def test_fit_plane_on_points_of_one_line_finds_no_plane():
     fit = ransac.fit_plane(on_a_line, RansacConfig(), NoiseSettings())
     assert not fit.inliers.any() and len(fit.inliers) == 200
     assert np.isnan(fit.equation).all() and fit.inliers_refit == 0
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+@pytest.mark.parametrize("triples_drawn", [1000, 7])
+def test_a_stopped_search_taken_on_ends_where_every_hypothesis_does(seed, triples_drawn, monkeypatch):
+    # fit_plane takes an early-stopped search on through every hypothesis (a carried shape whose
+    # plane holds few of its points): the plane and count of every_hypothesis, with the
+    # hypotheses drawn in one chunk or in many, and each hypothesis scored once.
+    monkeypatch.setattr(ransac, "TRIPLES_DRAWN", triples_drawn)
+    monkeypatch.setattr(ransac, "DISTANCES_PER_BLOCK", 30 * 300)  # blocks of 30 after the first
+    rng = np.random.default_rng(seed)
+    sample = _two_surfaces(rng, near=130, far=170)
+    search = ransac.RansacSearch(sample, 0.004, 400, seed)
+    search.score()
+    early_plane, early_count = search.best()
+    plain_plane, plain_count = ransac_plane(sample, 0.004, 400, seed)
+    assert early_count == plain_count and np.array_equal(early_plane, plain_plane)
+    stopped_at = search.done
+    assert stopped_at < 400  # it stopped early: there is something to take on
+    search.score(probability=1.0)
+    assert search.done == 400
+    plane, count = search.best()
+    expected, expected_count = every_hypothesis(sample, 0.004, 400, seed)
+    assert count == expected_count >= early_count
+    assert np.array_equal(plane, expected)
+    if triples_drawn >= 400:  # the loop draws its hypotheses in one chunk
+        reference, reference_count = _loop_reference(sample, 0.004, 400, seed)
+        assert count == reference_count and np.allclose(plane, reference, atol=1e-9)
