@@ -4,7 +4,7 @@ Run from the repository root, with the ground-truth kit and a scene it made::
 
     python benchmarks/bench_real.py SCENE [--kit ../shared/realdata_kit] [--gt gt_strict]
         [--out DIR] [--jobs 2] [--variants full every10 every30 every100 once propose]
-        [--poses-only] [--reuse] [--set SECTION.KEY=VALUE ...]
+        [--poses-only] [--trajectory FILE] [--reuse] [--set SECTION.KEY=VALUE ...]
 
 ``SCENE`` is a folder the kit's ``build_gt.sh`` made (its README: fuse the sequence's depth
 with its poses, segment planes on the fused mesh, ray-cast every frame): ``seq/`` (TUM layout,
@@ -26,6 +26,12 @@ with poses where it loses against the dense row, by ground-truth plane (:func:`p
 and how much of what it misses (of what the dense row labels right) lies where a nearby keyframe's
 labeller left the plane out (:func:`real_losses.excluded_misses`), and how many of the carried
 planes that lose most the run's list of planes to check holds (:func:`real_losses.review_scores`).
+
+``--trajectory FILE`` gives the runs with poses another trajectory than ``seq/groundtruth.txt``.
+With the kit's ICP-refined poses (``SCENE/gt_work/poses_2.txt``, those the ground truth was
+ray-cast from) the rows with poses score what they would with poses as good as the ground
+truth's own: the ceiling of any pose refinement, and so how much of each row's loss is pose
+error.
 
 Without the kit or the scene it prints one line and exits 0.
 """
@@ -67,15 +73,20 @@ def main() -> None:
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument("--variants", nargs="+", default=[*SPACINGS, "propose"], choices=[*SPACINGS, "propose"])
     parser.add_argument("--poses-only", action="store_true", help="skip the runs without poses")
+    parser.add_argument("--trajectory", type=Path, default=None,
+                        help="the runs with poses read this trajectory (TUM format) instead of SCENE/seq/groundtruth.txt")
     parser.add_argument("--reuse", action="store_true", help="keep runs whose scores exist in --out")
     parser.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
                         help="a configuration override for every run (repeatable)")
     args = parser.parse_args()
     missing = _missing(args.kit, args.scene, args.gt)
+    if not missing and args.trajectory is not None and not args.trajectory.is_file():
+        missing = f"no trajectory at {args.trajectory}"
     if missing:
         print(f"bench_real: skipped ({missing})")
         return
     scene = args.scene.resolve()
+    trajectory = (args.trajectory or scene / "seq" / "groundtruth.txt").resolve()
     out = (args.out or Path(tempfile.gettempdir()) / "annotate-rgbd-bench-real" / scene.name).resolve()
     (out / "xml").mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
@@ -89,13 +100,14 @@ def main() -> None:
             name = f"{variant}_{'pose' if poses else 'nopose'}"
             command = ["cvat2mask", str(scene / "seq"), str(export)]
             if poses:
-                command += ["--poses", str(scene / "seq" / "groundtruth.txt")]
+                command += ["--poses", str(trajectory)]
             results[name] = _run(out, name, command, scene, args, reuse=args.reuse)
             results[name]["polygons"] = polygons
     table = effort_table(results)
     (out / "table.md").write_text(table + "\n", encoding="utf-8")
     (out / "results.json").write_text(json.dumps(results, indent=1), encoding="utf-8")
-    print(f"\n{scene.name}, ground truth {args.gt}, --jobs {args.jobs}; runs in {out}\n")
+    poses = "" if args.trajectory is None else f", poses from {trajectory}"
+    print(f"\n{scene.name}, ground truth {args.gt}, --jobs {args.jobs}{poses}; runs in {out}\n")
     print(table)
     print()
     for line in target_lines(results):

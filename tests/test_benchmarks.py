@@ -180,3 +180,19 @@ def test_review_scores_count_the_listed_carried_planes_that_lose_against_the_den
     assert scores == {"carried": 4, "bad": 2, "listed": 2, "listed_bad": 2, "loss": pytest.approx(0.8),
                       "listed_loss": pytest.approx(0.8), "auc": 1.0}
     assert bench_real.review_lines(tmp_path / "gt", tmp_path, {"every10_pose": {"mean_iou": 0.8}}) == []
+
+
+def test_a_trajectory_that_is_not_there_skips_the_benchmark_in_one_line(bench_real, tmp_path, monkeypatch, capsys):
+    """``--trajectory`` (the runs with poses read another trajectory, e.g. the kit's refined
+    poses) must exist: without it nothing runs, one line says why."""
+    kit, scene = tmp_path / "kit", tmp_path / "scene"
+    for path in (kit / "evaluate.py", kit / "thin_keyframes.py", scene / "seq" / "camera.toml",
+                 scene / "seq" / "groundtruth.txt", scene / "eval" / "gt_strict" / "planes.json", scene / "eval" / "full.xml"):
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text("")
+    out = tmp_path / "out"
+    monkeypatch.setattr("sys.argv", ["bench_real.py", str(scene), "--kit", str(kit), "--out", str(out),
+                                     "--trajectory", str(scene / "gt_work" / "poses_2.txt")])
+    bench_real.main()
+    assert capsys.readouterr().out == f"bench_real: skipped (no trajectory at {scene / 'gt_work' / 'poses_2.txt'})\n"
+    assert not out.exists()
