@@ -338,7 +338,9 @@ def check_per_frame_target(path: str | Path, gt: str | Path, pred: str | Path) -
     """Refuse a per-frame CSV path that would replace what is being scored or a run's files
     (:func:`annotate_rgbd.io.outdir.check_output_file`): a folder, a missing folder, a file
     inside the ground truth or the predictions, a file of an annotate-rgbd output folder (its
-    ``report.json``, ``planes.csv``, masks). Checked before the scoring, not after it.
+    ``report.json``, ``planes.csv``, masks), an existing file that is not a per-frame CSV (its
+    first line ``frame,...``: a run's export or frame list named by mistake). Checked before the
+    scoring, not after it.
 
     Raises
     ------
@@ -347,7 +349,8 @@ def check_per_frame_target(path: str | Path, gt: str | Path, pred: str | Path) -
     # Quietly: the scoring says which folder it reads (match_frames).
     roles = ((label_folder(Path(gt), say=False), "the ground truth being scored"),
              (label_folder(Path(pred), say=False), "the masks being scored"))
-    check_output_file(Path(path), "per_frame.csv", "the per-frame CSV", "CSV file", roles)
+    check_output_file(Path(path), "per_frame.csv", "the per-frame CSV", "CSV file", roles,
+                      ours=(lambda head: head.startswith(b"frame,"), "a per-frame CSV of evaluate"))
 
 
 def write_per_frame_csv(result: EvaluationResult, path: str | Path) -> None:

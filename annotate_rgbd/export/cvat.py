@@ -190,8 +190,10 @@ def check_target(run_dir: Path, xml_path: Path, annotations: Sequence[Path] = ()
     is made from (its report, tables, masks: the run would be lost), over one of the
     ``annotations`` the run read (the labeller's work, which the run's report names and a
     re-run needs) or an existing file of the same name as one (the run's report holds absolute
-    paths: a project moved or copied elsewhere), or over a file of any other annotate-rgbd output
-    folder (another run's ``proposals.xml``: its report would no longer describe it).
+    paths: a project moved or copied elsewhere), over a file of any other annotate-rgbd output
+    folder (another run's ``proposals.xml``: its report would no longer describe it), or over an
+    existing file that is not CVAT XML (:func:`looks_like_cvat_xml`: the run's trajectory, camera
+    file or frame list named by mistake).
 
     Raises
     ------
@@ -214,7 +216,16 @@ def check_target(run_dir: Path, xml_path: Path, annotations: Sequence[Path] = ()
         inside = ()
     if inside and inside[0] in TOP_LEVEL_NAMES:
         raise OutputError(xml_path, f"is {'/'.join(inside)} of the run being exported; write the export elsewhere")
-    check_output_file(xml_path, "round2.xml", "the export", "XML file")
+    check_output_file(xml_path, "round2.xml", "the export", "XML file", ours=(looks_like_cvat_xml, "a CVAT XML file"))
+
+
+def looks_like_cvat_xml(head: bytes) -> bool:
+    """Whether the first bytes of a file are those of a CVAT XML file (an export this command or
+    CVAT wrote): markup whose first element is ``<annotations>``, after an XML declaration and
+    comments. A trajectory, a camera file or a frame list named as the export by mistake is not.
+    """
+    text = head.lstrip(b"\xef\xbb\xbf \t\r\n")
+    return text.startswith(b"<") and b"<annotations" in text
 
 
 def _keyframes(report: RunRecord) -> list:

@@ -33,7 +33,7 @@ import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Iterable
+from typing import TYPE_CHECKING, Callable, Iterable
 
 from annotate_rgbd.errors import OutputError
 from annotate_rgbd.io.bounded import read_stream_bounded
@@ -337,13 +337,19 @@ def _is_output_name(name: object) -> bool:
     return folder in OUTPUT_FOLDERS and leaf not in ("", ".", "..") and "/" not in leaf and "\\" not in leaf
 
 
+#: Bytes of an existing file :func:`check_output_file` reads to tell whether it is of the output's kind.
+SNIFF_BYTES = 4096
+
+
 def check_output_file(path: Path, example: str, what: str = "the file", kind: str = "file",
-                      keep: Iterable[tuple[Path, str]] = ()) -> None:
+                      keep: Iterable[tuple[Path, str]] = (),
+                      ours: tuple[Callable[[bytes], bool], str] | None = None) -> None:
     """Refuse to write a single output file (an export, a CSV) where it would lose something: at a
     folder, under a folder that does not exist, inside one of the ``keep`` folders (the inputs
-    being read: ground truth, masks), or over a file of an annotate-rgbd output folder (its
-    report, tables, masks: the run would no longer be what it says). A stream (``-``, a pipe) is
-    always fine.
+    being read: ground truth, masks), over a file of an annotate-rgbd output folder (its
+    report, tables, masks: the run would no longer be what it says), or over an existing file
+    that is not of its kind (``ours``: a trajectory, a camera file or a frame list named by
+    mistake would be lost). A stream (``-``, a pipe) is always fine.
 
     Parameters
     ----------
@@ -357,6 +363,10 @@ def check_output_file(path: Path, example: str, what: str = "the file", kind: st
         Its kind of file (``XML file``).
     keep : iterable of (Path, str)
         Folders (or files) not to write into, each with its role (``the ground truth``).
+    ours : (callable, str), optional
+        Whether the first :data:`SNIFF_BYTES` bytes of an existing file are of the output's kind
+        (an empty or blank file always is), and that kind in words (``a CVAT XML file``); None: any file
+        may be replaced.
 
     Raises
     ------
@@ -381,6 +391,17 @@ def check_output_file(path: Path, example: str, what: str = "the file", kind: st
         if target.relative_to(folder).parts[0] in TOP_LEVEL_NAMES and is_output_folder(folder):
             raise OutputError(path, f"is {target.relative_to(folder).as_posix()} of the annotate-rgbd output "
                                     f"folder {folder}; write {what} elsewhere")
+    if ours is not None and target.is_file():
+        looks_ours, described = ours
+        try:
+            with open(target, "rb") as existing:
+                head = existing.read(SNIFF_BYTES)
+        except OSError:  # unreadable: writing over it says what is wrong, if anything
+            return
+        if head.strip() and not looks_ours(head):
+            first = head.lstrip().splitlines()[0][:40].decode("utf-8", "replace")
+            raise OutputError(path, f"already exists and is not {described} (it begins {first!r}): it is not replaced;"
+                                    f" write {what} elsewhere, or delete that file first")
 
 
 def is_output_folder(folder: Path) -> bool:

@@ -388,10 +388,27 @@ def test_export_never_overwrites_the_annotations_the_run_was_made_from(finished)
                                   f"from ({finished.xml}): it may be the labeller's shapes; write the export elsewhere "
                                   "(e.g. a-refined.xml)")
     assert (moved / "a.xml").read_bytes() == before
-    # Another existing file is the user's to replace, as before.
-    (finished.root / "round2.xml").write_text("old")
+    # An earlier export (a CVAT XML file the run did not read) is the user's to replace.
+    assert invoke("export-cvat", finished.out, finished.root / "round2.xml").exit_code == 0
+    (finished.root / "round2.xml").write_text("<?xml version='1.0'?>\n<annotations><version>1.1</version></annotations>")
     assert invoke("export-cvat", finished.out, finished.root / "round2.xml").exit_code == 0
     assert read_cvat(finished.root / "round2.xml").tracks
+
+
+@pytest.mark.parametrize("kept", ["groundtruth.txt", "camera.toml", "rgb.txt", "notes.xml"])
+def test_export_never_replaces_a_file_that_is_not_a_cvat_export(finished, kept):
+    # The run's trajectory, camera file or frame list named as the export by mistake (a CLI
+    # trial replaced all three): an existing file that is not CVAT XML stays as it was.
+    target = finished.root / kept
+    content = {"groundtruth.txt": "# ground truth trajectory\n1.0 0 0 0 0 0 0 1\n", "camera.toml": "[camera]\nfx = 525.0\n",
+               "rgb.txt": "# color images\n", "notes.xml": "<?xml version='1.0'?>\n<notes/>\n"}[kept]
+    target.write_text(content)
+    result = invoke("export-cvat", finished.out, target)
+    assert result.exit_code == 1
+    first = content.splitlines()[0][:40]
+    assert error_line(result) == (f"error: {target}: already exists and is not a CVAT XML file (it begins {first!r}): "
+                                  "it is not replaced; write the export elsewhere, or delete that file first")
+    assert target.read_text() == content
 
 
 @pytest.mark.parametrize("name", ["report.json", "planes.csv", "masks/x.xml"])

@@ -346,6 +346,18 @@ def test_per_frame_csv_never_replaces_what_is_scored_nor_a_runs_files(tmp_path):
     assert not (gt / "x.csv").exists()
     fine = CliRunner().invoke(app, ["evaluate", str(gt), str(run), "--per-frame", str(tmp_path / "frames.csv")])
     assert fine.exit_code == 0 and (tmp_path / "frames.csv").read_text().startswith("frame,")
+    # An earlier per-frame CSV is replaced; any other file stays (a frame list or an annotation
+    # export named by mistake: a CLI trial lost both).
+    again = CliRunner().invoke(app, ["evaluate", str(gt), str(run), "--per-frame", str(tmp_path / "frames.csv")])
+    assert again.exit_code == 0, again.output
+    listing = tmp_path / "rgb.txt"
+    listing.write_text("# color images\n0.1 rgb/0.1.png\n")
+    refused = CliRunner().invoke(app, ["evaluate", str(gt), str(run), "--per-frame", str(listing)])
+    assert refused.exit_code == 1
+    assert error_line(refused) == (f"error: {listing}: already exists and is not a per-frame CSV of evaluate (it begins "
+                                   "'# color images'): it is not replaced; write the per-frame CSV elsewhere, or delete "
+                                   "that file first")
+    assert listing.read_text() == "# color images\n0.1 rgb/0.1.png\n"
 
 
 def test_cli_part_is_the_deprecated_name_of_partial(sequence):
