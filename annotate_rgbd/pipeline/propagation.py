@@ -147,7 +147,7 @@ def propagation_warnings(propagation: Propagation) -> list[str]:
         lines.append(f"{len(unmatched)} of {len(unmatched) + lifted} keyframes (like {lift.part} track {lift.track} "
                      f"frame {frame}) lie on RGB frames no depth frame is matched to (each depth frame takes the RGB "
                      "frame nearest to it in time, within sequence.max_time_diff): the poses carry the others' shapes, "
-                     "not theirs (report.json: propagation, keyframes_failed)")
+                     "not theirs (report.json: propagation, each track's keyframes_failed)")
     if failed and not lifted:
         reasons = Counter(reason for _, _, reason in failed)
         lift, frame, reason = next(f for f in failed if f[2] == reasons.most_common(1)[0][0])

@@ -181,7 +181,8 @@ def fit_keyframes(
     ----------
     parts : list of (str, list of Track, list of int, dict of int to int)
         Each annotation part: its name, its tracks in export order, their global plane ids and
-        its CVAT frame -> RGB index map.
+        its CVAT frame -> RGB index map (the frames of the sequence: a keyframe on a frame
+        without an RGB index is none of the sequence's, neither fitted nor failed).
     depth_of_rgb : dict of int to int
         RGB index -> the depth frame that shows it.
     depth_files : list of Path
@@ -214,7 +215,9 @@ def fit_keyframes(
                 keyframes_at.setdefault(frame, []).append(i)
         for frame in sorted(keyframes_at):
             rgb = rgb_of_frame.get(frame)
-            depth = depth_of_rgb.get(rgb, -1) if rgb is not None else -1
+            if rgb is None:
+                continue  # not a frame of the sequence (said once when the part was placed): no keyframe of it
+            depth = depth_of_rgb.get(rgb, -1)
             keyframe_shapes = []
             for i in keyframes_at[frame]:
                 outline = outline_of(tracks[i].shapes[frame])
