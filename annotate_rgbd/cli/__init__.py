@@ -89,7 +89,7 @@ def cvat2mask(
     ),
     label: List[str] = typer.Option([], "--label", metavar="LABEL", help="Use only shapes with this CVAT label (repeatable)."),
     distance_threshold: Optional[float] = typer.Option(
-        None, metavar="METRES", help="A fixed inlier band in metres at every depth, instead of the [noise] model's."
+        None, metavar="METRES", help="A fixed inlier band in metres at every depth, instead of the [noise] model's (0: the model's)."
     ),
     max_invalid_ratio: Optional[float] = typer.Option(None, metavar="SHARE", help="Drop a plane with a larger share of invalid depth."),
     max_mean_distance: Optional[float] = typer.Option(None, metavar="METRES", help="Drop a plane farther than this on average (m)."),
