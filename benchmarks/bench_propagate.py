@@ -2,7 +2,7 @@
 
 Run from the repository root::
 
-    python benchmarks/bench_propagate.py [--frames 60] [--steps 1 5 10 30] [--jitter 2]
+    python benchmarks/bench_propagate.py [--frames 60] [--steps 1 5 10 30] [--jitter 2] [--set SECTION.KEY=VALUE ...]
 
 It renders (once, cached like ``bench_refine.py``) the walk through the room of
 ``annotate_rgbd.synthetic.contact_scene`` with its exact camera trajectory (``groundtruth.txt``,
@@ -37,6 +37,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_refine import SCENES, make_contact_sequence, score  # noqa: E402
 
+from annotate_rgbd.config.command_line import parse_settings  # noqa: E402
 from annotate_rgbd.config.settings import load_config  # noqa: E402
 from annotate_rgbd.cvat import read_cvat, write_cvat_video  # noqa: E402
 from annotate_rgbd.pipeline.execute import prepare_process  # noqa: E402
@@ -61,6 +62,8 @@ def main() -> None:
                         help="median position and angle error of the trajectory's poses (real: 0.4 0.2)")
     parser.add_argument("--time-offset", type=float, default=0.0, metavar="S",
                         help="the trajectory's clock runs S seconds ahead of the camera's (TUM fr1: -0.02)")
+    parser.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                        help="a configuration override for every run (repeatable), as cvat2mask's --set")
     args = parser.parse_args()
     prepare_process(args.workers)
     started = time.perf_counter()
@@ -69,7 +72,7 @@ def main() -> None:
                                      scene=args.scene, pose_noise=noise, time_offset=args.time_offset)
     trajectory = rendered.sequence / "groundtruth.txt"
     camera = {f"camera.{k}": getattr(rendered.camera, k) for k in ("fx", "fy", "cx", "cy", "depth_scale")}
-    config = load_config(None, camera)
+    config = load_config(None, {**camera, **parse_settings(args.set)})
     annotation = read_cvat(rendered.single[0])
     rows = []
     for step in args.steps:
