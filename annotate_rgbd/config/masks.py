@@ -38,7 +38,8 @@ class FilterConfig:
 @dataclass(frozen=True)
 class RansacConfig:
     """RANSAC settings (:func:`annotate_rgbd.segment.ransac.ransac_plane`) and the exhaustive search
-    of pose-carried shapes (:func:`annotate_rgbd.segment.ransac.every_hypothesis`).
+    of pose-carried shapes (:class:`annotate_rgbd.segment.ransac.RansacSearch` taken on through
+    every hypothesis).
 
     Parameters
     ----------
@@ -68,8 +69,8 @@ class RansacConfig:
         benchmarks/bench_refine.py: the wall behind a whiteboard went from mean IoU 0.86 to 0.94
         (0.34 of the band gave the same).
     exhaustive_below : float
-        For a shape carried by camera poses, RANSAC runs again through all its iterations
-        (every hypothesis scored, :func:`annotate_rgbd.segment.ransac.every_hypothesis`) when
+        For a shape carried by camera poses, RANSAC goes on through all its iterations
+        (every hypothesis scored, as :func:`annotate_rgbd.segment.ransac.every_hypothesis`) when
         its plane holds under this share of the points (a wall half covered by a whiteboard:
         RANSAC stops early on a plane leaning between two surfaces of about half each). This
         project's choice, between those halves and a plane that clearly dominates.

@@ -1,6 +1,7 @@
 """Finding one plane among a shape's 3-D points: RANSAC with hypotheses scored in blocks
-(:func:`ransac_plane`; through all its iterations, :func:`every_hypothesis`), the surface behind
-it, the weighted re-fit and the plane's own noise scale (:func:`fit_plane`)."""
+(:func:`ransac_plane`, a :class:`RansacSearch` that can go on where it stopped; through all its
+iterations, :func:`every_hypothesis`), the surface behind it, the weighted re-fit and the plane's
+own noise scale (:func:`fit_plane`)."""
 
 from __future__ import annotations
 
@@ -28,7 +29,7 @@ FIRST_BLOCK = 32
 TRIPLES_DRAWN = 1000
 #: The share of a plane's points that may lie behind a plane that replaces it (noise, edges).
 IN_FRONT_SLACK = 0.02
-#: Point-to-plane distances computed at once by :func:`ransac_plane` (1 MiB of float64): a block
+#: Point-to-plane distances computed at once by :meth:`RansacSearch.score` (1 MiB of float64): a block
 #: of hypotheses is this many distances over the number of points, at most 100.
 DISTANCES_PER_BLOCK = 2**17
 
@@ -246,7 +247,9 @@ def _ransac(sample: np.ndarray, threshold: float, config: RansacConfig) -> tuple
 
 def every_hypothesis(points: np.ndarray, threshold: float, iterations: int, seed: int) -> tuple[np.ndarray, int]:
     """RANSAC through all its ``iterations``, never stopping early: :func:`ransac_plane` with
-    ``probability = 1`` (the same hypotheses, a superset of those an early stop scores)."""
+    ``probability = 1`` (the same hypotheses, a superset of those an early stop scores). What
+    :func:`fit_plane` ends with when it takes a stopped :class:`RansacSearch` on, without scoring
+    the first hypotheses twice (the tests hold the two equal)."""
     return ransac_plane(points, threshold, iterations, seed, probability=1.0)
 
 
@@ -297,17 +300,32 @@ def ransac_plane(
 
 
 class RansacSearch:
-    """A RANSAC search that can go on where it stopped (:func:`ransac_plane` is one).
+    """A RANSAC search that can go on where it stopped: :func:`ransac_plane` is one search
+    scored once, :func:`fit_plane` takes one on through every hypothesis.
 
     A search stopped early at some probability and then taken on with ``probability = 1``
     scores every hypothesis, each once, and ends where :func:`every_hypothesis` does (the first
-    of the hypotheses with the most inliers): what :func:`fit_plane` does when a carried
-    shape's plane holds too few of its points, without scoring the first hypotheses twice.
+    of the hypotheses with the most inliers): the hypotheses are drawn in chunks of
+    :data:`TRIPLES_DRAWN` from the search's own generator, whatever the blocks scored, so the
+    ``i``-th hypothesis is the same however the search was stopped and taken on.
 
     Parameters
     ----------
-    points, threshold, iterations, seed
-        As :func:`ransac_plane`'s.
+    points : ndarray of float64, shape (N, 3)
+        Finite points (m), N >= 3.
+    threshold : float
+        Largest distance (m) of an inlier, exclusive.
+    iterations : int
+        Most hypotheses tried (at least 1).
+    seed : int
+        Seed of the hypotheses' generator (numpy's).
+
+    Attributes
+    ----------
+    done : int
+        Hypotheses scored so far.
+    best_count : int
+        Points within ``threshold`` of the best hypothesis so far (0 before any).
     """
 
     def __init__(self, points: np.ndarray, threshold: float, iterations: int, seed: int):
@@ -320,8 +338,15 @@ class RansacSearch:
         self.best_plane, self.best_count, self.done = np.zeros(4), 0, 0
 
     def score(self, probability: float = DEFAULT_PROBABILITY) -> None:
-        """Score the next hypotheses until the best plane is found with ``probability`` (in (0,
-        1]; 1: until every hypothesis is scored)."""
+        """Score the next hypotheses, a block at a time, until the best plane is likely found
+        (:func:`ransac_plane`'s rule) or every hypothesis is scored.
+
+        Parameters
+        ----------
+        probability : float
+            Confidence at which the search stops, in (0, 1]; 1: not before every hypothesis is
+            scored.
+        """
         if not 0 < probability <= 1:
             raise ValueError(f"RANSAC's probability must be in (0, 1], not {probability}")
         points, needed = self.points, self.iterations
@@ -343,9 +368,9 @@ class RansacSearch:
             np.abs(distance, out=distance)
             counts = np.count_nonzero(distance < self.threshold, axis=1)
             counts[~usable] = 0
-            best = int(np.argmax(counts))
-            if counts[best] > self.best_count:
-                self.best_plane, self.best_count = np.append(normals[best], offsets[best]), int(counts[best])
+            winner = int(np.argmax(counts))  # the first of equals
+            if counts[winner] > self.best_count:
+                self.best_plane, self.best_count = np.append(normals[winner], offsets[winner]), int(counts[winner])
             self.done += len(corners)
             size = self.per_block
             share = self.best_count / len(points)
@@ -353,8 +378,15 @@ class RansacSearch:
                 needed = self.done if share >= 1 else min(needed, int(np.ceil(np.log1p(-probability) / np.log1p(-share**3))))
 
     def best(self) -> tuple[np.ndarray, int]:
-        """The best hypothesis so far, re-fitted to its inliers, and its inlier count (as
-        :func:`ransac_plane` returns them)."""
+        """The best hypothesis so far, re-fitted by least squares to its inliers.
+
+        Returns
+        -------
+        equation : ndarray of float64, shape (4,)
+            As :func:`ransac_plane`'s (all NaN when no hypothesis holds 3 points).
+        inliers : int
+            Points within ``threshold`` of the best hypothesis (0 with a NaN equation).
+        """
         if self.best_count < 3:  # no usable hypothesis (its own three points are its inliers)
             return np.full(4, np.nan), 0
         plane, points = self.best_plane, self.points

@@ -228,3 +228,64 @@ def test_a_stopped_search_taken_on_ends_where_every_hypothesis_does(seed, triple
     if triples_drawn >= 400:  # the loop draws its hypotheses in one chunk
         reference, reference_count = _loop_reference(sample, 0.004, 400, seed)
         assert count == reference_count and np.allclose(plane, reference, atol=1e-9)
+
+
+def test_fit_plane_takes_its_own_search_on_to_every_hypothesis_s_plane(monkeypatch):
+    # A carried shape (an expected plane) whose RANSAC plane holds under exhaustive_below of its
+    # points: the search fit_plane started (on its sample, with the configured iterations and
+    # seed) is taken on to the last hypothesis, and the plane re-fitted to the points is
+    # every_hypothesis's on that sample. Without an expected plane the early stop stands.
+    from annotate_rgbd.config.settings import RansacConfig
+    from annotate_rgbd.geometry.noise import SENSOR_MODELS, NoiseSettings
+
+    rng = np.random.default_rng(5)
+    points = _two_surfaces(rng, near=450, far=550, gap=0.015, noise=0.002)
+    config = RansacConfig(max_points=400, exhaustive_below=1.01, num_iterations=600, seed=11, max_behind=0)
+    noise = NoiseSettings(SENSOR_MODELS["kinect_v1"])
+    sample = points[:: -(-len(points) // config.max_points)]
+    threshold = config.band_share * float(noise.band(np.median(sample[:, 2])))
+    searches, refitted = [], []
+    real_search, real_refit = ransac.RansacSearch, ransac.refit_plane
+
+    class Recorded(real_search):
+        def __init__(self, *args):
+            super().__init__(*args)
+            searches.append(self)
+
+    def refit(points_, equation, *args, **kwargs):
+        refitted.append(np.array(equation))
+        return real_refit(points_, equation, *args, **kwargs)
+
+    monkeypatch.setattr(ransac, "RansacSearch", Recorded)
+    monkeypatch.setattr(ransac, "refit_plane", refit)
+    ransac.fit_plane(points, config, noise, look_behind=False, expected=np.array([0.0, 0.0, -1.0, 2.0]))
+    search, = searches
+    assert np.array_equal(search.points, sample) and search.threshold == threshold
+    assert search.done == config.num_iterations
+    expected, _ = every_hypothesis(sample, threshold, config.num_iterations, config.seed)
+    assert np.array_equal(refitted[0], expected)
+    # A drawn shape: the early stop, where ransac_plane stops.
+    searches.clear(), refitted.clear()
+    ransac.fit_plane(points, config, noise, look_behind=False)
+    early, _ = ransac_plane(sample, threshold, config.num_iterations, config.seed)
+    assert searches[0].done < config.num_iterations and np.array_equal(refitted[0], early)
+
+
+def test_a_search_stopped_inside_a_chunk_of_hypotheses_goes_on_with_the_same_ones(monkeypatch):
+    # Hypotheses are drawn 7 at a time here; an early stop after, say, 10 of them leaves the
+    # chunk of 7 to 13 drawn and 3 of it unscored: taking the search on must score those 3 and
+    # draw the next chunks as a search that never stopped does (chunks by the search's length,
+    # not by where the stop fell).
+    monkeypatch.setattr(ransac, "TRIPLES_DRAWN", 7)
+    stops = set()
+    for seed in range(20):
+        rng = np.random.default_rng(seed)
+        sample = rng.uniform(-1, 1, (300, 3))
+        search = ransac.RansacSearch(sample, 0.5, 101, seed)
+        search.score()
+        stops.add(search.done % 7)
+        search.score(probability=1.0)
+        plane, count = search.best()
+        expected, expected_count = every_hypothesis(sample, 0.5, 101, seed)
+        assert count == expected_count and np.array_equal(plane, expected), seed
+    assert stops - {0}  # some searches stopped inside a chunk
