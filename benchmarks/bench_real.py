@@ -29,9 +29,10 @@ planes that lose most the run's list of planes to check holds (:func:`real_losse
 
 ``--trajectory FILE`` gives the runs with poses another trajectory than ``seq/groundtruth.txt``.
 With the kit's ICP-refined poses (``SCENE/gt_work/poses_2.txt``, those the ground truth was
-ray-cast from) the rows with poses score what they would with poses as good as the ground
-truth's own: the ceiling of any pose refinement, and so how much of each row's loss is pose
-error.
+ray-cast from, after one more ICP per frame: ``SCENE/eval/gt/render_poses.txt``) the rows with
+poses score what they would with poses as consistent as the ground truth's own, and so how much of
+each row's loss is pose error. Each run's scores record the trajectory it read; ``--reuse`` keeps
+only runs of the same one.
 
 Without the kit or the scene it prints one line and exits 0.
 """
@@ -79,9 +80,9 @@ def main() -> None:
     parser.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
                         help="a configuration override for every run (repeatable)")
     args = parser.parse_args()
+    if args.trajectory is not None and not args.trajectory.is_file():  # a typo, not a machine without the kit
+        parser.error(f"--trajectory {args.trajectory}: no such file")
     missing = _missing(args.kit, args.scene, args.gt)
-    if not missing and args.trajectory is not None and not args.trajectory.is_file():
-        missing = f"no trajectory at {args.trajectory}"
     if missing:
         print(f"bench_real: skipped ({missing})")
         return
@@ -101,13 +102,14 @@ def main() -> None:
             command = ["cvat2mask", str(scene / "seq"), str(export)]
             if poses:
                 command += ["--poses", str(trajectory)]
-            results[name] = _run(out, name, command, scene, args, reuse=args.reuse)
+            results[name] = _run(out, name, command, scene, args, reuse=args.reuse,
+                                 trajectory=str(trajectory) if poses else None)
             results[name]["polygons"] = polygons
     table = effort_table(results)
     (out / "table.md").write_text(table + "\n", encoding="utf-8")
     (out / "results.json").write_text(json.dumps(results, indent=1), encoding="utf-8")
-    poses = "" if args.trajectory is None else f", poses from {trajectory}"
-    print(f"\n{scene.name}, ground truth {args.gt}, --jobs {args.jobs}{poses}; runs in {out}\n")
+    source = "" if args.trajectory is None else f", poses from {trajectory}"
+    print(f"\n{scene.name}, ground truth {args.gt}, --jobs {args.jobs}{source}; runs in {out}\n")
     print(table)
     print()
     for line in target_lines(results):
@@ -156,11 +158,15 @@ def _thin(kit: Path, scene: Path, out: Path, variant: str) -> tuple[Path, int]:
     return export, int(drawn.split()[-1])
 
 
-def _run(out: Path, name: str, command: list[str], scene: Path, args, reuse: bool) -> dict:
-    """Run one variant with ``annotate-rgbd`` and score it with the kit's evaluate.py."""
+def _run(out: Path, name: str, command: list[str], scene: Path, args, reuse: bool, trajectory: str | None = None) -> dict:
+    """Run one variant with ``annotate-rgbd`` and score it with the kit's evaluate.py; with
+    ``reuse``, the scores an earlier run of the same variant (and ``trajectory``) left in ``out``.
+    The scores record the trajectory the run read (None: no poses)."""
     scores = out / f"{name}.json"
     if reuse and scores.is_file():
-        return json.loads(scores.read_text(encoding="utf-8"))
+        earlier = json.loads(scores.read_text(encoding="utf-8"))
+        if earlier.get("trajectory") == trajectory:
+            return earlier
     target = out / "runs" / name
     shutil.rmtree(target, ignore_errors=True)
     full = [sys.executable, "-m", "annotate_rgbd", *command, "--config", str(scene / "seq" / "camera.toml"),
@@ -178,7 +184,7 @@ def _run(out: Path, name: str, command: list[str], scene: Path, args, reuse: boo
         result = json.loads(evaluated.stdout)
     except json.JSONDecodeError:
         result = {"error": (evaluated.stderr.strip().splitlines() or ["evaluate.py failed"])[-1]}
-    result.update(seconds=round(seconds, 1), returncode=code)
+    result.update(seconds=round(seconds, 1), returncode=code, trajectory=trajectory)
     scores.write_text(json.dumps(result), encoding="utf-8")
     print(f"{name}: {seconds:.0f} s, mean IoU {result.get('mean_iou', float('nan')):.3f}", flush=True)
     return result

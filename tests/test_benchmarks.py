@@ -182,17 +182,66 @@ def test_review_scores_count_the_listed_carried_planes_that_lose_against_the_den
     assert bench_real.review_lines(tmp_path / "gt", tmp_path, {"every10_pose": {"mean_iou": 0.8}}) == []
 
 
-def test_a_trajectory_that_is_not_there_skips_the_benchmark_in_one_line(bench_real, tmp_path, monkeypatch, capsys):
-    """``--trajectory`` (the runs with poses read another trajectory, e.g. the kit's refined
-    poses) must exist: without it nothing runs, one line says why."""
+def _fake_scene(tmp_path):
+    """A kit and a scene with the files bench_real.py looks for (their contents never read: the
+    scripts are not run)."""
     kit, scene = tmp_path / "kit", tmp_path / "scene"
     for path in (kit / "evaluate.py", kit / "thin_keyframes.py", scene / "seq" / "camera.toml",
                  scene / "seq" / "groundtruth.txt", scene / "eval" / "gt_strict" / "planes.json", scene / "eval" / "full.xml"):
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text("")
-    out = tmp_path / "out"
+    return kit, scene
+
+
+def test_a_trajectory_that_is_not_there_is_a_usage_error(bench_real, tmp_path, monkeypatch, capsys):
+    """``--trajectory`` (the runs with poses read another trajectory, e.g. the kit's refined
+    poses) must exist: a typo stops the benchmark as a bad option does (status 2), before anything runs."""
+    kit, scene = _fake_scene(tmp_path)
+    out, missing = tmp_path / "out", scene / "gt_work" / "poses_2.txt"
     monkeypatch.setattr("sys.argv", ["bench_real.py", str(scene), "--kit", str(kit), "--out", str(out),
-                                     "--trajectory", str(scene / "gt_work" / "poses_2.txt")])
-    bench_real.main()
-    assert capsys.readouterr().out == f"bench_real: skipped (no trajectory at {scene / 'gt_work' / 'poses_2.txt'})\n"
+                                     "--trajectory", str(missing)])
+    with pytest.raises(SystemExit) as stopped:
+        bench_real.main()
+    assert stopped.value.code == 2
+    assert capsys.readouterr().err.splitlines()[-1].endswith(f"error: --trajectory {missing}: no such file")
     assert not out.exists()
+
+
+def test_the_runs_with_poses_read_the_trajectory_given_and_record_it(bench_real, tmp_path, monkeypatch):
+    """The runs with poses get ``--poses`` the trajectory given (the others none), their scores
+    name it, and ``--reuse`` keeps only scores of the same trajectory."""
+    import json
+    import subprocess
+    from types import SimpleNamespace
+
+    kit, scene = _fake_scene(tmp_path)
+    refined = scene / "gt_work" / "poses_2.txt"
+    refined.parent.mkdir()
+    refined.write_text("")
+    tool_runs = []
+
+    def fake_run(command, **kwargs):
+        if str(command[1]).endswith("thin_keyframes.py"):
+            return SimpleNamespace(returncode=0, stdout="polygons drawn: 12\n", stderr="")
+        if str(command[1]).endswith("evaluate.py"):
+            return SimpleNamespace(returncode=0, stdout=json.dumps({"mean_iou": 0.5, "precision": 0.6, "recall": 0.7, "leak": 0.01, "planes": {}}), stderr="")
+        tool_runs.append([str(part) for part in command])
+        return SimpleNamespace(returncode=0, stdout="", stderr="")
+
+    monkeypatch.setattr(subprocess, "run", fake_run)
+    out = tmp_path / "out"
+    base = ["bench_real.py", str(scene), "--kit", str(kit), "--out", str(out), "--variants", "every10"]
+    monkeypatch.setattr("sys.argv", [*base, "--trajectory", str(refined)])
+    bench_real.main()
+    poses = [run[run.index("--poses") + 1] if "--poses" in run else None for run in tool_runs]
+    assert poses == [None, str(refined.resolve())]
+    assert json.loads((out / "every10_pose.json").read_text())["trajectory"] == str(refined.resolve())
+    assert json.loads((out / "every10_nopose.json").read_text())["trajectory"] is None
+    # Reused: the runs of the same trajectory; the motion capture's runs again (its scores would differ).
+    tool_runs.clear()
+    monkeypatch.setattr("sys.argv", [*base, "--trajectory", str(refined), "--reuse"])
+    bench_real.main()
+    assert tool_runs == []
+    monkeypatch.setattr("sys.argv", [*base, "--reuse"])
+    bench_real.main()
+    assert [run[run.index("--poses") + 1] for run in tool_runs] == [str((scene / "seq" / "groundtruth.txt").resolve())]
