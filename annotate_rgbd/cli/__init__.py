@@ -9,6 +9,7 @@ import typer
 
 from annotate_rgbd import __version__
 from .console import CheckedCommand, OneLineErrors, one_output, output_path, user_errors
+from .options import OPTION_SETTINGS, polygon_budget, seconds, setting, share_of_image
 from annotate_rgbd.errors import InputError
 from annotate_rgbd.logs import counted, manifest_words
 from annotate_rgbd.pool import STALL_TIMEOUT
@@ -33,33 +34,6 @@ def _load_config(sequence_dir: Path, config: Optional[str], overrides: dict):
     from annotate_rgbd.config.layout import load_run_config
 
     return load_run_config(sequence_dir, config, overrides)
-
-
-def _share_of_image(value: Optional[float]) -> Optional[float]:
-    """``--min-area``: a share of the image in (0, 1] (NaN passes a range check of its own)."""
-    if value is not None and not 0 < value <= 1:
-        raise typer.BadParameter(f"must be a share of the image in (0, 1], not {value:g}")
-    return value
-
-
-def _seconds(value: float) -> float:
-    """``--job-timeout``: seconds, ``inf`` to wait for ever (the option's range lets NaN through,
-    which would never take a hung helper for hung)."""
-    if not value >= 1:
-        raise typer.BadParameter(f"must be a number of seconds >= 1 (inf: wait for ever), not {value:g}")
-    return value
-
-
-def _polygon_budget(param: typer.CallbackParam, value: Optional[float]) -> Optional[float]:
-    """``export-cvat --tolerance`` (the option's range lets NaN and infinity through) and
-    ``--max-vertices`` (0 or at least 3), as :func:`annotate_rgbd.export.cvat.export_cvat` takes them."""
-    if value is not None:
-        from annotate_rgbd.export.cvat import tolerance_problem, vertex_budget_problem
-
-        problem = (tolerance_problem if param.name == "tolerance" else vertex_budget_problem)(value)
-        if problem:
-            raise typer.BadParameter(problem)
-    return value
 
 
 def _version(value: bool) -> None:
@@ -89,11 +63,18 @@ def cvat2mask(
     ),
     label: List[str] = typer.Option([], "--label", metavar="LABEL", help="Use only shapes with this CVAT label (repeatable)."),
     distance_threshold: Optional[float] = typer.Option(
-        None, metavar="METRES", help="A fixed inlier band in metres at every depth, instead of the [noise] model's (0: the model's)."
+        None, metavar="METRES", callback=setting,
+        help="A fixed inlier band in metres at every depth, instead of the [noise] model's (0: the model's).",
     ),
-    max_invalid_ratio: Optional[float] = typer.Option(None, metavar="SHARE", help="Drop a plane with a larger share of invalid depth."),
-    max_mean_distance: Optional[float] = typer.Option(None, metavar="METRES", help="Drop a plane farther than this on average (m)."),
-    max_time_diff: Optional[float] = typer.Option(None, metavar="SECONDS", help="Largest depth-to-RGB time difference (s)."),
+    max_invalid_ratio: Optional[float] = typer.Option(
+        None, metavar="SHARE", callback=setting, help="Drop a plane with a larger share of invalid depth."
+    ),
+    max_mean_distance: Optional[float] = typer.Option(
+        None, metavar="METRES", callback=setting, help="Drop a plane farther than this on average (m)."
+    ),
+    max_time_diff: Optional[float] = typer.Option(
+        None, metavar="SECONDS", callback=setting, help="Largest depth-to-RGB time difference (s)."
+    ),
     set_: List[str] = typer.Option([], "--set", metavar="SECTION.KEY=VALUE", help="Override any configuration key: SECTION.KEY=VALUE."),
     part: List[str] = typer.Option(
         [], "--part", metavar="FILE:OFFSET", help="Where an annotation part starts: FILE:OFFSET, the RGB index of its frame 0 (repeatable)."
@@ -106,7 +87,7 @@ def cvat2mask(
         False, "--instance-ids", help="Also write masks_id/: plane ids as pixel values (8/16-bit, as in planes.csv)."
     ),
     job_timeout: float = typer.Option(
-        STALL_TIMEOUT, "--job-timeout", min=1.0, metavar="SECONDS", callback=_seconds, help="Seconds without a frame finished by the helpers before they are replaced."
+        STALL_TIMEOUT, "--job-timeout", min=1.0, metavar="SECONDS", callback=seconds, help="Seconds without a frame finished by the helpers before they are replaced."
     ),
     poses: Optional[Path] = typer.Option(
         None, "--poses", metavar="FILE|DIR",
@@ -130,13 +111,9 @@ def cvat2mask(
         from annotate_rgbd.progress import Progress
 
         overrides = parse_settings(set_)
-        named = {
-            "annotation.labels": label or None,
-            "ransac.distance_threshold": distance_threshold,
-            "filter.max_invalid_ratio": max_invalid_ratio,
-            "filter.max_mean_distance": max_mean_distance,
-            "sequence.max_time_diff": max_time_diff,
-        }
+        options = {"distance_threshold": distance_threshold, "max_invalid_ratio": max_invalid_ratio,
+                   "max_mean_distance": max_mean_distance, "max_time_diff": max_time_diff}
+        named = {"annotation.labels": label or None, **{OPTION_SETTINGS[name]: v for name, v in options.items()}}
         overrides.update({k: v for k, v in named.items() if v is not None})
         offsets = parse_part_offsets(part)
         progress = Progress({sequence_dir.name: 0})
@@ -169,7 +146,7 @@ def batch(
     jobs: Optional[int] = typer.Option(None, "--jobs", "-j", min=1, metavar="N", help="Worker processes (default: the manifest's jobs, else all cores)."),
     force: bool = typer.Option(False, "--force", help="Redo every frame, even those unchanged since the last run."),
     job_timeout: float = typer.Option(
-        STALL_TIMEOUT, "--job-timeout", min=1.0, metavar="SECONDS", callback=_seconds, help="Seconds without a frame finished by the helpers before they are replaced."
+        STALL_TIMEOUT, "--job-timeout", min=1.0, metavar="SECONDS", callback=seconds, help="Seconds without a frame finished by the helpers before they are replaced."
     ),
     shard: Optional[str] = typer.Option(
         None, "--shard", metavar="K/N", help="Run only the K-th of N disjoint shards of the scenes (by a hash of their names)."
@@ -417,7 +394,7 @@ def propose(
         None, "--label", metavar="LABEL", help="CVAT label of the proposed tracks; default: [propose] label."
     ),
     min_area: Optional[float] = typer.Option(
-        None, "--min-area", metavar="SHARE", callback=_share_of_image,
+        None, "--min-area", metavar="SHARE", callback=share_of_image,
         help="Smallest plane proposed, as a share of the image, in (0, 1]; default: [detect] min_area_fraction.",
     ),
     set_: List[str] = typer.Option([], "--set", metavar="SECTION.KEY=VALUE", help="Override any configuration key: SECTION.KEY=VALUE."),
@@ -465,11 +442,11 @@ def export_cvat_command(
     xml: Optional[str] = typer.Argument(None, metavar="FILE.xml", help="The CVAT for video 1.1 XML file to write."),
     xml_option: Optional[str] = typer.Option(None, "--out", "-o", metavar="FILE.xml", help="The same as FILE.xml."),
     tolerance: Optional[float] = typer.Option(
-        None, "--tolerance", min=0.0, metavar="PX", callback=_polygon_budget,
+        None, "--tolerance", min=0.0, metavar="PX", callback=polygon_budget,
         help="Largest distance of a polygon from its mask's outline, pixels (default 0.5).",
     ),
     max_vertices: Optional[int] = typer.Option(
-        None, "--max-vertices", metavar="N", callback=_polygon_budget,
+        None, "--max-vertices", metavar="N", callback=polygon_budget,
         help="Vertex budget of each polygon: 0 for none, else at least 3 (default 200).",
     ),
     jobs: Optional[int] = typer.Option(None, "--jobs", "-j", min=1, metavar="N", help="Worker processes (default: all cores)."),

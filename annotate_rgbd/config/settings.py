@@ -410,6 +410,30 @@ def _coerce(key: str, default: Any, value: Any, origin: str | Path | None) -> An
     return float(value)
 
 
+def setting_problem(key: str, value: Any) -> str | None:
+    """Why ``value`` cannot be the setting ``key`` (``"must be in [0, 1]"``), or None when it can:
+    the checks a configuration file or ``--set`` gets, for a command-line option that sets one key
+    (checked as the command line is parsed).
+
+    Parameters
+    ----------
+    key : str
+        ``section.key``.
+    value : object
+
+    Returns
+    -------
+    str or None
+        The rule the value breaks, without the key.
+    """
+    try:
+        load_config(None, {key: value})
+    except InputError as problem:
+        named = f"'{key}' "
+        return problem.message[len(named):] if problem.message.startswith(named) else problem.message
+    return None
+
+
 #: Largest integer setting: a C int (OpenCV takes its sizes as C ints; beyond, surely a typo).
 MAX_INT_SETTING = 2**31 - 1
 #: Most RANSAC hypotheses: the exhaustive search of a carried shape scores them all, a million

@@ -754,6 +754,30 @@ def test_export_with_a_vertex_budget_under_a_triangle_is_one_line_and_status_2(f
     assert "0 for none, else at least 3 (default 200). -j" in help_text  # no [x>=0] after it
 
 
+@pytest.mark.parametrize(("option", "value", "rule"), [
+    ("--max-invalid-ratio", "1.5", "must be in [0, 1], not 1.5"),
+    ("--max-invalid-ratio", "-0.1", "must be in [0, 1], not -0.1"),
+    ("--max-mean-distance", "0", "must be > 0, not 0"),
+    ("--max-time-diff", "-1", "must be >= 0, not -1"),
+    ("--distance-threshold", "-0.01", "must be >= 0 (0: the [noise] band), not -0.01"),
+    ("--distance-threshold", "nan", "must be a finite number, got nan"),
+])
+def test_cvat2mask_options_that_set_a_key_are_checked_by_its_rule_as_the_line_is_parsed(tmp_path, option, value, rule):
+    # A CLI trial: these named the configuration key ('filter.max_invalid_ratio' ...) and exited 1,
+    # where every other option out of range names the option and exits 2. The rule is the key's
+    # own, as --config and --set check it.
+    result = invoke("cvat2mask", SAMPLE / "sequence", SAMPLE / "annotations.xml", "-c", SAMPLE / "camera.toml",
+                    "-o", tmp_path / "out", option, value)
+    assert result.exit_code == 2
+    assert error_line(result).startswith(f"error: Invalid value for '{option}': {rule} (see ")
+    assert not (tmp_path / "out").exists()
+    key = {"--max-invalid-ratio": "filter.max_invalid_ratio", "--max-mean-distance": "filter.max_mean_distance",
+           "--max-time-diff": "sequence.max_time_diff", "--distance-threshold": "ransac.distance_threshold"}[option]
+    same = invoke("cvat2mask", SAMPLE / "sequence", SAMPLE / "annotations.xml", "-c", SAMPLE / "camera.toml",
+                  "-o", tmp_path / "out", "--set", f"{key}={value}")
+    assert same.exit_code == 1 and rule.split(", not ")[0] in error_line(same)
+
+
 @pytest.mark.parametrize("share", ["0", "1.5", "nan"])
 def test_propose_min_area_outside_its_range_is_one_line_and_the_help_says_the_range(tmp_path, share):
     # The help said [0.0<=x<=1.0] while 0 was refused; NaN passed the option's own range check.

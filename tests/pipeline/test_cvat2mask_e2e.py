@@ -341,6 +341,6 @@ def test_a_job_timeout_that_is_not_a_number_of_seconds_is_one_error(tmp_path):
             "error: Invalid value for '--job-timeout': must be a number of seconds >= 1 (inf: wait for ever), not nan (see ")
         assert not out.exists()
     # inf stays what the help says: wait for ever (the option's check lets it through).
-    from annotate_rgbd.cli import _seconds
+    from annotate_rgbd.cli.options import seconds
 
-    assert _seconds(float("inf")) == float("inf") and _seconds(1.0) == 1.0
+    assert seconds(float("inf")) == float("inf") and seconds(1.0) == 1.0
