@@ -221,8 +221,9 @@ def check_target(run_dir: Path, xml_path: Path, annotations: Sequence[Path] = ()
 
 def looks_like_cvat_xml(head: bytes) -> bool:
     """Whether the first bytes of a file are those of a CVAT XML file (an export this command or
-    CVAT wrote): markup whose first element is ``<annotations>``, after an XML declaration and
-    comments. A trajectory, a camera file or a frame list named as the export by mistake is not.
+    CVAT wrote): markup that opens an ``<annotations`` element within them (after an XML
+    declaration and comments). A trajectory, a camera file or a frame list named as the export by
+    mistake is not.
     """
     text = head.lstrip(b"\xef\xbb\xbf \t\r\n")
     return text.startswith(b"<") and b"<annotations" in text
