@@ -124,8 +124,7 @@ def fit_plane(
         if len(sample) < 3:  # a stride over very few points (max_points = 3) can leave two
             sample = points[: max(config.max_points, 3)]
     threshold = config.band_share * float(noise.band(median(sample[:, 2])))
-    search = RansacSearch(sample, threshold, config.num_iterations, config.seed)
-    search.score()
+    search = _search(sample, threshold, config)
     equation, inliers = search.best()
     if inliers == 0:  # the points lie on one line: no plane to find (nor behind it, nor to re-fit)
         return PlaneFit(np.full(4, np.nan), np.zeros(len(points), dtype=bool))
@@ -181,7 +180,7 @@ def _surface_behind(
     for _ in range(BEHIND_CANDIDATES):
         if np.count_nonzero(behind) < max(config.behind_share * inliers, config.min_behind_points):
             return None
-        candidate, found = _ransac(sample[behind], threshold, config)
+        candidate, found = _search(sample[behind], threshold, config).best()
         if found < max(config.behind_share * inliers, config.min_behind_points):
             return None
         signed = sample @ candidate[:3] + candidate[3]
@@ -238,11 +237,14 @@ def on_expected_plane(points: np.ndarray, expected: np.ndarray, propagate: Propa
     return bool(np.count_nonzero(distance <= propagate.same_surface_offset) >= ON_EXPECTED_SHARE * len(points))
 
 
-def _ransac(sample: np.ndarray, threshold: float, config: RansacConfig) -> tuple[np.ndarray, int]:
-    """RANSAC's plane through ``sample`` (unit normal towards the camera) and its number of
-    inliers within ``threshold``, stopping once the plane is likely the best
-    (:func:`ransac_plane` at :data:`DEFAULT_PROBABILITY`)."""
-    return ransac_plane(sample, threshold, config.num_iterations, config.seed)
+def _search(sample: np.ndarray, threshold: float, config: RansacConfig) -> RansacSearch:
+    """RANSAC's search through ``sample`` with the configured iterations and seed, scored until
+    its plane is likely the best (:data:`DEFAULT_PROBABILITY`): ``best()`` gives that plane (unit
+    normal towards the camera) and its inliers within ``threshold``, ``score(1.0)`` takes the
+    search on through every hypothesis."""
+    search = RansacSearch(sample, threshold, config.num_iterations, config.seed)
+    search.score()
+    return search
 
 
 def every_hypothesis(points: np.ndarray, threshold: float, iterations: int, seed: int) -> tuple[np.ndarray, int]:
