@@ -329,6 +329,10 @@ def format_table(result: EvaluationResult) -> str:
     return "\n".join(lines)
 
 
+#: The columns of ``--per-frame``'s CSV: the frame's name, its statistics, whether PRED was missing.
+PER_FRAME_COLUMNS = ("frame", *METRIC_NAMES, "missing")
+
+
 def format_json(result: EvaluationResult) -> str:
     """The result as one JSON object (see :meth:`EvaluationResult.to_dict`)."""
     return json.dumps(result.to_dict(), indent=2)
@@ -350,7 +354,13 @@ def check_per_frame_target(path: str | Path, gt: str | Path, pred: str | Path) -
     roles = ((label_folder(Path(gt), say=False), "the ground truth being scored"),
              (label_folder(Path(pred), say=False), "the masks being scored"))
     check_output_file(Path(path), "per_frame.csv", "the per-frame CSV", "CSV file", roles,
-                      ours=(lambda head: head.startswith(b"frame,"), "a per-frame CSV of evaluate"))
+                      ours=(looks_like_per_frame_csv, "a per-frame CSV of evaluate"))
+
+
+def looks_like_per_frame_csv(head: bytes) -> bool:
+    """Whether the first bytes of a file are those of a per-frame CSV (:func:`write_per_frame_csv`:
+    its header begins with :data:`PER_FRAME_COLUMNS`' first column)."""
+    return head.startswith(f"{PER_FRAME_COLUMNS[0]},".encode())
 
 
 def write_per_frame_csv(result: EvaluationResult, path: str | Path) -> None:
@@ -363,7 +373,7 @@ def write_per_frame_csv(result: EvaluationResult, path: str | Path) -> None:
         (frame.name, *(repr(getattr(frame.statistics, name)) for name in METRIC_NAMES), int(frame.missing))
         for frame in result.frames
     ]
-    write_output(Path(path), csv_bytes(("frame", *METRIC_NAMES, "missing"), rows))
+    write_output(Path(path), csv_bytes(PER_FRAME_COLUMNS, rows))
 
 
 def _label_files(folder: Path) -> dict[str, Path]:
