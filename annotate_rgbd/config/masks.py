@@ -247,6 +247,20 @@ class PropagateConfig:
         -> 0.926 (every 10th 0.935 -> 0.941).
     outline_tolerance : float
         Largest distance (px) of a carried exclusion outline from the traced one.
+    align_rounds : int
+        Rounds of aligning every keyframe's pose to its neighbouring keyframes' depth before
+        every other frame's pose is aligned to its keyframes' (:mod:`annotate_rgbd.propagate.align`);
+        0: the trajectory's poses as they are. Measured on TUM fr1_rpy (docs/benchmarks.md).
+    align_neighbours : int
+        The keyframes on each side a keyframe is aligned to (each other frame: to its
+        ``keyframes_each_side``, those whose outlines it takes).
+    align_step : int
+        A frame is aligned on its depth at every this many pixels both ways.
+    align_max_shift, align_max_turn : float
+        A larger correction of a pose (m, degrees) is not believed and the trajectory's pose is
+        kept: real trajectories are off by a few centimetres and degrees (TUM fr1_rpy's motion
+        capture against poses registered to its fused depth: 95th percentile 4.2 cm, 3.0
+        degrees), and ICP that pairs the wrong surfaces moves poses farther.
     """
 
     same_surface_angle: float = 5.0
@@ -261,6 +275,11 @@ class PropagateConfig:
     exclude: bool = True
     exclude_margin: int = 0
     outline_tolerance: float = 1.0
+    align_rounds: int = 3
+    align_neighbours: int = 2
+    align_step: int = 8
+    align_max_shift: float = 0.05
+    align_max_turn: float = 3.0
 
 
 def range_checks(config: Any) -> list[tuple[str, bool, str]]:
@@ -308,4 +327,9 @@ def range_checks(config: Any) -> list[tuple[str, bool, str]]:
         ("propagate.keyframes_each_side", 1 <= propagate.keyframes_each_side <= 1000, "must be in [1, 1000]"),
         ("propagate.exclude_margin", 0 <= propagate.exclude_margin <= 50, "must be in [0, 50]"),
         ("propagate.outline_tolerance", propagate.outline_tolerance > 0, "must be > 0"),
+        ("propagate.align_rounds", 0 <= propagate.align_rounds <= 20, "must be in [0, 20] (0: no alignment)"),
+        ("propagate.align_neighbours", 1 <= propagate.align_neighbours <= 1000, "must be in [1, 1000]"),
+        ("propagate.align_step", 1 <= propagate.align_step <= 64, "must be in [1, 64] (px)"),
+        ("propagate.align_max_shift", propagate.align_max_shift >= 0, "must be >= 0"),
+        ("propagate.align_max_turn", 0 <= propagate.align_max_turn <= 180, "must be in [0, 180] (degrees)"),
     ]

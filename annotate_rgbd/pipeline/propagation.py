@@ -21,7 +21,8 @@ import numpy as np
 from annotate_rgbd.config.settings import Config
 from annotate_rgbd.annotation.parts import Part
 from annotate_rgbd.io.poses import FramePoses, Trajectory, load_trajectory, missing_poses_text, poses_at, poses_of_frames
-from annotate_rgbd.propagate.keyframes import NO_DEPTH_FRAME, fit_keyframes, time_samples
+from annotate_rgbd.propagate.align import Alignment, align_frames
+from annotate_rgbd.propagate.keyframes import NO_DEPTH_FRAME, fit_keyframes, keyframe_depths, time_samples
 from annotate_rgbd.propagate.lift import TrackLift, lift_tracks
 from annotate_rgbd.propagate.timing import TimeOffset, estimate_time_offset
 from annotate_rgbd.pool import HelperPool
@@ -55,6 +56,8 @@ class Propagation:
         Seconds added to the depth timestamps to read the trajectory (configured plus estimated).
     estimate : TimeOffset, optional
         What the estimate of the offset found.
+    alignment : Alignment
+        What aligning the frames' poses to the keyframes' depth did.
     """
 
     path: str
@@ -66,6 +69,7 @@ class Propagation:
     warnings: list[str] = field(default_factory=list)
     time_offset: float = 0.0
     estimate: TimeOffset | None = None
+    alignment: Alignment = field(default_factory=Alignment)
 
     def to_json(self) -> dict:
         """The report's ``propagation`` section."""
@@ -73,6 +77,7 @@ class Propagation:
             "poses": self.path,
             "time_offset_s": round(self.time_offset, 4),
             "time_offset_estimate": self.estimate.to_json() if self.estimate is not None else None,
+            "alignment": self.alignment.to_json(),
             "frames_with_pose": int(np.count_nonzero(self.depth_poses.ok)),
             "tracks": [lift.to_json() for lift in self.lifts.values()],
             "inconsistent_tracks": [f"{lift.part}:{lift.track}" for lift in self.lifts.values() if not lift.consistent],
@@ -111,10 +116,12 @@ def plan_propagation(
                                       settings.time_offset_step, gap, settings.same_surface_offset,
                                       config.inlier_band().model.sigma)
     depth_poses = poses_at(trajectory, times + offset.offset, gap)
+    depth_files = [sequence.root / f for f in sequence.depth.files]
+    depth_poses, alignment = align_frames(depth_poses, keyframe_depths(fitted), depth_files, config, helpers)
     lifts = lift_tracks(fitted, depth_poses, config)
     return Propagation(str(Path(path).absolute()), {(lift.part, lift.track): lift for lift in lifts}, depth_poses,
                        trajectory, sequence.clock, sequence.depth.timestamps, loaded.warnings,
-                       settings.time_offset + offset.offset, offset)
+                       settings.time_offset + offset.offset, offset, alignment)
 
 
 def propagation_warnings(propagation: Propagation) -> list[str]:

@@ -255,6 +255,12 @@ def keyframe_job(job: tuple) -> tuple[dict, tuple[int, int]]:
     return keyframe_planes(*job)
 
 
+def keyframe_depths(fitted: list[FittedTrack]) -> list[int]:
+    """The depth frames of every track's fitted keyframes (those with a plane), in order."""
+    return sorted({depth for track in fitted for _, _, depth, result in track.keyframes
+                   if depth >= 0 and not isinstance(result, str)})
+
+
 def time_samples(fitted: list[FittedTrack], depth_timestamps: np.ndarray, config: Config) -> list[KeyframeSample]:
     """Every fitted keyframe as a :class:`~annotate_rgbd.propagate.timing.KeyframeSample`: its
     plane and points of it where the depth supports it, in its camera frame (one group per

@@ -1,0 +1,172 @@
+"""Frame alignment: poses refined by ICP against the keyframes' depth (annotate_rgbd.propagate.align).
+
+The depth here is ray-cast in the test itself, from a room corner (the floor and two walls) and
+known poses, so every pose the alignment finds is checked against the pose the depth was made
+from, not against the code's own idea of it.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+
+import cv2
+import numpy as np
+import pytest
+
+from annotate_rgbd.config.settings import load_config
+from annotate_rgbd.geometry.camera import Camera
+from annotate_rgbd.io.poses import FramePoses
+from annotate_rgbd.pool import start_helpers
+from annotate_rgbd.propagate.align import align_frames, align_pose, frame_points, keyframe_view, stack_views
+
+CAMERA = Camera(fx=262.5, fy=262.5, cx=159.5, cy=119.5, depth_scale=5000.0)
+#: The corner of a room: the floor z = 0 and the walls x = 0, y = 0 (unit normals, offsets).
+CORNER = [((0.0, 0.0, 1.0), 0.0), ((1.0, 0.0, 0.0), 0.0), ((0.0, 1.0, 0.0), 0.0)]
+
+
+def _look_at(centre, target) -> tuple[np.ndarray, np.ndarray]:
+    """A camera-to-world pose at ``centre`` looking at ``target`` (x right, y down, z forward)."""
+    forward = np.asarray(target, float) - centre
+    forward /= np.linalg.norm(forward)
+    right = np.cross(forward, (0.0, 0.0, 1.0))
+    right /= np.linalg.norm(right)
+    down = np.cross(forward, right)
+    return np.stack([right, down, forward], axis=1), np.asarray(centre, float)
+
+
+def _render(rotation, translation, planes=CORNER, size=(240, 320)) -> np.ndarray:
+    """Depth (m, NaN where no plane) of the planes seen from a pose: the nearest ray hit."""
+    rows, cols = np.mgrid[0:size[0], 0:size[1]].astype(float)
+    rays = np.stack([(cols - CAMERA.cx) / CAMERA.fx, (rows - CAMERA.cy) / CAMERA.fy, np.ones(size)], axis=2)
+    world = rays @ rotation.T
+    depth = np.full(size, np.inf)
+    for normal, offset in planes:
+        along = world @ np.asarray(normal)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            hit = (offset - np.dot(normal, translation)) / along
+        depth = np.where((hit > 0.1) & (hit < depth), hit, depth)
+    return np.where(np.isfinite(depth), depth, np.nan).astype(np.float32)
+
+
+def _turn(degrees, axis) -> np.ndarray:
+    """A rotation by ``degrees`` about ``axis``."""
+    axis = np.asarray(axis, float) / np.linalg.norm(axis)
+    matrix, _ = cv2.Rodrigues(np.radians(degrees) * axis.reshape(3, 1))
+    return matrix
+
+
+def _error(rotation, translation, true_rotation, true_translation) -> tuple[float, float]:
+    """(cm, degrees) between two poses."""
+    change = true_rotation.T @ rotation
+    angle = np.degrees(np.arccos(np.clip((np.trace(change) - 1) / 2, -1, 1)))
+    return 100 * float(np.linalg.norm(translation - true_translation)), float(angle)
+
+
+def _keyframes(poses):
+    return stack_views([keyframe_view(_render(r, t), CAMERA, 10.0) for r, t in poses],
+                       [r for r, _ in poses], [t for _, t in poses])
+
+
+KEYFRAME_POSES = [_look_at((2.5, 2.0, 1.4), (0.3, 0.3, 0.5)), _look_at((2.2, 2.6, 1.5), (0.4, 0.2, 0.4))]
+
+
+def test_a_frame_off_by_a_degree_and_centimetres_is_brought_back_onto_its_keyframes():
+    true_r, true_t = _look_at((2.4, 2.3, 1.45), (0.3, 0.3, 0.5))
+    points = frame_points(_render(true_r, true_t), CAMERA, 4, 10.0)
+    start_r, start_t = true_r @ _turn(1.2, (1, 2, 0.5)), true_t + np.array([0.015, -0.01, 0.012])
+    assert _error(start_r, start_t, true_r, true_t)[1] > 1.1
+    found = align_pose(points, start_r, start_t, _keyframes(KEYFRAME_POSES), CAMERA, 0.05, 3.0)
+    assert found.applied
+    shift, turn = _error(found.rotation, found.translation, true_r, true_t)
+    assert shift < 0.2 and turn < 0.05
+    assert found.shift == pytest.approx(np.linalg.norm(found.translation - start_t))
+
+
+def test_a_correction_beyond_the_limits_or_without_depth_keeps_the_given_pose():
+    true_r, true_t = _look_at((2.4, 2.3, 1.45), (0.3, 0.3, 0.5))
+    points = frame_points(_render(true_r, true_t), CAMERA, 4, 10.0)
+    start_r, start_t = true_r @ _turn(1.2, (1, 2, 0.5)), true_t + np.array([0.015, -0.01, 0.012])
+    views = _keyframes(KEYFRAME_POSES)
+    refused = align_pose(points, start_r, start_t, views, CAMERA, 0.005, 3.0)
+    assert not refused.applied and refused.shift > 0.005
+    assert refused.rotation is not None and np.array_equal(refused.translation, start_t)
+    nothing = align_pose(points[:0], start_r, start_t, views, CAMERA, 0.05, 3.0)
+    assert not nothing.applied and nothing.pairs == 0 and np.array_equal(nothing.rotation, start_r)
+
+
+def test_a_plane_seen_alone_does_not_slide_the_pose_along_it():
+    floor = [CORNER[0]]
+    true_r, true_t = _look_at((2.0, 2.0, 1.5), (1.0, 1.0, 0.0))
+    views = stack_views([keyframe_view(_render(r, t, floor), CAMERA, 10.0) for r, t in KEYFRAME_POSES],
+                        [r for r, _ in KEYFRAME_POSES], [t for _, t in KEYFRAME_POSES])
+    points = frame_points(_render(true_r, true_t, floor), CAMERA, 4, 10.0)
+    found = align_pose(points, true_r, true_t + np.array([0.0, 0.0, 0.02]), views, CAMERA, 0.05, 3.0)
+    assert found.applied
+    assert abs(found.translation[2] - true_t[2]) < 0.002  # the height comes back
+    assert np.linalg.norm(found.translation[:2] - true_t[:2]) < 0.002  # along the floor nothing moves
+
+
+def _config(**propagate):
+    """The default configuration with the test's camera (and ``[propagate]`` overrides)."""
+    config = load_config(None)
+    return replace(config, camera=CAMERA, propagate=replace(config.propagate, **propagate))
+
+
+def _sequence(tmp_path, poses):
+    """Depth frames of the corner from ``poses`` as 16-bit PNGs (5000 per metre)."""
+    files = []
+    for i, (r, t) in enumerate(poses):
+        path = tmp_path / f"{i:03d}.png"
+        depth = _render(r, t)
+        cv2.imwrite(str(path), np.where(np.isfinite(depth), np.rint(depth * 5000), 0).astype(np.uint16))
+        files.append(path)
+    return files
+
+
+def test_align_frames_makes_noisy_poses_agree_with_the_depth(tmp_path):
+    rng = np.random.default_rng(4)
+    true = [_look_at((2.6 - 0.05 * i, 2.0 + 0.06 * i, 1.4), (0.3, 0.3 + 0.02 * i, 0.5)) for i in range(9)]
+    files = _sequence(tmp_path, true)
+    noisy = [(r @ _turn(rng.uniform(0.5, 1.0), rng.normal(size=3)), t + rng.normal(0, 0.008, 3)) for r, t in true]
+    ok = np.ones(len(true), bool)
+    ok[5] = False  # a frame without a pose stays without one
+    given = FramePoses(np.stack([r for r, _ in noisy]), np.stack([t for _, t in noisy]), ok,
+                       np.array(["" if o else "pose_gap" for o in ok]))
+    aligned, alignment = align_frames(given, [0, 4, 8], files, _config())
+    assert alignment.keyframes == 3 and alignment.frames == 5 and alignment.corrected + alignment.kept == 8
+    assert np.array_equal(aligned.ok, ok)
+    assert np.array_equal(aligned.translations[5], given.translations[5], equal_nan=True)
+    json.dumps(alignment.to_json())
+    # The depth defines the poses up to one rigid motion of them all: compare each frame's pose
+    # relative to the first keyframe's with the true one. Three rounds of the keyframes against
+    # each other take them most of the way (more rounds: all of it).
+    def relative(rotations, translations, i):
+        return rotations[0].T @ rotations[i], rotations[0].T @ (translations[i] - translations[0])
+    true_r, true_t = np.stack([r for r, _ in true]), np.stack([t for _, t in true])
+    before = np.array([_error(*relative(given.rotations, given.translations, i), *relative(true_r, true_t, i))
+                       for i in (1, 2, 3, 4, 6, 7, 8)])
+    after = np.array([_error(*relative(aligned.rotations, aligned.translations, i), *relative(true_r, true_t, i))
+                      for i in (1, 2, 3, 4, 6, 7, 8)])
+    assert after[:, 1].mean() < 0.4 * before[:, 1].mean()
+    assert after[:, 0].mean() < 0.7 * before[:, 0].mean()
+    many, _ = align_frames(given, [0, 4, 8], files, _config(align_rounds=8))
+    closer = np.array([_error(*relative(many.rotations, many.translations, i), *relative(true_r, true_t, i))
+                       for i in (1, 2, 3, 4, 6, 7, 8)])
+    assert closer.max(axis=0).tolist() < [0.2, 0.05]
+    helpers = start_helpers(2)  # helper processes find the same poses, to the bit
+    try:
+        shared, _ = align_frames(given, [0, 4, 8], files, _config(), helpers)
+    finally:
+        helpers.shutdown()
+    assert np.array_equal(shared.rotations, aligned.rotations, equal_nan=True)
+    assert np.array_equal(shared.translations, aligned.translations, equal_nan=True)
+
+
+def test_no_rounds_or_one_keyframe_leaves_the_poses_as_they_are(tmp_path):
+    poses = KEYFRAME_POSES
+    files = _sequence(tmp_path, poses)
+    given = FramePoses(np.stack([r for r, _ in poses]), np.stack([t for _, t in poses]), np.ones(2, bool),
+                       np.array(["", ""]))
+    assert align_frames(given, [0], files, _config())[0] is given
+    assert align_frames(given, [0, 1], files, _config(align_rounds=0))[0] is given
