@@ -60,7 +60,7 @@ class RansacConfig:
         RANSAC looks for the plane among at most this many of a plane's points, spread evenly
         over it (a regular pixel grid); every pixel is then tested against that plane. On the
         benchmark sequence (benchmarks/bench_cvat2mask.py) 1,000 points change 0.04 % of the
-        mask pixels against a search among all points, at a third of the time. 0: every point.
+        mask pixels against a search among all points, at a cheaper. 0: every point.
     band_share : float
         RANSAC's distance threshold, as a share of the inlier band at the points' median depth
         (k = 3 sigma: 1.5 sigma). With the full band a plane tilted between two surfaces a few
@@ -252,8 +252,9 @@ class PropagateConfig:
         every other frame's pose is aligned to its keyframes' (:mod:`annotate_rgbd.propagate.align`);
         0: the trajectory's poses as they are. Measured on TUM fr1_rpy (docs/benchmarks.md).
     align_neighbours : int
-        The keyframes on each side a keyframe is aligned to (each other frame: to its
-        ``keyframes_each_side``, those whose outlines it takes).
+        The keyframes on each side a keyframe, or a frame between keyframes, is aligned to. On
+        TUM fr1_rpy 1 and 2 score within 0.002 of each other (docs/benchmarks.md); 1 takes a
+        cheaper.
     align_step : int
         A frame is aligned on its depth at every this many pixels both ways.
     align_max_shift, align_max_turn : float
@@ -276,7 +277,7 @@ class PropagateConfig:
     exclude_margin: int = 0
     outline_tolerance: float = 1.0
     align_rounds: int = 3
-    align_neighbours: int = 2
+    align_neighbours: int = 1
     align_step: int = 8
     align_max_shift: float = 0.05
     align_max_turn: float = 3.0

@@ -7,7 +7,7 @@ the centimetre: TUM freiburg1_rpy's motion capture is off from poses registered 
 model of its own depth by a median 1.3 degrees and 2 cm, mostly short-lived error that differs
 from frame to frame. So before the keyframes are lifted, their poses are aligned to each other
 (each keyframe's depth to that of its neighbouring keyframes, a few rounds), and then every other
-frame's to the keyframes on both sides of it (:func:`align_frames`).
+frame's to the nearest keyframes on both sides of it (:func:`align_frames`).
 
 The alignment is point-to-plane ICP with projective data association, as KinectFusion tracks a
 camera (Newcombe et al., 2011): a frame's depth points (every ``align_step``-th pixel) are taken
@@ -33,11 +33,11 @@ from annotate_rgbd.io.images import read_depth
 from annotate_rgbd.io.poses import FramePoses
 from annotate_rgbd.pool import HelperPool, run_jobs
 
-#: Correspondence reach of the ICP's two stages (m): the first pulls in poses a few centimetres
-#: off, the second fits on pairs within a Kinect's noise at 2-3 m.
-REACHES = (0.05, 0.02)
-#: Gauss-Newton steps per stage at most; a stage ends earlier once a step moves the pose by
-#: less than 0.1 mm and 0.002 degrees.
+#: The ICP's two stages: the reach of their pairs (m), and the step (m, degrees) below which a
+#: stage ends. The first pulls in poses a few centimetres off, the second fits on pairs within a
+#: Kinect's noise at 2-3 m.
+STAGES = ((0.05, 1e-3, 0.02), (0.02, 1e-4, 0.002))
+#: Gauss-Newton steps per stage at most.
 STEPS = 8
 #: Half-width (px, on the keyframe's grid) of the differences a keyframe's normals are taken
 #: from, on its depth smoothed over a square of twice that plus one: a Kinect's depth steps of
@@ -204,7 +204,7 @@ def align_pose(points: np.ndarray, rotation: np.ndarray, translation: np.ndarray
     given_t = np.asarray(translation, dtype=np.float64)
     r, t = given_r.copy(), given_t.copy()
     pairs = 0
-    for reach in REACHES:
+    for reach, shortest, least_turn in STAGES:
         for _ in range(STEPS):
             rows, residuals, pairs = _pairs(points, r, t, views, camera, reach)
             if pairs < MIN_PAIRS:
@@ -213,7 +213,7 @@ def align_pose(points: np.ndarray, rotation: np.ndarray, translation: np.ndarray
             turn, _ = cv2.Rodrigues(step[:3].reshape(3, 1))
             t = t + r @ step[3:]
             r = r @ turn
-            if np.linalg.norm(step[3:]) < 1e-4 and np.degrees(np.linalg.norm(step[:3])) < 2e-3:
+            if np.linalg.norm(step[3:]) < shortest and np.degrees(np.linalg.norm(step[:3])) < least_turn:
                 break
     change = given_r.T @ r
     turned = float(np.degrees(np.arccos(np.clip((np.trace(change) - 1) / 2, -1.0, 1.0))))
@@ -313,9 +313,9 @@ def align_frames(depth_poses: FramePoses, keyframes: list[int], depth_files: lis
     config : Config
         Camera, ``filter.max_mean_distance`` (depth beyond it is left out) and ``[propagate]``:
         ``align_rounds`` rounds of the keyframes against their ``align_neighbours`` nearest
-        keyframes on each side, then each other frame against the ``keyframes_each_side``
-        nearest on each side, at every ``align_step``-th pixel, within ``align_max_shift`` and
-        ``align_max_turn``.
+        keyframes on each side (each moving halfway to what it finds, :func:`halfway`), then
+        each other frame against as many keyframes on each side, at every ``align_step``-th
+        pixel, within ``align_max_shift`` and ``align_max_turn``.
     helpers : HelperPool, optional
         Helper processes that align frames too; the poses are the same either way.
 
@@ -341,22 +341,35 @@ def align_frames(depth_poses: FramePoses, keyframes: list[int], depth_files: lis
         for n, key in enumerate(keys):
             near = [k for k in keys[max(0, n - side):n + side + 1] if k != key]
             jobs.append(([key], [(depth_files[k], rotations[k], translations[k]) for k in near],
-                         [(depth_files[key], rotations[key], translations[key])], limits))
+                         [(depth_files[key], rotations[key], translations[key])], limits, True))
         corrections = _corrections(jobs, helpers)
         for key, correction in corrections.items():
-            rotations[key], translations[key] = correction.rotation, correction.translation
+            rotations[key], translations[key] = halfway(rotations[key], translations[key], correction)
     for correction in corrections.values():
         alignment.add(correction)
     jobs = []
-    for before, after, frames in _between(keys, np.flatnonzero(depth_poses.ok), settings.keyframes_each_side):
+    for before, after, frames in _between(keys, np.flatnonzero(depth_poses.ok), settings.align_neighbours):
         jobs.append((frames, [(depth_files[k], rotations[k], translations[k]) for k in (*before, *after)],
-                     [(depth_files[f], rotations[f], translations[f]) for f in frames], limits))
+                     [(depth_files[f], rotations[f], translations[f]) for f in frames], limits, False))
     for frame, correction in _corrections(jobs, helpers).items():
         rotations[frame], translations[frame] = correction.rotation, correction.translation
         alignment.frames += 1
         alignment.add(correction)
-    _view.cache_clear()  # this process goes on to make masks
+    _keyframe.cache_clear()  # this process goes on to make masks
     return FramePoses(rotations, translations, depth_poses.ok, depth_poses.reasons), alignment
+
+
+def halfway(rotation: np.ndarray, translation: np.ndarray, correction: Correction) -> tuple[np.ndarray, np.ndarray]:
+    """The pose halfway from ``(rotation, translation)`` to a correction's.
+
+    Keyframes aligned to each other all at once move halfway: each moving all the way to where
+    its neighbours were would make two keyframes that only see each other trade places every
+    round instead of meeting (a chain of keyframes, each aligned to one on either side, never
+    settles: every other one stays off).
+    """
+    turn, _ = cv2.Rodrigues(rotation.T @ correction.rotation)
+    half, _ = cv2.Rodrigues(turn / 2)
+    return rotation @ half, (translation + correction.translation) / 2
 
 
 def _between(keys: list[int], frames: np.ndarray, each_side: int):
@@ -385,24 +398,27 @@ def _corrections(jobs: list, helpers: HelperPool | None) -> dict[int, Correction
 
 def align_job(job: tuple) -> dict[int, Correction]:
     """Align the frames of one job ``(frame indices, keyframes [(path, rotation, translation)],
-    frames [(path, rotation, translation)], (camera, max_depth, step, max_shift, max_turn))``
-    to the job's keyframes: the function :func:`align_frames` gives
-    :func:`annotate_rgbd.pool.run_jobs`."""
-    indices, keyframes, frames, (camera, max_depth, step, max_shift, max_turn) = job
-    views = stack_views([_view(path, camera, max_depth) for path, _, _ in keyframes],
+    frames [(path, rotation, translation)], (camera, max_depth, step, max_shift, max_turn),
+    whether the frames are keyframes)`` to the job's keyframes: the function
+    :func:`align_frames` gives :func:`annotate_rgbd.pool.run_jobs`."""
+    indices, keyframes, frames, (camera, max_depth, step, max_shift, max_turn), of_keyframes = job
+    views = stack_views([_keyframe(path, camera, max_depth)[1] for path, _, _ in keyframes],
                         [r for _, r, _ in keyframes], [t for _, _, t in keyframes])
     corrections = {}
     for index, (path, r, t) in zip(indices, frames):
-        points = frame_points(_depth(path, camera), camera, step, max_depth)
-        corrections[index] = align_pose(points, r, t, views, camera, max_shift, max_turn)
+        depth = _keyframe(path, camera, max_depth)[0] if of_keyframes else _depth(path, camera)
+        corrections[index] = align_pose(frame_points(depth, camera, step, max_depth), r, t, views, camera,
+                                        max_shift, max_turn)
     return corrections
 
 
 @lru_cache(maxsize=8)
-def _view(path: Path, camera: Camera, max_depth: float) -> KeyframeView:
-    """A keyframe's view, kept for the next jobs: successive jobs share most of their keyframes
-    (a run of frames between keyframes, a keyframe's neighbours). 8 views hold 15 MB at 640 x 480."""
-    return keyframe_view(_depth(path, camera), camera, max_depth)
+def _keyframe(path: Path, camera: Camera, max_depth: float) -> tuple[np.ndarray, KeyframeView]:
+    """A keyframe's depth and view, kept for the next jobs: successive jobs share most of their
+    keyframes (a keyframe's neighbours, a run of frames between keyframes). 8 of them hold 25 MB
+    at 640 x 480."""
+    depth = _depth(path, camera)
+    return depth, keyframe_view(depth, camera, max_depth)
 
 
 def _depth(path: Path, camera: Camera) -> np.ndarray:

@@ -140,7 +140,8 @@ def test_align_frames_makes_noisy_poses_agree_with_the_depth(tmp_path):
     json.dumps(alignment.to_json())
     # The depth defines the poses up to one rigid motion of them all: compare each frame's pose
     # relative to the first keyframe's with the true one. Three rounds of the keyframes against
-    # each other take them most of the way (more rounds: all of it).
+    # each other take them most of the way, eight all of it (keyframes moving all the way to
+    # their neighbours' poses, not halfway, would leave the middle one 4 cm off).
     def relative(rotations, translations, i):
         return rotations[0].T @ rotations[i], rotations[0].T @ (translations[i] - translations[0])
     true_r, true_t = np.stack([r for r, _ in true]), np.stack([t for _, t in true])
@@ -148,8 +149,8 @@ def test_align_frames_makes_noisy_poses_agree_with_the_depth(tmp_path):
                        for i in (1, 2, 3, 4, 6, 7, 8)])
     after = np.array([_error(*relative(aligned.rotations, aligned.translations, i), *relative(true_r, true_t, i))
                       for i in (1, 2, 3, 4, 6, 7, 8)])
-    assert after[:, 1].mean() < 0.4 * before[:, 1].mean()
-    assert after[:, 0].mean() < 0.7 * before[:, 0].mean()
+    assert after[:, 1].mean() < 0.25 * before[:, 1].mean()
+    assert after[:, 0].mean() < 0.3 * before[:, 0].mean()
     many, _ = align_frames(given, [0, 4, 8], files, _config(align_rounds=8))
     closer = np.array([_error(*relative(many.rotations, many.translations, i), *relative(true_r, true_t, i))
                        for i in (1, 2, 3, 4, 6, 7, 8)])
