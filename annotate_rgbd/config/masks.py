@@ -60,7 +60,7 @@ class RansacConfig:
         RANSAC looks for the plane among at most this many of a plane's points, spread evenly
         over it (a regular pixel grid); every pixel is then tested against that plane. On the
         benchmark sequence (benchmarks/bench_cvat2mask.py) 1,000 points change 0.04 % of the
-        mask pixels against a search among all points, at a cheaper. 0: every point.
+        mask pixels against a search among all points, at a third of the time. 0: every point.
     band_share : float
         RANSAC's distance threshold, as a share of the inlier band at the points' median depth
         (k = 3 sigma: 1.5 sigma). With the full band a plane tilted between two surfaces a few
@@ -252,14 +252,15 @@ class PropagateConfig:
         every other frame's pose is aligned to its keyframes' (:mod:`annotate_rgbd.propagate.align`);
         0: the trajectory's poses as they are. Measured on TUM fr1_rpy (docs/benchmarks.md).
     align_neighbours : int
-        The keyframes on each side a keyframe, or a frame between keyframes, is aligned to. On
-        TUM fr1_rpy 1 and 2 score within 0.002 of each other (docs/benchmarks.md); 1 takes a
-        cheaper.
+        The keyframes on each side a keyframe is aligned to (a frame between keyframes: its
+        ``keyframes_each_side``, those whose outlines it takes). On TUM fr1_rpy at a keyframe
+        every 100th frame 2 scored 0.887, 1 0.881 (docs/benchmarks.md).
     align_step : int
-        A frame is aligned on its depth at every this many pixels both ways.
+        A frame is aligned on its depth at every this many pixels both ways (at most 16: at 64
+        a 640 x 480 frame has too few points to pair).
     align_max_shift, align_max_turn : float
-        A larger correction of a pose (m, degrees) is not believed and the trajectory's pose is
-        kept: real trajectories are off by a few centimetres and degrees (TUM fr1_rpy's motion
+        A larger correction of a pose (m, degrees; a keyframe's, over all rounds) is not
+        believed and the trajectory's pose is kept: real trajectories are off by a few centimetres and degrees (TUM fr1_rpy's motion
         capture against poses registered to its fused depth: 95th percentile 4.2 cm, 3.0
         degrees), and ICP that pairs the wrong surfaces moves poses farther.
     """
@@ -277,7 +278,7 @@ class PropagateConfig:
     exclude_margin: int = 0
     outline_tolerance: float = 1.0
     align_rounds: int = 3
-    align_neighbours: int = 1
+    align_neighbours: int = 2
     align_step: int = 8
     align_max_shift: float = 0.05
     align_max_turn: float = 3.0
@@ -329,8 +330,9 @@ def range_checks(config: Any) -> list[tuple[str, bool, str]]:
         ("propagate.exclude_margin", 0 <= propagate.exclude_margin <= 50, "must be in [0, 50]"),
         ("propagate.outline_tolerance", propagate.outline_tolerance > 0, "must be > 0"),
         ("propagate.align_rounds", 0 <= propagate.align_rounds <= 20, "must be in [0, 20] (0: no alignment)"),
-        ("propagate.align_neighbours", 1 <= propagate.align_neighbours <= 1000, "must be in [1, 1000]"),
-        ("propagate.align_step", 1 <= propagate.align_step <= 64, "must be in [1, 64] (px)"),
+        ("propagate.align_neighbours", 1 <= propagate.align_neighbours <= 8,
+         "must be in [1, 8] (each keyframe's depth is held in memory while a frame is aligned to it)"),
+        ("propagate.align_step", 1 <= propagate.align_step <= 16, "must be in [1, 16] (px)"),
         ("propagate.align_max_shift", propagate.align_max_shift >= 0, "must be >= 0"),
         ("propagate.align_max_turn", 0 <= propagate.align_max_turn <= 180, "must be in [0, 180] (degrees)"),
     ]

@@ -28,6 +28,7 @@ import cv2
 import numpy as np
 
 from annotate_rgbd.config.settings import Config
+from annotate_rgbd.errors import InputError
 from annotate_rgbd.geometry.camera import Camera, depth_to_metres
 from annotate_rgbd.io.images import read_depth
 from annotate_rgbd.io.poses import FramePoses
@@ -56,9 +57,9 @@ class KeyframeView:
 
     Parameters
     ----------
-    points : ndarray of float32, shape (H/2, W/2, 3)
+    points : ndarray of float32, shape (ceil(H/2), ceil(W/2), 3)
         Its depth points (its camera frame, m); NaN where there is no depth.
-    normals : ndarray of float32, shape (H/2, W/2, 3)
+    normals : ndarray of float32, shape (ceil(H/2), ceil(W/2), 3)
         Unit normals there (its camera frame); NaN where there is none.
     """
 
@@ -215,6 +216,14 @@ def align_pose(points: np.ndarray, rotation: np.ndarray, translation: np.ndarray
             r = r @ turn
             if np.linalg.norm(step[3:]) < shortest and np.degrees(np.linalg.norm(step[:3])) < least_turn:
                 break
+    return judged(given_r, given_t, r, t, pairs, max_shift, max_turn)
+
+
+def judged(given_r: np.ndarray, given_t: np.ndarray, r: np.ndarray, t: np.ndarray, pairs: int,
+           max_shift: float, max_turn: float) -> Correction:
+    """The correction from the pose ``(given_r, given_t)`` to ``(r, t)``, found on ``pairs``
+    pairs, applied only within ``max_shift`` (m) and ``max_turn`` (degrees) and on at least
+    :data:`MIN_PAIRS` pairs."""
     change = given_r.T @ r
     turned = float(np.degrees(np.arccos(np.clip((np.trace(change) - 1) / 2, -1.0, 1.0))))
     shifted = float(np.linalg.norm(t - given_t))
@@ -269,6 +278,9 @@ class Alignment:
         Frames (keyframes too) whose pose was corrected.
     kept : int
         Frames whose correction was not believed (beyond the limits, or on too few pairs).
+    unread : int
+        Frames not aligned because their depth, or every keyframe's they are aligned to, could
+        not be read (the frame jobs say why).
     shifts, turns : list of float
         The corrections applied (m, degrees).
     """
@@ -277,6 +289,7 @@ class Alignment:
     frames: int = 0
     corrected: int = 0
     kept: int = 0
+    unread: int = 0
     shifts: list = field(default_factory=list)
     turns: list = field(default_factory=list)
 
@@ -293,6 +306,7 @@ class Alignment:
         """The report's ``propagation.alignment``."""
         return {
             "keyframes": self.keyframes, "frames": self.frames, "corrected": self.corrected, "kept": self.kept,
+            "unread": self.unread,
             "median_shift_cm": round(100 * float(np.median(self.shifts)), 2) if self.shifts else None,
             "median_turn_deg": round(float(np.median(self.turns)), 3) if self.turns else None,
         }
@@ -312,9 +326,10 @@ def align_frames(depth_poses: FramePoses, keyframes: list[int], depth_files: lis
         The sequence's depth files, in depth order.
     config : Config
         Camera, ``filter.max_mean_distance`` (depth beyond it is left out) and ``[propagate]``:
-        ``align_rounds`` rounds of the keyframes against their ``align_neighbours`` nearest
-        keyframes on each side (each moving halfway to what it finds, :func:`halfway`), then
-        each other frame against as many keyframes on each side, at every ``align_step``-th
+        ``align_rounds`` rounds of the keyframes against their ``align_neighbours`` (n) nearest
+        keyframes on each side (each moving to where it and they agree: ``2 n / (2 n + 1)`` of
+        the way to the pose aligned to its ``n`` on each side, :func:`part_way`), then
+        each other frame against its ``keyframes_each_side`` on each side, at every ``align_step``-th
         pixel, within ``align_max_shift`` and ``align_max_turn``.
     helpers : HelperPool, optional
         Helper processes that align frames too; the poses are the same either way.
@@ -335,41 +350,51 @@ def align_frames(depth_poses: FramePoses, keyframes: list[int], depth_files: lis
     limits = (config.camera, config.filter.max_mean_distance, settings.align_step, settings.align_max_shift,
               settings.align_max_turn)
     side = settings.align_neighbours
-    corrections: dict[int, Correction] = {}
-    for _ in range(settings.align_rounds):  # every keyframe against its neighbours' poses of the round before
+    try:
+        unread: set[int] = set()
+        for _ in range(settings.align_rounds):  # every keyframe against its neighbours' poses of the round before
+            jobs = []
+            for n, key in enumerate(keys):
+                near = [k for k in keys[max(0, n - side):n + side + 1] if k != key]
+                jobs.append(([key], [(depth_files[k], rotations[k], translations[k]) for k in near],
+                             [(depth_files[key], rotations[key], translations[key])], limits, True))
+            found = _corrections(jobs, helpers)
+            unread = {key for key, correction in found.items() if correction is None}
+            for key, correction in found.items():
+                if correction is not None:
+                    rotations[key], translations[key] = part_way(rotations[key], translations[key], correction,
+                                                                 2 * side / (2 * side + 1))
+        for key in keys:  # a keyframe's correction over all rounds is held to the limits
+            if key in unread:
+                alignment.unread += 1
+                continue
+            overall = judged(depth_poses.rotations[key], depth_poses.translations[key], rotations[key],
+                             translations[key], MIN_PAIRS, settings.align_max_shift, settings.align_max_turn)
+            rotations[key], translations[key] = overall.rotation, overall.translation
+            alignment.add(overall)
         jobs = []
-        for n, key in enumerate(keys):
-            near = [k for k in keys[max(0, n - side):n + side + 1] if k != key]
-            jobs.append(([key], [(depth_files[k], rotations[k], translations[k]) for k in near],
-                         [(depth_files[key], rotations[key], translations[key])], limits, True))
-        corrections = _corrections(jobs, helpers)
-        for key, correction in corrections.items():
-            rotations[key], translations[key] = halfway(rotations[key], translations[key], correction)
-    for correction in corrections.values():
-        alignment.add(correction)
-    jobs = []
-    for before, after, frames in _between(keys, np.flatnonzero(depth_poses.ok), settings.align_neighbours):
-        jobs.append((frames, [(depth_files[k], rotations[k], translations[k]) for k in (*before, *after)],
-                     [(depth_files[f], rotations[f], translations[f]) for f in frames], limits, False))
-    for frame, correction in _corrections(jobs, helpers).items():
-        rotations[frame], translations[frame] = correction.rotation, correction.translation
-        alignment.frames += 1
-        alignment.add(correction)
-    _keyframe.cache_clear()  # this process goes on to make masks
+        for before, after, frames in _between(keys, np.flatnonzero(depth_poses.ok), settings.keyframes_each_side):
+            jobs.append((frames, [(depth_files[k], rotations[k], translations[k]) for k in (*before, *after)],
+                         [(depth_files[f], rotations[f], translations[f]) for f in frames], limits, False))
+        for frame, correction in _corrections(jobs, helpers).items():
+            alignment.frames += 1
+            if correction is None:
+                alignment.unread += 1
+                continue
+            rotations[frame], translations[frame] = correction.rotation, correction.translation
+            alignment.add(correction)
+    finally:
+        _keyframe.cache_clear()  # this process goes on to make masks
     return FramePoses(rotations, translations, depth_poses.ok, depth_poses.reasons), alignment
 
 
-def halfway(rotation: np.ndarray, translation: np.ndarray, correction: Correction) -> tuple[np.ndarray, np.ndarray]:
-    """The pose halfway from ``(rotation, translation)`` to a correction's.
-
-    Keyframes aligned to each other all at once move halfway: each moving all the way to where
-    its neighbours were would make two keyframes that only see each other trade places every
-    round instead of meeting (a chain of keyframes, each aligned to one on either side, never
-    settles: every other one stays off).
-    """
+def part_way(rotation: np.ndarray, translation: np.ndarray, correction: Correction,
+             share: float) -> tuple[np.ndarray, np.ndarray]:
+    """The pose ``share`` of the way from ``(rotation, translation)`` to a correction's (the
+    rotation along the shortest turn, the translation along the straight line)."""
     turn, _ = cv2.Rodrigues(rotation.T @ correction.rotation)
-    half, _ = cv2.Rodrigues(turn / 2)
-    return rotation @ half, (translation + correction.translation) / 2
+    part, _ = cv2.Rodrigues(turn * share)
+    return rotation @ part, translation + share * (correction.translation - translation)
 
 
 def _between(keys: list[int], frames: np.ndarray, each_side: int):
@@ -386,27 +411,41 @@ def _between(keys: list[int], frames: np.ndarray, each_side: int):
     return [(before, after, run) for (before, after), run in runs.items()]
 
 
-def _corrections(jobs: list, helpers: HelperPool | None) -> dict[int, Correction]:
-    """Run alignment jobs (:func:`align_job`); frame -> its correction. An unreadable depth
-    frame leaves the frames of its job as they were (the frame jobs say so later)."""
-    found: dict[int, Correction] = {}
+def _corrections(jobs: list, helpers: HelperPool | None) -> dict[int, Correction | None]:
+    """Run alignment jobs (:func:`align_job`); frame -> its correction, None where it was not
+    aligned for want of depth (the frame jobs say why)."""
+    found: dict[int, Correction | None] = {}
     for outcome in run_jobs(jobs, align_job, helpers):
         if outcome.error is None:
             found.update(outcome.value)
+        else:  # a job given up on (a helper hung on it twice)
+            found.update(dict.fromkeys(jobs[outcome.index][0]))
     return dict(sorted(found.items()))
 
 
-def align_job(job: tuple) -> dict[int, Correction]:
+def align_job(job: tuple) -> dict[int, Correction | None]:
     """Align the frames of one job ``(frame indices, keyframes [(path, rotation, translation)],
     frames [(path, rotation, translation)], (camera, max_depth, step, max_shift, max_turn),
     whether the frames are keyframes)`` to the job's keyframes: the function
-    :func:`align_frames` gives :func:`annotate_rgbd.pool.run_jobs`."""
+    :func:`align_frames` gives :func:`annotate_rgbd.pool.run_jobs`. A frame whose depth, or
+    every keyframe's, cannot be read gets None; a keyframe that cannot be read is left out."""
     indices, keyframes, frames, (camera, max_depth, step, max_shift, max_turn), of_keyframes = job
-    views = stack_views([_keyframe(path, camera, max_depth)[1] for path, _, _ in keyframes],
-                        [r for _, r, _ in keyframes], [t for _, _, t in keyframes])
-    corrections = {}
+    readable = []
+    for path, r, t in keyframes:
+        try:
+            readable.append((_keyframe(path, camera, max_depth)[1], r, t))
+        except InputError:
+            continue  # the others still align the frames
+    if not readable:
+        return dict.fromkeys(indices)
+    views = stack_views([v for v, _, _ in readable], [r for _, r, _ in readable], [t for _, _, t in readable])
+    corrections: dict[int, Correction | None] = {}
     for index, (path, r, t) in zip(indices, frames):
-        depth = _keyframe(path, camera, max_depth)[0] if of_keyframes else _depth(path, camera)
+        try:
+            depth = _keyframe(path, camera, max_depth)[0] if of_keyframes else _depth(path, camera)
+        except InputError:
+            corrections[index] = None
+            continue
         corrections[index] = align_pose(frame_points(depth, camera, step, max_depth), r, t, views, camera,
                                         max_shift, max_turn)
     return corrections

@@ -18,7 +18,7 @@ from annotate_rgbd.config.settings import load_config
 from annotate_rgbd.geometry.camera import Camera
 from annotate_rgbd.io.poses import FramePoses
 from annotate_rgbd.pool import start_helpers
-from annotate_rgbd.propagate.align import align_frames, align_pose, frame_points, keyframe_view, stack_views
+from annotate_rgbd.propagate.align import _between, align_frames, align_pose, frame_points, keyframe_view, stack_views
 
 CAMERA = Camera(fx=262.5, fy=262.5, cx=159.5, cy=119.5, depth_scale=5000.0)
 #: The corner of a room: the floor z = 0 and the walls x = 0, y = 0 (unit normals, offsets).
@@ -141,7 +141,7 @@ def test_align_frames_makes_noisy_poses_agree_with_the_depth(tmp_path):
     # The depth defines the poses up to one rigid motion of them all: compare each frame's pose
     # relative to the first keyframe's with the true one. Three rounds of the keyframes against
     # each other take them most of the way, eight all of it (keyframes moving all the way to
-    # their neighbours' poses, not halfway, would leave the middle one 4 cm off).
+    # their neighbours' poses would trade places every round and never settle).
     def relative(rotations, translations, i):
         return rotations[0].T @ rotations[i], rotations[0].T @ (translations[i] - translations[0])
     true_r, true_t = np.stack([r for r, _ in true]), np.stack([t for _, t in true])
@@ -157,6 +157,7 @@ def test_align_frames_makes_noisy_poses_agree_with_the_depth(tmp_path):
     assert closer.max(axis=0).tolist() < [0.2, 0.05]
     helpers = start_helpers(2)  # helper processes find the same poses, to the bit
     try:
+        assert helpers.ready.wait(60)  # so that the helper takes jobs from the start
         shared, _ = align_frames(given, [0, 4, 8], files, _config(), helpers)
     finally:
         helpers.shutdown()
@@ -171,3 +172,41 @@ def test_no_rounds_or_one_keyframe_leaves_the_poses_as_they_are(tmp_path):
                        np.array(["", ""]))
     assert align_frames(given, [0], files, _config())[0] is given
     assert align_frames(given, [0, 1], files, _config(align_rounds=0))[0] is given
+
+
+def test_depth_nearer_than_the_reach_is_not_paired():
+    """An object that no keyframe saw (here a fifth of the frame, 20 % nearer than the corner
+    behind it) lies beyond the pairs' reach and does not pull the pose."""
+    true_r, true_t = _look_at((2.4, 2.3, 1.45), (0.3, 0.3, 0.5))
+    depth = _render(true_r, true_t)
+    depth[60:180, 100:220] *= 0.8
+    points = frame_points(depth, CAMERA, 4, 10.0)
+    start_r, start_t = true_r @ _turn(0.8, (1, 2, 0.5)), true_t + np.array([0.01, -0.01, 0.008])
+    found = align_pose(points, start_r, start_t, _keyframes(KEYFRAME_POSES), CAMERA, 0.05, 3.0)
+    shift, turn = _error(found.rotation, found.translation, true_r, true_t)
+    assert found.applied and shift < 0.2 and turn < 0.05
+
+
+def test_frames_between_keyframes_take_the_nearest_on_each_side():
+    runs = _between([10, 20, 30], np.arange(0, 36), 1)
+    window_of = {frame: (before, after) for before, after, frames in runs for frame in frames}
+    assert set(window_of) == set(range(36)) - {10, 20, 30}
+    assert window_of[0] == ((), (10,)) and window_of[15] == ((10,), (20,)) and window_of[35] == ((30,), ())
+    wider = {frame: (before, after) for before, after, frames in _between([10, 20, 30], np.arange(36), 2)
+             for frame in frames}
+    assert wider[15] == ((10,), (20, 30)) and wider[25] == ((10, 20), (30,))
+
+
+def test_an_unreadable_depth_frame_leaves_only_itself_unaligned(tmp_path):
+    rng = np.random.default_rng(5)
+    true = [_look_at((2.6 - 0.05 * i, 2.0 + 0.06 * i, 1.4), (0.3, 0.3 + 0.02 * i, 0.5)) for i in range(5)]
+    files = _sequence(tmp_path, true)
+    files[2].write_bytes(b"not a png")
+    noisy = [(r @ _turn(0.7, rng.normal(size=3)), t + rng.normal(0, 0.008, 3)) for r, t in true]
+    given = FramePoses(np.stack([r for r, _ in noisy]), np.stack([t for _, t in noisy]), np.ones(5, bool),
+                       np.array([""] * 5))
+    aligned, alignment = align_frames(given, [0, 4], files, _config())
+    assert alignment.unread == 1 and alignment.frames == 3 and alignment.corrected == 4
+    assert np.array_equal(aligned.rotations[2], given.rotations[2])
+    for i in (1, 3):
+        assert not np.array_equal(aligned.rotations[i], given.rotations[i])
