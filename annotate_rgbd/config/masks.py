@@ -260,9 +260,10 @@ class PropagateConfig:
         a 640 x 480 frame has too few points to pair).
     align_max_shift, align_max_turn : float
         A larger correction of a pose (m, degrees; a keyframe's, over all rounds) is not
-        believed and the trajectory's pose is kept: real trajectories are off by a few centimetres and degrees (TUM fr1_rpy's motion
-        capture against poses registered to its fused depth: 95th percentile 4.2 cm, 3.0
-        degrees), and ICP that pairs the wrong surfaces moves poses farther.
+        believed and the trajectory's pose is kept: real trajectories are off by a few
+        centimetres and degrees (TUM fr1_rpy's motion capture against poses registered to its
+        fused depth: 95th percentile 4.2 cm, 3.0 degrees), and ICP that pairs the wrong
+        surfaces moves poses farther.
     """
 
     same_surface_angle: float = 5.0

@@ -2,8 +2,9 @@
 
 :func:`plan_propagation` reads the trajectory, fits every track's keyframe planes on their depth
 frames (:mod:`annotate_rgbd.propagate.keyframes`), estimates the trajectory's time offset from
-them (:mod:`annotate_rgbd.propagate.timing`), gives every depth frame its pose and lifts the
-keyframes onto their planes (:mod:`annotate_rgbd.propagate.lift`); :func:`propagation_warnings`
+them (:mod:`annotate_rgbd.propagate.timing`), gives every depth frame its pose, aligns the poses
+to the keyframes' depth (:mod:`annotate_rgbd.propagate.align`) and lifts the keyframes onto
+their planes (:mod:`annotate_rgbd.propagate.lift`); :func:`propagation_warnings`
 says what the run should be warned of. :func:`annotate_rgbd.pipeline.plan.plan_run` calls both,
 and its frame planning carries the lifted keyframes to every frame.
 """
@@ -92,7 +93,10 @@ def plan_propagation(
     """Read the trajectory, fit every track's keyframe planes (reads the depth frames nearest
     the keyframes), estimate the trajectory's time offset from them
     (:func:`annotate_rgbd.propagate.timing.estimate_time_offset`), give every depth frame its
-    pose and lift the keyframes. ``helpers`` (helper processes) fit keyframe frames too."""
+    pose, align the poses to the keyframes' depth
+    (:func:`annotate_rgbd.propagate.align.align_frames`: reads every depth frame with a pose)
+    and lift the keyframes. ``helpers`` (helper processes) fit keyframe frames and align frames
+    too."""
     loaded = load_trajectory(path, sequence.depth.timestamps, sequence.clock)
     for note in loaded.notes:
         log.info(note)
