@@ -21,6 +21,7 @@ import numpy as np
 
 from annotate_rgbd.config.settings import Config
 from annotate_rgbd.annotation.parts import Part
+from annotate_rgbd.io.layouts.model import SECONDS
 from annotate_rgbd.io.poses import FramePoses, Trajectory, load_trajectory, missing_poses_text, poses_at, poses_of_frames
 from annotate_rgbd.propagate.align import Alignment, align_frames
 from annotate_rgbd.propagate.keyframes import NO_DEPTH_FRAME, fit_keyframes, keyframe_depths, time_samples
@@ -140,6 +141,15 @@ def propagation_warnings(propagation: Propagation) -> list[str]:
         f"{'it was' if len(lift.substantial) == 1 else 'they were'} lifted onto the agreed plane"
         for lift in propagation.lifts.values() if not lift.consistent
     ]
+    beyond = propagation.alignment.beyond
+    if beyond:
+        frame, shift, turn = max(beyond, key=lambda b: (b[1], b[2]))
+        settings = "propagate.align_max_shift / align_max_turn"
+        frames = f"{len(beyond)} depth frames' poses disagree" if len(beyond) > 1 else "1 depth frame's pose disagrees"
+        lines.append(f"{propagation.path}: {frames} with the keyframes' depth by more than {settings} (the most, "
+                     f"{100 * shift:.1f} cm and {turn:.1f} degrees, at {_frame_time(propagation, frame)}): the "
+                     "trajectory's poses are kept there; check the trajectory and the masks of those frames "
+                     "(report.json: propagation.alignment.beyond_limits)")
     missing = int(np.count_nonzero(~propagation.depth_poses.ok))
     if missing:
         frames = f"{missing} depth frame{'s have' if missing > 1 else ' has'}"
@@ -166,6 +176,14 @@ def propagation_warnings(propagation: Propagation) -> list[str]:
                      f"({reasons[reason]} like {lift.part} track {lift.track} frame {frame}: {reason}); "
                      "every shape is interpolated in 2-D")
     return lines
+
+
+def _frame_time(propagation: Propagation, frame: int) -> str:
+    """A depth frame by its timestamp (by its index when the timestamps are unknown)."""
+    if propagation.depth_times is None:
+        return f"depth frame {frame}"
+    time = float(propagation.depth_times[frame])
+    return f"depth frame {time:.6f}" if propagation.clock == SECONDS else f"depth frame {time:.0f}"
 
 
 def _keyframes_lie(frames) -> str:

@@ -283,6 +283,12 @@ class Alignment:
         not be read (the frame jobs say why).
     shifts, turns : list of float
         The corrections applied (m, degrees).
+    beyond : list of (int, float, float)
+        The frames whose correction was beyond the limits: (depth frame, m, degrees). Their
+        trajectory pose disagrees with the depth by that much (a trajectory jump, a drop-out
+        interpolated over, a clock off), or ICP paired the wrong surfaces: frames to check.
+    rounds : int
+        The keyframes' rounds (0: no alignment).
     """
 
     keyframes: int = 0
@@ -292,21 +298,27 @@ class Alignment:
     unread: int = 0
     shifts: list = field(default_factory=list)
     turns: list = field(default_factory=list)
+    beyond: list = field(default_factory=list)
+    rounds: int = 0
 
-    def add(self, correction: Correction) -> None:
-        """Count one frame's correction."""
+    def add(self, frame: int, correction: Correction) -> None:
+        """Count one depth frame's correction."""
         if correction.applied:
             self.corrected += 1
             self.shifts.append(correction.shift)
             self.turns.append(correction.turn)
-        else:
-            self.kept += 1
+            return
+        self.kept += 1
+        if correction.pairs >= MIN_PAIRS:  # not too few pairs: a correction beyond the limits
+            self.beyond.append((frame, correction.shift, correction.turn))
 
     def to_json(self) -> dict:
         """The report's ``propagation.alignment``."""
         return {
-            "keyframes": self.keyframes, "frames": self.frames, "corrected": self.corrected, "kept": self.kept,
-            "unread": self.unread,
+            "rounds": self.rounds, "keyframes": self.keyframes, "frames": self.frames, "corrected": self.corrected,
+            "kept": self.kept, "unread": self.unread,
+            "beyond_limits": [{"depth_frame": frame, "shift_cm": round(100 * shift, 1), "turn_deg": round(turn, 2)}
+                              for frame, shift, turn in self.beyond],
             "median_shift_cm": round(100 * float(np.median(self.shifts)), 2) if self.shifts else None,
             "median_turn_deg": round(float(np.median(self.turns)), 3) if self.turns else None,
         }
@@ -346,7 +358,7 @@ def align_frames(depth_poses: FramePoses, keyframes: list[int], depth_files: lis
     keys = sorted({k for k in keyframes if depth_poses.ok[k]})
     if settings.align_rounds == 0 or len(keys) < 2:
         return depth_poses, alignment
-    alignment.keyframes = len(keys)
+    alignment.keyframes, alignment.rounds = len(keys), settings.align_rounds
     limits = (config.camera, config.filter.max_mean_distance, settings.align_step, settings.align_max_shift,
               settings.align_max_turn)
     side = settings.align_neighbours
@@ -371,7 +383,7 @@ def align_frames(depth_poses: FramePoses, keyframes: list[int], depth_files: lis
             overall = judged(depth_poses.rotations[key], depth_poses.translations[key], rotations[key],
                              translations[key], MIN_PAIRS, settings.align_max_shift, settings.align_max_turn)
             rotations[key], translations[key] = overall.rotation, overall.translation
-            alignment.add(overall)
+            alignment.add(key, overall)
         jobs = []
         for before, after, frames in _between(keys, np.flatnonzero(depth_poses.ok), settings.keyframes_each_side):
             jobs.append((frames, [(depth_files[k], rotations[k], translations[k]) for k in (*before, *after)],
@@ -382,7 +394,7 @@ def align_frames(depth_poses: FramePoses, keyframes: list[int], depth_files: lis
                 alignment.unread += 1
                 continue
             rotations[frame], translations[frame] = correction.rotation, correction.translation
-            alignment.add(correction)
+            alignment.add(frame, correction)
     finally:
         _keyframe.cache_clear()  # this process goes on to make masks
     return FramePoses(rotations, translations, depth_poses.ok, depth_poses.reasons), alignment

@@ -17,6 +17,7 @@ import pytest
 from annotate_rgbd.config.settings import load_config
 from annotate_rgbd.geometry.camera import Camera
 from annotate_rgbd.io.poses import FramePoses
+from annotate_rgbd.pipeline.propagation import Propagation, propagation_warnings
 from annotate_rgbd.pool import start_helpers
 from annotate_rgbd.propagate.align import _between, align_frames, align_pose, frame_points, keyframe_view, stack_views
 
@@ -210,3 +211,24 @@ def test_an_unreadable_depth_frame_leaves_only_itself_unaligned(tmp_path):
     assert np.array_equal(aligned.rotations[2], given.rotations[2])
     for i in (1, 3):
         assert not np.array_equal(aligned.rotations[i], given.rotations[i])
+
+
+def test_a_pose_far_off_its_keyframes_is_kept_listed_and_warned_of(tmp_path):
+    """A pose 7 cm off (every wall of the corner sees it, each within the pairs' reach): the
+    alignment finds it but does not believe a correction that large, keeps the trajectory's
+    pose, lists the frame, and the run warns of it by timestamp. (A jump far beyond the reach,
+    30 cm, pairs only the surfaces it slides along and goes unseen.)"""
+    true = [_look_at((2.6 - 0.05 * i, 2.0 + 0.06 * i, 1.4), (0.3, 0.3 + 0.02 * i, 0.5)) for i in range(5)]
+    files = _sequence(tmp_path, true)
+    given_t = np.stack([t for _, t in true])
+    given_t[2] += 0.07 * np.ones(3) / np.sqrt(3)
+    given = FramePoses(np.stack([r for r, _ in true]), given_t, np.ones(5, bool), np.array([""] * 5))
+    aligned, alignment = align_frames(given, [0, 4], files, _config())
+    assert np.array_equal(aligned.translations[2], given_t[2])
+    assert [frame for frame, _, _ in alignment.beyond] == [2] and alignment.beyond[0][1] > 0.05
+    record = alignment.to_json()
+    assert record["rounds"] == 3 and record["beyond_limits"][0]["depth_frame"] == 2
+    propagation = Propagation("poses.txt", {}, aligned, depth_times=np.array([10.0, 10.033, 10.066, 10.1, 10.133]),
+                              alignment=alignment)
+    lines = [line for line in propagation_warnings(propagation) if "disagree" in line]
+    assert len(lines) == 1 and "1 depth frame's pose disagrees" in lines[0] and "at depth frame 10.066000" in lines[0]
