@@ -20,6 +20,7 @@ is kept), nor is one resting on too few pairs. Frames without a pose stay withou
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
@@ -32,7 +33,10 @@ from annotate_rgbd.errors import InputError
 from annotate_rgbd.geometry.camera import Camera, depth_to_metres
 from annotate_rgbd.io.images import read_depth
 from annotate_rgbd.io.poses import FramePoses
+from annotate_rgbd.logs import counted
 from annotate_rgbd.pool import HelperPool, run_jobs
+
+log = logging.getLogger("annotate_rgbd")
 
 #: The ICP's two stages: the reach of their pairs (m), and the step (m, degrees) below which a
 #: stage ends. The first pulls in poses a few centimetres off, the second fits on pairs within a
@@ -359,6 +363,8 @@ def align_frames(depth_poses: FramePoses, keyframes: list[int], depth_files: lis
     if settings.align_rounds == 0 or len(keys) < 2:
         return depth_poses, alignment
     alignment.keyframes, alignment.rounds = len(keys), settings.align_rounds
+    log.info("poses: aligning %s to each other (%d rounds), then the other frames' to their keyframes' depth "
+             "(propagate.align_rounds = 0: off)", counted(len(keys), "keyframe"), settings.align_rounds)
     limits = (config.camera, config.filter.max_mean_distance, settings.align_step, settings.align_max_shift,
               settings.align_max_turn)
     side = settings.align_neighbours
