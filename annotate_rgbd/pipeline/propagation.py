@@ -79,7 +79,7 @@ class Propagation:
             "poses": self.path,
             "time_offset_s": round(self.time_offset, 4),
             "time_offset_estimate": self.estimate.to_json() if self.estimate is not None else None,
-            "alignment": self.alignment.to_json(),
+            "alignment": self.alignment.to_json(self.depth_times),
             "frames_with_pose": int(np.count_nonzero(self.depth_poses.ok)),
             "tracks": [lift.to_json() for lift in self.lifts.values()],
             "inconsistent_tracks": [f"{lift.part}:{lift.track}" for lift in self.lifts.values() if not lift.consistent],

@@ -316,13 +316,18 @@ class Alignment:
         if correction.pairs >= MIN_PAIRS:  # not too few pairs: a correction beyond the limits
             self.beyond.append((frame, correction.shift, correction.turn))
 
-    def to_json(self) -> dict:
-        """The report's ``propagation.alignment``."""
+    def to_json(self, depth_times: np.ndarray | None = None) -> dict:
+        """The report's ``propagation.alignment`` (with the depth frames' timestamps, when
+        given, each frame beyond the limits is named by its timestamp too)."""
+        beyond = [{"depth_frame": frame, "shift_cm": round(100 * shift, 1), "turn_deg": round(turn, 2)}
+                  for frame, shift, turn in self.beyond]
+        if depth_times is not None:
+            for entry in beyond:
+                entry["depth_timestamp"] = float(depth_times[entry["depth_frame"]])
         return {
             "rounds": self.rounds, "keyframes": self.keyframes, "frames": self.frames, "corrected": self.corrected,
             "kept": self.kept, "unread": self.unread,
-            "beyond_limits": [{"depth_frame": frame, "shift_cm": round(100 * shift, 1), "turn_deg": round(turn, 2)}
-                              for frame, shift, turn in self.beyond],
+            "beyond_limits": beyond,
             "median_shift_cm": round(100 * float(np.median(self.shifts)), 2) if self.shifts else None,
             "median_turn_deg": round(float(np.median(self.turns)), 3) if self.turns else None,
         }

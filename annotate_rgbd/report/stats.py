@@ -43,8 +43,9 @@ def run_stats(report: RunRecord) -> dict:
         records of the written frames), ``mean_inlier_ratio`` (over the kept plane records;
         ``None`` without any), ``tracks_to_review`` (keyframes off their track's plane),
         ``frames_to_review`` (depth frames where a plane the poses carried was not where they
-        put it: dropped there, ``not_where_expected``) and ``carried_to_check``
-        (:func:`carried_to_check`).
+        put it: dropped there, ``not_where_expected``), ``poses_to_check`` (depth frames whose
+        pose disagreed with the keyframes' depth beyond the alignment's limits) and
+        ``carried_to_check`` (:func:`carried_to_check`).
     """
     summary = summarize(report.frames)
     written, kept = summary.masks_written, summary.planes_kept
@@ -63,8 +64,18 @@ def run_stats(report: RunRecord) -> dict:
         "tracks_to_review": list((report.propagation or {}).get("inconsistent_tracks", [])),
         # With poses: frames where a carried plane was not where the poses put it (dropped there).
         "frames_to_review": [f.depth for f in report.frames if any(p.reason == NOT_WHERE_EXPECTED for p in f.dropped)],
+        "poses_to_check": poses_to_check(report),
         "carried_to_check": carried_to_check(report),
     }
+
+
+def poses_to_check(report: RunRecord) -> list[str]:
+    """The depth frames (file names) whose trajectory pose disagreed with the keyframes' depth
+    beyond the alignment's limits (``propagation.alignment.beyond_limits``)."""
+    alignment = (report.propagation or {}).get("alignment") or {}
+    times = {round(float(entry["depth_timestamp"]), 6) for entry in alignment.get("beyond_limits", [])
+             if isinstance(entry, dict) and isinstance(entry.get("depth_timestamp"), (int, float))}
+    return [f.depth for f in report.frames if round(f.depth_timestamp, 6) in times]
 
 
 def carried_to_check(report: RunRecord, below: float = DISAGREE_BELOW) -> list[dict]:
@@ -112,8 +123,8 @@ def merge_stats(scenes: list[dict], names: list[str] | None = None) -> dict:
         The keys of :func:`run_stats`: counts summed over the runs (distinct and annotated planes
         per run: plane ids are a run's own), ``planes_per_observation`` and
         ``mean_inlier_ratio`` over all of them (the ratio weighted by each run's kept planes),
-        ``tracks_to_review`` and ``frames_to_review`` prefixed by the run's name
-        (``kitchen:part.xml:5``), ``carried_to_check`` of all runs, worst first, each with its
+        ``tracks_to_review``, ``frames_to_review`` and ``poses_to_check`` prefixed by the run's
+        name (``kitchen:part.xml:5``), ``carried_to_check`` of all runs, worst first, each with its
         run's name (``scene``); and ``scenes``.
     """
     names = [str(i) for i in range(1, len(scenes) + 1)] if names is None else list(names)
@@ -144,6 +155,7 @@ def merge_stats(scenes: list[dict], names: list[str] | None = None) -> dict:
         "mean_inlier_ratio": round(sum(r * w for r, w in rated) / weight, 4) if weight else None,
         "tracks_to_review": [f"{name}:{t}" for name, s in zip(names, scenes) for t in s["tracks_to_review"]],
         "frames_to_review": [f"{name}:{f}" for name, s in zip(names, scenes) for f in s.get("frames_to_review", [])],
+        "poses_to_check": [f"{name}:{f}" for name, s in zip(names, scenes) for f in s.get("poses_to_check", [])],
         "carried_to_check": sorted(  # stable: runs in their order at equal agreement
             ({"scene": name, **c} for name, s in zip(names, scenes) for c in s.get("carried_to_check", [])),
             key=lambda c: c["keyframes_agree"]),
@@ -182,6 +194,10 @@ def format_stats(stats: dict) -> str:
     if stats.get("frames_to_review"):
         frames = stats["frames_to_review"]
         rows.append((f"frames to review ({len(frames)}: a carried plane not where the poses put it)", _first_ten(frames)))
+    if stats.get("poses_to_check"):
+        frames = stats["poses_to_check"]
+        rows.append((f"poses to check ({len(frames)}: off the keyframes' depth beyond the alignment's limits)",
+                     _first_ten(frames)))
     if stats.get("carried_to_check"):
         carried = stats["carried_to_check"]
         rows.append((f"carried planes to check ({len(carried)}, worst first)",

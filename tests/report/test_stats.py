@@ -10,7 +10,7 @@ from typer.testing import CliRunner
 
 from annotate_rgbd.cli import app
 from annotate_rgbd.report.records import RecordError, RunRecord
-from annotate_rgbd.report.stats import format_stats, run_stats
+from annotate_rgbd.report.stats import format_stats, merge_stats, run_stats
 
 
 def _kept(plane: int, ratio: float) -> dict:
@@ -70,6 +70,16 @@ def test_frames_where_a_carried_plane_was_not_where_the_poses_put_it_are_listed_
     from annotate_rgbd.segment.filters import NOT_WHERE_EXPECTED
 
     assert module.NOT_WHERE_EXPECTED == NOT_WHERE_EXPECTED
+
+
+def test_frames_whose_pose_was_off_the_keyframes_depth_are_listed_poses_to_check():
+    alignment = {"beyond_limits": [{"depth_frame": 2, "shift_cm": 7.1, "turn_deg": 0.4, "depth_timestamp": 2.0},
+                                   {"depth_frame": 9, "shift_cm": 8.0, "turn_deg": 1.0, "depth_timestamp": 9.0}]}
+    stats = run_stats(RunRecord.from_json({**REPORT, "propagation": {"alignment": alignment}}))
+    assert stats["poses_to_check"] == ["d2.png"]  # 9.0 is no frame of the run
+    assert "poses to check (1: off the keyframes' depth beyond the alignment's limits)  d2.png" in format_stats(stats)
+    assert run_stats(RunRecord.from_json(REPORT))["poses_to_check"] == []
+    assert merge_stats([stats, stats], ["a", "b"])["poses_to_check"] == ["a:d2.png", "b:d2.png"]
 
 
 def test_carried_planes_whose_keyframes_disagree_are_listed_worst_first():
