@@ -16,7 +16,7 @@ from typing import Any, Mapping
 
 from annotate_rgbd.io.images import png_size, read_bytes
 from annotate_rgbd.io.sequence import read_sequence
-from .settings import COMMAND_LINE, Config, load_config
+from .settings import COMMAND_LINE, DEFAULT_CAMERA, Config, load_config
 
 log = logging.getLogger("annotate_rgbd")
 
@@ -56,6 +56,13 @@ def load_run_config(sequence_dir: str | Path, source: str | Path | None,
             log.info("camera: %s (%s layout): %s; give --config for another", sequence.camera.source,
                      sequence.layout, sequence.camera.describe())
             overrides = {**sequence.camera.overrides(), **overrides}
+        else:
+            unread = sorted(Path(sequence_dir).glob("*.toml"))
+            if unread:  # a camera file beside the frames is most likely the sequence's own
+                camera = DEFAULT_CAMERA
+                log.warning("%s is not read (no --config): the default camera is used (fx %g, fy %g, cx %g, cy %g, "
+                            "%g per metre); give --config %s for that file", unread[0], camera.fx, camera.fy,
+                            camera.cx, camera.cy, camera.depth_scale, unread[0])
         colour = sequence.colour_camera
         if colour is not None and not colour.on_depth_grid(sequence.camera, *_depth_size(sequence)):
             log.info("colour camera: %s (%s layout): %s; shapes are drawn on it", colour.source, sequence.layout,

@@ -310,3 +310,32 @@ def test_overrides_may_complete_a_file_that_is_not_valid_alone(tmp_path):
     with pytest.raises(InputError) as error:
         load_config(None, {"refine.grow_pixels": -1})
     assert str(error.value).startswith("command-line option: 'refine.grow_pixels' must be in [0, 50]")
+
+
+def test_a_camera_file_in_a_sequence_folder_without_its_own_camera_is_named_when_not_read(tmp_path, caplog):
+    """A TUM folder states no camera: without --config the default camera is used, and a
+    camera TOML lying in the folder (most likely the sequence's own) gets a warning naming it."""
+    import logging
+
+    from annotate_rgbd.config.layout import load_run_config
+    from annotate_rgbd.config.settings import DEFAULT_CAMERA
+    from annotate_rgbd.geometry.camera import Camera
+    from annotate_rgbd.synthetic import make_sequence
+
+    sequence = tmp_path / "seq"
+    make_sequence(sequence, n_frames=2, width=64, height=48, seed=1,
+                  camera=Camera(fx=52.5, fy=52.5, cx=31.5, cy=23.5, depth_scale=5000.0))
+    with caplog.at_level(logging.INFO, logger="annotate_rgbd"):
+        assert load_run_config(sequence, None).camera == DEFAULT_CAMERA
+    assert not [r for r in caplog.records if r.levelno >= logging.WARNING]
+    own = sequence / "camera.toml"
+    own.write_text("[camera]\nfx = 52.5\nfy = 52.5\ncx = 31.5\ncy = 23.5\ndepth_scale = 5000.0\n")
+    caplog.clear()
+    with caplog.at_level(logging.INFO, logger="annotate_rgbd"):
+        assert load_run_config(sequence, None).camera == DEFAULT_CAMERA
+    warned = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
+    assert len(warned) == 1 and f"{own} is not read (no --config)" in warned[0] and "fx 525" in warned[0]
+    caplog.clear()
+    with caplog.at_level(logging.INFO, logger="annotate_rgbd"):
+        assert load_run_config(sequence, str(own)).camera.fx == 52.5
+    assert not [r for r in caplog.records if r.levelno >= logging.WARNING]
