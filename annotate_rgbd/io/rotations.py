@@ -152,3 +152,19 @@ def first_rigid_problem(matrices: np.ndarray) -> tuple[int, str | None]:
         k = int(np.argmax(mirrored))
         return k, "its rotation is a reflection (determinant -1), not a rotation"
     return -1, None
+
+
+def rotation_angles(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Rotation angles (radians) between matching rotation matrices.
+
+    Parameters
+    ----------
+    a, b : ndarray, shape (N, 3, 3)
+
+    Returns
+    -------
+    ndarray, shape (N,)
+        The angle of each ``a[i].T @ b[i]``.
+    """
+    cosine = (np.einsum("nij,nij->n", a, b) - 1.0) / 2.0
+    return np.arccos(np.clip(cosine, -1.0, 1.0))

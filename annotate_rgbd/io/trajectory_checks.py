@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from annotate_rgbd.io.layouts.model import SECONDS
-from annotate_rgbd.io.rotations import quaternion_matrices
+from annotate_rgbd.io.rotations import quaternion_matrices, rotation_angles
 
 #: Farthest a camera may be from the world origin, metres: no RGB-D sequence spans 10 km; a
 #: trajectory in millimetres, or garbage, does.
@@ -64,7 +64,7 @@ def motion_problem(timestamps: np.ndarray, translations: np.ndarray, quaternions
     seconds = np.diff(timestamps) / (1.0 if clock == SECONDS else FRAME_RATE)
     rotations = quaternion_matrices(quaternions)
     speed = _median_speed(translations, seconds)
-    turns = np.degrees(_angles(rotations[:-1], rotations[1:])) / seconds
+    turns = np.degrees(rotation_angles(rotations[:-1], rotations[1:])) / seconds
     turn_rate = float(np.median(turns))
     if speed > MAX_SPEED:
         line = (f"the camera moves {speed:.3g} m/s (median between consecutive poses), implausible for an "
@@ -185,8 +185,3 @@ def _median_speed(centres: np.ndarray, seconds: np.ndarray) -> float:
     with np.errstate(over="ignore", invalid="ignore"):
         return float(np.median(np.linalg.norm(np.diff(centres, axis=0), axis=1) / seconds))
 
-
-def _angles(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Rotation angles (radians) between matching rotation matrices."""
-    cosine = (np.einsum("nij,nij->n", a, b) - 1.0) / 2.0
-    return np.arccos(np.clip(cosine, -1.0, 1.0))

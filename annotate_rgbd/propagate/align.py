@@ -30,9 +30,10 @@ import numpy as np
 
 from annotate_rgbd.config.settings import Config
 from annotate_rgbd.errors import InputError
-from annotate_rgbd.geometry.camera import Camera, depth_to_metres
+from annotate_rgbd.geometry.camera import Camera, backproject, depth_to_metres, ray_grid
 from annotate_rgbd.io.images import read_depth
 from annotate_rgbd.io.poses import FramePoses
+from annotate_rgbd.io.rotations import rotation_angles
 from annotate_rgbd.logs import counted
 from annotate_rgbd.pool import HelperPool, run_jobs
 
@@ -143,8 +144,8 @@ def keyframe_view(depth_m: np.ndarray, camera: Camera, max_depth: float) -> Keyf
 def _grid_points(depth: np.ndarray, camera: Camera) -> np.ndarray:
     """The 3-D points (H', W', 3) of a depth image taken at every other pixel of the camera's grid."""
     height, width = depth.shape
-    x = (2 * np.arange(width, dtype=np.float32) - np.float32(camera.cx)) / np.float32(camera.fx)
-    y = (2 * np.arange(height, dtype=np.float32) - np.float32(camera.cy)) / np.float32(camera.fy)
+    ray_x, ray_y = ray_grid(camera, 2 * height, 2 * width, np.float32)
+    x, y = ray_x[::2], ray_y[::2]
     return np.stack([depth * x[None, :], depth * y[:, None], depth], axis=2)
 
 
@@ -153,9 +154,7 @@ def frame_points(depth_m: np.ndarray, camera: Camera, step: int, max_depth: floa
     rows, cols = np.mgrid[0:depth_m.shape[0]:step, 0:depth_m.shape[1]:step]
     z = np.asarray(depth_m[::step, ::step], dtype=np.float64)
     keep = np.isfinite(z) & (z <= max_depth)
-    z = z[keep]
-    points = np.stack([(cols[keep] - camera.cx) * z / camera.fx, (rows[keep] - camera.cy) * z / camera.fy, z], axis=1)
-    return points.astype(np.float32)
+    return backproject(cols[keep], rows[keep], z[keep], camera).astype(np.float32)
 
 
 @dataclass(frozen=True)
@@ -228,8 +227,7 @@ def judged(given_r: np.ndarray, given_t: np.ndarray, r: np.ndarray, t: np.ndarra
     """The correction from the pose ``(given_r, given_t)`` to ``(r, t)``, found on ``pairs``
     pairs, applied only within ``max_shift`` (m) and ``max_turn`` (degrees) and on at least
     :data:`MIN_PAIRS` pairs."""
-    change = given_r.T @ r
-    turned = float(np.degrees(np.arccos(np.clip((np.trace(change) - 1) / 2, -1.0, 1.0))))
+    turned = float(np.degrees(rotation_angles(given_r[None], r[None])[0]))
     shifted = float(np.linalg.norm(t - given_t))
     applied = pairs >= MIN_PAIRS and shifted <= max_shift and turned <= max_turn
     return Correction(r if applied else given_r, t if applied else given_t, shifted, turned, int(pairs), applied)
