@@ -112,7 +112,8 @@ def plan_propagation(
         (p.name, p.annotation.tracks, [plane_of[(p.name, t.track_id)] for t in p.annotation.tracks], p.rgb_of_frame)
         for p in parts
     ]
-    fitted = fit_keyframes(wanted, depth_of_rgb, [sequence.root / f for f in sequence.depth.files], config, helpers)
+    depth_files = [sequence.root / f for f in sequence.depth.files]
+    fitted = fit_keyframes(wanted, depth_of_rgb, depth_files, config, helpers)
     settings = config.propagate
     times = np.asarray(sequence.depth.timestamps, dtype=np.float64) + settings.time_offset
     offset = TimeOffset()
@@ -121,7 +122,6 @@ def plan_propagation(
                                       settings.time_offset_step, gap, settings.same_surface_offset,
                                       config.inlier_band().model.sigma)
     depth_poses = poses_at(trajectory, times + offset.offset, gap)
-    depth_files = [sequence.root / f for f in sequence.depth.files]
     depth_poses, alignment = align_frames(depth_poses, keyframe_depths(fitted), depth_files, config, helpers)
     lifts = lift_tracks(fitted, depth_poses, config)
     return Propagation(str(Path(path).absolute()), {(lift.part, lift.track): lift for lift in lifts}, depth_poses,
