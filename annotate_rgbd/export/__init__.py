@@ -169,7 +169,7 @@ def _write(run: ExportRun, fmt: str, out: Path, previous: set[str], made: list[P
                      ", ..." if len(removed) > 1 else "")
         record.update(
             complete=True, run=str(run.run_dir.resolve()), trajectory=run.trajectory,
-            trajectory_time_offset_s=run.time_offset if run.trajectory else None,
+            trajectory_time_offset_s=run.time_offset if run.trajectory else None, poses=run.poses_from,
             conventions={"files": DESCRIPTIONS[fmt], "plane_equation": run.equation_convention},
             frames=len(run.frames), frames_with_pose=sum(f.pose is not None for f in run.frames), files=names,
         )

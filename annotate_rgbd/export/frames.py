@@ -11,6 +11,7 @@ another one) at each depth frame's timestamp, as ``cvat2mask`` reads them.
 from __future__ import annotations
 
 import logging
+from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -19,10 +20,10 @@ import numpy as np
 
 from annotate_rgbd.errors import InputError
 from annotate_rgbd.geometry.lift import plane_to_world
-from annotate_rgbd.io.poses import DEFAULT_MAX_POSE_GAP, poses_of_frames, read_trajectory
+from annotate_rgbd.io.poses import DEFAULT_MAX_POSE_GAP, OUTSIDE_TRAJECTORY, POSE_GAP, poses_of_frames, read_trajectory
 from annotate_rgbd.io.sequence import read_image
 from annotate_rgbd.report.records import RunRecord
-from annotate_rgbd.report.run_folder import colour_table, mask_plane_ids, read_report
+from annotate_rgbd.report.run_folder import camera_poses, colour_table, mask_plane_ids, read_report
 from annotate_rgbd.segment.plane_record import PlaneRecord
 
 log = logging.getLogger("annotate_rgbd")
@@ -106,6 +107,9 @@ class ExportRun:
         The trajectory the poses come from; None: no poses.
     time_offset : float
         Seconds added to the frames' timestamps to read the trajectory (:func:`trajectory_offset`).
+    poses_from : str or None
+        ``run``: the poses the run made its masks with (the report's ``camera_pose``);
+        ``trajectory``: read from ``trajectory``; None: no poses.
     """
 
     run_dir: Path
@@ -113,6 +117,7 @@ class ExportRun:
     frames: list[ExportFrame]
     trajectory: str | None = None
     time_offset: float = 0.0
+    poses_from: str | None = None
 
     @property
     def equation_convention(self) -> str:
@@ -136,6 +141,10 @@ class ExportRun:
         return mask_plane_ids(read_image(frame.mask, cv2.IMREAD_COLOR), *colour_table(self.report), frame.mask)
 
 
+#: Why a frame of a run has no pose (its report's ``pose``), in words.
+NO_POSE_WORDS = {POSE_GAP: "in a gap of the trajectory", OUTSIDE_TRAJECTORY: "outside the trajectory"}
+
+
 def read_run(run_dir: str | Path, poses: str | Path | None = None, world: bool = True) -> ExportRun:
     """Read a finished run for an export.
 
@@ -144,8 +153,10 @@ def read_run(run_dir: str | Path, poses: str | Path | None = None, world: bool =
     run_dir : str or Path
         Output folder of a finished ``cvat2mask`` run.
     poses : str or Path, optional
-        A camera trajectory (TUM format, camera to world); default: the one the run used
-        (``report.json``: ``propagation.poses``), if any.
+        A camera trajectory (TUM format, camera to world); default: the poses the run made its
+        masks with (each frame's ``camera_pose`` in ``report.json``: the trajectory's, aligned to
+        the keyframes' depth), or for a report without them (an earlier version's), the
+        trajectory the run used (``propagation.poses``), if any.
     world : bool
         Whether the export holds world-frame planes; without, no trajectory is read and no frame
         has a pose.
@@ -165,7 +176,17 @@ def read_run(run_dir: str | Path, poses: str | Path | None = None, world: bool =
     trajectory = (str(poses) if poses is not None else (report.propagation or {}).get("poses")) if world else None
     written = [f for f in report.frames if f.written and f.mask]
     frame_poses, offset = None, 0.0
-    if trajectory:
+    own = world and poses is None and any(f.camera_pose is not None for f in written)
+    if own:  # the poses the masks were made with: no trajectory to read (it may be gone)
+        frame_poses = camera_poses(written)
+        offset = trajectory_offset(report, trajectory)
+        missing = int(np.count_nonzero(~frame_poses.ok))
+        if missing:
+            why = ", ".join(f"{count} {NO_POSE_WORDS.get(reason, reason)}"
+                            for reason, count in sorted(Counter(frame_poses.reasons[~frame_poses.ok].tolist()).items()))
+            log.warning("%s: %d of %d written frames have no pose in the run (%s): their planes have no world "
+                        "coordinates", run_dir / "report.json", missing, len(written), why)
+    elif trajectory:
         if poses is None and not Path(trajectory).exists():  # a file, or a folder of pose files (ScanNet, 7-Scenes)
             raise InputError(run_dir / "report.json", f"the run's trajectory {trajectory} is gone: give it with --poses")
         gap = report.config.get("sequence", {}).get("max_pose_gap", DEFAULT_MAX_POSE_GAP)
@@ -186,7 +207,8 @@ def read_run(run_dir: str | Path, poses: str | Path | None = None, world: bool =
         if frame_poses is not None and frame_poses.ok[i]:
             pose = (frame_poses.rotations[i], frame_poses.translations[i])
         frames.append(ExportFrame(Path(f.depth).stem, f.depth, f.rgb, f.depth_timestamp, run_dir / f.mask, f.kept, pose))
-    return ExportRun(run_dir, report, frames, trajectory or None, offset)
+    return ExportRun(run_dir, report, frames, trajectory or None, offset, "run" if own else "trajectory" if trajectory else None)
+
 
 
 def trajectory_offset(report: RunRecord, trajectory: str) -> float:

@@ -277,6 +277,7 @@ def plan_frames(
             rgb=sequence.rgb.files[rgb],
             rgb_index=rgb,
             time_offset=round(float(association.time_diff[d]), 6),
+            camera_pose=None if propagation is None else propagation.camera_pose(d),
         )
         frames.append(record)
         if rgb < first or rgb > last:

@@ -22,6 +22,7 @@ import numpy as np
 from annotate_rgbd.config.settings import Config
 from annotate_rgbd.annotation.parts import Part
 from annotate_rgbd.io.layouts.model import SECONDS
+from annotate_rgbd.io.rotations import matrix_quaternions
 from annotate_rgbd.io.poses import FramePoses, Trajectory, load_trajectory, missing_poses_text, poses_at, poses_of_frames
 from annotate_rgbd.propagate.align import Alignment, align_frames
 from annotate_rgbd.propagate.keyframes import NO_DEPTH_FRAME, fit_keyframes, keyframe_depths, time_samples
@@ -72,6 +73,14 @@ class Propagation:
     time_offset: float = 0.0
     estimate: TimeOffset | None = None
     alignment: Alignment = field(default_factory=Alignment)
+
+    def camera_pose(self, frame: int) -> tuple[float, ...] | None:
+        """Depth frame ``frame``'s pose as a TUM trajectory line holds it, ``(tx, ty, tz, qx, qy,
+        qz, qw)`` (camera to world), or None where it has none (the report's ``camera_pose``)."""
+        if not self.depth_poses.ok[frame]:
+            return None
+        quaternion = matrix_quaternions(self.depth_poses.rotations[frame][None])[0]
+        return tuple(float(v) for v in (*self.depth_poses.translations[frame], *quaternion))
 
     def to_json(self) -> dict:
         """The report's ``propagation`` section."""

@@ -68,11 +68,11 @@ MASK_CODE = (
 #: propose's and evaluate's are not used),
 #: errors, the bounded file opener (and its input wording), reader and input limits, the output
 #: folder's helpers (file digests for the up-to-date check), the sequence layouts (they list the
-#: frames), camera poses and the shape record (hashed as data).
+#: frames), camera poses and their rotations and the shape record (hashed as data).
 NOT_MASK_CODE = (
     "__init__.py", "config/__init__.py", "io/__init__.py", "pipeline/__init__.py", "report/__init__.py",
     "review/__init__.py", "annotation/__init__.py", "config/masks.py", "config/annotation.py", "config/toml_input.py",
-    "config/camera_checks.py", "errors.py", "io/outdir.py", "io/poses.py", "annotation/model.py", "config/evaluate.py",
+    "config/camera_checks.py", "errors.py", "io/outdir.py", "io/poses.py", "io/rotations.py", "annotation/model.py", "config/evaluate.py",
     "config/propose.py", "io/files.py", "io/bounded.py", "io/limits.py", "io/inputs.py", "io/layouts/__init__.py", "io/layouts/lists.py",
     "io/layouts/model.py", "io/layouts/scannet.py", "io/layouts/seven_scenes.py", "io/layouts/tum.py",
 )

@@ -16,9 +16,12 @@ from collections import Counter
 from dataclasses import dataclass, field
 from typing import Any
 
+import numpy as np
+
 from annotate_rgbd.jsonfields import RecordError, mapping as _mapping, list_field as _list, int_field as _int
-from annotate_rgbd.jsonfields import number as _number
+from annotate_rgbd.jsonfields import number as _number, numbers as _numbers
 from annotate_rgbd.jsonfields import text as _text
+from annotate_rgbd.io.rotations import quaternion_matrices
 from annotate_rgbd.segment.plane_record import PlaneRecord
 
 __all__ = ["RecordError", "PlaneRecord", "MaskRecord", "FrameRecord", "RunSummary", "summarize", "PartRecord",
@@ -117,6 +120,12 @@ class FrameRecord:
     pose : str, optional
         With camera poses: ``ok``, or why the frame has none (``pose_gap``,
         ``outside_trajectory``: its shapes are then interpolated in 2-D). None without poses.
+    camera_pose : tuple of 7 float, optional
+        With camera poses, for every frame the trajectory gives a pose: the camera-to-world pose
+        the frame's masks were made with, ``(tx, ty, tz, qx, qy, qz, qw)`` as a TUM trajectory line holds it
+        (metres; unit quaternion): the trajectory's pose at the frame's time (plus the run's
+        clock offset), aligned to the keyframes' depth (``propagate.align_rounds``).
+        ``export`` and ``review --rerun`` read these. None otherwise.
     keyframes_agree : dict of int to float, optional
         With camera poses: for each plane the poses carried to the frame between two of its
         keyframes, how much the nearest keyframe before and after agree about it there (the share
@@ -138,6 +147,7 @@ class FrameRecord:
     result: MaskRecord | None = None
     mask: str | None = None
     pose: str | None = None
+    camera_pose: tuple[float, ...] | None = None
     keyframes_agree: dict[int, float] | None = None
 
     @property
@@ -177,6 +187,8 @@ class FrameRecord:
             entry.update(part=self.part, cvat_frame=self.cvat_frame)
         if self.pose is not None:
             entry["pose"] = self.pose
+        if self.camera_pose is not None:
+            entry["camera_pose"] = [round(float(v), 9) for v in self.camera_pose]
         if self.keyframes_agree:
             entry["keyframes_agree"] = {str(plane): agree for plane, agree in sorted(self.keyframes_agree.items())}
         if self.reason is not None:
@@ -220,8 +232,29 @@ class FrameRecord:
             result=result,
             mask=_text(entry, "mask") if status == WRITTEN else None,
             pose=_text(entry, "pose", optional=True),
+            camera_pose=_camera_pose(entry),
             keyframes_agree=_agreement(entry),
         )
+
+    def rotation_translation(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """The frame's :attr:`camera_pose` as a camera-to-world rotation (3, 3) and camera
+        centre (3,), or None."""
+        if self.camera_pose is None:
+            return None
+        values = np.asarray(self.camera_pose, dtype=np.float64)
+        return quaternion_matrices(values[None, 3:])[0], values[:3]
+
+
+def _camera_pose(entry: dict) -> tuple[float, ...] | None:
+    """A frame entry's ``camera_pose`` (absent in reports of earlier versions, of runs without
+    poses and of frames without one: None); its quaternion must be a unit one."""
+    if entry.get("camera_pose") is None:
+        return None
+    values = _numbers(entry["camera_pose"], "camera_pose", 7)
+    if not all(np.isfinite(values)) or abs(float(np.linalg.norm(values[3:])) - 1.0) > 1e-6:
+        raise RecordError("camera_pose is not a position and a unit quaternion (tx ty tz qx qy qz qw)")
+    return tuple(float(v) for v in values)
+
 
 
 def _agreement(entry: dict) -> dict[int, float] | None:

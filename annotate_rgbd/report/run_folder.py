@@ -9,7 +9,8 @@ here, from the run's own records, never by running any stage again:
   JSON line per mask, written by :func:`write_drawn_shapes` when the run finishes and read by
   :func:`read_drawn_shapes`): what the labeller drew and what the poses carried (the keyframes'
   signed layers, :func:`annotate_rgbd.segment.rasterize.carried_shapes`), as the frame's job
-  drew them.
+  drew them;
+* the camera poses the masks were made with (each frame's ``camera_pose``, :func:`camera_poses`).
 """
 
 from __future__ import annotations
@@ -26,9 +27,10 @@ import numpy as np
 from annotate_rgbd.annotation.model import AREA_KINDS, Shape
 from annotate_rgbd.errors import InputError
 from annotate_rgbd.io.files import open_regular
+from annotate_rgbd.io.poses import FramePoses
 from annotate_rgbd.io.outdir import JOURNAL, REPORT, SHAPES_RECORD, UNFINISHED, read_bounded
 from annotate_rgbd.report.proposals import DepthOnlyRun, is_proposals, proposals_record
-from annotate_rgbd.report.records import RecordError, RunRecord
+from annotate_rgbd.report.records import FrameRecord, RecordError, RunRecord
 from annotate_rgbd.report.validation import check_run, load_json
 
 #: Reading bound of ``report.json`` (a run of 100,000 frames with 20 planes each: ~300 MiB).
@@ -370,3 +372,17 @@ def _next_step(report: dict, out_dir: str | Path) -> str:
     return (f"its planes become masks with `annotate-rgbd cvat2mask {shlex.quote(sequence)} "
             f"{shlex.quote(str(proposals))}{poses} --config CONFIG --out DIR` (CONFIG: the propose run's; after "
             "correcting the planes in CVAT, or as they are); then use DIR")
+
+
+def camera_poses(frames: Sequence[FrameRecord]) -> FramePoses:
+    """The poses a run made its frames' masks with (their ``camera_pose``), as
+    :class:`~annotate_rgbd.io.poses.FramePoses`, one per frame (NaN, ``ok`` False and the frame's ``pose``
+    as the reason where a frame has none)."""
+    pairs = [f.rotation_translation() for f in frames]
+    ok = np.array([p is not None for p in pairs], dtype=bool)
+    rotations = np.full((len(frames), 3, 3), np.nan)
+    translations = np.full((len(frames), 3), np.nan)
+    for i in np.flatnonzero(ok).tolist():
+        rotations[i], translations[i] = pairs[i]
+    reasons = np.array(["" if p is not None else (f.pose or "no_pose") for f, p in zip(frames, pairs)])
+    return FramePoses(rotations, translations, ok, reasons)

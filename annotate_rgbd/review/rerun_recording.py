@@ -50,7 +50,7 @@ from annotate_rgbd.io.outdir import REPORT, reading
 from annotate_rgbd.io.poses import DEFAULT_MAX_POSE_GAP, FramePoses, load_trajectory, poses_at
 from annotate_rgbd.io.sequence import read_depth, read_image, read_sequence
 from annotate_rgbd.report.records import RunRecord
-from annotate_rgbd.report.run_folder import colour_table, mask_plane_ids, read_report
+from annotate_rgbd.report.run_folder import camera_poses, colour_table, mask_plane_ids, read_report
 
 log = logging.getLogger("annotate_rgbd")
 
@@ -184,13 +184,17 @@ def plane_classes(report: RunRecord) -> list[tuple[int, str, tuple[int, int, int
 
 
 def run_poses(report: RunRecord) -> FramePoses | None:
-    """The camera pose of every depth frame of the run (``report.frames``) from the trajectory
-    the run used, read as ``cvat2mask`` read it (frame-numbered poses matched to the depth frames
-    in order, the trajectory's time offset the run applied, its ``max_pose_gap``); None when the
-    run had no poses, or (with one warning) when its trajectory is gone."""
+    """The camera pose of every depth frame of the run (``report.frames``): the poses the run
+    made its masks with (each frame's ``camera_pose``: the trajectory's, aligned to the keyframes'
+    depth), or for a report without them (an earlier version's), the trajectory the run used,
+    read as ``cvat2mask`` read it (frame-numbered poses matched to the depth frames in order, the
+    trajectory's time offset the run applied, its ``max_pose_gap``); None when the run had no
+    poses, or (with one warning) when its trajectory is gone."""
     trajectory = (report.propagation or {}).get("poses")
     if not trajectory:
         return None
+    if any(f.camera_pose is not None for f in report.frames):
+        return camera_poses(report.frames)
     if not Path(trajectory).exists():
         log.warning("the run's trajectory %s is gone: the recording is in the camera frame", trajectory)
         return None

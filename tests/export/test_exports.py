@@ -23,6 +23,7 @@ from annotate_rgbd.errors import InputError, OutputError
 from annotate_rgbd.evaluate.metrics import frame_statistics
 from annotate_rgbd.export import export_run
 from annotate_rgbd.geometry.camera import Camera
+from annotate_rgbd.io.rotations import quaternion_matrices
 from annotate_rgbd.pipeline.scene import run_cvat2mask
 from annotate_rgbd.synthetic import make_sequence, room_scene
 
@@ -425,15 +426,60 @@ def test_the_export_folder_and_xml_file_may_be_given_as_out_too(run, tmp_path):
     assert not (tmp_path / "c").exists() and not (tmp_path / "d").exists()
 
 
+def test_world_planes_use_the_poses_the_masks_were_made_with(run, tmp_path, caplog):
+    # The report holds every frame's camera pose as the run used it (the trajectory's, aligned to
+    # the keyframes' depth): the export reads those, not the trajectory again, even once the
+    # trajectory is gone, and its record says so.
+    from annotate_rgbd.export.frames import read_run
+    from annotate_rgbd.io.poses import poses_at, read_trajectory
+
+    report = json.loads((run / "run" / "report.json").read_text())
+    written = [f for f in report["frames"] if f["status"] == "written"]
+    # An independent check of the record's layout (tx ty tz qx qy qz qw, camera to world): the
+    # rendered walk's exact trajectory, from which the alignment moves no pose by a centimetre.
+    truth = poses_at(read_trajectory(report["propagation"]["poses"]),
+                     np.array([f["depth_timestamp"] for f in written]) + report["propagation"]["time_offset_s"])
+    for f, rotation, centre in zip(written, truth.rotations, truth.translations):
+        values = np.array(f["camera_pose"])
+        assert np.linalg.norm(values[:3] - centre) < 0.01
+        assert np.degrees(np.arccos(np.clip((np.trace(quaternion_matrices(values[None, 3:])[0].T @ rotation) - 1) / 2,
+                                            -1, 1))) < 0.5
+    shutil.copytree(run / "run", tmp_path / "run")
+    written[0]["camera_pose"][0] += 0.1  # the run made this frame's mask 10 cm off the trajectory (in report too)
+    written[-1].update(pose="pose_gap", camera_pose=None)  # and this one without a pose
+    report["propagation"]["poses"] = str(tmp_path / "moved.txt")  # and the trajectory is gone
+    (tmp_path / "run" / "report.json").write_text(json.dumps(report))
+    with caplog.at_level(logging.WARNING, logger="annotate_rgbd"):
+        exported = read_run(tmp_path / "run")
+    assert exported.poses_from == "run"
+    records = [f for f in report["frames"] if f["status"] == "written"]
+    assert len(exported.frames) == len(records) >= 5
+    assert exported.frames[-1].pose is None and [r.getMessage() for r in caplog.records] == [
+        f"{tmp_path / 'run' / 'report.json'}: 1 of {len(records)} written frames have no pose in the run (1 in a gap "
+        "of the trajectory): their planes have no world coordinates"]
+    for frame, record in zip(exported.frames[:-1], records):
+        values = np.array(record["camera_pose"])
+        np.testing.assert_allclose(frame.pose[1], values[:3], atol=1e-12)
+        np.testing.assert_allclose(frame.pose[0], quaternion_matrices(values[None, 3:])[0], atol=1e-12)
+    export_run(tmp_path / "run", "planes", tmp_path / "out")
+    assert json.loads((tmp_path / "out" / "export.json").read_text())["poses"] == "run"
+    # A trajectory given to the export is read instead.
+    given = read_run(tmp_path / "run", run / "sequence" / "groundtruth.txt")
+    assert given.poses_from == "trajectory" and abs(given.frames[0].pose[1][0] - exported.frames[0].pose[1][0]) > 0.09
+
+
 def test_world_planes_read_the_trajectory_at_the_runs_time_offset(run, tmp_path, caplog):
-    # The run read its trajectory -0.03 s off the frames' clock (configured and estimated: the
-    # report's time_offset_s); the export must read the same poses, and say which offset.
+    # A report without the frames' camera poses (an earlier version's): the run read its
+    # trajectory -0.03 s off the frames' clock (configured and estimated: the report's
+    # time_offset_s); the export must read the same poses, and say which offset.
     from annotate_rgbd.export.frames import read_run
     from annotate_rgbd.io.poses import poses_at, read_trajectory
 
     shutil.copytree(run / "run", tmp_path / "run")
     report = json.loads((tmp_path / "run" / "report.json").read_text())
     report["propagation"]["time_offset_s"] = -0.03
+    for frame in report["frames"]:
+        del frame["camera_pose"]
     (tmp_path / "run" / "report.json").write_text(json.dumps(report))
     exported = read_run(tmp_path / "run")
     times = np.array([f.timestamp for f in exported.frames])

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 from collections import Counter
 
+import numpy as np
 import pytest
 from typer.testing import CliRunner
 
@@ -104,6 +105,29 @@ def test_carried_planes_whose_keyframes_disagree_are_listed_worst_first():
     for bad in ({"a": 0.1}, {"1": "x"}, [0.1], {"\u00b2": 0.1}):
         frames[1] = {**frames[1], "keyframes_agree": bad}
         with pytest.raises(RecordError, match="keyframes_agree"):
+            RunRecord.from_json({**REPORT, "frames": frames})
+
+
+def test_a_frames_camera_pose_reads_back_and_a_bad_one_is_an_error_naming_the_field():
+    from annotate_rgbd.report.run_folder import camera_poses
+
+    frames = [dict(f) for f in REPORT["frames"]]
+    turn = 0.3  # about the y axis: x goes to -z
+    frames[1] = {**frames[1], "camera_pose": [1.0, 2.0, 3.0, 0.0, np.sin(turn / 2), 0.0, np.cos(turn / 2)]}
+    record = RunRecord.from_json({**REPORT, "frames": frames})
+    rotation, centre = record.frames[1].rotation_translation()
+    np.testing.assert_allclose(rotation, [[np.cos(turn), 0, np.sin(turn)], [0, 1, 0], [-np.sin(turn), 0, np.cos(turn)]],
+                               atol=1e-12)
+    np.testing.assert_array_equal(centre, [1.0, 2.0, 3.0])
+    assert record.frames[0].camera_pose is None and record.frames[0].rotation_translation() is None
+    assert RunRecord.from_json(record.to_json()).frames[1].to_json() == record.frames[1].to_json()
+    poses = camera_poses(record.frames)
+    assert poses.ok.tolist() == [k == 1 for k in range(len(frames))]
+    np.testing.assert_array_equal(poses.rotations[1], rotation)
+    assert np.isnan(poses.translations[0]).all()
+    for bad in ([1.0, 2.0, 3.0], [0, 0, 0, 0, 0, 0, 2.0], [0, 0, 0, "x", 0, 0, 1], "ok", [float("nan"), 0, 0, 0, 0, 0, 1]):
+        frames[1] = {**frames[1], "camera_pose": bad}
+        with pytest.raises(RecordError, match="camera_pose"):
             RunRecord.from_json({**REPORT, "frames": frames})
 
 

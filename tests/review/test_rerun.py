@@ -91,20 +91,32 @@ def _image(entry: dict, archetype: str) -> np.ndarray:
     return buffer.reshape(shape["height"], shape["width"])
 
 
+def _pose_matrix(tx, ty, tz, x, y, z, w) -> np.ndarray:
+    """4 x 4 camera-to-world of a TUM line's pose (quaternion to matrix written out)."""
+    matrix = np.eye(4)
+    matrix[:3, :3] = [[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                      [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                      [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]]
+    matrix[:3, 3] = tx, ty, tz
+    return matrix
+
+
 def _trajectory(run: Path) -> dict[float, np.ndarray]:
-    """Timestamp -> 4 x 4 camera-to-world, from the TUM file (quaternion to matrix written out)."""
+    """Timestamp -> 4 x 4 camera-to-world, from the TUM file."""
     poses = {}
     for line in Path(_report(run)["propagation"]["poses"]).read_text().splitlines():
         if line.startswith("#") or not line.strip():
             continue
-        t, tx, ty, tz, x, y, z, w = map(float, line.split())
-        matrix = np.eye(4)
-        matrix[:3, :3] = [[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                          [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                          [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]]
-        matrix[:3, 3] = tx, ty, tz
-        poses[t] = matrix
+        t, *pose = map(float, line.split())
+        poses[t] = _pose_matrix(*pose)
     return poses
+
+
+def _without_camera_poses(report: dict) -> dict:
+    """The report as an earlier version wrote it: no frame holds its camera pose."""
+    for frame in report["frames"]:
+        frame.pop("camera_pose", None)
+    return report
 
 
 def test_recording_holds_the_runs_frames_labels_depth_and_class_table(rerun_sdk, sample_run, tmp_path):
@@ -172,7 +184,10 @@ def test_with_poses_cameras_and_points_are_in_the_world_frame(rerun_sdk, posed, 
     assert "ViewCoordinates:xyz" not in content["/world"][None]  # the trajectory's own world frame
     sequence = Path(report["inputs"]["sequence"])
     for k, frame in written.items():
-        pose = trajectory[frame["depth_timestamp"]]  # rendered at the frame's own timestamp: exact
+        pose = _pose_matrix(*frame["camera_pose"])  # the pose the run made the mask with
+        # ... the rendered trajectory's at the frame's own timestamp (exact), aligned to the
+        # keyframes' depth: by far less than a centimetre or a degree.
+        assert np.abs(pose - trajectory[frame["depth_timestamp"]]).max() < 0.005
         transform = content["/world/camera"][k]
         assert np.allclose(transform["Transform3D:translation"][0], pose[:3, 3], atol=1e-6)
         assert np.allclose(np.array(transform["Transform3D:mat3x3"][0]).reshape(3, 3).T, pose[:3, :3], atol=1e-6)
@@ -186,14 +201,14 @@ def test_with_poses_cameras_and_points_are_in_the_world_frame(rerun_sdk, posed, 
         assert np.allclose(np.array(content["/world/points"][k]["Points3D:positions"]), world, atol=1e-4)
     # The whole path: every depth frame's camera centre (all have a pose here), in order.
     strip = np.array(content["/world/trajectory"][None]["LineStrips3D:strips"][0])
-    centres = np.array([trajectory[f["depth_timestamp"]][:3, 3] for f in report["frames"]])
+    centres = np.array([f["camera_pose"][:3] for f in report["frames"]])
     assert np.allclose(strip, centres, atol=1e-5)
 
 
 def test_frames_the_trajectory_has_no_pose_for_are_left_out_with_a_warning(rerun_sdk, posed, tmp_path, caplog):
     run = tmp_path / "run"
     shutil.copytree(posed, run)
-    report = _report(run)
+    report = _without_camera_poses(_report(run))
     samples = [line for line in Path(report["propagation"]["poses"]).read_text().splitlines() if line[:1] != "#"]
     short = tmp_path / "half.txt"
     short.write_text("\n".join(samples[: len(samples) // 2]) + "\n")
@@ -211,11 +226,21 @@ def test_frames_the_trajectory_has_no_pose_for_are_left_out_with_a_warning(rerun
 
 
 def test_a_gone_trajectory_gives_a_camera_frame_recording_and_one_warning(rerun_sdk, posed, tmp_path, caplog):
+    # A report without the frames' camera poses (an earlier version's) needs its trajectory; one
+    # with them (this version's) does not.
     run = tmp_path / "run"
     shutil.copytree(posed, run)
     report = _report(run)
     report["propagation"]["poses"] = str(tmp_path / "moved.txt")
     (run / "report.json").write_text(json.dumps(report))
+    with caplog.at_level(logging.WARNING, logger="annotate_rgbd"):
+        summary = write_recording(run, tmp_path / "own.rrd")
+    assert summary.world and not caplog.records
+    cameras = read_recording(summary.path)["/world/camera"]
+    for k, frame in enumerate(report["frames"]):
+        if frame["status"] == "written":
+            assert np.allclose(cameras[k]["Transform3D:translation"][0], frame["camera_pose"][:3], atol=1e-6)
+    (run / "report.json").write_text(json.dumps(_without_camera_poses(report)))
     with caplog.at_level(logging.WARNING, logger="annotate_rgbd"):
         summary = write_recording(run, tmp_path / "gone.rrd")
     assert not summary.world and "/world/camera" not in read_recording(summary.path)
@@ -339,11 +364,12 @@ def test_a_colour_camera_of_its_own_holds_the_rgb_images(rerun_sdk, sample_run, 
 
 
 def test_the_poses_are_taken_at_the_trajectory_time_offset_the_run_applied(rerun_sdk, posed, tmp_path):
+    # A report without the frames' camera poses (an earlier version's): read from the trajectory.
     from annotate_rgbd.io.poses import poses_at, read_trajectory
 
     run = tmp_path / "run"
     shutil.copytree(posed, run)
-    report = _report(run)
+    report = _without_camera_poses(_report(run))
     report["propagation"]["time_offset_s"] = 0.0123
     (run / "report.json").write_text(json.dumps(report))
     content = read_recording(write_recording(run, tmp_path / "late.rrd").path)
