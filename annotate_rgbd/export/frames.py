@@ -210,7 +210,6 @@ def read_run(run_dir: str | Path, poses: str | Path | None = None, world: bool =
     return ExportRun(run_dir, report, frames, trajectory or None, offset, "run" if own else "trajectory" if trajectory else None)
 
 
-
 def trajectory_offset(report: RunRecord, trajectory: str) -> float:
     """Seconds to add to the frames' timestamps to read ``trajectory`` as the run read it: the
     run's own offset (``propagate.time_offset`` and what it estimated, ``time_offset_s`` of the

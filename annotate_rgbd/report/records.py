@@ -256,7 +256,6 @@ def _camera_pose(entry: dict) -> tuple[float, ...] | None:
     return tuple(float(v) for v in values)
 
 
-
 def _agreement(entry: dict) -> dict[int, float] | None:
     """A frame entry's ``keyframes_agree`` (absent in reports of earlier versions and of runs
     without poses: None)."""
