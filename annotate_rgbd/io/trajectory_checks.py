@@ -140,8 +140,11 @@ def coverage_hint(a0: float, a1: float, b0: float, b1: float, clock: str, n_pose
             da, db = (a1 - a0) / scale, b1 - b0
             if db > 0 and 0.5 <= da / db <= 2.0:
                 unit = "" if scale == 1.0 else f" with the trajectory in {name}"
-                return (f"the durations agree{unit} but the trajectory starts {b0 - a0 / scale:+.10g} s from the "
-                        "frames: a clock offset, or the trajectory of another recording of the same length")
+                late = a0 / scale - b0  # what propagate.time_offset adds to the frames' timestamps
+                fix = f" (propagate.time_offset = {late:.3f} lines them up)" if scale == 1.0 else ""
+                return (f"the durations agree{unit} but the trajectory starts {abs(late):.3f} s "
+                        f"{'after' if late > 0 else 'before'} the first depth frame{fix}: a clock offset, or the "
+                        "trajectory of another recording of the same length")
         if covered > 0.0 and (a0 <= b0 or a1 >= b1):  # one end inside the frames: cut short?
             where = (f"ends {b1 - a1:.3g} s before the last depth frame" if a0 <= b0 else
                      f"starts {a0 - b0:.3g} s after the first depth frame")

@@ -280,7 +280,9 @@ def test_millimetres_are_suggested_only_where_they_make_the_motion_plausible(tmp
         ((1.305031102e15, 1.305031130e15), (1305031103.0, 1305031129.0), "look like microseconds"),
         ((1.305031102e12, 1.305031130e12), (1305031103.0, 1305031129.0), "look like milliseconds"),
         ((1305031102.0, 1305031130.0), (1.305031103e18, 1.305031129e18), "the depth frames' timestamps look like nanoseconds"),
-        ((0.0, 28.0), (1305031103.0, 1305031129.0), "the durations agree but the trajectory starts +1305031103 s"),
+        ((0.0, 28.0), (1305031103.0, 1305031129.0), "the durations agree but the trajectory starts 1305031103.000 s "
+                                                    "before the first depth frame (propagate.time_offset = "
+                                                    "-1305031103.000 lines them up)"),
         ((-28e9, 0.0), (1305031103.0, 1305031129.0), "the durations agree with the trajectory in nanoseconds"),
         ((1311868164.0, 1311868200.0), (1305031103.0, 1305031129.0), "the durations agree"),
         ((1311868164.0, 1311869900.0), (1305031103.0, 1305031129.0), "is it this sequence's trajectory?"),
@@ -345,10 +347,10 @@ def write_samples(path: Path, samples, time=lambda t: t, position=lambda p: p) -
     return path
 
 
-def run(rendered, command: str, out: Path, poses: Path):
+def run(rendered, command: str, out: Path, poses: Path, *more: str):
     args = [command, str(rendered["sequence"])] + ([str(rendered["keyframes"])] if command == "cvat2mask" else [])
     return CliRunner().invoke(app, [*args, "--out", str(out), "-c", str(rendered["config"]), "-j", "1",
-                                    "--poses", str(poses)])
+                                    "--poses", str(poses), *more])
 
 
 def test_nanosecond_timestamps_are_diagnosed_by_cvat2mask_and_propose(rendered, tmp_path):
@@ -372,7 +374,16 @@ def test_another_sequences_trajectory_is_diagnosed(rendered, tmp_path):
     poses = write_samples(tmp_path / "other.txt", rendered["samples"], time=lambda t: t - 1000.0)
     result = run(rendered, "propose", tmp_path / "proposals", poses)
     assert result.exit_code == 1
-    assert "the durations agree but the trajectory starts +1000.0" in result.output.strip().splitlines()[-1]
+    # (the trajectory's samples begin 9 ms before the first frame)
+    assert ("the durations agree but the trajectory starts 1000.009 s before the first depth frame "
+            "(propagate.time_offset = -1000.009 lines them up)") in result.output.strip().splitlines()[-1]
+    # ... and one 1000 s late: after, and the offset that lines them up is +1000 (tried below).
+    late = write_samples(tmp_path / "late.txt", rendered["samples"], time=lambda t: t + 1000.0)
+    result = run(rendered, "propose", tmp_path / "late_proposals", late)
+    assert result.exit_code == 1 and "starts 999.991 s after the first depth frame (propagate.time_offset = 999.991 " \
+        "lines them up)" in result.output.strip().splitlines()[-1]
+    result = run(rendered, "propose", tmp_path / "late_proposals", late, "--set", "propagate.time_offset=999.991")
+    assert result.exit_code == 0, result.output
 
 
 def test_garbage_poses_are_said_by_cvat2mask_and_propose(rendered, tmp_path):
