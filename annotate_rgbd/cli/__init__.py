@@ -479,7 +479,9 @@ def export_command(
     fmt: str = typer.Option(..., "--format", "-f", metavar="FORMAT", help="planercnn, planes, evops or coco."),
     out_option: Optional[str] = typer.Option(None, "--out", "-o", metavar="OUT_DIR", help="The same as OUT_DIR."),
     poses: Optional[Path] = typer.Option(
-        None, "--poses", metavar="FILE", help="Camera trajectory (TUM format) for world-frame planes; default: the run's."
+        None, "--poses", metavar="FILE",
+        help="Camera trajectory (TUM format) for world-frame planes; default: the poses the run made its masks with "
+        "(report.json), else the run's trajectory.",
     ),
 ) -> None:
     """Export a run's plane ground truth: PlaneRCNN layout, per-frame plane parameters, EVOPS labels, COCO."""

@@ -23,7 +23,7 @@ from annotate_rgbd.geometry.lift import plane_to_world
 from annotate_rgbd.io.poses import DEFAULT_MAX_POSE_GAP, OUTSIDE_TRAJECTORY, POSE_GAP, poses_of_frames, read_trajectory
 from annotate_rgbd.io.sequence import read_image
 from annotate_rgbd.report.records import RunRecord
-from annotate_rgbd.report.run_folder import camera_poses, colour_table, mask_plane_ids, read_report
+from annotate_rgbd.report.run_folder import NO_CAMERA_POSE, camera_poses, colour_table, mask_plane_ids, read_report
 from annotate_rgbd.segment.plane_record import PlaneRecord
 
 log = logging.getLogger("annotate_rgbd")
@@ -142,7 +142,8 @@ class ExportRun:
 
 
 #: Why a frame of a run has no pose (its report's ``pose``), in words.
-NO_POSE_WORDS = {POSE_GAP: "in a gap of the trajectory", OUTSIDE_TRAJECTORY: "outside the trajectory"}
+NO_POSE_WORDS = {POSE_GAP: "in a gap of the trajectory", OUTSIDE_TRAJECTORY: "outside the trajectory",
+                 NO_CAMERA_POSE: "without a camera_pose in the report"}
 
 
 def read_run(run_dir: str | Path, poses: str | Path | None = None, world: bool = True) -> ExportRun:
@@ -214,12 +215,18 @@ def trajectory_offset(report: RunRecord, trajectory: str) -> float:
     """Seconds to add to the frames' timestamps to read ``trajectory`` as the run read it: the
     run's own offset (``propagate.time_offset`` and what it estimated, ``time_offset_s`` of the
     report's ``propagation``) for the run's own trajectory, else the configured
-    ``propagate.time_offset`` (an estimate holds for the trajectory it was made on only)."""
+    ``propagate.time_offset`` (an estimate holds for the trajectory it was made on only; a
+    warning says so when the run's own offset differs: the file may be a copy of the run's)."""
     propagation = report.propagation or {}
     own = propagation.get("poses")
-    if own is not None and Path(own).absolute() == Path(trajectory).absolute():
-        value = propagation.get("time_offset_s")
-        if isinstance(value, (int, float)) and np.isfinite(value):
-            return float(value)
+    value = propagation.get("time_offset_s")
+    run_offset = float(value) if isinstance(value, (int, float)) and np.isfinite(value) else None
+    if own is not None and Path(own).absolute() == Path(trajectory).absolute() and run_offset is not None:
+        return run_offset
     value = report.config.get("propagate", {}).get("time_offset", 0.0)
-    return float(value) if isinstance(value, (int, float)) and np.isfinite(value) else 0.0
+    configured = float(value) if isinstance(value, (int, float)) and np.isfinite(value) else 0.0
+    if own is not None and run_offset is not None and abs(run_offset - configured) > 1e-3:
+        log.warning("%s: read at the configured propagate.time_offset (%g s), not at the %g s the run estimated for "
+                    "its own trajectory %s; to export with the poses the run made its masks with, leave out --poses",
+                    trajectory, configured, run_offset, own)
+    return configured

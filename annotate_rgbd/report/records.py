@@ -242,16 +242,17 @@ class FrameRecord:
         if self.camera_pose is None:
             return None
         values = np.asarray(self.camera_pose, dtype=np.float64)
-        return quaternion_matrices(values[None, 3:])[0], values[:3]
+        return quaternion_matrices(values[None, 3:] / np.linalg.norm(values[3:]))[0], values[:3]
 
 
 def _camera_pose(entry: dict) -> tuple[float, ...] | None:
     """A frame entry's ``camera_pose`` (absent in reports of earlier versions, of runs without
-    poses and of frames without one: None); its quaternion must be a unit one."""
+    poses and of frames without one: None); its quaternion must be a unit one, to the 1e-3 of a
+    pose copied from a trajectory file with 4 decimals."""
     if entry.get("camera_pose") is None:
         return None
     values = _numbers(entry["camera_pose"], "camera_pose", 7)
-    if not all(np.isfinite(values)) or abs(float(np.linalg.norm(values[3:])) - 1.0) > 1e-6:
+    if not all(np.isfinite(values)) or abs(float(np.linalg.norm(values[3:])) - 1.0) > 1e-3:
         raise RecordError("camera_pose is not a position and a unit quaternion (tx ty tz qx qy qz qw)")
     return tuple(float(v) for v in values)
 

@@ -33,6 +33,8 @@ from annotate_rgbd.report.proposals import DepthOnlyRun, is_proposals, proposals
 from annotate_rgbd.report.records import FrameRecord, RecordError, RunRecord
 from annotate_rgbd.report.validation import check_run, load_json
 
+#: Why a frame has no pose in :func:`camera_poses` when its report entry says none.
+NO_CAMERA_POSE = "no_camera_pose"
 #: Reading bound of ``report.json`` (a run of 100,000 frames with 20 planes each: ~300 MiB).
 MAX_REPORT_BYTES = 1 << 30
 #: Reading bound of one line of the shapes record (thousands of vertices per frame fit easily).
@@ -377,12 +379,13 @@ def _next_step(report: dict, out_dir: str | Path) -> str:
 def camera_poses(frames: Sequence[FrameRecord]) -> FramePoses:
     """The poses a run made its frames' masks with (their ``camera_pose``), as
     :class:`~annotate_rgbd.io.poses.FramePoses`, one per frame (NaN, ``ok`` False and the frame's ``pose``
-    as the reason where a frame has none)."""
+    as the reason where a frame has none: :data:`NO_CAMERA_POSE` where that says ``ok`` or nothing)."""
     pairs = [f.rotation_translation() for f in frames]
     ok = np.array([p is not None for p in pairs], dtype=bool)
     rotations = np.full((len(frames), 3, 3), np.nan)
     translations = np.full((len(frames), 3), np.nan)
     for i in np.flatnonzero(ok).tolist():
         rotations[i], translations[i] = pairs[i]
-    reasons = np.array(["" if p is not None else (f.pose or "no_pose") for f, p in zip(frames, pairs)])
+    reasons = np.array(["" if p is not None else f.pose if f.pose not in (None, "ok") else NO_CAMERA_POSE
+                        for f, p in zip(frames, pairs)])
     return FramePoses(rotations, translations, ok, reasons)

@@ -190,11 +190,11 @@ def run_poses(report: RunRecord) -> FramePoses | None:
     read as ``cvat2mask`` read it (frame-numbered poses matched to the depth frames in order, the
     trajectory's time offset the run applied, its ``max_pose_gap``); None when the run had no
     poses, or (with one warning) when its trajectory is gone."""
+    if any(f.camera_pose is not None for f in report.frames):
+        return camera_poses(report.frames)
     trajectory = (report.propagation or {}).get("poses")
     if not trajectory:
         return None
-    if any(f.camera_pose is not None for f in report.frames):
-        return camera_poses(report.frames)
     if not Path(trajectory).exists():
         log.warning("the run's trajectory %s is gone: the recording is in the camera frame", trajectory)
         return None

@@ -447,6 +447,7 @@ def test_world_planes_use_the_poses_the_masks_were_made_with(run, tmp_path, capl
     shutil.copytree(run / "run", tmp_path / "run")
     written[0]["camera_pose"][0] += 0.1  # the run made this frame's mask 10 cm off the trajectory (in report too)
     written[-1].update(pose="pose_gap", camera_pose=None)  # and this one without a pose
+    del written[-2]["camera_pose"]  # and this one's taken out of the report by hand
     report["propagation"]["poses"] = str(tmp_path / "moved.txt")  # and the trajectory is gone
     (tmp_path / "run" / "report.json").write_text(json.dumps(report))
     with caplog.at_level(logging.WARNING, logger="annotate_rgbd"):
@@ -454,10 +455,11 @@ def test_world_planes_use_the_poses_the_masks_were_made_with(run, tmp_path, capl
     assert exported.poses_from == "run"
     records = [f for f in report["frames"] if f["status"] == "written"]
     assert len(exported.frames) == len(records) >= 5
-    assert exported.frames[-1].pose is None and [r.getMessage() for r in caplog.records] == [
-        f"{tmp_path / 'run' / 'report.json'}: 1 of {len(records)} written frames have no pose in the run (1 in a gap "
-        "of the trajectory): their planes have no world coordinates"]
-    for frame, record in zip(exported.frames[:-1], records):
+    assert exported.frames[-1].pose is None and exported.frames[-2].pose is None
+    assert [r.getMessage() for r in caplog.records] == [
+        f"{tmp_path / 'run' / 'report.json'}: 2 of {len(records)} written frames have no pose in the run (1 without a "
+        "camera_pose in the report, 1 in a gap of the trajectory): their planes have no world coordinates"]
+    for frame, record in zip(exported.frames[:-2], records):
         values = np.array(record["camera_pose"])
         np.testing.assert_allclose(frame.pose[1], values[:3], atol=1e-12)
         np.testing.assert_allclose(frame.pose[0], quaternion_matrices(values[None, 3:])[0], atol=1e-12)
@@ -499,7 +501,13 @@ def test_world_planes_read_the_trajectory_at_the_runs_time_offset(run, tmp_path,
     # Another trajectory than the run's: the configured offset (0 here), not the estimate.
     other = tmp_path / "other.txt"
     shutil.copy(report["propagation"]["poses"], other)
-    assert read_run(tmp_path / "run", other).time_offset == 0.0
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="annotate_rgbd"):
+        assert read_run(tmp_path / "run", other).time_offset == 0.0
+    assert [r.getMessage() for r in caplog.records][0] == (
+        f"{other}: read at the configured propagate.time_offset (0 s), not at the -0.03 s the run estimated for its "
+        f"own trajectory {report['propagation']['poses']}; to export with the poses the run made its masks with, "
+        "leave out --poses")
     export_run(tmp_path / "run", "planes", tmp_path / "out")
     assert json.loads((tmp_path / "out" / "export.json").read_text())["trajectory_time_offset_s"] == -0.03
 

@@ -125,7 +125,12 @@ def test_a_frames_camera_pose_reads_back_and_a_bad_one_is_an_error_naming_the_fi
     assert poses.ok.tolist() == [k == 1 for k in range(len(frames))]
     np.testing.assert_array_equal(poses.rotations[1], rotation)
     assert np.isnan(poses.translations[0]).all()
-    for bad in ([1.0, 2.0, 3.0], [0, 0, 0, 0, 0, 0, 2.0], [0, 0, 0, "x", 0, 0, 1], "ok", [float("nan"), 0, 0, 0, 0, 0, 1]):
+    # A pose copied from a trajectory file with 4 decimals is a unit quaternion to 2e-5: read, and normalised.
+    frames[1] = {**frames[1], "camera_pose": [0, 0, 0, -0.6793, -0.5448, 0.0036, 0.4917]}
+    rotation = RunRecord.from_json({**REPORT, "frames": frames}).frames[1].rotation_translation()[0]
+    np.testing.assert_allclose(rotation @ rotation.T, np.eye(3), atol=1e-12)
+    for bad in ([1.0, 2.0, 3.0], [0, 0, 0, 0, 0, 0, 2.0], [0, 0, 0, 0, 0, 0, 1.01], [0, 0, 0, "x", 0, 0, 1], "ok",
+                [float("nan"), 0, 0, 0, 0, 0, 1]):
         frames[1] = {**frames[1], "camera_pose": bad}
         with pytest.raises(RecordError, match="camera_pose"):
             RunRecord.from_json({**REPORT, "frames": frames})

@@ -240,6 +240,9 @@ def test_a_gone_trajectory_gives_a_camera_frame_recording_and_one_warning(rerun_
     for k, frame in enumerate(report["frames"]):
         if frame["status"] == "written":
             assert np.allclose(cameras[k]["Transform3D:translation"][0], frame["camera_pose"][:3], atol=1e-6)
+    # The frames' poses are enough: as for export, even without the report's propagation section.
+    (run / "report.json").write_text(json.dumps({**report, "propagation": None}))
+    assert write_recording(run, tmp_path / "bare.rrd").world
     (run / "report.json").write_text(json.dumps(_without_camera_poses(report)))
     with caplog.at_level(logging.WARNING, logger="annotate_rgbd"):
         summary = write_recording(run, tmp_path / "gone.rrd")
