@@ -256,14 +256,27 @@ def _pairs(points, r, t, views: Keyframes, camera, reach):
     u, v = u.ravel()[pair].astype(np.intp), v.ravel()[pair].astype(np.intp)
     point = pair % len(points)
     flat = ((pair // len(points)) * height + v) * width + u
-    gap = world[point] - views.points.reshape(-1, 3)[flat]
-    normal = views.normals.reshape(-1, 3)[flat]
+    gap = np.take(world, point, axis=0) - np.take(views.points.reshape(-1, 3), flat, axis=0)
+    normal = np.take(views.normals.reshape(-1, 3), flat, axis=0)
     distance = np.einsum("ij,ij->i", gap, normal)
     with np.errstate(invalid="ignore"):
         near = (np.einsum("ij,ij->i", gap, gap) < reach * reach) & np.isfinite(distance)
     point, normal = point[near], normal[near] @ r.astype(np.float32)  # normals in the frame's camera
-    rows = np.hstack([np.cross(points[point], normal), normal]).astype(np.float64)
+    rows = _jacobian(np.take(points, point, axis=0), normal)
     return rows, distance[near].astype(np.float64), len(rows)
+
+
+def _jacobian(points: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """The point-to-plane Jacobian rows ``(p x n, n)`` (M, 6, float64) of points and normals
+    (float32 (M, 3), the frame's camera): the cross product in float32 as ``np.cross`` computes it,
+    one column at a time."""
+    (px, py, pz), (nx, ny, nz) = points.T, normals.T
+    rows = np.empty((len(points), 6))
+    rows[:, 0] = py * nz - pz * ny
+    rows[:, 1] = pz * nx - px * nz
+    rows[:, 2] = px * ny - py * nx
+    rows[:, 3:] = normals
+    return rows
 
 
 @dataclass
