@@ -19,7 +19,8 @@ from annotate_rgbd.geometry.camera import Camera
 from annotate_rgbd.io.poses import FramePoses
 from annotate_rgbd.pipeline.propagation import Propagation, propagation_warnings
 from annotate_rgbd.pool import start_helpers
-from annotate_rgbd.propagate.align import _between, align_frames, align_pose, frame_points, keyframe_view, stack_views
+from annotate_rgbd.propagate.align import _between, align_frames
+from annotate_rgbd.propagate.icp import align_pose, frame_points, keyframe_view, stack_views
 
 CAMERA = Camera(fx=262.5, fy=262.5, cx=159.5, cy=119.5, depth_scale=5000.0)
 #: The corner of a room: the floor z = 0 and the walls x = 0, y = 0 (unit normals, offsets).
