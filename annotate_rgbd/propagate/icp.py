@@ -65,16 +65,6 @@ class KeyframeView:
         """Its depth points (ceil(H/2), ceil(W/2), 3), NaN where there is no depth."""
         return np.stack([self.depth * self.ray_x[None, :], self.depth * self.ray_y[:, None], self.depth], axis=2)
 
-    def surface(self, flat: np.ndarray, cols: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The points and normals (float32 (M, 3) each) at the pixels ``(cols, rows)`` of the grid,
-        ``flat`` their index in the raveled grid: the same numbers as :attr:`points` there."""
-        depth = np.take(self.depth.reshape(-1), flat)
-        points = np.empty((len(flat), 3), dtype=np.float32)
-        points[:, 0] = depth * np.take(self.ray_x, cols)
-        points[:, 1] = depth * np.take(self.ray_y, rows)
-        points[:, 2] = depth
-        return points, np.take(self.normals.reshape(-1, 3), flat, axis=0)
-
     @property
     def nbytes(self) -> int:
         """The memory its arrays hold."""
@@ -83,27 +73,35 @@ class KeyframeView:
 
 @dataclass(frozen=True)
 class Keyframes:
-    """The keyframes a frame is aligned to: their :class:`KeyframeView` (each in its own
-    camera frame) and poses.
+    """The keyframes a frame is aligned to: their :class:`KeyframeView` arrays stacked (each
+    keyframe in its own camera frame) and their poses.
 
     Parameters
     ----------
-    views : tuple of KeyframeView
-        The keyframes' surfaces (all on one grid).
+    depth : ndarray of float32, shape (K, H', W')
+    normals : ndarray of float32, shape (K, H', W', 3)
+        The keyframes' :class:`KeyframeView` depth and normals.
+    ray_x, ray_y : ndarray of float32, shapes (W',) and (H',)
+        Their grid's viewing rays (one camera).
     rotations : ndarray, shape (K, 3, 3)
     translations : ndarray, shape (K, 3)
         The keyframes' poses (camera to world).
     """
 
-    views: tuple
+    depth: np.ndarray
+    normals: np.ndarray
+    ray_x: np.ndarray
+    ray_y: np.ndarray
     rotations: np.ndarray
     translations: np.ndarray
 
 
 def stack_views(views: list[KeyframeView], rotations: np.ndarray, translations: np.ndarray) -> Keyframes:
-    """Several keyframes' views, with their poses (camera to world: (K, 3, 3) and (K, 3)), as
-    one :class:`Keyframes`."""
-    return Keyframes(tuple(views), np.asarray(rotations, dtype=np.float64), np.asarray(translations, dtype=np.float64))
+    """Several keyframes' views (one camera), with their poses (camera to world: (K, 3, 3) and
+    (K, 3)), as one :class:`Keyframes`."""
+    return Keyframes(np.stack([v.depth for v in views]), np.stack([v.normals for v in views]), views[0].ray_x,
+                     views[0].ray_y, np.asarray(rotations, dtype=np.float64),
+                     np.asarray(translations, dtype=np.float64))
 
 
 def keyframe_view(depth_m: np.ndarray, camera: Camera, max_depth: float) -> KeyframeView:
@@ -249,7 +247,7 @@ def _pairs(points, r, t, views: Keyframes, camera, reach):
     A pair's distance is measured in its keyframe's camera (:func:`_keyframe_pairs`)."""
     world = points @ r.T.astype(np.float32) + t.astype(np.float32)
     local = np.matmul(world[None] - views.translations.astype(np.float32)[:, None, :], views.rotations.astype(np.float32))
-    height, width = views.views[0].depth.shape
+    count, height, width = views.depth.shape
     z = local[..., 2]
     with np.errstate(invalid="ignore", divide="ignore"):
         u = np.rint((local[..., 0] / z * np.float32(camera.fx) + np.float32(camera.cx)) * np.float32(0.5))
@@ -266,25 +264,24 @@ def _keyframe_pairs(local, pair, cols, rows, count, views: Keyframes, r, reach):
     (``local``, (K * N, 3)), with the keyframes' surfaces at ``(cols, rows)`` of their grids:
     the frame points' indices, the keyframes' normals in the frame's camera (float32 (M, 3)) and
     the points' distances to the keyframes' surfaces along them (float32 (M,)). ``pair`` holds
-    indices ``k * count + i`` in increasing order, so each keyframe's pairs are one run."""
-    width = views.views[0].depth.shape[1]
-    flat = rows * width + cols
-    ends = np.searchsorted(pair, count * np.arange(len(views.views) + 1))
-    surface = np.empty((len(pair), 3), dtype=np.float32)
-    normal = np.empty_like(surface)
-    to_frame = np.matmul(views.rotations.transpose(0, 2, 1), r).astype(np.float32)  # keyframe -> frame camera
-    for k, view in enumerate(views.views):
-        run = slice(ends[k], ends[k + 1])
-        surface[run], normal[run] = view.surface(flat[run], cols[run], rows[run])
-    gap = np.take(local, pair, axis=0) - surface
+    indices ``k * count + i`` (keyframe ``k``, frame point ``i``) in increasing order."""
+    keyframe = pair // count
+    flat = (keyframe * views.depth.shape[1] + rows) * views.depth.shape[2] + cols
+    depth = np.take(views.depth.reshape(-1), flat)
+    gap = np.take(local, pair, axis=0)
+    gap[:, 0] -= depth * np.take(views.ray_x, cols)
+    gap[:, 1] -= depth * np.take(views.ray_y, rows)
+    gap[:, 2] -= depth
+    normal = np.take(views.normals.reshape(-1, 3), flat, axis=0)
     distance = np.einsum("ij,ij->i", gap, normal)
     with np.errstate(invalid="ignore"):
-        near = (np.einsum("ij,ij->i", gap, gap) < reach * reach) & np.isfinite(distance)
-    for k in range(len(views.views)):  # the normals in the frame's camera
-        run = slice(ends[k], ends[k + 1])
-        normal[run] = normal[run] @ to_frame[k]
-    near = np.flatnonzero(near)
-    return np.take(pair % count, near), np.take(normal, near, axis=0), np.take(distance, near)
+        near = np.flatnonzero((np.einsum("ij,ij->i", gap, gap) < reach * reach) & np.isfinite(distance))
+    normal, keyframe = np.take(normal, near, axis=0), np.take(keyframe, near)
+    ends = np.searchsorted(keyframe, np.arange(len(views.depth) + 1))
+    to_frame = np.matmul(views.rotations.transpose(0, 2, 1), r).astype(np.float32)  # keyframe -> frame camera
+    for k in range(len(views.depth)):
+        normal[ends[k]:ends[k + 1]] = normal[ends[k]:ends[k + 1]] @ to_frame[k]
+    return np.take(pair, near) % count, normal, np.take(distance, near)
 
 
 def _jacobian(points: np.ndarray, normals: np.ndarray) -> np.ndarray:
