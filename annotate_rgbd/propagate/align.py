@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, field
-from functools import lru_cache
+from collections import OrderedDict
 from pathlib import Path
 
 import cv2
@@ -41,9 +41,13 @@ from annotate_rgbd.propagate.icp import MIN_PAIRS, Correction, KeyframeView, ali
 log = logging.getLogger("annotate_rgbd")
 
 #: Keyframes whose views a process keeps (:func:`_keyframe`): about 1.3 MB each at 640 x 480.
-#: A sequence with no more keyframes reads and prepares each keyframe once for every round and
-#: the other frames; with more, each round reads again those the last one did not end on.
+#: A sequence with no more keyframes reads and prepares each keyframe once for all the rounds and
+#: the other frames; with more, each round reads again those the last one did not end on. The
+#: other frames' jobs let go of the keyframes they have gone past (:func:`_forget_past`).
 KEPT_KEYFRAMES = 48
+#: The kept keyframes, least recently used first: (path, camera, max_depth, step) -> (depth frame,
+#: its own points to align, its view to align to).
+_kept: OrderedDict = OrderedDict()
 
 
 @dataclass
@@ -157,8 +161,8 @@ def align_frames(depth_poses: FramePoses, keyframes: list[int], depth_files: lis
             jobs = []
             for n, key in _back_and_forth(keys, round_):
                 near = [k for k in keys[max(0, n - side):n + side + 1] if k != key]
-                jobs.append(([key], [(depth_files[k], rotations[k], translations[k]) for k in near],
-                             [(depth_files[key], rotations[key], translations[key])], limits, True))
+                jobs.append(([key], [(k, depth_files[k], rotations[k], translations[k]) for k in near],
+                             [(key, depth_files[key], rotations[key], translations[key])], limits, None))
             found = _corrections(jobs, helpers)
             unread = {key for key, correction in found.items() if correction is None}
             for key, correction in found.items():
@@ -175,9 +179,12 @@ def align_frames(depth_poses: FramePoses, keyframes: list[int], depth_files: lis
             alignment.add(key, overall)
         jobs = []
         runs = _between(keys, np.flatnonzero(depth_poses.ok), settings.keyframes_each_side)
+        downwards = settings.align_rounds % 2 == 1  # from where the last round ended
         for _, (before, after, frames) in _back_and_forth(runs, settings.align_rounds):
-            jobs.append((frames, [(depth_files[k], rotations[k], translations[k]) for k in (*before, *after)],
-                         [(depth_files[f], rotations[f], translations[f]) for f in frames], limits, False))
+            window = (*before, *after)
+            jobs.append((frames, [(k, depth_files[k], rotations[k], translations[k]) for k in window],
+                         [(f, depth_files[f], rotations[f], translations[f]) for f in frames], limits,
+                         (max(window), -1) if downwards else (min(window), 1)))
         for frame, correction in _corrections(jobs, helpers).items():
             alignment.frames += 1
             if correction is None:
@@ -186,7 +193,7 @@ def align_frames(depth_poses: FramePoses, keyframes: list[int], depth_files: lis
             rotations[frame], translations[frame] = correction.rotation, correction.translation
             alignment.add(frame, correction)
     finally:
-        _keyframe.cache_clear()  # this process goes on to make masks
+        _kept.clear()  # this process goes on to make masks
     return FramePoses(rotations, translations, depth_poses.ok, depth_poses.reasons), alignment
 
 
@@ -234,26 +241,31 @@ def _corrections(jobs: list, helpers: HelperPool | None) -> dict[int, Correction
 
 
 def align_job(job: tuple) -> dict[int, Correction | None]:
-    """Align the frames of one job ``(frame indices, keyframes [(path, rotation, translation)],
-    frames [(path, rotation, translation)], (camera, max_depth, step, max_shift, max_turn),
-    whether the frames are keyframes)`` to the job's keyframes: the function
-    :func:`align_frames` gives :func:`annotate_rgbd.pool.run_jobs`. A frame whose depth, or
-    every keyframe's, cannot be read gets None; a keyframe that cannot be read is left out."""
-    indices, keyframes, frames, (camera, max_depth, step, max_shift, max_turn), of_keyframes = job
+    """Align the frames of one job ``(frame indices, keyframes [(depth frame, path, rotation,
+    translation)], frames [(depth frame, path, rotation, translation)], (camera, max_depth, step,
+    max_shift, max_turn), past)`` to the job's keyframes: the function :func:`align_frames` gives
+    :func:`annotate_rgbd.pool.run_jobs`. ``past`` is None when the frames are keyframes (aligned
+    to each other), else ``(bound, direction)``: the jobs of the other frames go over the
+    keyframes in one direction, and no job after this one takes a keyframe before ``bound``
+    (:func:`_forget_past`). A frame whose depth, or every keyframe's, cannot be read gets None; a
+    keyframe that cannot be read is left out."""
+    indices, keyframes, frames, (camera, max_depth, step, max_shift, max_turn), past = job
+    if past is not None:
+        _forget_past(*past)
     readable = []
-    for path, r, t in keyframes:
+    for key, path, r, t in keyframes:
         try:
-            readable.append((_keyframe(path, camera, max_depth, step)[1], r, t))
+            readable.append((_keyframe(key, path, camera, max_depth, step)[2], r, t))
         except InputError:
             continue  # the others still align the frames
     if not readable:
         return dict.fromkeys(indices)
     views = stack_views([v for v, _, _ in readable], [r for _, r, _ in readable], [t for _, _, t in readable])
     corrections: dict[int, Correction | None] = {}
-    for index, (path, r, t) in zip(indices, frames):
+    for index, (key, path, r, t) in zip(indices, frames):
         try:
-            if of_keyframes:
-                points = _keyframe(path, camera, max_depth, step)[0]
+            if past is None:  # a keyframe
+                points = _keyframe(key, path, camera, max_depth, step)[1]
             else:
                 points = frame_points(_depth(path, camera), camera, step, max_depth)
         except InputError:
@@ -263,15 +275,32 @@ def align_job(job: tuple) -> dict[int, Correction | None]:
     return corrections
 
 
-@lru_cache(maxsize=KEPT_KEYFRAMES)
-def _keyframe(path: Path, camera: Camera, max_depth: float, step: int) -> tuple[np.ndarray, KeyframeView]:
-    """A keyframe's own points to align (:func:`annotate_rgbd.propagate.icp.frame_points`) and
-    its view to align to, kept for the next jobs and rounds: successive jobs share most of their
-    keyframes (a keyframe's neighbours, a run of frames between keyframes), and the rounds go
-    over the keyframes back and forth, so that each round starts on the keyframes the last one
-    ended on (:data:`KEPT_KEYFRAMES`)."""
-    depth = _depth(path, camera)
-    return frame_points(depth, camera, step, max_depth), keyframe_view(depth, camera, max_depth)
+def _keyframe(frame: int, path: Path, camera: Camera, max_depth: float,
+              step: int) -> tuple[int, np.ndarray, KeyframeView]:
+    """A keyframe's depth frame, its own points to align
+    (:func:`annotate_rgbd.propagate.icp.frame_points`) and its view to align to, kept for the
+    next jobs and rounds: successive jobs share most of their keyframes (a keyframe's
+    neighbours, a run of frames between keyframes), and the rounds go over the keyframes back and
+    forth, so that each round starts on the keyframes the last one ended on. The
+    :data:`KEPT_KEYFRAMES` most recently used stay kept."""
+    key = (path, camera, max_depth, step)
+    found = _kept.pop(key, None)
+    if found is None:
+        depth = _depth(path, camera)
+        found = frame, frame_points(depth, camera, step, max_depth), keyframe_view(depth, camera, max_depth)
+    _kept[key] = found
+    while len(_kept) > KEPT_KEYFRAMES:
+        _kept.popitem(last=False)
+    return found
+
+
+def _forget_past(bound: int, direction: int) -> None:
+    """Let go of the kept keyframes before depth frame ``bound`` in ``direction`` (1: those
+    below it, -1: those above it): the jobs of the other frames go over the keyframes one way,
+    so that, when the last of them is done, a process (a helper going on to make masks) keeps
+    only the last few."""
+    for key in [key for key, (frame, _, _) in _kept.items() if direction * (frame - bound) < 0]:
+        del _kept[key]
 
 
 def _depth(path: Path, camera: Camera) -> np.ndarray:
