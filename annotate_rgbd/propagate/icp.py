@@ -81,8 +81,8 @@ class Keyframes:
     depth : ndarray of float32, shape (K, H', W')
     normals : ndarray of float32, shape (K, H', W', 3)
         The keyframes' :class:`KeyframeView` depth and normals.
-    ray_x, ray_y : ndarray of float32, shapes (W',) and (H',)
-        Their grid's viewing rays (one camera).
+    ray_x, ray_y : ndarray of float32, shape (H' * W',)
+        Their grid's viewing rays (one camera) at every pixel of the raveled grid.
     rotations : ndarray, shape (K, 3, 3)
     translations : ndarray, shape (K, 3)
         The keyframes' poses (camera to world).
@@ -99,9 +99,10 @@ class Keyframes:
 def stack_views(views: list[KeyframeView], rotations: np.ndarray, translations: np.ndarray) -> Keyframes:
     """Several keyframes' views (one camera), with their poses (camera to world: (K, 3, 3) and
     (K, 3)), as one :class:`Keyframes`."""
-    return Keyframes(np.stack([v.depth for v in views]), np.stack([v.normals for v in views]), views[0].ray_x,
-                     views[0].ray_y, np.asarray(rotations, dtype=np.float64),
-                     np.asarray(translations, dtype=np.float64))
+    height, width = views[0].depth.shape
+    return Keyframes(np.stack([v.depth for v in views]), np.stack([v.normals for v in views]),
+                     np.tile(views[0].ray_x, height), np.repeat(views[0].ray_y, width),
+                     np.asarray(rotations, dtype=np.float64), np.asarray(translations, dtype=np.float64))
 
 
 def keyframe_view(depth_m: np.ndarray, camera: Camera, max_depth: float) -> KeyframeView:
@@ -207,9 +208,13 @@ def align_pose(points: np.ndarray, rotation: np.ndarray, translation: np.ndarray
     given_t = np.asarray(translation, dtype=np.float64)
     r, t = given_r.copy(), given_t.copy()
     pairs = 0
+    # The keyframes' positions, repeated for every point: (K, 3 N), to subtract from the points'
+    # world coordinates laid out as one row (the same numbers as broadcasting (N, 3) against
+    # (K, 1, 3), in long runs instead of runs of 3).
+    centres = np.tile(views.translations.astype(np.float32), (1, len(points)))
     for reach, shortest, least_turn in STAGES:
         for _ in range(STEPS):
-            rows, residuals, pairs = _pairs(points, r, t, views, camera, reach)
+            rows, residuals, pairs = _pairs(points, r, t, views, camera, reach, centres)
             if pairs < MIN_PAIRS:
                 break
             step = _step(rows.T @ rows, rows.T @ residuals)
@@ -241,36 +246,38 @@ def _step(hessian: np.ndarray, gradient: np.ndarray) -> np.ndarray:
     return -vectors[:, held] @ ((vectors[:, held].T @ gradient) / values[held])
 
 
-def _pairs(points, r, t, views: Keyframes, camera, reach):
+def _pairs(points, r, t, views: Keyframes, camera, reach, centres):
     """The Jacobian rows (M, 6) and residuals (M,) of every pair of the frame's points with the
     keyframes' surfaces within ``reach``, for a step ``(w, v)`` applied in the frame's camera.
-    A pair's distance is measured in its keyframe's camera (:func:`_keyframe_pairs`)."""
-    world = points @ r.T.astype(np.float32) + t.astype(np.float32)
-    local = np.matmul(world[None] - views.translations.astype(np.float32)[:, None, :], views.rotations.astype(np.float32))
+    A pair's distance is measured in its keyframe's camera (:func:`_keyframe_pairs`);
+    ``centres`` are the keyframes' positions repeated for every point (float32 (K, 3 N))."""
     count, height, width = views.depth.shape
+    world = points @ r.T.astype(np.float32) + t.astype(np.float32)
+    local = np.matmul((world.reshape(1, -1) - centres).reshape(count, -1, 3), views.rotations.astype(np.float32))
     z = local[..., 2]
     with np.errstate(invalid="ignore", divide="ignore"):
         u = np.rint((local[..., 0] / z * np.float32(camera.fx) + np.float32(camera.cx)) * np.float32(0.5))
         v = np.rint((local[..., 1] / z * np.float32(camera.fy) + np.float32(camera.cy)) * np.float32(0.5))
         pair = np.flatnonzero((z > 0) & (u >= 0) & (u < width) & (v >= 0) & (v < height))
-    point, normal, distance = _keyframe_pairs(local.reshape(-1, 3), pair, np.take(u, pair).astype(np.intp),
-                                              np.take(v, pair).astype(np.intp), len(points), views, r, reach)
+        pixel = v * np.float32(width) + u  # exact: below 2^24
+    point, normal, distance = _keyframe_pairs(local.reshape(-1, 3), pair, np.take(pixel, pair).astype(np.intp),
+                                              len(points), views, r, reach)
     rows = _jacobian(np.take(points, point, axis=0), normal)
     return rows, distance.astype(np.float64), len(rows)
 
 
-def _keyframe_pairs(local, pair, cols, rows, count, views: Keyframes, r, reach):
+def _keyframe_pairs(local, pair, pixel, count, views: Keyframes, r, reach):
     """The pairs within ``reach`` of the frame's points, taken into the keyframes' cameras
-    (``local``, (K * N, 3)), with the keyframes' surfaces at ``(cols, rows)`` of their grids:
+    (``local``, (K * N, 3)), with the keyframes' surfaces at ``pixel`` of their raveled grids:
     the frame points' indices, the keyframes' normals in the frame's camera (float32 (M, 3)) and
     the points' distances to the keyframes' surfaces along them (float32 (M,)). ``pair`` holds
     indices ``k * count + i`` (keyframe ``k``, frame point ``i``) in increasing order."""
     keyframe = pair // count
-    flat = (keyframe * views.depth.shape[1] + rows) * views.depth.shape[2] + cols
+    flat = keyframe * (views.depth.shape[1] * views.depth.shape[2]) + pixel
     depth = np.take(views.depth.reshape(-1), flat)
     gap = np.take(local, pair, axis=0)
-    gap[:, 0] -= depth * np.take(views.ray_x, cols)
-    gap[:, 1] -= depth * np.take(views.ray_y, rows)
+    gap[:, 0] -= depth * np.take(views.ray_x, pixel)
+    gap[:, 1] -= depth * np.take(views.ray_y, pixel)
     gap[:, 2] -= depth
     normal = np.take(views.normals.reshape(-1, 3), flat, axis=0)
     distance = np.einsum("ij,ij->i", gap, normal)
