@@ -19,8 +19,11 @@ from annotate_rgbd.geometry.camera import Camera
 from annotate_rgbd.io.poses import FramePoses
 from annotate_rgbd.pipeline.propagation import Propagation, propagation_warnings
 from annotate_rgbd.pool import start_helpers
-from annotate_rgbd.propagate.align import _between, align_frames, align_pose, frame_points, keyframe_view, stack_views
+from annotate_rgbd.propagate import align
+from annotate_rgbd.propagate.align import _between, align_frames
+from annotate_rgbd.propagate.icp import align_pose, frame_points, keyframe_view, stack_views
 
+align_depth, corrections = align._depth, align._corrections
 CAMERA = Camera(fx=262.5, fy=262.5, cx=159.5, cy=119.5, depth_scale=5000.0)
 #: The corner of a room: the floor z = 0 and the walls x = 0, y = 0 (unit normals, offsets).
 CORNER = [((0.0, 0.0, 1.0), 0.0), ((1.0, 0.0, 0.0), 0.0), ((0.0, 1.0, 0.0), 0.0)]
@@ -164,6 +167,32 @@ def test_align_frames_makes_noisy_poses_agree_with_the_depth(tmp_path):
         helpers.shutdown()
     assert np.array_equal(shared.rotations, aligned.rotations, equal_nan=True)
     assert np.array_equal(shared.translations, aligned.translations, equal_nan=True)
+
+
+def test_each_depth_frame_is_read_once_and_a_process_lets_go_of_the_keyframes_behind_it(tmp_path, monkeypatch):
+    """However many rounds the keyframes take, each depth frame is read once (the keyframes are
+    kept); the other frames' jobs go over the keyframes one way and let go of those behind them,
+    so that a helper going on to make masks keeps only the last few."""
+    true = [_look_at((2.6 - 0.03 * i, 2.0 + 0.04 * i, 1.4), (0.3, 0.3 + 0.01 * i, 0.5)) for i in range(13)]
+    files = _sequence(tmp_path, true)
+    given = FramePoses(np.stack([r for r, _ in true]), np.stack([t for _, t in true]), np.ones(13, bool),
+                       np.array([""] * 13))
+    read = []
+    monkeypatch.setattr(align, "_depth", lambda path, camera: read.append(path) or align_depth(path, camera))
+    kept = []
+    monkeypatch.setattr(align, "_corrections", lambda jobs, helpers: kept.append(len(align._kept)) or
+                        corrections(jobs, helpers))
+    aligned, alignment = align_frames(given, [0, 2, 4, 6, 8, 10, 12], files, _config(align_rounds=4))
+    assert alignment.keyframes == 7 and alignment.frames == 6
+    assert sorted(read) == sorted(files)
+    assert kept == [0, 7, 7, 7, 7] and not align._kept  # this process let go of every one at the end
+    jobs = []
+    monkeypatch.setattr(align, "_corrections", lambda batch, helpers: jobs.append(batch) or corrections(batch, helpers))
+    align_frames(given, [0, 2, 4, 6, 8, 10, 12], files, _config(align_rounds=3))
+    for job in jobs[-1]:  # the other frames' jobs, as a helper would run them
+        align.align_job(job)
+    assert sorted(frame for frame, _, _ in align._kept.values()) == [0, 2, 4, 6]  # frame 1's, the last job's
+    align._kept.clear()
 
 
 def test_no_rounds_or_one_keyframe_leaves_the_poses_as_they_are(tmp_path):
