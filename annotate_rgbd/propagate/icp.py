@@ -208,13 +208,9 @@ def align_pose(points: np.ndarray, rotation: np.ndarray, translation: np.ndarray
     given_t = np.asarray(translation, dtype=np.float64)
     r, t = given_r.copy(), given_t.copy()
     pairs = 0
-    # The keyframes' positions, repeated for every point: (K, 3 N), to subtract from the points'
-    # world coordinates laid out as one row (the same numbers as broadcasting (N, 3) against
-    # (K, 1, 3), in long runs instead of runs of 3).
-    centres = np.tile(views.translations.astype(np.float32), (1, len(points)))
     for reach, shortest, least_turn in STAGES:
         for _ in range(STEPS):
-            rows, residuals, pairs = _pairs(points, r, t, views, camera, reach, centres)
+            rows, residuals, pairs = _pairs(points, r, t, views, camera, reach)
             if pairs < MIN_PAIRS:
                 break
             step = _step(rows.T @ rows, rows.T @ residuals)
@@ -246,14 +242,18 @@ def _step(hessian: np.ndarray, gradient: np.ndarray) -> np.ndarray:
     return -vectors[:, held] @ ((vectors[:, held].T @ gradient) / values[held])
 
 
-def _pairs(points, r, t, views: Keyframes, camera, reach, centres):
+def _pairs(points, r, t, views: Keyframes, camera, reach):
     """The Jacobian rows (M, 6) and residuals (M,) of every pair of the frame's points with the
     keyframes' surfaces within ``reach``, for a step ``(w, v)`` applied in the frame's camera.
-    A pair's distance is measured in its keyframe's camera (:func:`_keyframe_pairs`);
-    ``centres`` are the keyframes' positions repeated for every point (float32 (K, 3 N))."""
+    A pair's distance is measured in its keyframe's camera (:func:`_keyframe_pairs`). The
+    frame's points go there by the frame-to-keyframe transforms, composed in float64: never
+    through world coordinates, whose size (where the trajectory puts its origin) would set the
+    float32 rounding, and with it the pairs."""
     count, height, width = views.depth.shape
-    world = points @ r.T.astype(np.float32) + t.astype(np.float32)
-    local = np.matmul((world.reshape(1, -1) - centres).reshape(count, -1, 3), views.rotations.astype(np.float32))
+    to_keyframe = np.matmul(views.rotations.transpose(0, 2, 1), r)  # (K, 3, 3): frame -> keyframe camera
+    offset = np.einsum("kji,kj->ki", views.rotations, t[None, :] - views.translations)  # R_k^T (t - t_k)
+    local = np.matmul(points[None], to_keyframe.transpose(0, 2, 1).astype(np.float32))
+    local += offset.astype(np.float32)[:, None, :]
     z = local[..., 2]
     with np.errstate(invalid="ignore", divide="ignore"):
         u = np.rint((local[..., 0] / z * np.float32(camera.fx) + np.float32(camera.cx)) * np.float32(0.5))

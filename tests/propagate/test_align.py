@@ -87,6 +87,23 @@ def test_a_frame_off_by_a_degree_and_centimetres_is_brought_back_onto_its_keyfra
     assert found.shift == pytest.approx(np.linalg.norm(found.translation - start_t))
 
 
+def test_where_the_world_origin_lies_does_not_change_the_correction():
+    # The same frame and keyframes with every pose 10 km off along x (a trajectory in map or
+    # UTM coordinates, or one whose origin a user moved): the same correction. Taking points
+    # through float32 world coordinates rounds them to a millimetre out there.
+    true_r, true_t = _look_at((2.4, 2.3, 1.45), (0.3, 0.3, 0.5))
+    points = frame_points(_render(true_r, true_t), CAMERA, 4, 10.0)
+    start_r, start_t = true_r @ _turn(1.2, (1, 2, 0.5)), true_t + np.array([0.015, -0.01, 0.012])
+    near = align_pose(points, start_r, start_t, _keyframes(KEYFRAME_POSES), CAMERA, 0.05, 3.0)
+    away = np.array([1e4, 0.0, 0.0])
+    views = _keyframes(KEYFRAME_POSES)
+    far = align_pose(points, start_r, start_t + away, replace(views, translations=views.translations + away), CAMERA,
+                     0.05, 3.0)
+    assert near.applied and far.applied and near.pairs == far.pairs
+    assert np.abs(far.translation - away - near.translation).max() < 1e-9
+    assert np.abs(far.rotation - near.rotation).max() < 1e-9
+
+
 def test_a_correction_beyond_the_limits_or_without_depth_keeps_the_given_pose():
     true_r, true_t = _look_at((2.4, 2.3, 1.45), (0.3, 0.3, 0.5))
     points = frame_points(_render(true_r, true_t), CAMERA, 4, 10.0)
