@@ -104,7 +104,8 @@ def export_run(run_dir: str | Path, fmt: str, out: str | Path, poses: str | Path
         The export folder (created; empty, or the folder of an earlier export).
     poses : str or Path, optional
         A camera trajectory (TUM format) for world-frame planes (:data:`WORLD_FORMATS`; the other
-        formats do not read it); default: the run's.
+        formats do not read it); default: the poses the run made its masks with (``report.json``),
+        else the run's trajectory (:func:`annotate_rgbd.export.frames.read_run`).
 
     Returns
     -------

@@ -4,8 +4,9 @@ ids, the equations of its kept planes and, when the camera trajectory is known, 
 The plane equations are those refinement kept (``report.json``: per frame and kept plane,
 ``equation`` = ``(a, b, c, d)``, ``a x + b y + c z + d = 0`` in the depth camera's frame, metres,
 unit normal pointing towards the camera, so ``d > 0`` is the camera's distance to the plane).
-Poses are camera-to-world (``X_world = R X_camera + t``), read from the run's trajectory (or
-another one) at each depth frame's timestamp, as ``cvat2mask`` reads them.
+Poses are camera-to-world (``X_world = R X_camera + t``): those the run made its masks with
+(each frame's ``camera_pose`` in ``report.json``), or, given another trajectory or for a report
+without them, read from the trajectory at each depth frame's timestamp as ``cvat2mask`` reads it.
 """
 
 from __future__ import annotations
@@ -104,7 +105,8 @@ class ExportRun:
     frames : list of ExportFrame
         The written frames, in sequence order.
     trajectory : str or None
-        The trajectory the poses come from; None: no poses.
+        The trajectory the poses come from (with ``poses_from`` ``run``, the one the run read to
+        make them; this export did not read it); None: none.
     time_offset : float
         Seconds added to the frames' timestamps to read the trajectory (:func:`trajectory_offset`).
     poses_from : str or None
@@ -226,7 +228,8 @@ def trajectory_offset(report: RunRecord, trajectory: str) -> float:
     value = report.config.get("propagate", {}).get("time_offset", 0.0)
     configured = float(value) if isinstance(value, (int, float)) and np.isfinite(value) else 0.0
     if own is not None and run_offset is not None and abs(run_offset - configured) > 1e-3:
+        advice = ("; to export with the poses the run made its masks with, leave out --poses"
+                  if any(f.camera_pose is not None for f in report.frames) else "")
         log.warning("%s: read at the configured propagate.time_offset (%g s), not at the %g s the run estimated for "
-                    "its own trajectory %s; to export with the poses the run made its masks with, leave out --poses",
-                    trajectory, configured, run_offset, own)
+                    "its own trajectory %s%s", trajectory, configured, run_offset, own, advice)
     return configured

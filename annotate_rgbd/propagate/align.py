@@ -40,11 +40,15 @@ from annotate_rgbd.propagate.icp import MIN_PAIRS, Correction, KeyframeView, ali
 
 log = logging.getLogger("annotate_rgbd")
 
-#: Keyframes whose views a process keeps (:func:`_keyframe`): about 1.3 MB each at 640 x 480.
-#: A sequence with no more keyframes reads and prepares each keyframe once for all the rounds and
-#: the other frames; with more, each round reads again those the last one did not end on. The
-#: other frames' jobs let go of the keyframes they have gone past (:func:`_forget_past`).
+#: Keyframes whose views a process keeps (:func:`_keyframe`): about 1.3 MB each at 640 x 480,
+#: and at most :data:`KEPT_BYTES` of them. A sequence with no more keyframes than that reads and
+#: prepares each keyframe once for all the rounds and the other frames; with more, each round
+#: reads again those the last one did not end on. The other frames' jobs let go of the keyframes
+#: they have gone past (:func:`_forget_past`); a helper that aligned only keyframes (every frame a
+#: keyframe, or another helper took the other frames) keeps what it holds, at most this much,
+#: while it goes on to make masks.
 KEPT_KEYFRAMES = 48
+KEPT_BYTES = 64 << 20
 #: The kept keyframes, least recently used first: (path, camera, max_depth, step) -> (depth frame,
 #: its own points to align, its view to align to).
 _kept: OrderedDict = OrderedDict()
@@ -282,16 +286,21 @@ def _keyframe(frame: int, path: Path, camera: Camera, max_depth: float,
     next jobs and rounds: successive jobs share most of their keyframes (a keyframe's
     neighbours, a run of frames between keyframes), and the rounds go over the keyframes back and
     forth, so that each round starts on the keyframes the last one ended on. The
-    :data:`KEPT_KEYFRAMES` most recently used stay kept."""
+    :data:`KEPT_KEYFRAMES` most recently used stay kept, within :data:`KEPT_BYTES`."""
     key = (path, camera, max_depth, step)
     found = _kept.pop(key, None)
     if found is None:
         depth = _depth(path, camera)
         found = frame, frame_points(depth, camera, step, max_depth), keyframe_view(depth, camera, max_depth)
     _kept[key] = found
-    while len(_kept) > KEPT_KEYFRAMES:
+    while len(_kept) > KEPT_KEYFRAMES or (len(_kept) > 1 and _kept_bytes() > KEPT_BYTES):
         _kept.popitem(last=False)
     return found
+
+
+def _kept_bytes() -> int:
+    """The memory the kept keyframes hold (their points and views)."""
+    return sum(points.nbytes + view.nbytes for _, points, view in _kept.values())
 
 
 def _forget_past(bound: int, direction: int) -> None:

@@ -249,7 +249,7 @@ def _pairs(points, r, t, views: Keyframes, camera, reach):
     frame's points go there by the frame-to-keyframe transforms, composed in float64: never
     through world coordinates, whose size (where the trajectory puts its origin) would set the
     float32 rounding, and with it the pairs."""
-    count, height, width = views.depth.shape
+    _, height, width = views.depth.shape
     to_keyframe = np.matmul(views.rotations.transpose(0, 2, 1), r)  # (K, 3, 3): frame -> keyframe camera
     offset = np.einsum("kji,kj->ki", views.rotations, t[None, :] - views.translations)  # R_k^T (t - t_k)
     local = np.matmul(points[None], to_keyframe.transpose(0, 2, 1).astype(np.float32))
@@ -261,17 +261,19 @@ def _pairs(points, r, t, views: Keyframes, camera, reach):
         pair = np.flatnonzero((z > 0) & (u >= 0) & (u < width) & (v >= 0) & (v < height))
         pixel = v * np.float32(width) + u  # exact: below 2^24
     point, normal, distance = _keyframe_pairs(local.reshape(-1, 3), pair, np.take(pixel, pair).astype(np.intp),
-                                              len(points), views, r, reach)
+                                              len(points), views, to_keyframe, reach)
     rows = _jacobian(np.take(points, point, axis=0), normal)
     return rows, distance.astype(np.float64), len(rows)
 
 
-def _keyframe_pairs(local, pair, pixel, count, views: Keyframes, r, reach):
+def _keyframe_pairs(local, pair, pixel, count, views: Keyframes, to_keyframe, reach):
     """The pairs within ``reach`` of the frame's points, taken into the keyframes' cameras
     (``local``, (K * N, 3)), with the keyframes' surfaces at ``pixel`` of their raveled grids:
     the frame points' indices, the keyframes' normals in the frame's camera (float32 (M, 3)) and
     the points' distances to the keyframes' surfaces along them (float32 (M,)). ``pair`` holds
-    indices ``k * count + i`` (keyframe ``k``, frame point ``i``) in increasing order."""
+    indices ``k * count + i`` (keyframe ``k``, frame point ``i``) in increasing order;
+    ``to_keyframe`` (K, 3, 3) rotates the frame's camera into each keyframe's (column vectors),
+    so a keyframe's normal as a row vector times it is the normal in the frame's camera."""
     keyframe = pair // count
     flat = keyframe * (views.depth.shape[1] * views.depth.shape[2]) + pixel
     depth = np.take(views.depth.reshape(-1), flat)
@@ -285,9 +287,9 @@ def _keyframe_pairs(local, pair, pixel, count, views: Keyframes, r, reach):
         near = np.flatnonzero((np.einsum("ij,ij->i", gap, gap) < reach * reach) & np.isfinite(distance))
     normal, keyframe = np.take(normal, near, axis=0), np.take(keyframe, near)
     ends = np.searchsorted(keyframe, np.arange(len(views.depth) + 1))
-    to_frame = np.matmul(views.rotations.transpose(0, 2, 1), r).astype(np.float32)  # keyframe -> frame camera
+    rotate = to_keyframe.astype(np.float32)
     for k in range(len(views.depth)):
-        normal[ends[k]:ends[k + 1]] = normal[ends[k]:ends[k + 1]] @ to_frame[k]
+        normal[ends[k]:ends[k + 1]] = normal[ends[k]:ends[k + 1]] @ rotate[k]
     return np.take(pair, near) % count, normal, np.take(distance, near)
 
 

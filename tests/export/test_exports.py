@@ -464,10 +464,38 @@ def test_world_planes_use_the_poses_the_masks_were_made_with(run, tmp_path, capl
         np.testing.assert_allclose(frame.pose[1], values[:3], atol=1e-12)
         np.testing.assert_allclose(frame.pose[0], quaternion_matrices(values[None, 3:])[0], atol=1e-12)
     export_run(tmp_path / "run", "planes", tmp_path / "out")
-    assert json.loads((tmp_path / "out" / "export.json").read_text())["poses"] == "run"
+    record = json.loads((tmp_path / "out" / "export.json").read_text())
+    assert record["poses"] == "run" and record["trajectory_time_offset_s"] == report["propagation"]["time_offset_s"]
     # A trajectory given to the export is read instead.
     given = read_run(tmp_path / "run", run / "sequence" / "groundtruth.txt")
     assert given.poses_from == "trajectory" and abs(given.frames[0].pose[1][0] - exported.frames[0].pose[1][0]) > 0.09
+
+
+def test_the_report_holds_the_aligned_poses_the_masks_were_made_with(tmp_path, monkeypatch):
+    # The alignment moves every pose 5 cm along x here: the report's camera_pose is the moved
+    # pose, not the trajectory's (the exact walk's alignment alone moves them too little to tell).
+    import annotate_rgbd.pipeline.propagation as propagation
+    from annotate_rgbd.io.poses import poses_at, read_trajectory
+
+    aligned = propagation.align_frames
+
+    def moved(depth_poses, *args, **kwargs):
+        poses, alignment = aligned(depth_poses, *args, **kwargs)
+        return poses._replace(translations=poses.translations + [0.05, 0.0, 0.0]), alignment
+
+    monkeypatch.setattr(propagation, "align_frames", moved)
+    annotation = make_sequence(tmp_path / "sequence", n_frames=4, width=320, height=240, camera=CAMERA, seed=5,
+                               dropped_rgb_frames=(), write_trajectory=True)
+    write_cvat_video(annotation, tmp_path / "a.xml", width=320, height=240)
+    config = load_config(None, {"camera.fx": 262.5, "camera.fy": 262.5, "camera.cx": 159.5, "camera.cy": 119.5})
+    trajectory = tmp_path / "sequence" / "groundtruth.txt"
+    run_cvat2mask(tmp_path / "sequence", [tmp_path / "a.xml"], tmp_path / "run", config, poses=trajectory)
+    report = json.loads((tmp_path / "run" / "report.json").read_text())
+    times = np.array([f["depth_timestamp"] for f in report["frames"]]) + report["propagation"]["time_offset_s"]
+    given = poses_at(read_trajectory(trajectory), times)
+    recorded = np.array([f["camera_pose"][:3] for f in report["frames"]])
+    shift = recorded - given.translations
+    assert np.abs(shift[:, 0] - 0.05).max() < 0.005 and np.abs(shift[:, 1:]).max() < 0.005
 
 
 def test_world_planes_read_the_trajectory_at_the_runs_time_offset(run, tmp_path, caplog):
@@ -506,8 +534,7 @@ def test_world_planes_read_the_trajectory_at_the_runs_time_offset(run, tmp_path,
         assert read_run(tmp_path / "run", other).time_offset == 0.0
     assert [r.getMessage() for r in caplog.records][0] == (
         f"{other}: read at the configured propagate.time_offset (0 s), not at the -0.03 s the run estimated for its "
-        f"own trajectory {report['propagation']['poses']}; to export with the poses the run made its masks with, "
-        "leave out --poses")
+        f"own trajectory {report['propagation']['poses']}")  # no camera poses in this report to export with instead
     export_run(tmp_path / "run", "planes", tmp_path / "out")
     assert json.loads((tmp_path / "out" / "export.json").read_text())["trajectory_time_offset_s"] == -0.03
 
