@@ -159,6 +159,16 @@ def propagation_warnings(propagation: Propagation) -> list[str]:
                      f"{100 * shift:.1f} cm and {turn:.1f} degrees, at {_frame_time(propagation, frame)}): the "
                      "trajectory's poses are kept there; check the trajectory and the masks of those frames "
                      "(report.json: propagation.alignment.beyond_limits)")
+    apart = propagation.alignment.apart
+    if apart:
+        frame, share = min(apart, key=lambda a: a[1])
+        frames = (f"{len(apart)} depth frames do not meet their" if len(apart) > 1 else
+                  "1 depth frame does not meet its")
+        lines.append(f"{propagation.path}: {frames} keyframes' depth (the least, {100 * share:.0f} % of the points on "
+                     f"their surfaces within reach, at {_frame_time(propagation, frame)}): a pose off by more than "
+                     "a few centimetres across the surfaces (a trajectory jump), or a view no keyframe had; the "
+                     "trajectory's poses are kept there; check the trajectory and the masks of those frames "
+                     "(report.json: propagation.alignment.apart_from_keyframes)")
     missing = int(np.count_nonzero(~propagation.depth_poses.ok))
     if missing:
         frames = f"{missing} depth frame{'s have' if missing > 1 else ' has'}"

@@ -77,6 +77,10 @@ class Alignment:
         The frames whose correction was beyond the limits: (depth frame, m, degrees). Their
         trajectory pose disagrees with the depth by that much (a trajectory jump, a drop-out
         interpolated over, a clock off), or ICP paired the wrong surfaces: frames to check.
+    apart : list of (int, float)
+        The frames whose depth does not meet their keyframes' (:attr:`Correction.apart`): (depth
+        frame, the share of its points on their surfaces that met them). Their pose is off by more
+        than the pairs reach, or they see what no keyframe saw: frames to check too.
     rounds : int
         The keyframes' rounds (0: no alignment).
     """
@@ -89,6 +93,7 @@ class Alignment:
     shifts: list = field(default_factory=list)
     turns: list = field(default_factory=list)
     beyond: list = field(default_factory=list)
+    apart: list = field(default_factory=list)
     rounds: int = 0
 
     def add(self, frame: int, correction: Correction) -> None:
@@ -101,19 +106,24 @@ class Alignment:
         self.kept += 1
         if correction.pairs >= MIN_PAIRS:  # not too few pairs: a correction beyond the limits
             self.beyond.append((frame, correction.shift, correction.turn))
+        elif correction.apart:
+            self.apart.append((frame, correction.pairs / correction.landed))
 
     def to_json(self, depth_times: np.ndarray | None = None) -> dict:
         """The report's ``propagation.alignment`` (with the depth frames' timestamps, when
-        given, each frame beyond the limits is named by its timestamp too)."""
+        given, each frame beyond the limits or apart from its keyframes is named by its timestamp
+        too)."""
         beyond = [{"depth_frame": frame, "shift_cm": round(100 * shift, 1), "turn_deg": round(turn, 2)}
                   for frame, shift, turn in self.beyond]
+        apart = [{"depth_frame": frame, "met_share": round(share, 3)} for frame, share in sorted(self.apart)]
         if depth_times is not None:
-            for entry in beyond:
+            for entry in beyond + apart:
                 entry["depth_timestamp"] = float(depth_times[entry["depth_frame"]])
         return {
             "rounds": self.rounds, "keyframes": self.keyframes, "frames": self.frames, "corrected": self.corrected,
             "kept": self.kept, "unread": self.unread,
             "beyond_limits": beyond,
+            "apart_from_keyframes": apart,
             "median_shift_cm": round(100 * float(np.median(self.shifts)), 2) if self.shifts else None,
             "median_turn_deg": round(float(np.median(self.turns)), 3) if self.turns else None,
         }
@@ -161,6 +171,7 @@ def align_frames(depth_poses: FramePoses, keyframes: list[int], depth_files: lis
     side = settings.align_neighbours
     try:
         unread: set[int] = set()
+        apart: dict[int, float] = {}
         for round_ in range(settings.align_rounds):  # every keyframe against its neighbours' poses of the round before
             jobs = []
             for n, key in _back_and_forth(keys, round_):
@@ -169,6 +180,7 @@ def align_frames(depth_poses: FramePoses, keyframes: list[int], depth_files: lis
                              [(key, depth_files[key], rotations[key], translations[key])], limits, None))
             found = _corrections(jobs, helpers)
             unread = {key for key, correction in found.items() if correction is None}
+            apart = {key: c.pairs / c.landed for key, c in found.items() if c is not None and c.apart}
             for key, correction in found.items():
                 if correction is not None:
                     rotations[key], translations[key] = part_way(rotations[key], translations[key], correction,
@@ -177,6 +189,8 @@ def align_frames(depth_poses: FramePoses, keyframes: list[int], depth_files: lis
             if key in unread:
                 alignment.unread += 1
                 continue
+            if key in apart:  # in the last round: it did not meet its neighbours' depth
+                alignment.apart.append((key, apart[key]))
             overall = judged(depth_poses.rotations[key], depth_poses.translations[key], rotations[key],
                              translations[key], MIN_PAIRS, settings.align_max_shift, settings.align_max_turn)
             rotations[key], translations[key] = overall.rotation, overall.translation

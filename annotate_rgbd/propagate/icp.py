@@ -14,7 +14,7 @@ decides which frames are aligned to which keyframes.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -37,6 +37,12 @@ NORMAL_REACH = 3
 FREE = 1e-3
 #: A pose resting on fewer pairs is not corrected.
 MIN_PAIRS = 300
+#: A frame of whose points that land on its keyframes' surfaces fewer than this share meet them
+#: (within the pairs' reach) is apart from them (:attr:`Correction.apart`). On TUM fr1_rpy at a
+#: keyframe every 30th frame the share is 0.81 for the median frame and 0.41 at the 1st
+#: percentile, 0.35-0.45 on the frames whose correction lies beyond the limits, 0.02-0.04 on six
+#: frames with too few pairs to align on; on the rendered walk 0.80 at least.
+MIN_MET = 0.25
 
 
 @dataclass(frozen=True)
@@ -173,6 +179,9 @@ class Correction:
         Point pairs of the last step.
     applied : bool
         Whether the aligned pose is used (within the limits, on enough pairs).
+    landed : int
+        Of the frame's points (each with each keyframe), those the last step saw land on a
+        keyframe's surface, within reach of it or not: ``pairs`` of them were within reach.
     """
 
     rotation: np.ndarray
@@ -181,6 +190,15 @@ class Correction:
     turn: float
     pairs: int
     applied: bool
+    landed: int = 0
+
+    @property
+    def apart(self) -> bool:
+        """Whether the frame's depth does not meet its keyframes': enough of its points land on
+        their surfaces (:data:`MIN_PAIRS`), but under :data:`MIN_MET` of those within reach and
+        too few to align on. Its pose is off by more than the pairs' reach (a trajectory jump
+        across the surfaces, not along them), or what it sees is not what they saw."""
+        return self.pairs < MIN_PAIRS and self.landed >= MIN_PAIRS and self.pairs < MIN_MET * self.landed
 
 
 def align_pose(points: np.ndarray, rotation: np.ndarray, translation: np.ndarray,
@@ -207,10 +225,10 @@ def align_pose(points: np.ndarray, rotation: np.ndarray, translation: np.ndarray
     given_r = np.asarray(rotation, dtype=np.float64)
     given_t = np.asarray(translation, dtype=np.float64)
     r, t = given_r.copy(), given_t.copy()
-    pairs = 0
+    pairs = landed = 0
     for reach, shortest, least_turn in STAGES:
         for _ in range(STEPS):
-            rows, residuals, pairs = _pairs(points, r, t, views, camera, reach)
+            rows, residuals, pairs, landed = _pairs(points, r, t, views, camera, reach)
             if pairs < MIN_PAIRS:
                 break
             step = _step(rows.T @ rows, rows.T @ residuals)
@@ -219,7 +237,7 @@ def align_pose(points: np.ndarray, rotation: np.ndarray, translation: np.ndarray
             r = r @ turn
             if np.linalg.norm(step[3:]) < shortest and np.degrees(np.linalg.norm(step[:3])) < least_turn:
                 break
-    return judged(given_r, given_t, r, t, pairs, max_shift, max_turn)
+    return replace(judged(given_r, given_t, r, t, pairs, max_shift, max_turn), landed=landed)
 
 
 def judged(given_r: np.ndarray, given_t: np.ndarray, r: np.ndarray, t: np.ndarray, pairs: int,
@@ -244,7 +262,8 @@ def _step(hessian: np.ndarray, gradient: np.ndarray) -> np.ndarray:
 
 def _pairs(points, r, t, views: Keyframes, camera, reach):
     """The Jacobian rows (M, 6) and residuals (M,) of every pair of the frame's points with the
-    keyframes' surfaces within ``reach``, for a step ``(w, v)`` applied in the frame's camera.
+    keyframes' surfaces within ``reach``, for a step ``(w, v)`` applied in the frame's camera,
+    their number M, and how many of the points landed on a keyframe's surface (in reach or not).
     A pair's distance is measured in its keyframe's camera (:func:`_keyframe_pairs`). The
     frame's points go there by the frame-to-keyframe transforms, composed in float64: never
     through world coordinates, whose size (where the trajectory puts its origin) would set the
@@ -260,17 +279,19 @@ def _pairs(points, r, t, views: Keyframes, camera, reach):
         v = np.rint((local[..., 1] / z * np.float32(camera.fy) + np.float32(camera.cy)) * np.float32(0.5))
         pair = np.flatnonzero((z > 0) & (u >= 0) & (u < width) & (v >= 0) & (v < height))
         pixel = v * np.float32(width) + u  # exact: below 2^24
-    point, normal, distance = _keyframe_pairs(local.reshape(-1, 3), pair, np.take(pixel, pair).astype(np.intp),
-                                              len(points), views, to_keyframe, reach)
+    point, normal, distance, landed = _keyframe_pairs(local.reshape(-1, 3), pair,
+                                                      np.take(pixel, pair).astype(np.intp), len(points), views,
+                                                      to_keyframe, reach)
     rows = _jacobian(np.take(points, point, axis=0), normal)
-    return rows, distance.astype(np.float64), len(rows)
+    return rows, distance.astype(np.float64), len(rows), landed
 
 
 def _keyframe_pairs(local, pair, pixel, count, views: Keyframes, to_keyframe, reach):
     """The pairs within ``reach`` of the frame's points, taken into the keyframes' cameras
     (``local``, (K * N, 3)), with the keyframes' surfaces at ``pixel`` of their raveled grids:
-    the frame points' indices, the keyframes' normals in the frame's camera (float32 (M, 3)) and
-    the points' distances to the keyframes' surfaces along them (float32 (M,)). ``pair`` holds
+    the frame points' indices, the keyframes' normals in the frame's camera (float32 (M, 3)),
+    the points' distances to the keyframes' surfaces along them (float32 (M,)), and how many of
+    ``pair`` landed on a surface (a keyframe depth and normal there). ``pair`` holds
     indices ``k * count + i`` (keyframe ``k``, frame point ``i``) in increasing order;
     ``to_keyframe`` (K, 3, 3) rotates the frame's camera into each keyframe's (column vectors),
     so a keyframe's normal as a row vector times it is the normal in the frame's camera."""
@@ -290,7 +311,7 @@ def _keyframe_pairs(local, pair, pixel, count, views: Keyframes, to_keyframe, re
     rotate = to_keyframe.astype(np.float32)
     for k in range(len(views.depth)):
         normal[ends[k]:ends[k + 1]] = normal[ends[k]:ends[k + 1]] @ rotate[k]
-    return np.take(pair, near) % count, normal, np.take(distance, near)
+    return np.take(pair, near) % count, normal, np.take(distance, near), int(np.count_nonzero(np.isfinite(distance)))
 
 
 def _jacobian(points: np.ndarray, normals: np.ndarray) -> np.ndarray:

@@ -44,7 +44,8 @@ def run_stats(report: RunRecord) -> dict:
         ``None`` without any), ``tracks_to_review`` (keyframes off their track's plane),
         ``frames_to_review`` (depth frames where a plane the poses carried was not where they
         put it: dropped there, ``not_where_expected``), ``poses_to_check`` (depth frames whose
-        pose disagreed with the keyframes' depth beyond the alignment's limits) and
+        pose disagreed with the keyframes' depth beyond the alignment's limits, or whose depth
+        did not meet theirs) and
         ``carried_to_check`` (:func:`carried_to_check`).
     """
     summary = summarize(report.frames)
@@ -71,9 +72,11 @@ def run_stats(report: RunRecord) -> dict:
 
 def poses_to_check(report: RunRecord) -> list[str]:
     """The depth frames (file names) whose trajectory pose disagreed with the keyframes' depth
-    beyond the alignment's limits (``propagation.alignment.beyond_limits``)."""
+    beyond the alignment's limits, or whose depth did not meet theirs
+    (``propagation.alignment``: ``beyond_limits``, ``apart_from_keyframes``)."""
     alignment = (report.propagation or {}).get("alignment") or {}
-    times = {round(float(entry["depth_timestamp"]), 6) for entry in alignment.get("beyond_limits", [])
+    entries = [*alignment.get("beyond_limits", []), *alignment.get("apart_from_keyframes", [])]
+    times = {round(float(entry["depth_timestamp"]), 6) for entry in entries
              if isinstance(entry, dict) and isinstance(entry.get("depth_timestamp"), (int, float))}
     return [f.depth for f in report.frames if round(f.depth_timestamp, 6) in times]
 
@@ -196,7 +199,8 @@ def format_stats(stats: dict) -> str:
         rows.append((f"frames to review ({len(frames)}: a carried plane not where the poses put it)", _first_ten(frames)))
     if stats.get("poses_to_check"):
         frames = stats["poses_to_check"]
-        rows.append((f"poses to check ({len(frames)}: off the keyframes' depth beyond the alignment's limits)",
+        rows.append((f"poses to check ({len(frames)}: off the keyframes' depth beyond the alignment's limits, "
+                      "or not meeting it)",
                      _first_ten(frames)))
     if stats.get("carried_to_check"):
         carried = stats["carried_to_check"]

@@ -21,7 +21,7 @@ from annotate_rgbd.pipeline.propagation import Propagation, propagation_warnings
 from annotate_rgbd.pool import start_helpers
 from annotate_rgbd.propagate import align
 from annotate_rgbd.propagate.align import _between, align_frames
-from annotate_rgbd.propagate.icp import align_pose, frame_points, keyframe_view, stack_views
+from annotate_rgbd.propagate.icp import MIN_MET, align_pose, frame_points, keyframe_view, stack_views
 
 align_depth, corrections = align._depth, align._corrections
 CAMERA = Camera(fx=262.5, fy=262.5, cx=159.5, cy=119.5, depth_scale=5000.0)
@@ -262,8 +262,9 @@ def test_an_unreadable_depth_frame_leaves_only_itself_unaligned(tmp_path):
 def test_a_pose_far_off_its_keyframes_is_kept_listed_and_warned_of(tmp_path):
     """A pose 7 cm off (every wall of the corner sees it, each within the pairs' reach): the
     alignment finds it but does not believe a correction that large, keeps the trajectory's
-    pose, lists the frame, and the run warns of it by timestamp. (A jump far beyond the reach,
-    30 cm, pairs only the surfaces it slides along and goes unseen.)"""
+    pose, lists the frame, and the run warns of it by timestamp. (A jump far beyond the reach
+    across every surface is apart from the keyframes, below; one of 30 cm along two of them pairs
+    only those it slides along and goes unseen.)"""
     true = [_look_at((2.6 - 0.05 * i, 2.0 + 0.06 * i, 1.4), (0.3, 0.3 + 0.02 * i, 0.5)) for i in range(5)]
     files = _sequence(tmp_path, true)
     given_t = np.stack([t for _, t in true])
@@ -278,3 +279,29 @@ def test_a_pose_far_off_its_keyframes_is_kept_listed_and_warned_of(tmp_path):
                               alignment=alignment)
     lines = [line for line in propagation_warnings(propagation) if "disagree" in line]
     assert len(lines) == 1 and "1 depth frame's pose disagrees" in lines[0] and "at depth frame 10.066000" in lines[0]
+
+
+def test_a_pose_off_across_every_surface_is_apart_from_its_keyframes_listed_and_warned_of(tmp_path):
+    """A jump of 30 cm across the floor and both walls: hardly a point of the frame lies within
+    the pairs' reach of the keyframes' surfaces it lands on. Too few pairs to align on, so the
+    trajectory's pose is kept, and the frame is listed and warned of (it used to be counted as
+    kept, silently); the frames around it meet their keyframes."""
+    true = [_look_at((2.6 - 0.05 * i, 2.0 + 0.06 * i, 1.4), (0.3, 0.3 + 0.02 * i, 0.5)) for i in range(5)]
+    files = _sequence(tmp_path, true)
+    given_t = np.stack([t for _, t in true])
+    given_t[2] += 0.3 * np.ones(3) / np.sqrt(3)
+    given = FramePoses(np.stack([r for r, _ in true]), given_t, np.ones(5, bool), np.array([""] * 5))
+    aligned, alignment = align_frames(given, [0, 4], files, _config())
+    assert np.array_equal(aligned.translations[2], given_t[2]) and not alignment.beyond
+    assert [frame for frame, _ in alignment.apart] == [2] and alignment.apart[0][1] < MIN_MET
+    record = alignment.to_json(np.array([10.0, 10.033, 10.066, 10.1, 10.133]))
+    assert [(e["depth_frame"], e["depth_timestamp"]) for e in record["apart_from_keyframes"]] == [(2, 10.066)]
+    propagation = Propagation("poses.txt", {}, aligned, depth_times=np.array([10.0, 10.033, 10.066, 10.1, 10.133]),
+                              alignment=alignment)
+    lines = [line for line in propagation_warnings(propagation) if "does not meet" in line]
+    assert len(lines) == 1 and lines[0].startswith("poses.txt: 1 depth frame does not meet its keyframes' depth (the "
+                                                   "least, ")
+    assert "at depth frame 10.066000" in lines[0]
+    # Without the jump, nothing is apart.
+    _, alone = align_frames(given._replace(translations=np.stack([t for _, t in true])), [0, 4], files, _config())
+    assert alone.apart == []

@@ -78,7 +78,14 @@ def test_frames_whose_pose_was_off_the_keyframes_depth_are_listed_poses_to_check
                                    {"depth_frame": 9, "shift_cm": 8.0, "turn_deg": 1.0, "depth_timestamp": 9.0}]}
     stats = run_stats(RunRecord.from_json({**REPORT, "propagation": {"alignment": alignment}}))
     assert stats["poses_to_check"] == ["d2.png"]  # 9.0 is no frame of the run
-    assert "poses to check (1: off the keyframes' depth beyond the alignment's limits)  d2.png" in format_stats(stats)
+    assert ("poses to check (1: off the keyframes' depth beyond the alignment's limits, or not meeting it)  d2.png"
+            in format_stats(stats))
+    # ... and the frames whose depth did not meet the keyframes', in the frames' order.
+    alignment["apart_from_keyframes"] = [{"depth_frame": 1, "met_share": 0.03, "depth_timestamp": 1.0}]
+    stats = run_stats(RunRecord.from_json({**REPORT, "propagation": {"alignment": alignment}}))
+    assert stats["poses_to_check"] == ["d1.png", "d2.png"]
+    del alignment["apart_from_keyframes"]
+    stats = run_stats(RunRecord.from_json({**REPORT, "propagation": {"alignment": alignment}}))
     assert run_stats(RunRecord.from_json(REPORT))["poses_to_check"] == []
     assert merge_stats([stats, stats], ["a", "b"])["poses_to_check"] == ["a:d2.png", "b:d2.png"]
 
