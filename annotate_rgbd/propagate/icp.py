@@ -272,7 +272,8 @@ def _pairs(points, r, t, views: Keyframes, camera, reach):
     to_keyframe = np.matmul(views.rotations.transpose(0, 2, 1), r)  # (K, 3, 3): frame -> keyframe camera
     offset = np.einsum("kji,kj->ki", views.rotations, t[None, :] - views.translations)  # R_k^T (t - t_k)
     local = np.matmul(points[None], to_keyframe.transpose(0, 2, 1).astype(np.float32))
-    local += offset.astype(np.float32)[:, None, :]
+    with np.errstate(over="ignore", invalid="ignore"):  # garbage poses (1e300 m, said when read): no pairs
+        local += offset.astype(np.float32)[:, None, :]
     z = local[..., 2]
     with np.errstate(invalid="ignore", divide="ignore"):
         u = np.rint((local[..., 0] / z * np.float32(camera.fx) + np.float32(camera.cx)) * np.float32(0.5))
