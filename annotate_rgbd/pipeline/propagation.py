@@ -164,8 +164,9 @@ def propagation_warnings(propagation: Propagation) -> list[str]:
         frame, share = min(apart, key=lambda a: a[1])
         frames = (f"{len(apart)} depth frames do not meet their" if len(apart) > 1 else
                   "1 depth frame does not meet its")
-        lines.append(f"{propagation.path}: {frames} keyframes' depth (the least, {100 * share:.0f} % of the points on "
-                     f"their surfaces within reach, at {_frame_time(propagation, frame)}): a pose off by more than "
+        met = f"{100 * share:.0f} %" if share >= 0.01 else "under 1 %"
+        lines.append(f"{propagation.path}: {frames} keyframes' depth (the worst at {_frame_time(propagation, frame)}: "
+                     f"of its points that land on their surfaces, {met} lie within reach of them): a pose off by more than "
                      "a few centimetres across the surfaces (a trajectory jump), or a view no keyframe had; the "
                      "trajectory's poses are kept there; check the trajectory and the masks of those frames "
                      "(report.json: propagation.alignment.apart_from_keyframes)")

@@ -104,10 +104,10 @@ class Alignment:
             self.turns.append(correction.turn)
             return
         self.kept += 1
-        if correction.pairs >= MIN_PAIRS:  # not too few pairs: a correction beyond the limits
-            self.beyond.append((frame, correction.shift, correction.turn))
-        elif correction.apart:
+        if correction.apart:
             self.apart.append((frame, correction.pairs / correction.landed))
+        elif correction.pairs >= MIN_PAIRS:  # not too few pairs: a correction beyond the limits
+            self.beyond.append((frame, correction.shift, correction.turn))
 
     def to_json(self, depth_times: np.ndarray | None = None) -> dict:
         """The report's ``propagation.alignment`` (with the depth frames' timestamps, when
@@ -189,8 +189,11 @@ def align_frames(depth_poses: FramePoses, keyframes: list[int], depth_files: lis
             if key in unread:
                 alignment.unread += 1
                 continue
-            if key in apart:  # in the last round: it did not meet its neighbours' depth
+            if key in apart:  # in the last round it did not meet its neighbours' depth: its pose is kept
+                rotations[key], translations[key] = depth_poses.rotations[key], depth_poses.translations[key]
+                alignment.kept += 1
                 alignment.apart.append((key, apart[key]))
+                continue
             overall = judged(depth_poses.rotations[key], depth_poses.translations[key], rotations[key],
                              translations[key], MIN_PAIRS, settings.align_max_shift, settings.align_max_turn)
             rotations[key], translations[key] = overall.rotation, overall.translation

@@ -38,7 +38,7 @@ FREE = 1e-3
 #: A pose resting on fewer pairs is not corrected.
 MIN_PAIRS = 300
 #: A frame of whose points that land on its keyframes' surfaces fewer than this share meet them
-#: (within the pairs' reach) is apart from them (:attr:`Correction.apart`). On TUM fr1_rpy at a
+#: (within the pairs' reach) is apart from them (:attr:`Correction.apart`): its pose is kept. On TUM fr1_rpy at a
 #: keyframe every 30th frame the share is 0.81 for the median frame and 0.41 at the 1st
 #: percentile, 0.35-0.45 on the frames whose correction lies beyond the limits, 0.02-0.04 on six
 #: frames with too few pairs to align on; on the rendered walk 0.80 at least.
@@ -195,10 +195,11 @@ class Correction:
     @property
     def apart(self) -> bool:
         """Whether the frame's depth does not meet its keyframes': enough of its points land on
-        their surfaces (:data:`MIN_PAIRS`), but under :data:`MIN_MET` of those within reach and
-        too few to align on. Its pose is off by more than the pairs' reach (a trajectory jump
-        across the surfaces, not along them), or what it sees is not what they saw."""
-        return self.pairs < MIN_PAIRS and self.landed >= MIN_PAIRS and self.pairs < MIN_MET * self.landed
+        their surfaces (:data:`MIN_PAIRS`), but under :data:`MIN_MET` of those within reach. Its
+        pose is off by more than the pairs' reach (a trajectory jump across the surfaces, not
+        along them), or what it sees is not what they saw; a correction found on so few of its
+        points is not applied."""
+        return self.landed >= MIN_PAIRS and self.pairs < MIN_MET * self.landed
 
 
 def align_pose(points: np.ndarray, rotation: np.ndarray, translation: np.ndarray,
@@ -237,7 +238,8 @@ def align_pose(points: np.ndarray, rotation: np.ndarray, translation: np.ndarray
             r = r @ turn
             if np.linalg.norm(step[3:]) < shortest and np.degrees(np.linalg.norm(step[:3])) < least_turn:
                 break
-    return replace(judged(given_r, given_t, r, t, pairs, max_shift, max_turn), landed=landed)
+    found = replace(judged(given_r, given_t, r, t, pairs, max_shift, max_turn), landed=landed)
+    return replace(found, rotation=given_r, translation=given_t, applied=False) if found.apart else found
 
 
 def judged(given_r: np.ndarray, given_t: np.ndarray, r: np.ndarray, t: np.ndarray, pairs: int,

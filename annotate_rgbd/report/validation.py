@@ -105,6 +105,33 @@ def check_run(record: RunRecord) -> None:
     inconsistent = (record.propagation or {}).get("inconsistent_tracks", [])
     if not isinstance(inconsistent, list) or not all(isinstance(t, str) for t in inconsistent):
         raise RecordError("propagation.inconsistent_tracks is not a list of strings")
+    check_alignment((record.propagation or {}).get("alignment"))
+
+
+def check_alignment(alignment) -> None:
+    """Check a report's ``propagation.alignment`` (absent in reports of earlier versions): an
+    object whose lists of frames to check (``beyond_limits``, ``apart_from_keyframes``) hold
+    objects naming a depth frame by index and timestamp.
+
+    Raises
+    ------
+    RecordError
+    """
+    if alignment is None:
+        return
+    if not isinstance(alignment, dict):
+        raise RecordError("propagation.alignment is not an object")
+    for key in ("beyond_limits", "apart_from_keyframes"):
+        entries = alignment.get(key, [])
+        if not isinstance(entries, list):
+            raise RecordError(f"propagation.alignment.{key} is not a list")
+        for i, entry in enumerate(entries):
+            frame = entry.get("depth_frame") if isinstance(entry, dict) else None
+            time = entry.get("depth_timestamp") if isinstance(entry, dict) else None
+            if (isinstance(frame, bool) or not isinstance(frame, int) or frame < 0 or isinstance(time, bool)
+                    or not isinstance(time, (int, float)) or not math.isfinite(time)):
+                raise RecordError(f"propagation.alignment.{key}[{i}] is not an object with a depth_frame (an index) "
+                                  "and a depth_timestamp")
 
 
 def check_frame(frame: FrameRecord, n_planes: int, where: str) -> None:

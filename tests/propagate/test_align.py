@@ -299,9 +299,32 @@ def test_a_pose_off_across_every_surface_is_apart_from_its_keyframes_listed_and_
     propagation = Propagation("poses.txt", {}, aligned, depth_times=np.array([10.0, 10.033, 10.066, 10.1, 10.133]),
                               alignment=alignment)
     lines = [line for line in propagation_warnings(propagation) if "does not meet" in line]
-    assert len(lines) == 1 and lines[0].startswith("poses.txt: 1 depth frame does not meet its keyframes' depth (the "
-                                                   "least, ")
-    assert "at depth frame 10.066000" in lines[0]
+    assert len(lines) == 1 and lines[0].startswith(
+        "poses.txt: 1 depth frame does not meet its keyframes' depth (the worst at depth frame 10.066000: of its points "
+        f"that land on their surfaces, {100 * alignment.apart[0][1]:.0f} % lie within reach of them)"
+        if alignment.apart[0][1] >= 0.01 else "poses.txt: 1 depth frame does not meet its keyframes' depth (the worst at "
+        "depth frame 10.066000: of its points that land on their surfaces, under 1 % lie within reach of them)")
     # Without the jump, nothing is apart.
     _, alone = align_frames(given._replace(translations=np.stack([t for _, t in true])), [0, 4], files, _config())
     assert alone.apart == []
+    # A keyframe that jumped: it and its one neighbour are apart from each other; both keep their
+    # poses, and are counted as kept, not corrected (nor in the median correction).
+    jumped = np.stack([t for _, t in true])
+    jumped[4] += 0.3 * np.ones(3) / np.sqrt(3)
+    keys, keyed = align_frames(given._replace(translations=jumped), [0, 4], files, _config())
+    assert sorted(frame for frame, _ in keyed.apart) == [0, 4] and keyed.kept >= 2
+    assert keyed.corrected + keyed.kept == 5 and np.array_equal(keys.translations[[0, 4]], jumped[[0, 4]])
+
+
+def test_a_correction_found_on_under_a_quarter_of_the_points_that_land_is_not_applied():
+    """Enough pairs to align on, but few of the points that land on the keyframes' surfaces:
+    the frame is apart (listed as such, before any limit), and its pose is kept."""
+    from annotate_rgbd.propagate.icp import Correction
+
+    eye, zero = np.eye(3), np.zeros(3)
+    assert Correction(eye, zero, 0.01, 0.2, 400, False, landed=2000).apart  # 20 % met
+    assert not Correction(eye, zero, 0.01, 0.2, 600, True, landed=2000).apart  # 30 %
+    assert not Correction(eye, zero, 0.0, 0.0, 50, False, landed=100).apart  # too few land to tell
+    alignment = align.Alignment()
+    alignment.add(7, Correction(eye, zero, 0.3, 9.0, 400, False, landed=2000))
+    assert alignment.apart == [(7, 0.2)] and alignment.beyond == [] and alignment.kept == 1

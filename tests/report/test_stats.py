@@ -298,3 +298,22 @@ def test_cvat2mask_and_propose_name_a_strict_drop_rule(tmp_path):
         hints = [line for line in result.stderr.splitlines() if line.startswith("hint:")]
         assert len(hints) == 1 and "dropped as too_far: filter.max_mean_distance is 0.5 here, stricter than its default " \
             "3.5, which drops more planes; or is camera.depth_scale = 5000 right" in hints[0], (name, hints)
+
+
+@pytest.mark.parametrize(("alignment", "problem"), [
+    ("broken", "propagation.alignment is not an object"),
+    ({"apart_from_keyframes": None}, "propagation.alignment.apart_from_keyframes is not a list"),
+    ({"beyond_limits": "oops"}, "propagation.alignment.beyond_limits is not a list"),
+    ({"apart_from_keyframes": ["a"]}, "propagation.alignment.apart_from_keyframes[0] is not an object with a "
+                                      "depth_frame (an index) and a depth_timestamp"),
+    ({"apart_from_keyframes": [{"depth_frame": 44}]}, "apart_from_keyframes[0] is not an object"),
+    ({"beyond_limits": [{"depth_frame": "44", "depth_timestamp": 1.0}]}, "beyond_limits[0] is not an object"),
+    ({"beyond_limits": [{"depth_frame": 1, "depth_timestamp": True}]}, "beyond_limits[0] is not an object"),
+])
+def test_a_broken_alignment_record_is_one_line_naming_the_field(tmp_path, alignment, problem):
+    # A hand-edited report: stats and review read the frames to check from these lists.
+    (tmp_path / "report.json").write_text(json.dumps({**REPORT, "propagation": {"alignment": alignment}}),
+                                          encoding="utf-8")
+    result = CliRunner().invoke(app, ["stats", str(tmp_path)])
+    assert result.exit_code == 1 and result.output.startswith("error: ") and problem in result.output, result.output
+    assert len(result.output.strip().splitlines()) == 1 and "Traceback" not in result.output
