@@ -67,11 +67,6 @@ class KeyframeView:
     ray_y: np.ndarray
 
     @property
-    def points(self) -> np.ndarray:
-        """Its depth points (ceil(H/2), ceil(W/2), 3), NaN where there is no depth."""
-        return np.stack([self.depth * self.ray_x[None, :], self.depth * self.ray_y[:, None], self.depth], axis=2)
-
-    @property
     def nbytes(self) -> int:
         """The memory its arrays hold."""
         return self.depth.nbytes + self.normals.nbytes + self.ray_x.nbytes + self.ray_y.nbytes
