@@ -210,7 +210,8 @@ def read_run(run_dir: str | Path, poses: str | Path | None = None, world: bool =
         if frame_poses is not None and frame_poses.ok[i]:
             pose = (frame_poses.rotations[i], frame_poses.translations[i])
         frames.append(ExportFrame(Path(f.depth).stem, f.depth, f.rgb, f.depth_timestamp, run_dir / f.mask, f.kept, pose))
-    return ExportRun(run_dir, report, frames, trajectory or None, offset, "run" if own else "trajectory" if trajectory else None)
+    source = "run" if own else "trajectory" if trajectory else None
+    return ExportRun(run_dir, report, frames, trajectory or None, offset, source)
 
 
 def trajectory_offset(report: RunRecord, trajectory: str) -> float:
