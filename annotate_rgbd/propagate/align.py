@@ -170,8 +170,6 @@ def align_frames(depth_poses: FramePoses, keyframes: list[int], depth_files: lis
               settings.align_max_turn)
     side = settings.align_neighbours
     try:
-        unread: set[int] = set()
-        apart: dict[int, float] = {}
         for round_ in range(settings.align_rounds):  # every keyframe against its neighbours' poses of the round before
             jobs = []
             for n, key in _back_and_forth(keys, round_):
@@ -179,20 +177,19 @@ def align_frames(depth_poses: FramePoses, keyframes: list[int], depth_files: lis
                 jobs.append(([key], [(k, depth_files[k], rotations[k], translations[k]) for k in near],
                              [(key, depth_files[key], rotations[key], translations[key])], limits, None))
             found = _corrections(jobs, helpers)
-            unread = {key for key, correction in found.items() if correction is None}
-            apart = {key: c.pairs / c.landed for key, c in found.items() if c is not None and c.apart}
             for key, correction in found.items():
                 if correction is not None:
                     rotations[key], translations[key] = part_way(rotations[key], translations[key], correction,
                                                                  2 * side / (2 * side + 1))
         for key in keys:  # a keyframe's correction over all rounds is held to the limits
-            if key in unread:
+            last = found[key]  # its last round's
+            if last is None:
                 alignment.unread += 1
                 continue
-            if key in apart:  # in the last round it did not meet its neighbours' depth: its pose is kept
+            if last.apart:  # in the last round it did not meet its neighbours' depth: its pose is kept
                 rotations[key], translations[key] = depth_poses.rotations[key], depth_poses.translations[key]
                 alignment.kept += 1
-                alignment.apart.append((key, apart[key]))
+                alignment.apart.append((key, last.pairs / last.landed))
                 continue
             overall = judged(depth_poses.rotations[key], depth_poses.translations[key], rotations[key],
                              translations[key], MIN_PAIRS, settings.align_max_shift, settings.align_max_turn)
