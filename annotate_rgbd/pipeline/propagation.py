@@ -34,6 +34,10 @@ from annotate_rgbd.annotation.stitch import TrackPlane
 
 log = logging.getLogger("annotate_rgbd")
 
+#: The end of the warnings about frames whose poses the alignment did not correct.
+CHECK_POSES = ("the trajectory's poses are kept there; check the trajectory and the masks of those frames "
+               "(report.json: propagation.alignment.{listed})")
+
 
 @dataclass
 class Propagation:
@@ -156,9 +160,8 @@ def propagation_warnings(propagation: Propagation) -> list[str]:
         settings = "propagate.align_max_shift / align_max_turn"
         frames = f"{len(beyond)} depth frames' poses disagree" if len(beyond) > 1 else "1 depth frame's pose disagrees"
         lines.append(f"{propagation.path}: {frames} with the keyframes' depth by more than {settings} (the most, "
-                     f"{100 * shift:.1f} cm and {turn:.1f} degrees, at {_frame_time(propagation, frame)}): the "
-                     "trajectory's poses are kept there; check the trajectory and the masks of those frames "
-                     "(report.json: propagation.alignment.beyond_limits)")
+                     f"{100 * shift:.1f} cm and {turn:.1f} degrees, at {_frame_time(propagation, frame)}): "
+                     + CHECK_POSES.format(listed="beyond_limits"))
     apart = propagation.alignment.apart
     if apart:
         frame, share = min(apart, key=lambda a: a[1])
@@ -167,9 +170,8 @@ def propagation_warnings(propagation: Propagation) -> list[str]:
         met = f"{100 * share:.0f} %" if share >= 0.01 else "under 1 %"
         lines.append(f"{propagation.path}: {frames} keyframes' depth (the worst at {_frame_time(propagation, frame)}: "
                      f"of its points that land on their surfaces, {met} lie within reach of them): a pose off by more than "
-                     "a few centimetres across the surfaces (a trajectory jump), or a view no keyframe had; the "
-                     "trajectory's poses are kept there; check the trajectory and the masks of those frames "
-                     "(report.json: propagation.alignment.apart_from_keyframes)")
+                     "a few centimetres across the surfaces (a trajectory jump), or a view no keyframe had; "
+                     + CHECK_POSES.format(listed="apart_from_keyframes"))
     missing = int(np.count_nonzero(~propagation.depth_poses.ok))
     if missing:
         frames = f"{missing} depth frame{'s have' if missing > 1 else ' has'}"
