@@ -222,15 +222,19 @@ def trajectory_offset(report: RunRecord, trajectory: str) -> float:
     warning says so when the run's own offset differs: the file may be a copy of the run's)."""
     propagation = report.propagation or {}
     own = propagation.get("poses")
-    value = propagation.get("time_offset_s")
-    run_offset = float(value) if isinstance(value, (int, float)) and np.isfinite(value) else None
+    run_offset = _seconds(propagation.get("time_offset_s"))
     if own is not None and Path(own).absolute() == Path(trajectory).absolute() and run_offset is not None:
         return run_offset
-    value = report.config.get("propagate", {}).get("time_offset", 0.0)
-    configured = float(value) if isinstance(value, (int, float)) and np.isfinite(value) else 0.0
+    configured = _seconds(report.config.get("propagate", {}).get("time_offset", 0.0))
+    configured = 0.0 if configured is None else configured
     if own is not None and run_offset is not None and abs(run_offset - configured) > 1e-3:
         advice = ("; to export with the poses the run made its masks with, leave out --poses"
                   if any(f.camera_pose is not None for f in report.frames) else "")
         log.warning("%s: read at the configured propagate.time_offset (%g s), not at the %g s the run estimated for "
                     "its own trajectory %s%s", trajectory, configured, run_offset, own, advice)
     return configured
+
+
+def _seconds(value) -> float | None:
+    """A report's number of seconds, or None where it holds none (or not a finite one)."""
+    return float(value) if isinstance(value, (int, float)) and np.isfinite(value) else None
