@@ -188,8 +188,7 @@ def align_frames(depth_poses: FramePoses, keyframes: list[int], depth_files: lis
                 continue
             if last.apart:  # in the last round it did not meet its neighbours' depth: its pose is kept
                 rotations[key], translations[key] = depth_poses.rotations[key], depth_poses.translations[key]
-                alignment.kept += 1
-                alignment.apart.append((key, last.pairs / last.landed))
+                alignment.add(key, last)  # not applied: kept, and listed apart
                 continue
             overall = judged(depth_poses.rotations[key], depth_poses.translations[key], rotations[key],
                              translations[key], MIN_PAIRS, settings.align_max_shift, settings.align_max_turn)
